@@ -1,0 +1,31 @@
+# SaarCOR in Amaranth — top-level commands. Each target sets up what it needs by itself.
+VENV  ?= .venv
+PY    := $(VENV)/bin/python
+STAMP := $(VENV)/.setup-done
+SCENE ?= scenes/cornell.toml
+RES   ?= 256x192
+OUT   ?= build/sim
+
+.PHONY: setup test sim bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml scripts/setup.sh
+	scripts/setup.sh
+
+## make test: the whole test suite (what CI runs)
+test: setup
+	$(PY) -m pytest -q
+
+## make sim: render the default scene (golden model until the RTL chip exists)
+sim: setup
+	$(PY) -m model render $(SCENE) --res $(RES) --out $(OUT)
+
+## make bench: long sweeps and speed measurements, written to build/bench/
+bench: setup
+	mkdir -p build/bench
+	$(PY) -m pytest -q -m slow
+	$(PY) -m model.bench --out build/bench
+
+clean:
+	rm -rf build

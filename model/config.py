@@ -1,0 +1,116 @@
+"""The one configuration object: every parameter of the chip and the golden model.
+
+The CLI, the golden model, the RTL and the statistics all take a :class:`Config`; derived
+sizes (stack depth, address widths, cache geometry) are computed here and nowhere else.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from .fp import FPFormat
+
+
+class ConfigError(ValueError):
+    """An impossible or inconsistent configuration; the message names the parameter."""
+
+
+def _pow2(x: int) -> bool:
+    return x > 0 and (x & (x - 1)) == 0
+
+
+@dataclass(frozen=True)
+class Config:
+    # --- arithmetic ---------------------------------------------------------------------------
+    fmt: FPFormat = field(default_factory=FPFormat)
+
+    # --- ray tracing core (RTC) -------------------------------------------------------------
+    rtcs: int = 4                  # ray tracing cores on the chip
+    threads: int = 16              # packets in flight per RTC
+    trav_subunits: int = 4         # traversal sub-units per RTC (a packet is split statically)
+    trav_sync: bool = True         # sub-units run synchronously (False: asynchronously)
+    tile_w: int = 8                # a packet is a tile_w x tile_h tile of eye rays
+    tile_h: int = 8
+
+    # --- kd-tree (the paper's BSP) -----------------------------------------------------------
+    kd_max_depth: int = 24         # d: maximum number of scene subdivisions (sizes the stack)
+    kd_leaf_size: int = 4          # stop splitting at or below this many triangles
+    kd_bins: int = 32              # SAH bins per axis
+    kd_cost_trav: float = 1.0      # SAH cost of one traversal step
+    kd_cost_int: float = 1.5       # SAH cost of one triangle test
+
+    # --- shading (RGS) -------------------------------------------------------------------------
+    reflect_depth: int = 3         # maximum reflection bounces
+    oversampling: int = 1          # rays per pixel side: n x n rays on a regular sub-pixel grid
+    shadows: bool = True           # every light casts shadows
+
+    # --- memory interface (RTC-MI) -------------------------------------------------------------
+    clock_mhz: float = 533.0       # chip clock
+    mem_clock_ratio: int = 4       # chip cycles per SDRAM cycle
+    mem_chips: int = 4             # 16-bit SDRAM chips
+    mem_chip_bits: int = 16
+    mem_latency: int = 20          # chip cycles from request to first data (ideal memory/SDRAM)
+    trav_cache_kb: int = 64
+    list_cache_kb: int = 64
+    int_cache_kb: int = 144
+    cache_ways: int = 1            # 1 (direct-mapped), 2 or 4
+    cache_line_words: int = 1      # 64-bit words per cache line (triangles: 5 words per item)
+    cache_outstanding: int = 4     # outstanding misses per cache
+
+    def __post_init__(self) -> None:
+        for name in ("rtcs", "threads", "trav_subunits", "tile_w", "tile_h", "kd_max_depth",
+                     "kd_leaf_size", "kd_bins", "mem_chips", "mem_clock_ratio",
+                     "cache_outstanding", "cache_line_words"):
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.reflect_depth < 0:
+            raise ConfigError(f"reflect_depth={self.reflect_depth} must be >= 0")
+        if self.oversampling < 1:
+            raise ConfigError(f"oversampling={self.oversampling} must be >= 1")
+        if self.packet_size > 64:
+            raise ConfigError(f"packet of {self.tile_w}x{self.tile_h}={self.packet_size} rays: "
+                              "at most 64 rays per packet (the active mask is 64 bits)")
+        if self.packet_size % self.trav_subunits:
+            raise ConfigError(f"packet size {self.packet_size} is not divisible by "
+                              f"trav_subunits={self.trav_subunits}")
+        if self.kd_max_depth > 62:
+            raise ConfigError(f"kd_max_depth={self.kd_max_depth} must be <= 62")
+        if self.cache_ways not in (1, 2, 4):
+            raise ConfigError(f"cache_ways={self.cache_ways} must be 1, 2 or 4")
+        if not _pow2(self.threads):
+            raise ConfigError(f"threads={self.threads} must be a power of two")
+        if self.kd_cost_trav <= 0 or self.kd_cost_int <= 0:
+            raise ConfigError("kd_cost_trav and kd_cost_int must be > 0")
+
+    # --- derived sizes (the only place they are computed) -----------------------------------
+    @property
+    def packet_size(self) -> int:
+        return self.tile_w * self.tile_h
+
+    @property
+    def rays_per_subunit(self) -> int:
+        return self.packet_size // self.trav_subunits
+
+    @property
+    def stack_depth(self) -> int:
+        """Entries of the per-packet traversal stack: one per kd-tree level."""
+        return self.kd_max_depth
+
+    @property
+    def thread_bits(self) -> int:
+        return max(1, (self.threads - 1).bit_length())
+
+    @property
+    def mem_bytes_per_s(self) -> float:
+        return self.mem_chips * self.mem_chip_bits / 8 * self.clock_mhz * 1e6 / self.mem_clock_ratio
+
+    def replace(self, **changes) -> "Config":
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["fmt"] = {"exp_bits": self.fmt.exp_bits, "frac_bits": self.fmt.frac_bits}
+        return d
+
+
+DEFAULT = Config()

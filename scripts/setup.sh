@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Idempotent set-up of everything `make test`, `make sim` and `make bench` need:
+# a virtual environment in .venv with the project and its dev dependencies, and the Debian
+# packages the simulators use (installed only when missing and apt is available).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+VENV=${VENV:-.venv}
+PYTHON=${PYTHON:-python3}
+
+if [ ! -x "$VENV/bin/python" ]; then
+  "$PYTHON" -m venv "$VENV"
+fi
+"$VENV/bin/python" -m pip install -q --upgrade pip >/dev/null
+"$VENV/bin/python" -m pip install -q -e ".[dev]"
+
+# Debian packages: Icarus Verilog for cocotb testbenches.
+if ! command -v iverilog >/dev/null 2>&1; then
+  if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+    (apt-get install -y -q iverilog >/dev/null 2>&1 || (apt-get update -q >/dev/null && apt-get install -y -q iverilog >/dev/null)) \
+      || echo "setup: could not install iverilog (Icarus testbenches will be skipped)" >&2
+  else
+    echo "setup: iverilog missing and apt-get unavailable (run as root: apt-get install iverilog)" >&2
+  fi
+fi
+touch "$VENV/.setup-done"
