@@ -311,3 +311,9 @@ class FPFormat:
 
 
 BINARY32 = FPFormat(8, 23)
+
+
+@numba.njit(cache=True, inline="always")
+def sign_bit(x):
+    """The sign bit of a format value (1 for -0.0 and negative numbers)."""
+    return np.int64(np.float32(x).view(np.uint32) >> np.uint32(31))

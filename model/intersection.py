@@ -1,0 +1,83 @@
+"""Intersection unit (golden model): watertight ray-triangle test of Woop, Benthin, Wald (2013).
+
+One int-op = one active ray against one triangle (288 bits = 9 binary32 from memory). The
+order of operations below is the hardware's; every operation is rounded to the format (E, M).
+No double-precision fallback: a zero edge function counts as "on the edge", so rays through
+shared edges and vertices hit at least one triangle (watertight) and may hit both.
+
+Hardware: one ray per cycle, fully pipelined; the triangle is fetched once per packet.
+"""
+import numba
+import numpy as np
+
+from .fp import fadd, fdiv, fmul, fsub
+
+_ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
+
+
+@numba.njit(cache=True, inline="always")
+def pick(v0, v1, v2, k):
+    if k == 0:
+        return v0
+    if k == 1:
+        return v1
+    return v2
+
+
+@numba.njit(cache=True, inline="always")
+def shear(p0, p1, p2, kx, ky, kz, sx, sy, E, M):
+    """Vertex (relative to the origin) into the ray's sheared space: (x, y, z_unscaled)."""
+    px = pick(p0, p1, p2, kx)
+    py = pick(p0, p1, p2, ky)
+    pz = pick(p0, p1, p2, kz)
+    return fsub(px, fmul(sx, pz, E, M), E, M), fsub(py, fmul(sy, pz, E, M), E, M), pz
+
+
+@numba.njit(cache=True, inline="always")
+def intersect(tri, o, k, s, E, M):
+    """Test one ray against one triangle.
+
+    tri: 9 float32 (A, B, C); o: origin (3,); k: (kx, ky, kz); s: (Sx, Sy, Sz).
+    Returns (hit, t, u, v); hit means the edge test passed and det != 0 (the caller applies
+    the t-range test ``0 < t < t_best``).
+    """
+    kx, ky, kz = k[0], k[1], k[2]
+    sx, sy, sz = s[0], s[1], s[2]
+    ax, ay, az = shear(fsub(tri[0], o[0], E, M), fsub(tri[1], o[1], E, M),
+                       fsub(tri[2], o[2], E, M), kx, ky, kz, sx, sy, E, M)
+    bx, by, bz = shear(fsub(tri[3], o[0], E, M), fsub(tri[4], o[1], E, M),
+                       fsub(tri[5], o[2], E, M), kx, ky, kz, sx, sy, E, M)
+    cx, cy, cz = shear(fsub(tri[6], o[0], E, M), fsub(tri[7], o[1], E, M),
+                       fsub(tri[8], o[2], E, M), kx, ky, kz, sx, sy, E, M)
+    eu = fsub(fmul(cx, by, E, M), fmul(cy, bx, E, M), E, M)
+    ev = fsub(fmul(ax, cy, E, M), fmul(ay, cx, E, M), E, M)
+    ew = fsub(fmul(bx, ay, E, M), fmul(by, ax, E, M), E, M)
+    if (eu < _ZERO or ev < _ZERO or ew < _ZERO) and (eu > _ZERO or ev > _ZERO or ew > _ZERO):
+        return False, _ZERO, _ZERO, _ZERO
+    det = fadd(fadd(eu, ev, E, M), ew, E, M)
+    if det == _ZERO:
+        return False, _ZERO, _ZERO, _ZERO
+    tz = fadd(fadd(fmul(eu, fmul(sz, az, E, M), E, M), fmul(ev, fmul(sz, bz, E, M), E, M), E, M),
+              fmul(ew, fmul(sz, cz, E, M), E, M), E, M)
+    rcp = fdiv(_ONE, det, E, M)
+    return True, fmul(tz, rcp, E, M), fmul(ev, rcp, E, M), fmul(ew, rcp, E, M)
+
+
+TRI_WORDS = 5   # a triangle occupies 5 aligned 64-bit words (288 bits of geometry + its id)
+
+
+@numba.njit(cache=True, inline="always")
+def fetch_triangle(mem, tri_base, i, out):
+    """Read triangle ``i`` (5 words) into ``out`` (9 float32); returns its scene-order id."""
+    base = tri_base + TRI_WORDS * i
+    for w in range(TRI_WORDS):
+        word = mem[base + w]
+        lo = np.uint32(word & np.uint64(0xFFFFFFFF))
+        hi = np.uint32(word >> np.uint64(32))
+        out[2 * w] = np.uint32(lo).view(np.float32)
+        if w < 4:
+            out[2 * w + 1] = np.uint32(hi).view(np.float32)
+        else:
+            return np.int64(hi)
+    return np.int64(-1)
