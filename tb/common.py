@@ -1,0 +1,123 @@
+"""Stream helpers for async Amaranth testbenches: drive, drain and watch ``lib.stream`` interfaces.
+
+All helpers count clock cycles themselves from ``t0`` (the cycle in which they are started; 0 for
+a testbench started with the simulation), so the cycle numbers they return are comparable across
+helpers started together. Random bubbles (``idle``) and back-pressure (``stall``) come from a
+``random.Random`` the caller seeds, so every run is reproducible.
+
+Typical use::
+
+    sim = Simulator(dut); sim.add_clock(1e-8)
+    sent, got = [], []
+    sim.add_testbench(lambda ctx: drive(ctx, dut.i, payloads, rng=rng, idle=0.3, log=sent))
+    sim.add_testbench(lambda ctx: drain(ctx, dut.o, len(payloads), rng=rng, stall=0.3, out=got))
+    sim.run()
+"""
+from __future__ import annotations
+
+import random
+from typing import Any, Iterable
+
+from amaranth.lib import data
+from amaranth.sim import Simulator
+
+__all__ = ["drive", "drain", "watch", "as_dict", "run", "StreamTimeout"]
+
+
+class StreamTimeout(AssertionError):
+    """A stream made no progress for longer than the helper's ``timeout`` cycles."""
+
+
+def as_dict(value) -> Any:
+    """A struct payload read with ``ctx.get`` as a plain dict of ints (other values unchanged)."""
+    if isinstance(value, data.Const) and isinstance(value.shape(), data.StructLayout):
+        return {name: as_dict(value[name]) for name, _ in value.shape()}
+    return int(value) if isinstance(value, int) else value
+
+
+async def drive(ctx, stream, payloads: Iterable, *, rng: random.Random | None = None,
+                idle: float = 0.0, t0: int = 0, log: list | None = None,
+                timeout: int = 100_000) -> list[int]:
+    """Send ``payloads`` on ``stream`` (we are the source); returns the cycle of each transfer.
+
+    Before each payload, ``valid`` stays low for a geometric number of cycles (probability ``idle``
+    per cycle). Once raised, ``valid`` and the payload stay put until ``ready`` (stream rules).
+    ``log``, if given, receives ``(cycle, payload)`` per transfer as it happens.
+    """
+    cycle, cycles = t0, []
+    for p in payloads:
+        while rng is not None and idle > 0 and rng.random() < idle:
+            ctx.set(stream.valid, 0)
+            await ctx.tick()
+            cycle += 1
+        ctx.set(stream.payload, p)
+        ctx.set(stream.valid, 1)
+        waited = 0
+        while True:
+            _, _, ready = await ctx.tick().sample(stream.ready)
+            cycle += 1
+            if ready:
+                break
+            waited += 1
+            if waited > timeout:
+                raise StreamTimeout(f"drive: ready stayed low for {timeout} cycles at cycle "
+                                    f"{cycle} (payload {p!r}); the sink is stuck")
+        cycles.append(cycle - 1)
+        if log is not None:
+            log.append((cycle - 1, p))
+    ctx.set(stream.valid, 0)
+    return cycles
+
+
+async def drain(ctx, stream, count: int | None, *, rng: random.Random | None = None,
+                stall: float = 0.0, t0: int = 0, out: list | None = None,
+                timeout: int = 100_000) -> list:
+    """Receive ``count`` transfers from ``stream`` (we are the sink; ``None``: forever).
+
+    Each cycle ``ready`` is low with probability ``stall``. Returns (and appends to ``out``)
+    ``(cycle, payload)`` per transfer, payloads as :func:`as_dict` values.
+    Raises :class:`StreamTimeout` when nothing arrives for ``timeout`` cycles.
+    """
+    cycle, got, quiet = t0, [] if out is None else out, 0
+    while count is None or len(got) < count:
+        ready = not (rng is not None and stall > 0 and rng.random() < stall)
+        ctx.set(stream.ready, int(ready))
+        _, _, valid, payload = await ctx.tick().sample(stream.valid, stream.payload)
+        cycle += 1
+        if valid and ready:
+            got.append((cycle - 1, as_dict(payload)))
+            quiet = 0
+        else:
+            quiet += 1
+            if quiet > timeout:
+                raise StreamTimeout(f"drain: {len(got)} of {count} transfers after {cycle} "
+                                    f"cycles, then nothing for {timeout} cycles")
+    ctx.set(stream.ready, 0)
+    return got
+
+
+async def watch(ctx, cond, *exprs, out: list, t0: int = 0) -> None:
+    """Append ``(cycle, *values)`` of ``exprs`` for every cycle where ``cond`` is true.
+
+    Runs forever: add it with ``sim.add_testbench(..., background=True)``.
+    """
+    cycle = t0
+    async for _, _, c, *values in ctx.tick().sample(cond, *exprs):
+        if c:
+            out.append((cycle, *[as_dict(v) for v in values]))
+        cycle += 1
+
+
+def run(dut, *testbenches, background=(), vcd: str | None = None) -> None:
+    """Simulate ``dut`` with a 100 MHz ``sync`` clock until every foreground testbench returns."""
+    sim = Simulator(dut)
+    sim.add_clock(1e-8)
+    for tb in testbenches:
+        sim.add_testbench(tb)
+    for tb in background:
+        sim.add_testbench(tb, background=True)
+    if vcd:
+        with sim.write_vcd(vcd):
+            sim.run()
+    else:
+        sim.run()
