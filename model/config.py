@@ -56,6 +56,9 @@ class Config:
     cache_ways: int = 1            # 1 (direct-mapped), 2 or 4
     cache_line_words: int = 1      # 64-bit words per cache line (triangles: 5 words per item)
     cache_outstanding: int = 4     # outstanding misses per cache
+    cache_queue: int = 16          # requests in flight inside one cache (in-order response queue)
+    int_item_bits: int = 288       # bits of a triangle the int-cache keeps (288: 9 floats; 320: +id)
+    mem_chip_queue: int = 4        # requests queued per SDRAM chip in the memory controller
 
     def __post_init__(self) -> None:
         for name in ("rtcs", "threads", "trav_subunits", "tile_w", "tile_h", "kd_max_depth",
@@ -81,6 +84,15 @@ class Config:
             raise ConfigError(f"threads={self.threads} must be a power of two")
         if self.kd_cost_trav <= 0 or self.kd_cost_int <= 0:
             raise ConfigError("kd_cost_trav and kd_cost_int must be > 0")
+        if self.cache_queue < 1 or self.mem_chip_queue < 1:
+            raise ConfigError(f"cache_queue={self.cache_queue} and mem_chip_queue="
+                              f"{self.mem_chip_queue} must be >= 1")
+        if not (0 < self.int_item_bits <= 320):
+            raise ConfigError(f"int_item_bits={self.int_item_bits} must be in 1..320 "
+                              "(a triangle spans 5 words = 320 bits)")
+        if self.mem_chips & (self.mem_chips - 1):
+            raise ConfigError(f"mem_chips={self.mem_chips} must be a power of two (1, 2, 4, 8): "
+                              "the controller hashes addresses over chips by XOR-folding")
 
     # --- derived sizes (the only place they are computed) -----------------------------------
     @property
