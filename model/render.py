@@ -1,0 +1,196 @@
+"""Render a scene with the golden model: build, trace every ray kind, shade, write outputs.
+
+``prepare`` quantizes the scene to the hardware format, builds (or loads) the kd-tree and lays
+out the memory image; ``render`` traces eye rays, shadow rays for every light and reflections to
+``cfg.reflect_depth``, all as 64-ray packets through :func:`model.rtc.trace`, and shades.
+"""
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config
+from .kdtree import build_kdtree, kdtree_stats
+from .layout import MemoryImage, build_image
+from .raygen import EYE, REFLECTION, SHADOW, Rays, eye_rays
+from .rtc import COUNTERS, Hits, counter_totals, trace
+from .shading import AMBIENT, Shader
+
+KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
+CHUNK_PACKETS = 4096
+
+
+@dataclass
+class Prepared:
+    image: MemoryImage
+    tree: object
+    tris: np.ndarray          # quantized triangles in memory order
+    build_seconds: float
+    from_cache: bool
+
+
+def prepare(scene, cfg: Config, cache_dir="default") -> Prepared:
+    tris = cfg.fmt.quantize(scene.tris).astype(np.float32)
+    kw = {} if cache_dir == "default" else {"cache_dir": cache_dir}
+    tree = build_kdtree(tris, cfg, **kw)
+    image = build_image(tris, tree, cfg, tri_id=scene.tri_id)
+    return Prepared(image, tree, tris, tree.build_seconds, tree.from_cache)
+
+
+def trace_rays(image: MemoryImage, rays: Rays, cfg: Config, progress=None) -> tuple[Hits, np.ndarray]:
+    """Trace in chunks of packets (so a progress bar can advance); same result as one call."""
+    if rays.n_packets <= CHUNK_PACKETS:
+        hits, ctrs = trace(image, rays, cfg)
+        if progress is not None:
+            progress.update(len(rays))
+        return hits, ctrs
+    parts, ctr_parts = [], []
+    for p0 in range(0, rays.n_packets, CHUNK_PACKETS):
+        p1 = min(p0 + CHUNK_PACKETS, rays.n_packets)
+        a, b = rays.pk_start[p0], rays.pk_start[p1]
+        sub = Rays(rays.org[a:b], rays.dir[a:b], rays.tmax[a:b], rays.kind[a:b],
+                   rays.pixel[a:b], rays.pk_start[p0:p1 + 1] - a, rays.anyhit[a:b])
+        h, c = trace(image, sub, cfg)
+        parts.append(h)
+        ctr_parts.append(c)
+        if progress is not None:
+            progress.update(len(sub))
+    hits = Hits(*(np.concatenate([getattr(h, f) for h in parts]) for f in ("tri", "t", "u", "v")))
+    return hits, np.concatenate(ctr_parts)
+
+
+@dataclass
+class RenderResult:
+    image: np.ndarray                     # (H, W, 3) float32 linear colour
+    rays: Rays                            # every ray traced, in trace order
+    hits: Hits
+    counters: dict                        # totals over every packet
+    counters_by_kind: dict
+    stats: dict = field(default_factory=dict)
+
+
+def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
+           prepared: Prepared | None = None) -> RenderResult:
+    t0 = time.perf_counter()
+    prep = prepared or prepare(scene, cfg)
+    t_build = time.perf_counter() - t0
+    image = prep.image
+    diag = float(np.linalg.norm(image.bounds[1].astype(np.float64) - image.bounds[0]))
+    shader = Shader(scene, cfg.fmt, eps=1e-4 * max(diag, 1e-6))
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=width * height * cfg.oversampling ** 2, unit="ray", unit_scale=True,
+                   desc="tracing", leave=False)
+
+    t1 = time.perf_counter()
+    all_rays, all_hits, all_ctrs = [], [], []
+    n_samples = cfg.oversampling ** 2
+    color = np.zeros((width * height, 3), np.float32)
+    bg = np.asarray(scene.background, np.float32)
+
+    def run(rays: Rays):
+        if bar is not None:
+            bar.total += 0 if rays.kind.size and rays.kind[0] == EYE else len(rays)
+        hits, ctrs = trace_rays(image, rays, cfg, bar)
+        all_rays.append(rays)
+        all_hits.append(hits)
+        all_ctrs.append((rays, ctrs))
+        return hits
+
+    rays = eye_rays(scene.camera, width, height, cfg)
+    weight = np.full(len(rays), 1.0 / n_samples, np.float32)
+    for depth in range(cfg.reflect_depth + 1):
+        if len(rays) == 0:
+            break
+        hits = run(rays)
+        hit = np.nonzero(hits.tri >= 0)[0]
+        miss = np.nonzero(hits.tri < 0)[0]
+        np.add.at(color, rays.pixel[miss], bg * weight[miss, None])
+        if hit.size == 0:
+            break
+        p, ng, ns, mat, albedo = shader.surface(rays, hit, hits.tri[hit], hits.t[hit],
+                                                hits.u[hit], hits.v[hit])
+        local = AMBIENT * albedo
+        p0 = shader.offset(p, ng)
+        d = rays.dir[hit]
+        for light in scene.lights:
+            srays, keep = shader.shadow_rays(rays, hit, p0, ng, light)
+            lit = np.zeros(hit.size, np.float32)
+            if cfg.shadows and len(srays):
+                sh = run(srays)
+                lit[keep] = (sh.tri < 0).astype(np.float32)
+            else:
+                lit[keep] = 1.0
+            local += shader.phong(d, ns, albedo, mat, light, lit, p)
+        refl = shader.reflect[mat]
+        local *= (1 - refl)[:, None]
+        np.add.at(color, rays.pixel[hit], local * weight[hit, None])
+        if depth == cfg.reflect_depth:
+            break
+        rays, keep = shader.reflection_rays(rays, hit, p0, ns, mat)
+        weight = weight[hit[keep]] * refl[keep]
+    if bar is not None:
+        bar.close()
+    t_render = time.perf_counter() - t1
+
+    rays_all = Rays.concat(all_rays)
+    hits_all = Hits(*(np.concatenate([getattr(h, f) for h in all_hits]) if all_hits
+                      else np.zeros(0) for f in ("tri", "t", "u", "v")))
+    by_kind: dict = {}
+    for r, c in all_ctrs:
+        name = KIND_NAMES[int(r.kind[0])] if len(r) else "eye"
+        tot = counter_totals(c)
+        acc = by_kind.setdefault(name, {k: 0 for k in COUNTERS})
+        for k in COUNTERS:
+            acc[k] = max(acc[k], tot[k]) if k == "max_stack" else acc[k] + tot[k]
+    totals = {k: (max(v[k] for v in by_kind.values()) if k == "max_stack"
+                  else sum(v[k] for v in by_kind.values())) if by_kind else 0 for k in COUNTERS}
+    kinds, counts = np.unique(rays_all.kind, return_counts=True)
+    stats = {
+        "scene": scene.name,
+        "resolution": [width, height],
+        "config": cfg.to_dict(),
+        "triangles": int(len(scene.tris)),
+        "triangles_dropped": dict(scene.dropped),
+        "rays": {KIND_NAMES[int(k)]: int(c) for k, c in zip(kinds, counts)},
+        "rays_total": int(len(rays_all)),
+        "packets": int(sum(r.n_packets for r in all_rays)),
+        "counters": totals,
+        "counters_by_kind": by_kind,
+        "memory_reads_64bit": {"trav": totals["node_reads"], "list": totals["list_reads"],
+                               "int": totals["int_reads"]},
+        "kdtree": kdtree_stats(prep.tree, len(prep.tris)),
+        "memory_image_bytes": int(image.data.nbytes),
+        "build_seconds": round(prep.build_seconds, 4),
+        "kdtree_from_cache": bool(prep.from_cache),
+        "prepare_seconds": round(t_build, 4),
+        "render_seconds": round(t_render, 4),
+        "rays_per_second": round(len(rays_all) / max(t_render, 1e-9), 1),
+    }
+    return RenderResult(color.reshape(height, width, 3), rays_all, hits_all, totals, by_kind, stats)
+
+
+def to_srgb8(img: np.ndarray) -> np.ndarray:
+    x = np.clip(img, 0, 1)
+    x = np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1 / 2.4) - 0.055)
+    return (x * 255 + 0.5).astype(np.uint8)
+
+
+def write_outputs(result: RenderResult, out_dir: Path) -> dict:
+    """image.png, stats.json, rays.npz, hits.npz in ``out_dir``; returns the paths."""
+    from PIL import Image
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {name: out / name for name in ("image.png", "stats.json", "rays.npz", "hits.npz")}
+    Image.fromarray(to_srgb8(result.image)).save(paths["image.png"])
+    r, h = result.rays, result.hits
+    np.savez_compressed(paths["rays.npz"], origin=r.org, direction=r.dir, tmax=r.tmax,
+                        kind=r.kind, pixel=r.pixel, packet_start=r.pk_start)
+    np.savez_compressed(paths["hits.npz"], tri=h.tri.astype(np.int32), t=h.t, u=h.u, v=h.v)
+    paths["stats.json"].write_text(json.dumps(result.stats, indent=2))
+    return paths
