@@ -157,7 +157,8 @@ def terrain(size, resolution, height: float, seed: int, octaves: int, features: 
     (2 * nx * nz triangles), heights ``height * fbm`` in [0, height] with ``features`` base
     noise cells across the terrain; smooth normals from central differences, planar UVs.
     ``flatten = (cx, cz, r)`` levels a disc of radius r (blending out to 2r) to the height at
-    its centre, e.g. for a building; ``None`` leaves the terrain as it is."""
+    its centre and shifts the whole terrain so that disc lies at y = 0 (a building site);
+    ``None`` leaves the terrain as it is."""
     w, d = size
     nx, nz = resolution
     xs, zs = np.linspace(-w / 2, w / 2, nx + 1), np.linspace(-d / 2, d / 2, nz + 1)
@@ -172,7 +173,7 @@ def terrain(size, resolution, height: float, seed: int, octaves: int, features: 
         dist = np.hypot(X - cx, Z - cz)
         t = np.clip((dist - r) / r, 0.0, 1.0)
         t = t * t * (3 - 2 * t)
-        H = h0 * (1 - t) + H * t
+        H = h0 * (1 - t) + H * t - h0
     dhdx = np.gradient(H, xs, axis=1)
     dhdz = np.gradient(H, zs, axis=0)
     N = np.stack([-dhdx, np.ones_like(H), -dhdz], axis=-1)
