@@ -189,3 +189,41 @@ def item_values(image: np.ndarray, geom: CacheGeometry, addrs, base: int = 0) ->
             v |= int(image[w0 + k]) << (64 * k)
         out.append((v >> sh) & mask)
     return out
+
+
+def synthetic_traces(n_packets: int, *, depth: int = 16, seed: int = 0,
+                     coherence: float = 0.9) -> dict[str, np.ndarray]:
+    """Kd-tree-like item-address streams for the three caches (until the golden model records
+    real ones): each packet walks from the root of a complete binary tree of ``depth`` levels
+    (BFS node numbering: hot top nodes) to a leaf near the previous packet's leaf (probability
+    ``coherence``) or a random one, visiting a sibling subtree now and then (stack pops); each
+    visited leaf reads its list entries (1-8, contiguous) and their triangles (neighbouring leaves
+    share triangles). Returns ``{"trav", "list", "int"}`` int64 arrays.
+    """
+    rng = np.random.default_rng(seed)
+    n_leaves = 1 << (depth - 1)
+    first_leaf = n_leaves - 1
+    trav, lst, tri = [], [], []
+    leaf = int(rng.integers(n_leaves))
+    for _ in range(n_packets):
+        if rng.random() < coherence:
+            leaf = int(np.clip(leaf + rng.integers(-8, 9), 0, n_leaves - 1))
+        else:
+            leaf = int(rng.integers(n_leaves))
+        leaves = [leaf]
+        if rng.random() < 0.5:                      # rays that also need the far subtree
+            leaves.append(leaf ^ int(1 << rng.integers(0, 4)))
+        for lf in leaves:
+            path, node = [], first_leaf + lf
+            while node > 0:
+                path.append(node)
+                node = (node - 1) // 2
+            path.append(0)
+            trav.extend(reversed(path))
+            count = 1 + (lf * 7919) % 8
+            first = lf * 5                           # ~5 list entries per leaf on average
+            for e in range(first, first + count):
+                lst.append(e)
+                tri.append((lf * 3 + (e * 2654435761) % 7) % (n_leaves * 3))
+    return {"trav": np.array(trav, np.int64), "list": np.array(lst, np.int64),
+            "int": np.array(tri, np.int64)}

@@ -7,14 +7,13 @@ helpers started together. Random bubbles (``idle``) and back-pressure (``stall``
 
 Typical use::
 
-    sim = Simulator(dut); sim.add_clock(1e-8)
     sent, got = [], []
-    sim.add_testbench(lambda ctx: drive(ctx, dut.i, payloads, rng=rng, idle=0.3, log=sent))
-    sim.add_testbench(lambda ctx: drain(ctx, dut.o, len(payloads), rng=rng, stall=0.3, out=got))
-    sim.run()
+    run(dut, lambda ctx: drive(ctx, dut.i, payloads, rng=rng, idle=0.3, log=sent),
+        lambda ctx: drain(ctx, dut.o, len(payloads), rng=rng, stall=0.3, out=got))
 """
 from __future__ import annotations
 
+import inspect
 import random
 from typing import Any, Iterable
 
@@ -108,14 +107,28 @@ async def watch(ctx, cond, *exprs, out: list, t0: int = 0) -> None:
         cycle += 1
 
 
+def _async(fn):
+    """Amaranth accepts only ``async def`` testbenches; wrap lambdas returning a coroutine."""
+    if inspect.iscoroutinefunction(fn):
+        return fn
+
+    async def testbench(ctx):
+        await fn(ctx)
+    return testbench
+
+
 def run(dut, *testbenches, background=(), vcd: str | None = None) -> None:
-    """Simulate ``dut`` with a 100 MHz ``sync`` clock until every foreground testbench returns."""
+    """Simulate ``dut`` with a 100 MHz ``sync`` clock until every foreground testbench returns.
+
+    Testbenches are ``async def tb(ctx)`` functions or lambdas returning a coroutine
+    (``lambda ctx: drain(ctx, ...)``); ``background`` ones run forever alongside.
+    """
     sim = Simulator(dut)
     sim.add_clock(1e-8)
     for tb in testbenches:
-        sim.add_testbench(tb)
+        sim.add_testbench(_async(tb))
     for tb in background:
-        sim.add_testbench(tb, background=True)
+        sim.add_testbench(_async(tb), background=True)
     if vcd:
         with sim.write_vcd(vcd):
             sim.run()

@@ -1,0 +1,242 @@
+"""Read-only, non-blocking, set-associative cache between an RTC unit and the memory bus.
+
+Geometry and the hit/miss rule are those of ``model/cache.py`` (:class:`CacheGeometry`): the
+unit asks for item indices; a miss allocates its line at once (round-robin way per set) and
+fetches it word by word from memory, while later requests keep being looked up; a later request
+to a line still being fetched is a hit (it waits for the data, costs no memory traffic).
+
+Pipeline::
+
+    port.req -> [tag read] -> S1: compare, allocate on miss -> response queue (in order)
+                                    |  miss                       ^ head waits until its
+                                    v                             | line's fill is done
+                               MSHR + issue FIFO -> mem.req       |
+                               mem.resp -> fill buffer -> data array -> [data read] -> port.resp
+
+* Latency: a hit 3 cycles (request accepted in cycle t, response valid in t+3) when nothing older
+  waits; a miss 3 cycles + memory round trip + ``line_words - 1``. Responses come back **in
+  request order** (a hit behind a miss waits for it), so tags are returned but never reordered.
+* Throughput: one lookup and one response per cycle; ``outstanding`` line fetches in flight;
+  ``queue`` requests inside the cache.
+* A miss waits (stalling the lookup) while no MSHR is free, or while its victim way is still
+  referenced by a queued request or a fill in flight: data is never overwritten under a reader.
+* Contents are valid only from reset of the memory contents (``Memory`` init); there is no flush.
+
+Ports: ``port`` (unit side, :class:`MemReadPort` of items), ``mem`` (memory side, 64-bit words,
+tag = ``{word index, mshr}``), ``base`` (word address of item 0), counters ``hits``, ``misses``,
+and ``lookup_valid``/``lookup_hit`` (one pulse per classified request, for testbenches).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal
+from amaranth.lib import wiring
+from amaranth.lib.fifo import SyncFIFO
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from model.cache import CacheGeometry
+
+from .memport import WORD_BITS, MemReadPort
+
+__all__ = ["Cache"]
+
+COUNTER_BITS = 32
+
+
+class Cache(wiring.Component):
+    """Non-blocking read-only cache; see the module docstring for latency and throughput.
+
+    Parameters: ``geom`` (:class:`model.cache.CacheGeometry`), ``tag_width`` (unit tags).
+    """
+
+    def __init__(self, geom: CacheGeometry, *, tag_width: int = 4):
+        self.geom = geom
+        g = geom
+        self.mshr_bits = max(1, ceil_log2(g.outstanding))
+        self.word_bits = max(1, ceil_log2(g.line_words))
+        super().__init__({
+            "port": In(MemReadPort(addr_width=g.addr_width, data_width=g.item_bits,
+                                   tag_width=tag_width)),
+            "mem": Out(MemReadPort(addr_width=g.mem_addr_width, data_width=WORD_BITS,
+                                   tag_width=self.mshr_bits + self.word_bits)),
+            "base": In(g.mem_addr_width),
+            "hits": Out(COUNTER_BITS),
+            "misses": Out(COUNTER_BITS),
+            "lookup_valid": Out(1),
+            "lookup_hit": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        g = self.geom
+        W, S, O, Q, LW = g.ways, g.sets, g.outstanding, g.queue, g.line_words
+        ob, sb, tb = g.offset_bits, g.set_bits, g.tag_bits
+        wb = ceil_log2(W)
+        req, resp = self.port.req, self.port.resp
+        utag_bits = len(req.payload.tag)
+
+        # --- tag array: one row per set = W x {valid, tag} + round-robin pointer -----------
+        entry = 1 + tb
+        tags = Memory(shape=W * entry + wb, depth=S, init=[])
+        m.submodules.tags = tags
+        twp = tags.write_port()
+        trp = tags.read_port(transparent_for=(twp,))
+
+        # --- S1 registers -----------------------------------------------------------------
+        s1_valid = Signal()
+        s1_off, s1_set, s1_tag = Signal(ob), Signal(sb), Signal(tb)
+        s1_utag = Signal(utag_bits)
+        s1_go = Signal()           # S1 finishes this cycle
+        accept = Signal()
+        m.d.comb += [req.ready.eq(~s1_valid | s1_go), accept.eq(req.valid & req.ready)]
+        a = req.payload.addr
+        m.d.comb += [trp.addr.eq(a[ob:ob + sb]), trp.en.eq(req.ready)]
+        with m.If(req.ready):
+            m.d.sync += [s1_valid.eq(req.valid), s1_off.eq(a[:ob]), s1_set.eq(a[ob:ob + sb]),
+                         s1_tag.eq(a[ob + sb:]), s1_utag.eq(req.payload.tag)]
+
+        row = trp.data
+        way_valid = [row[w * entry] for w in range(W)]
+        way_tag = [row[w * entry + 1:(w + 1) * entry] for w in range(W)]
+        rr = row[W * entry:]
+        hit_vec = Cat(*[way_valid[w] & (way_tag[w] == s1_tag) for w in range(W)])
+        hit = Signal()
+        hit_way = Signal(wb)
+        m.d.comb += hit.eq(hit_vec.any())
+        for w in reversed(range(W)):
+            with m.If(hit_vec[w]):
+                m.d.comb += hit_way.eq(w)
+        victim = rr
+        way = Signal(wb)
+        m.d.comb += way.eq(Mux(hit, hit_way, victim))
+
+        # --- MSHRs ------------------------------------------------------------------------
+        mshr_valid = Signal(O)
+        mshr_set = [Signal(sb, name=f"mshr{i}_set") for i in range(O)]
+        mshr_way = [Signal(wb, name=f"mshr{i}_way") for i in range(O)]
+        mshr_line = [Signal(g.addr_width - ob, name=f"mshr{i}_line") for i in range(O)]
+        mshr_cnt = [Signal(range(LW), name=f"mshr{i}_cnt") for i in range(O)]
+        mshr_buf = [Signal(LW * WORD_BITS, name=f"mshr{i}_buf") for i in range(O)]
+        free = Signal(range(O))
+        any_free = Signal()
+        m.d.comb += any_free.eq(~mshr_valid.all())
+        for i in reversed(range(O)):
+            with m.If(~mshr_valid[i]):
+                m.d.comb += free.eq(i)
+
+        # --- response queue (in request order) ------------------------------------------------
+        q_used = Signal(Q)
+        q_set = [Signal(sb, name=f"q{i}_set") for i in range(Q)]
+        q_way = [Signal(wb, name=f"q{i}_way") for i in range(Q)]
+        q_off = [Signal(ob, name=f"q{i}_off") for i in range(Q)]
+        q_utag = [Signal(utag_bits, name=f"q{i}_utag") for i in range(Q)]
+        q_head, q_tail = Signal(range(Q)), Signal(range(Q))
+        q_full = Signal()
+        m.d.comb += q_full.eq(q_used.all())
+
+        def slot_busy(set_, way_):
+            """The slot is referenced by a queued request or by a fill in flight."""
+            in_q = Cat(*[q_used[i] & (q_set[i] == set_) & (q_way[i] == way_) for i in range(Q)])
+            in_f = Cat(*[mshr_valid[i] & (mshr_set[i] == set_) & (mshr_way[i] == way_)
+                         for i in range(O)])
+            return in_q.any() | in_f.any()
+
+        m.d.comb += s1_go.eq(s1_valid & ~q_full & (hit | (any_free & ~slot_busy(s1_set, victim))))
+        m.d.comb += [self.lookup_valid.eq(s1_go), self.lookup_hit.eq(hit)]
+
+        issue = SyncFIFO(width=self.mshr_bits, depth=O)
+        m.submodules.issue = issue
+        with m.If(s1_go):
+            m.d.sync += q_used.bit_select(q_tail, 1).eq(1)
+            for i in range(Q):
+                with m.If(q_tail == i):
+                    m.d.sync += [q_set[i].eq(s1_set), q_way[i].eq(way), q_off[i].eq(s1_off),
+                                 q_utag[i].eq(s1_utag)]
+            m.d.sync += q_tail.eq(Mux(q_tail == Q - 1, 0, q_tail + 1))
+            with m.If(hit):
+                m.d.sync += self.hits.eq(self.hits + 1)
+            with m.Else():
+                m.d.sync += self.misses.eq(self.misses + 1)
+        # miss: allocate the line in the tag row, an MSHR, and queue its fetch
+        new_row = Signal.like(row)
+        m.d.comb += new_row.eq(row)
+        for w in range(W):
+            with m.If(victim == w):
+                m.d.comb += new_row[w * entry:(w + 1) * entry].eq(Cat(Const(1, 1), s1_tag))
+        if wb:
+            m.d.comb += new_row[W * entry:].eq(victim + 1)
+        m.d.comb += [twp.addr.eq(s1_set), twp.data.eq(new_row), twp.en.eq(s1_go & ~hit),
+                     issue.w_data.eq(free), issue.w_en.eq(s1_go & ~hit)]
+        for i in range(O):
+            with m.If(s1_go & ~hit & (free == i)):
+                m.d.sync += [mshr_set[i].eq(s1_set), mshr_way[i].eq(victim),
+                             mshr_line[i].eq(Cat(s1_set, s1_tag)), mshr_cnt[i].eq(0)]
+
+        # --- issue: the line's words, one request per cycle -----------------------------------
+        word = Signal(range(LW))
+        head_m = issue.r_data
+        mreq = self.mem.req
+        line = Array(mshr_line)[head_m]
+        m.d.comb += [mreq.valid.eq(issue.r_rdy),
+                     mreq.payload.addr.eq(self.base + line * LW + word),
+                     mreq.payload.tag.eq(Cat(head_m, word)[:len(mreq.payload.tag)])]
+        m.d.comb += issue.r_en.eq(mreq.valid & mreq.ready & (word == LW - 1))
+        with m.If(mreq.valid & mreq.ready):
+            m.d.sync += word.eq(Mux(word == LW - 1, 0, word + 1))
+
+        # --- fill: collect words; the last one writes the line into the data array -----------
+        data = Memory(shape=g.line_items * g.item_bits, depth=S * W, init=[])
+        m.submodules.data = data
+        dwp = data.write_port()
+        drp = data.read_port()
+        mresp = self.mem.resp
+        f_m = mresp.payload.tag[:self.mshr_bits]
+        f_w = mresp.payload.tag[self.mshr_bits:self.mshr_bits + self.word_bits] if LW > 1 \
+            else Const(0, 1)
+        fire = mresp.valid
+        m.d.comb += mresp.ready.eq(1)
+        merged = []
+        for i in range(O):
+            merged.append(Cat(*[Mux(f_w == j, mresp.payload.data,
+                                    mshr_buf[i][j * WORD_BITS:(j + 1) * WORD_BITS])
+                                for j in range(LW)]))
+            with m.If(fire & (f_m == i)):
+                m.d.sync += [mshr_buf[i].eq(merged[i]), mshr_cnt[i].eq(mshr_cnt[i] + 1)]
+        last = Signal()
+        m.d.comb += last.eq(fire & (Array(mshr_cnt)[f_m] == LW - 1))
+        line_raw = Array(merged)[f_m]
+        items = [line_raw[j * g.item_span:j * g.item_span + g.item_bits]
+                 for j in range(g.line_items)]
+        m.d.comb += [dwp.addr.eq(Cat(Array(mshr_way)[f_m], Array(mshr_set)[f_m])),
+                     dwp.data.eq(Cat(*items)), dwp.en.eq(last)]
+        # MSHR valid bits: set on allocation, cleared by the last word of the fill
+        set_mask = Signal(O)
+        clr_mask = Signal(O)
+        for i in range(O):
+            m.d.comb += [set_mask[i].eq(s1_go & ~hit & (free == i)),
+                         clr_mask[i].eq(last & (f_m == i))]
+        m.d.sync += mshr_valid.eq((mshr_valid | set_mask) & ~clr_mask)
+
+        # --- output: head of the queue once its line is present -----------------------------
+        h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
+        h_ready = Signal()
+        h_pending = Cat(*[mshr_valid[i] & (mshr_set[i] == h_set) & (mshr_way[i] == h_way)
+                          for i in range(O)]).any()
+        m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
+        o_valid, o_off, o_utag = Signal(), Signal(ob), Signal(utag_bits)
+        pop = Signal()
+        m.d.comb += pop.eq(h_ready & (~o_valid | resp.ready))
+        m.d.comb += [drp.addr.eq(Cat(h_way, h_set)), drp.en.eq(pop)]
+        with m.If(pop):
+            m.d.sync += [o_valid.eq(1), o_off.eq(Array(q_off)[q_head]),
+                         o_utag.eq(Array(q_utag)[q_head]),
+                         q_used.bit_select(q_head, 1).eq(0),
+                         q_head.eq(Mux(q_head == Q - 1, 0, q_head + 1))]
+        with m.Elif(resp.ready):
+            m.d.sync += o_valid.eq(0)
+        m.d.comb += [resp.valid.eq(o_valid),
+                     resp.payload.data.eq(drp.data.word_select(o_off, g.item_bits)
+                                          if ob else drp.data),
+                     resp.payload.tag.eq(o_utag)]
+        return m
