@@ -28,7 +28,7 @@ MAGIC = int(np.frombuffer(b"SAARCOR1", "<u8")[0])
 SHADE_MAGIC = int(np.frombuffer(b"SHADING1", "<u8")[0])
 HEADER_WORDS = 8
 ALIGN = 8                     # every section starts at a multiple of 8 words
-TRI_WORDS = 5                 # 9 x binary32 + id, padded to 5 words
+TRI_WORDS = 5                 # 9 x binary32 (288 bits) + 32-bit id = 5 words
 NODE_INDEX_BITS = 30          # left-child index / leaf triangle count
 LIST_INDEX_BITS = 32          # leaf's first list entry
 ADDR_BITS = 32                # word addresses in the header (32 GB of memory)
@@ -355,6 +355,6 @@ def list_word_layout():
 
 
 def triangle_layout():
-    """The 5 words of a triangle: 9 binary32 (A.xyz, B.xyz, C.xyz), id, 32 bits of padding."""
+    """The 5 words of a triangle: 9 binary32 (A.xyz, B.xyz, C.xyz) then the 32-bit id."""
     from amaranth.lib import data
-    return data.StructLayout({"v": data.ArrayLayout(32, 9), "id": 32, "pad": 32})
+    return data.StructLayout({"v": data.ArrayLayout(32, 9), "id": 32})
