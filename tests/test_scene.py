@@ -21,6 +21,7 @@ SHIPPED = [
     ("cornell.toml", 1_000, 5_000, 3, {"point"}),
     ("conference.toml", 20_000, 300_000, 2, {"point"}),
     ("terrain.toml", 50_000, 200_000, 1, {"parallel"}),
+    ("office.toml", 2_000, 60_000, 3, {"point"}),
 ]
 
 
@@ -76,8 +77,12 @@ def test_shipped_scene_loads(fname, lo, hi, nlights, kinds):
             assert math.isclose(np.linalg.norm(l.direction), 1.0) and l.direction[1] < 0
     assert np.abs(s.tris).max() <= 1000.0          # keeps rendering cost reasonable
     lo_b, hi_b = s.bounds()
-    assert np.all(lo_b <= s.camera.position + 1e-3) or fname == "cornell.toml"
+    assert np.all((lo_b <= s.camera.look_at) & (s.camera.look_at <= hi_b))  # looks at the scene
     assert s.dropped == {"degenerate": 0, "nonfinite": 0}
+
+
+def test_every_shipped_scene_is_tested():
+    assert sorted(p.name for p in SCENES.glob("*.toml")) == sorted(f for f, *_ in SHIPPED)
 
 
 def test_cornell_contents():
