@@ -24,8 +24,9 @@ from rtl.cache import Cache
 from rtl.memory import IdealMemory, SDRAMMemory
 
 from .common import drain, drive, run, watch
+from .memory import random_memory
 
-__all__ = ["CacheRun", "run_cache", "random_memory"]
+__all__ = ["CacheRun", "run_cache", "check_cache_run"]
 
 
 class _System(Elaboratable):
@@ -37,34 +38,6 @@ class _System(Elaboratable):
         m.submodules.cache, m.submodules.memory = self.cache, self.memory
         wiring.connect(m, self.cache.mem, self.memory.port)
         return m
-
-
-async def random_memory(ctx, port, image, rng: random.Random, *, max_delay: int = 30,
-                        stall: float = 0.3, log: list | None = None) -> None:
-    """Serve ``port`` (server side of a word MemReadPort) from ``image``: each response after a
-    random 1..``max_delay`` cycles, due responses in random order, requests back-pressured with
-    probability ``stall``. Runs forever (add as a background testbench)."""
-    pending, current, cycle = [], None, 0
-    while True:
-        ctx.set(port.req.ready, int(rng.random() >= stall))
-        if current is None:
-            due = [p for p in pending if p[0] <= cycle]
-            if due:
-                current = rng.choice(due)
-                pending.remove(current)
-        if current is not None:
-            ctx.set(port.resp.payload, {"data": current[2], "tag": current[1]})
-        ctx.set(port.resp.valid, int(current is not None))
-        _, _, qv, qr, qp, sv, sr = await ctx.tick().sample(
-            port.req.valid, port.req.ready, port.req.payload, port.resp.valid, port.resp.ready)
-        if qv and qr:
-            addr, tag = int(qp.addr), int(qp.tag)
-            pending.append((cycle + rng.randint(1, max_delay), tag, int(image[addr])))
-            if log is not None:
-                log.append(addr)
-        if sv and sr:
-            current = None
-        cycle += 1
 
 
 @dataclass

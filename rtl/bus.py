@@ -1,0 +1,110 @@
+"""Round-robin memory bus: N requesters share one memory port; responses return by labeled broadcast.
+
+Requests: each cycle the output register can take a request, the first requester with a valid
+request at or after the round-robin pointer is granted (at most one grant per cycle) and the
+pointer moves just past it, so a requester that keeps asking waits for at most N-1 other grants.
+The request goes to memory with the label ``{tag, requester id}`` as its tag.
+
+Responses: the memory's response is registered and broadcast to all requesters with its label;
+only the requester whose id it carries sees ``valid`` and takes it (its ``ready`` back-pressures
+the broadcast). Requesters keep any number of requests outstanding (tags are theirs to manage).
+
+Latency: one register each way (request: accepted in cycle t, offered to memory in t+1;
+response: accepted from memory in t, offered to the requester in t+1). Throughput: one request
+and one response per cycle.
+
+Counters: ``grants[i]`` per requester, ``req_cycles`` (cycles a request went to memory),
+``resp_cycles`` (cycles a response was delivered), ``cycles`` (since reset).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Array, Cat, Module, Mux, Signal
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from .memport import WORD_BITS, MemReadPort
+
+__all__ = ["RoundRobinBus"]
+
+COUNTER_BITS = 32
+
+
+class RoundRobinBus(wiring.Component):
+    """``n`` word read ports (``inputs[i]``, tags of ``tag_width``) onto one port ``mem`` whose
+    tags are ``tag_width + ceil_log2(n)`` bits (requester id in the top bits)."""
+
+    def __init__(self, n: int, *, addr_width: int, tag_width: int, data_width: int = WORD_BITS):
+        if n < 1:
+            raise ValueError(f"RoundRobinBus n={n}: need at least one requester")
+        self.n = n
+        self.id_bits = max(1, ceil_log2(n))
+        port = MemReadPort(addr_width=addr_width, data_width=data_width, tag_width=tag_width)
+        super().__init__({
+            "inputs": In(port).array(n),
+            "mem": Out(MemReadPort(addr_width=addr_width, data_width=data_width,
+                                   tag_width=tag_width + self.id_bits)),
+            "grants": Out(COUNTER_BITS).array(n),
+            "req_cycles": Out(COUNTER_BITS),
+            "resp_cycles": Out(COUNTER_BITS),
+            "cycles": Out(COUNTER_BITS),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        n, ins = self.n, self.inputs
+        tag_width = len(ins[0].req.payload.tag)
+        m.d.sync += self.cycles.eq(self.cycles + 1)
+
+        # --- requests: round-robin grant into the output register -------------------------
+        out = self.mem.req
+        prio = Signal(range(n))
+        grant = Signal(range(n))
+        any_req = Signal()
+        m.d.comb += any_req.eq(Cat(*[p.req.valid for p in ins]).any())
+        with m.Switch(prio):
+            for p in range(n):
+                with m.Case(p):
+                    order = [(p + i) % n for i in range(n)]
+                    with m.If(ins[order[0]].req.valid):
+                        m.d.comb += grant.eq(order[0])
+                    for c in order[1:]:
+                        with m.Elif(ins[c].req.valid):
+                            m.d.comb += grant.eq(c)
+        load = Signal()
+        m.d.comb += load.eq(any_req & (~out.valid | out.ready))
+        for i in range(n):
+            m.d.comb += ins[i].req.ready.eq(load & (grant == i))
+            with m.If(load & (grant == i)):
+                m.d.sync += self.grants[i].eq(self.grants[i] + 1)
+        with m.If(load):
+            m.d.sync += [out.valid.eq(1),
+                         out.payload.addr.eq(Array(p.req.payload.addr for p in ins)[grant]),
+                         out.payload.tag.eq(Cat(Array(p.req.payload.tag for p in ins)[grant],
+                                                grant)),
+                         prio.eq(Mux(grant == n - 1, 0, grant + 1))]
+        with m.Elif(out.ready):
+            m.d.sync += out.valid.eq(0)
+        with m.If(out.valid & out.ready):
+            m.d.sync += self.req_cycles.eq(self.req_cycles + 1)
+
+        # --- responses: labeled broadcast -------------------------------------------------
+        src = self.mem.resp
+        b_valid, b_data = Signal(), Signal.like(src.payload.data)
+        b_tag, b_id = Signal(tag_width), Signal(self.id_bits)
+        taken = Signal()
+        m.d.comb += taken.eq(Array(p.resp.ready for p in ins)[b_id] if n > 1 else ins[0].resp.ready)
+        m.d.comb += src.ready.eq(~b_valid | taken)
+        with m.If(src.valid & src.ready):
+            m.d.sync += [b_valid.eq(1), b_data.eq(src.payload.data),
+                         b_tag.eq(src.payload.tag[:tag_width]),
+                         b_id.eq(src.payload.tag[tag_width:])]
+        with m.Elif(taken):
+            m.d.sync += b_valid.eq(0)
+        for i in range(n):
+            m.d.comb += [ins[i].resp.valid.eq(b_valid & (b_id == i)),
+                         ins[i].resp.payload.data.eq(b_data),
+                         ins[i].resp.payload.tag.eq(b_tag)]
+        with m.If(b_valid & taken):
+            m.d.sync += self.resp_cycles.eq(self.resp_cycles + 1)
+        return m
