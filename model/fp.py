@@ -58,7 +58,7 @@ def max_finite_bits64(E, M):
         np.uint64((1 << M) - 1) << np.uint64(52 - M))
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def round_exact(x, E, M):
     """Round float64 ``x`` once to (E, M): RNE with unbounded exponent, then flush/overflow."""
     b = np.float64(x).view(np.uint64)
@@ -87,31 +87,45 @@ def rnd(x, E, M):
     return round_exact(x, E, M)
 
 
-@numba.njit(cache=True, inline="always")
+# Binary32 fast path: IEEE float32 arithmetic equals the hardware's whenever the result is
+# normal, inf or NaN (operands are always format values, never denormal); a result at or below
+# the smallest normal is recomputed exactly (the flush-after-rounding band).
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def fadd(a, b, E, M):
-    return rnd(np.float64(a) + np.float64(b), E, M)
+    if E == 8 and M == 23:
+        r = np.float32(a) + np.float32(b)
+        if not (abs(r) <= _FLT_MIN):
+            return r
+    return round_exact(np.float64(a) + np.float64(b), E, M)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def fsub(a, b, E, M):
-    return rnd(np.float64(a) - np.float64(b), E, M)
+    if E == 8 and M == 23:
+        r = np.float32(a) - np.float32(b)
+        if not (abs(r) <= _FLT_MIN):
+            return r
+    return round_exact(np.float64(a) - np.float64(b), E, M)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def fmul(a, b, E, M):
-    return rnd(np.float64(a) * np.float64(b), E, M)
+    if E == 8 and M == 23:
+        r = np.float32(a) * np.float32(b)
+        if not (abs(r) <= _FLT_MIN):
+            return r
+    return round_exact(np.float64(a) * np.float64(b), E, M)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def fdiv(a, b, E, M):
-    a64 = np.float64(a)
-    b64 = np.float64(b)
-    if b64 == 0.0:                              # numba would raise ZeroDivisionError
-        if a64 != a64 or a64 == 0.0:
-            return np.float32(np.nan)
-        neg = (np.float64(a64).view(np.uint64) ^ np.float64(b64).view(np.uint64)) & _SIGN64
-        return np.float32(np.inf) if neg == 0 else np.float32(-np.inf)
-    return rnd(a64 / b64, E, M)
+    """a / b; with error_model='numpy' x/0 is ±inf and 0/0 NaN, as IEEE and the hardware."""
+    if E == 8 and M == 23:
+        r = np.float32(a) / np.float32(b)
+        if not (abs(r) <= _FLT_MIN):
+            return r
+    return round_exact(np.float64(a) / np.float64(b), E, M)
 
 
 @numba.njit(cache=True, inline="always")
@@ -239,6 +253,20 @@ class FPFormat:
     def quantize(self, x) -> np.ndarray:
         """Round any real array (float64/float32) once to this format, as float32."""
         return _vquant(np.asarray(x, dtype=np.float64), self.exp_bits, self.frac_bits)
+
+    def from_fixed(self, x, frac_bits: int = 0) -> np.ndarray:
+        """Integers ``x`` read as fixed point with ``frac_bits`` fraction bits (the value
+        ``x * 2**-frac_bits``), rounded once to this format: the int -> float conversion of the
+        ray generation (e.g. ``from_fixed(2*px + 1, 1)`` is the pixel centre ``px + 0.5``)."""
+        x = np.asarray(x)
+        if x.dtype.kind not in "iub":
+            raise TypeError(f"from_fixed: x has dtype {x.dtype}; pass integers "
+                            "(use quantize() for real values)")
+        x = x.astype(np.int64)
+        if x.size and int(np.abs(x).max()) >= 1 << 53:
+            raise ValueError("from_fixed: |x| >= 2**53 is not exact in float64; "
+                             "split the integer or narrow it")
+        return self.quantize(np.ldexp(x.astype(np.float64), -frac_bits))
 
     def flush(self, x) -> np.ndarray:
         """Denormal inputs read as zero."""

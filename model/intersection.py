@@ -35,21 +35,19 @@ def shear(p0, p1, p2, kx, ky, kz, sx, sy, E, M):
 
 
 @numba.njit(cache=True, inline="always")
-def intersect(tri, o, k, s, E, M):
+def intersect(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz, E, M):
     """Test one ray against one triangle.
 
-    tri: 9 float32 (A, B, C); o: origin (3,); k: (kx, ky, kz); s: (Sx, Sy, Sz).
-    Returns (hit, t, u, v); hit means the edge test passed and det != 0 (the caller applies
-    the t-range test ``0 < t < t_best``).
+    tri: 9 float32 (A, B, C); (ox, oy, oz): origin; (kx, ky, kz), (sx, sy, sz): the ray's shear
+    constants. Returns (hit, t, u, v); hit means the edge test passed and det != 0 (the caller
+    applies the t-range test ``0 < t < t_best``).
     """
-    kx, ky, kz = k[0], k[1], k[2]
-    sx, sy, sz = s[0], s[1], s[2]
-    ax, ay, az = shear(fsub(tri[0], o[0], E, M), fsub(tri[1], o[1], E, M),
-                       fsub(tri[2], o[2], E, M), kx, ky, kz, sx, sy, E, M)
-    bx, by, bz = shear(fsub(tri[3], o[0], E, M), fsub(tri[4], o[1], E, M),
-                       fsub(tri[5], o[2], E, M), kx, ky, kz, sx, sy, E, M)
-    cx, cy, cz = shear(fsub(tri[6], o[0], E, M), fsub(tri[7], o[1], E, M),
-                       fsub(tri[8], o[2], E, M), kx, ky, kz, sx, sy, E, M)
+    ax, ay, az = shear(fsub(tri[0], ox, E, M), fsub(tri[1], oy, E, M),
+                       fsub(tri[2], oz, E, M), kx, ky, kz, sx, sy, E, M)
+    bx, by, bz = shear(fsub(tri[3], ox, E, M), fsub(tri[4], oy, E, M),
+                       fsub(tri[5], oz, E, M), kx, ky, kz, sx, sy, E, M)
+    cx, cy, cz = shear(fsub(tri[6], ox, E, M), fsub(tri[7], oy, E, M),
+                       fsub(tri[8], oz, E, M), kx, ky, kz, sx, sy, E, M)
     eu = fsub(fmul(cx, by, E, M), fmul(cy, bx, E, M), E, M)
     ev = fsub(fmul(ax, cy, E, M), fmul(ay, cx, E, M), E, M)
     ew = fsub(fmul(bx, ay, E, M), fmul(by, ax, E, M), E, M)

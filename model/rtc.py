@@ -37,38 +37,38 @@ C = {name: i for i, name in enumerate(COUNTERS)}
 N_COUNTERS = len(COUNTERS)
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def trace_packet(mem, node_base, list_base, tri_base, root, depth,
-                 lanes, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
+                 r0, n, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                  hit_t, hit_tri, hit_u, hit_v, ctr, E, M):
-    n = lanes.shape[0]
-    tnear = np.empty(n, np.float32)
-    tfar = np.empty(n, np.float32)
+    """Trace the packet of rays ``r0 .. r0+n-1`` (lane l = ray r0 + l)."""
+    # the read-only ray data the units keep locally, per lane
+    lo = org[r0:r0 + n]
+    linv = inv[r0:r0 + n]
+    lk = kk[r0:r0 + n]
+    ls = ss[r0:r0 + n]
+    # dynamic per-lane state
+    tnear = tnear0[r0:r0 + n].copy()
+    tfar = tfar0[r0:r0 + n].copy()
+    best = tmax[r0:r0 + n].copy()      # hits must lie in (0, tmax)
+    b_tri = np.full(n, -1, np.int64)
+    b_u = np.zeros(n, np.float32)
+    b_v = np.zeros(n, np.float32)
     dist = np.empty(n, np.float32)
-    best = np.empty(n, np.float32)
     s_node = np.empty(depth + 1, np.int64)
     s_mask = np.empty(depth + 1, np.uint64)
     s_near = np.empty((depth + 1, n), np.float32)
     s_far = np.empty((depth + 1, n), np.float32)
     tri = np.empty(9, np.float32)
-    o = np.empty(3, np.float32)
-    k3 = np.empty(3, np.int64)
-    s3 = np.empty(3, np.float32)
+    c_passes = c_trav_steps = c_trav_ops = c_node_reads = c_leaf_visits = 0
+    c_list_ops = c_list_reads = c_int_ops = c_pushes = c_max_stack = 0
 
-    # rays start active if their clipped interval is non-empty; group lanes by octant
+    # rays start active if their clipped interval is non-empty; lanes grouped by octant
     live = np.uint64(0)
     octant = np.empty(n, np.int64)
     for l in range(n):
-        r = lanes[l]
-        tnear[l] = tnear0[r]
-        tfar[l] = tfar0[r]
-        best[l] = tmax[r]            # hits must lie in (0, tmax): t_best starts at the ray's end
-        hit_t[r] = np.float32(np.inf)
-        hit_tri[r] = -1
-        hit_u[r] = np.float32(0.0)
-        hit_v[r] = np.float32(0.0)
-        octant[l] = (sign_bit(dirn[r, 0]) | (sign_bit(dirn[r, 1]) << 1) |
-                     (sign_bit(dirn[r, 2]) << 2))
+        octant[l] = (sign_bit(dirn[r0 + l, 0]) | (sign_bit(dirn[r0 + l, 1]) << 1) |
+                     (sign_bit(dirn[r0 + l, 2]) << 2))
         if tnear[l] <= tfar[l]:
             live |= np.uint64(1) << np.uint64(l)
     terminated = np.uint64(0)
@@ -80,31 +80,26 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 mask |= np.uint64(1) << np.uint64(l)
         if mask == 0:
             continue
-        ctr[0] += 1
+        c_passes += 1
+        negative = (oc >> 0) & 1, (oc >> 1) & 1, (oc >> 2) & 1
         node = np.int64(root)
         sp = 0
         while mask:
             kind, field, hi = decode_node(mem[node_base + node])
-            ctr[3] += 1
+            c_node_reads += 1
             if kind != LEAF:
                 # ---- traversal unit: inner node
-                split = bits_to_f32(hi)
-                ctr[1] += 1
-                for l in range(n):
-                    if mask & (np.uint64(1) << np.uint64(l)):
-                        ctr[2] += 1
-                mnear, mfar = classify(split, kind, mask, lanes, org, inv, tnear, tfar, dist, E, M)
-                first_lane = 0
-                while not (mask & (np.uint64(1) << np.uint64(first_lane))):
-                    first_lane += 1
-                negative = sign_bit(dirn[lanes[first_lane], kind])
-                near = field + 1 if negative else field
-                far = field if negative else field + 1
+                c_trav_steps += 1
+                c_trav_ops += popcount(mask)
+                mnear, mfar = classify(bits_to_f32(hi), kind, mask, n, lo, linv, tnear, tfar,
+                                       dist, E, M)
+                neg = negative[kind]
+                near = field + neg
+                far = field + 1 - neg
                 if mnear and mfar:
                     sp = push(sp, far, mfar, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n)
-                    if sp > ctr[11]:
-                        ctr[11] = sp
-                    ctr[10] += 1
+                    c_pushes += 1
+                    c_max_stack = max(c_max_stack, sp)
                     clip_near(mnear, dist, tfar, n)
                     node, mask = near, mnear
                 elif mnear:
@@ -118,51 +113,71 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
             count = field
             first = np.int64(hi)
             if count > 0:
-                ctr[4] += 1
-                ctr[6] += list_words(first, count)
+                c_leaf_visits += 1
+                c_list_reads += list_words(first, count)
             for j in range(count):
                 ti = list_entry(mem, list_base, first + j)
-                ctr[5] += 1
-                ctr[7] += 1
-                ctr[9] += TRI_WORDS
+                c_list_ops += 1
                 sid = fetch_triangle(mem, tri_base, ti, tri)
+                live_in_leaf = mask & ~terminated   # shadow rays that hit stop testing
                 for l in range(n):
-                    if not (mask & (np.uint64(1) << np.uint64(l))):
+                    if not (live_in_leaf & (np.uint64(1) << np.uint64(l))):
                         continue
-                    if terminated & (np.uint64(1) << np.uint64(l)):
-                        continue     # a shadow ray that already hit in this leaf
-                    r = lanes[l]
-                    ctr[8] += 1
-                    for a in range(3):
-                        o[a] = org[r, a]
-                        k3[a] = kk[r, a]
-                        s3[a] = ss[r, a]
-                    hit, t, u, v = intersect(tri, o, k3, s3, E, M)
+                    c_int_ops += 1
+                    hit, t, u, v = intersect(tri, lo[l, 0], lo[l, 1], lo[l, 2],
+                                             lk[l, 0], lk[l, 1], lk[l, 2],
+                                             ls[l, 0], ls[l, 1], ls[l, 2], E, M)
                     if hit and t > np.float32(0.0) and t < best[l]:
                         best[l] = t
-                        hit_t[r] = t
-                        hit_tri[r] = sid
-                        hit_u[r] = u
-                        hit_v[r] = v
-                        if anyhit[r]:
+                        b_tri[l] = sid
+                        b_u[l] = u
+                        b_v[l] = v
+                        if anyhit[r0 + l]:
                             terminated |= np.uint64(1) << np.uint64(l)
             # rays whose closest hit lies in this cell are finished
             for l in range(n):
                 bit = np.uint64(1) << np.uint64(l)
-                if (mask & bit) and hit_tri[lanes[l]] >= 0 and best[l] <= tfar[l]:
+                if (mask & bit) and b_tri[l] >= 0 and best[l] <= tfar[l]:
                     terminated |= bit
             sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n)
 
+    for l in range(n):
+        r = r0 + l
+        hit_tri[r] = b_tri[l]
+        hit_t[r] = best[l] if b_tri[l] >= 0 else np.float32(np.inf)
+        hit_u[r] = b_u[l]
+        hit_v[r] = b_v[l]
+    ctr[0] += c_passes
+    ctr[1] += c_trav_steps
+    ctr[2] += c_trav_ops
+    ctr[3] += c_node_reads
+    ctr[4] += c_leaf_visits
+    ctr[5] += c_list_ops
+    ctr[6] += c_list_reads
+    ctr[7] += c_list_ops               # one triangle fetch per emitted address
+    ctr[8] += c_int_ops
+    ctr[9] += TRI_WORDS * c_list_ops
+    ctr[10] += c_pushes
+    ctr[11] = max(ctr[11], c_max_stack)
 
-@numba.njit(cache=True, parallel=True)
+
+@numba.njit(cache=True, inline="always")
+def popcount(x):
+    c = 0
+    while x:
+        x &= x - np.uint64(1)
+        c += 1
+    return c
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def trace_all(mem, node_base, list_base, tri_base, root, depth,
               pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
               hit_t, hit_tri, hit_u, hit_v, ctrs, E, M):
     n_packets = pk_start.shape[0] - 1
     for p in numba.prange(n_packets):
-        lanes = np.arange(pk_start[p], pk_start[p + 1])
         trace_packet(mem, node_base, list_base, tri_base, root, depth,
-                     lanes, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
+                     pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                      hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M)
 
 

@@ -30,19 +30,18 @@ def bits_to_f32(b):
     return np.uint32(b).view(np.float32)  # noqa
 
 
-@numba.njit(cache=True)
-def classify(split, axis, mask, lanes, org, inv, tnear, tfar, dist, E, M):
+@numba.njit(cache=True, error_model="numpy")
+def classify(split, axis, mask, n, org, inv, tnear, tfar, dist, E, M):
     """Per active lane: dist to the split plane, and which children the ray needs.
 
-    Returns (near_mask, far_mask). ``need_near = not (dist < tnear)``, ``need_far = not
+    ``org``/``inv`` are the packet's per-lane copies. Returns (near_mask, far_mask). ``need_near = not (dist < tnear)``, ``need_far = not
     (dist > tfar)`` (a NaN dist, a ray lying in the plane, needs both)."""
     mnear = np.uint64(0)
     mfar = np.uint64(0)
-    for l in range(lanes.shape[0]):
+    for l in range(n):
         bit = np.uint64(1) << np.uint64(l)
         if mask & bit:
-            r = lanes[l]
-            d = fmul(fsub(split, org[r, axis], E, M), inv[r, axis], E, M)
+            d = fmul(fsub(split, org[l, axis], E, M), inv[l, axis], E, M)
             dist[l] = d
             if not (d < tnear[l]):
                 mnear |= bit
@@ -51,7 +50,7 @@ def classify(split, axis, mask, lanes, org, inv, tnear, tfar, dist, E, M):
     return mnear, mfar
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def clip_near(mask, dist, tfar, n):
     """Rays descending into the near child: tfar = min(tfar, dist)."""
     for l in range(n):
@@ -59,7 +58,7 @@ def clip_near(mask, dist, tfar, n):
             tfar[l] = fmin(tfar[l], dist[l])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def clip_far(mask, dist, tnear, n):
     """Rays descending into the far child: tnear = max(tnear, dist)."""
     for l in range(n):
@@ -67,7 +66,7 @@ def clip_far(mask, dist, tnear, n):
             tnear[l] = fmax(tnear[l], dist[l])
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def push(sp, node, mask, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     """Push the far child: its mask and, per ray, the far interval [max(tnear, dist), tfar]."""
     s_node[sp] = node
@@ -79,7 +78,7 @@ def push(sp, node, mask, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     return sp + 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     """Pop entries until one has a live ray. Returns (sp, node, mask); mask 0 = packet done."""
     while sp > 0:
