@@ -16,7 +16,8 @@ import numpy as np
 from .fp import sign_bit
 from .intersection import TRI_WORDS, fetch_triangle, intersect
 from .list import list_entry, list_words
-from .traversal import LEAF, bits_to_f32, classify, clip_far, clip_near, decode_node, pop, push
+from .traversal import (LEAF, bits_to_f32, classify, clip_far, clip_near, decode_node,
+                        lowest_lane, pop, push)
 
 # per-packet counters; the names are the keys of the statistics
 COUNTERS = (
@@ -119,10 +120,10 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 ti = list_entry(mem, list_base, first + j)
                 c_list_ops += 1
                 sid = fetch_triangle(mem, tri_base, ti, tri)
-                live_in_leaf = mask & ~terminated   # shadow rays that hit stop testing
-                for l in range(n):
-                    if not (live_in_leaf & (np.uint64(1) << np.uint64(l))):
-                        continue
+                m = mask & ~terminated       # shadow rays that hit stop testing
+                while m:
+                    l = lowest_lane(m)
+                    m &= m - np.uint64(1)
                     c_int_ops += 1
                     hit, t, u, v = intersect(tri, lo[l, 0], lo[l, 1], lo[l, 2],
                                              lk[l, 0], lk[l, 1], lk[l, 2],
@@ -135,10 +136,12 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                         if anyhit[r0 + l]:
                             terminated |= np.uint64(1) << np.uint64(l)
             # rays whose closest hit lies in this cell are finished
-            for l in range(n):
-                bit = np.uint64(1) << np.uint64(l)
-                if (mask & bit) and b_tri[l] >= 0 and best[l] <= tfar[l]:
-                    terminated |= bit
+            m = mask
+            while m:
+                l = lowest_lane(m)
+                m &= m - np.uint64(1)
+                if b_tri[l] >= 0 and best[l] <= tfar[l]:
+                    terminated |= np.uint64(1) << np.uint64(l)
             sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n)
 
     for l in range(n):

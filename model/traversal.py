@@ -16,6 +16,18 @@ from .fp import fmax, fmin, fmul, fsub
 
 LEAF = 3
 
+# de Bruijn sequence: index of a mask's lowest set bit in three integer operations
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_IDX = np.zeros(64, np.int64)
+for _i in range(64):
+    _DEBRUIJN_IDX[(((1 << _i) * 0x03F79D71B4CB0A89) & (2**64 - 1)) >> 58] = _i
+
+
+@numba.njit(cache=True, inline="always")
+def lowest_lane(m):
+    """Index of the lowest set bit of a non-zero lane mask."""
+    return _DEBRUIJN_IDX[((m & (~m + np.uint64(1))) * _DEBRUIJN) >> np.uint64(58)]
+
 
 @numba.njit(cache=True, inline="always")
 def decode_node(w):
@@ -38,32 +50,38 @@ def classify(split, axis, mask, n, org, inv, tnear, tfar, dist, E, M):
     (dist > tfar)`` (a NaN dist, a ray lying in the plane, needs both)."""
     mnear = np.uint64(0)
     mfar = np.uint64(0)
-    for l in range(n):
-        bit = np.uint64(1) << np.uint64(l)
-        if mask & bit:
-            d = fmul(fsub(split, org[l, axis], E, M), inv[l, axis], E, M)
-            dist[l] = d
-            if not (d < tnear[l]):
-                mnear |= bit
-            if not (d > tfar[l]):
-                mfar |= bit
+    m = mask
+    while m:
+        l = lowest_lane(m)
+        bit = m & (~m + np.uint64(1))
+        m ^= bit
+        d = fmul(fsub(split, org[l, axis], E, M), inv[l, axis], E, M)
+        dist[l] = d
+        if not (d < tnear[l]):
+            mnear |= bit
+        if not (d > tfar[l]):
+            mfar |= bit
     return mnear, mfar
 
 
 @numba.njit(cache=True, error_model="numpy")
 def clip_near(mask, dist, tfar, n):
     """Rays descending into the near child: tfar = min(tfar, dist)."""
-    for l in range(n):
-        if mask & (np.uint64(1) << np.uint64(l)):
-            tfar[l] = fmin(tfar[l], dist[l])
+    m = mask
+    while m:
+        l = lowest_lane(m)
+        m &= m - np.uint64(1)
+        tfar[l] = fmin(tfar[l], dist[l])
 
 
 @numba.njit(cache=True, error_model="numpy")
 def clip_far(mask, dist, tnear, n):
     """Rays descending into the far child: tnear = max(tnear, dist)."""
-    for l in range(n):
-        if mask & (np.uint64(1) << np.uint64(l)):
-            tnear[l] = fmax(tnear[l], dist[l])
+    m = mask
+    while m:
+        l = lowest_lane(m)
+        m &= m - np.uint64(1)
+        tnear[l] = fmax(tnear[l], dist[l])
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -71,10 +89,12 @@ def push(sp, node, mask, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     """Push the far child: its mask and, per ray, the far interval [max(tnear, dist), tfar]."""
     s_node[sp] = node
     s_mask[sp] = mask
-    for l in range(n):
-        if mask & (np.uint64(1) << np.uint64(l)):
-            s_near[sp, l] = fmax(tnear[l], dist[l])
-            s_far[sp, l] = tfar[l]
+    m = mask
+    while m:
+        l = lowest_lane(m)
+        m &= m - np.uint64(1)
+        s_near[sp, l] = fmax(tnear[l], dist[l])
+        s_far[sp, l] = tfar[l]
     return sp + 1
 
 
@@ -85,9 +105,11 @@ def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
         sp -= 1
         mask = s_mask[sp] & ~terminated
         if mask:
-            for l in range(n):
-                if mask & (np.uint64(1) << np.uint64(l)):
-                    tnear[l] = s_near[sp, l]
-                    tfar[l] = s_far[sp, l]
+            m = mask
+            while m:
+                l = lowest_lane(m)
+                m &= m - np.uint64(1)
+                tnear[l] = s_near[sp, l]
+                tfar[l] = s_far[sp, l]
             return sp, s_node[sp], mask
     return 0, np.int64(0), np.uint64(0)
