@@ -153,14 +153,15 @@ def test_structure_and_format_splits(name, fmt):
     assert set(tree.tri_list.tolist()) == set(range(len(tris)))
 
 
+@pytest.mark.parametrize("clip", [True, False], ids=["clip", "noclip"])
 @pytest.mark.parametrize("fmt", [FPFormat(8, 23), FPFormat(8, 16), FPFormat(8, 10)], ids=str)
 @pytest.mark.parametrize("name", SCENES)
-def test_points_on_triangles_reach_their_triangle(name, fmt):
+def test_points_on_triangles_reach_their_triangle(name, fmt, clip):
     """For points on each triangle (its vertices, edge midpoints, random interior points, all
     in float64), every leaf whose closed box contains the point lists the triangle."""
     tris = SCENES[name](fmt)
     cfg = cfg_for(fmt, kd_max_depth=16, kd_leaf_size=2)
-    tree = build_kdtree(tris, cfg, cache_dir=None)
+    tree = build_kdtree(tris, cfg, cache_dir=None, clip=clip)
     img = build_image(tris, tree, cfg)
     rng = np.random.default_rng(7)
     t64 = tris.astype(np.float64)
@@ -183,11 +184,12 @@ def test_points_on_triangles_reach_their_triangle(name, fmt):
 @pytest.mark.parametrize("name", SCENES)
 def test_leaf_lists_are_exactly_the_overlapping_triangles(name):
     """Conservative classification without clipping: a leaf lists triangle t if and only if
-    t's bounding box overlaps the leaf's closed box (min <= split goes left, max >= split right)."""
+    t's bounding box overlaps the leaf's closed box (min <= split goes left, max >= split right).
+    With clipping a leaf lists a subset of those, and fewer entries in total."""
     fmt = FPFormat(8, 16)
     tris = SCENES[name](fmt)
     cfg = cfg_for(fmt, kd_max_depth=14, kd_leaf_size=2)
-    tree = build_kdtree(tris, cfg, cache_dir=None)
+    tree = build_kdtree(tris, cfg, cache_dir=None, clip=False)
     tmin, tmax = tris.min(axis=1), tris.max(axis=1)
     on_plane = 0
     for i, d, lo, hi in walk(tree):
@@ -200,6 +202,61 @@ def test_leaf_lists_are_exactly_the_overlapping_triangles(name):
             on_plane += int(((tmin[:, a] == s) | (tmax[:, a] == s)).sum())
     if name == "lattice":
         assert on_plane > 0, "scene meant to put triangle bounds on split planes did not"
+    clipped = build_kdtree(tris, cfg, cache_dir=None, clip=True)
+    for i, d, lo, hi in walk(clipped):
+        if clipped.axis[i] == LEAF:
+            got = clipped.tri_list[clipped.first[i]:clipped.first[i] + clipped.count[i]]
+            assert ((tmin[got] <= hi) & (tmax[got] >= lo)).all(), (name, i, d)
+    if name != "grid":
+        assert clipped.n_entries < tree.n_entries
+
+
+def exact_clip_bounds(tri, lo, hi):
+    """Bounds of triangle ∩ box in exact rational arithmetic (None if empty)."""
+    from fractions import Fraction as F
+    poly = [[F(float(x)) for x in v] for v in tri]
+    for k in range(3):
+        for c, keep in ((F(float(lo[k])), lambda x, c: x >= c), (F(float(hi[k])), lambda x, c: x <= c)):
+            out = []
+            for i, p in enumerate(poly):
+                q = poly[(i + 1) % len(poly)]
+                if keep(p[k], c):
+                    out.append(p)
+                if keep(p[k], c) != keep(q[k], c):
+                    t = (c - p[k]) / (q[k] - p[k])
+                    out.append([p[j] + t * (q[j] - p[j]) for j in range(3)])
+            poly = out
+            if not poly:
+                return None
+    return [min(p[j] for p in poly) for j in range(3)], [max(p[j] for p in poly) for j in range(3)]
+
+
+def test_clip_bounds_contain_exact_clipped_triangle():
+    """Split clipping's float64 bounds, rounded outward to float32, contain the exact bounds of
+    the triangle clipped to the box (rational arithmetic) for random triangles and boxes."""
+    from fractions import Fraction as F
+    from model.kdtree import _clip_bounds
+    rng = np.random.default_rng(12)
+    P, Q = np.empty((16, 3)), np.empty((16, 3))
+    n_clipped = 0
+    for _ in range(300):
+        tri = (rng.random((3, 3)) * 4 - 2).astype(np.float32)
+        lo = (rng.random(3) * 2 - 1.5).astype(np.float32)
+        hi = (lo + rng.random(3) * 2 + 0.1).astype(np.float32)
+        omin = np.maximum(tri.min(axis=0), lo)
+        omax = np.minimum(tri.max(axis=0), hi)
+        if not (omin <= omax).all():
+            continue
+        ex = exact_clip_bounds(tri, lo, hi)
+        _clip_bounds(tri, lo, hi, P, Q, omin, omax)
+        if ex is None:
+            continue
+        for j in range(3):
+            assert F(float(omin[j])) <= ex[0][j] and F(float(omax[j])) >= ex[1][j]
+        n_clipped += 1
+        # and it does shrink: within a few float32 ulps of the exact bounds
+        assert all(abs(float(omin[j]) - float(ex[0][j])) <= 1e-5 for j in range(3))
+    assert n_clipped > 50
 
 
 def test_leaf_size_respected_unless_depth_limited():
@@ -222,7 +279,7 @@ def test_oversized_leaves_are_sah_terminated():
     fmt = FPFormat(8, 16)
     tris = soup(800, 4, size=1.5, fmt=fmt)
     cfg = Config(fmt=fmt, kd_max_depth=20, kd_leaf_size=2, kd_bins=16)
-    tree = build_kdtree(tris, cfg, cache_dir=None)
+    tree = build_kdtree(tris, cfg, cache_dir=None, clip=False)   # boxes = triangle boxes
     tmin, tmax = tris.min(axis=1), tris.max(axis=1)
     n_checked = 0
     for i, d, lo, hi in walk(tree):
