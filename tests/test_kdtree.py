@@ -147,6 +147,8 @@ def test_structure_and_format_splits(name, fmt):
             assert lo[a] < tree.split[i] < hi[a], "split outside the node's box"
         else:
             assert 0 <= tree.first[i] and tree.first[i] + tree.count[i] <= tree.n_entries
+            ents = tree.tri_list[tree.first[i]:tree.first[i] + tree.count[i]]
+            assert (np.diff(ents) > 0).all(), "leaf entries must be ascending and distinct"
     assert tree.count[inner].sum() == 0
     assert tree.count[~inner].sum() == tree.n_entries
     # every triangle is listed somewhere
