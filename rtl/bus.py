@@ -32,12 +32,19 @@ COUNTER_BITS = 32
 
 class RoundRobinBus(wiring.Component):
     """``n`` word read ports (``inputs[i]``, tags of ``tag_width``) onto one port ``mem`` whose
-    tags are ``tag_width + ceil_log2(n)`` bits (requester id in the top bits)."""
+    tags are ``tag_width + ceil_log2(n)`` bits (requester id in the top bits).
 
-    def __init__(self, n: int, *, addr_width: int, tag_width: int, data_width: int = WORD_BITS):
+    ``policy="fixed"`` grants the lowest requesting id instead (unfair; a baseline for
+    comparisons and for checking that the fairness check in ``tb/bus.py`` can fail).
+    """
+
+    def __init__(self, n: int, *, addr_width: int, tag_width: int, data_width: int = WORD_BITS,
+                 policy: str = "round_robin"):
         if n < 1:
             raise ValueError(f"RoundRobinBus n={n}: need at least one requester")
-        self.n = n
+        if policy not in ("round_robin", "fixed"):
+            raise ValueError(f"RoundRobinBus policy={policy!r}: use 'round_robin' or 'fixed'")
+        self.n, self.policy = n, policy
         self.id_bits = max(1, ceil_log2(n))
         port = MemReadPort(addr_width=addr_width, data_width=data_width, tag_width=tag_width)
         super().__init__({
@@ -82,7 +89,8 @@ class RoundRobinBus(wiring.Component):
                          out.payload.addr.eq(Array(p.req.payload.addr for p in ins)[grant]),
                          out.payload.tag.eq(Cat(Array(p.req.payload.tag for p in ins)[grant],
                                                 grant)),
-                         prio.eq(Mux(grant == n - 1, 0, grant + 1))]
+                         prio.eq(Mux(grant == n - 1, 0, grant + 1) if self.policy ==
+                                 "round_robin" else 0)]
         with m.Elif(out.ready):
             m.d.sync += out.valid.eq(0)
         with m.If(out.valid & out.ready):

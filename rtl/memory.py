@@ -61,10 +61,10 @@ class IdealMemory(wiring.Component):
 
     A request accepted in cycle ``t`` is answered (``resp.valid``) in cycle ``t + latency`` unless
     the response stream is back-pressured; responses come in request order. Throughput: one word
-    per cycle while fewer than ``queue`` requests are in flight (``queue >= latency`` sustains it).
+    per cycle while fewer than ``queue`` requests are in flight (``queue > latency`` sustains it).
 
     Parameters: ``image`` (uint64 words), ``addr_width``, ``tag_width``, ``latency`` (>= 2 cycles),
-    ``queue`` (requests in flight, default ``latency``).
+    ``queue`` (requests in flight, default ``latency + 1``).
     Counters: ``reads`` (words delivered).
     """
 
@@ -74,7 +74,7 @@ class IdealMemory(wiring.Component):
             raise ValueError(f"IdealMemory latency={latency}: must be >= 2 cycles "
                              "(one for the request register, one for the memory read)")
         self.latency = latency
-        self.queue = latency if queue is None else queue
+        self.queue = latency + 1 if queue is None else queue
         if self.queue < 1:
             raise ValueError(f"IdealMemory queue={queue} must be >= 1")
         self._mem = image_memory(image, addr_width)

@@ -33,13 +33,13 @@ class BusRun:
 
 def run_bus(n: int, n_reqs: int, *, tag_width: int = 2, seed: int = 0, idle: float = 0.3,
             stall: float = 0.3, mem_stall: float = 0.2, max_delay: int = 20,
-            words_per_requester: int = 64) -> BusRun:
+            words_per_requester: int = 64, policy: str = "round_robin") -> BusRun:
     """Simulate ``n`` requesters sending ``n_reqs`` reads each through the bus."""
     rng = random.Random(seed)
     image = np.random.default_rng(seed).integers(0, 1 << 63, n * words_per_requester,
                                                  dtype=np.uint64)
     addr_width = max(1, (len(image) - 1).bit_length())
-    dut = RoundRobinBus(n, addr_width=addr_width, tag_width=tag_width)
+    dut = RoundRobinBus(n, addr_width=addr_width, tag_width=tag_width, policy=policy)
     outstanding = [dict() for _ in range(n)]       # tag -> address, per requester
     received = [0] * n
     waits = {"max": 0}

