@@ -320,7 +320,8 @@ class FPFormat:
         return _vmul(self._f(a), self._f(b), *self.em)
 
     def div(self, a, b):
-        return _vdiv(self._f(a), self._f(b), *self.em)
+        with np.errstate(divide="ignore", invalid="ignore"):   # x/0 = ±inf is defined
+            return _vdiv(self._f(a), self._f(b), *self.em)
 
     def min(self, a, b):
         return _vmin(self._f(a), self._f(b), *self.em)

@@ -116,8 +116,8 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         p, ng, ns, mat, albedo = shader.surface(rays, hit, hits.tri[hit], hits.t[hit],
                                                 hits.u[hit], hits.v[hit])
         local = AMBIENT * albedo
-        p0 = shader.offset(p, ng)
         d = rays.dir[hit]
+        p0 = shader.offset(p, ng, d)
         for light in scene.lights:
             srays, keep = shader.shadow_rays(rays, hit, p0, ng, light)
             lit = np.zeros(hit.size, np.float32)

@@ -4,9 +4,10 @@ Colour arithmetic is plain float32 NumPy (it only makes the picture). Everything
 ray — hit points, shadow and reflection rays — is computed with the hardware format's
 operations, so the RTL traces exactly the rays the model traces.
 
-Secondary rays leave the surface from ``p' = p + eps*n`` (n the geometric normal turned to the
-side the ray came from, ``eps = 1e-4 x`` the scene box diagonal) so they don't hit their own
-triangle. A light behind the surface (as seen from the ray) casts no ray: the point is unlit.
+Secondary rays leave the surface from ``p' = (p + eps*n) - eps*w`` (n the geometric normal
+turned to the side the ray came from, w the unit incoming direction, ``eps = 1e-4 x`` the scene
+box diagonal): away from the surface and back along the incoming ray, so they neither hit their
+own triangle nor start on a neighbouring wall at a corner. A light behind the surface (as seen from the ray) casts no ray: the point is unlit.
 """
 from __future__ import annotations
 
@@ -91,10 +92,13 @@ class Shader:
                     albedo[on] *= bilinear(mm.texture, uv)
         return p, ng, ns, mat, albedo
 
-    def offset(self, p, ng):
-        """Origin of a secondary ray: p + eps * n (format arithmetic)."""
-        return np.stack([self.fmt.add(p[:, a], self.fmt.mul(self.eps, ng[:, a]))
-                         for a in range(3)], axis=1)
+    def offset(self, p, ng, d):
+        """Origin of a secondary ray: (p + eps*n) - eps*w (format arithmetic)."""
+        fmt = self.fmt
+        w = d.astype(np.float64)
+        w = fmt.quantize(w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-300))
+        return np.stack([fmt.sub(fmt.add(p[:, a], fmt.mul(self.eps, ng[:, a])),
+                                 fmt.mul(self.eps, w[:, a])) for a in range(3)], axis=1)
 
     def shadow_rays(self, src: Rays, sel, p0, ng, light) -> tuple[Rays, np.ndarray]:
         """One shadow ray per lit-side hit; packets follow the source packets.
