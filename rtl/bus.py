@@ -116,3 +116,61 @@ class RoundRobinBus(wiring.Component):
         with m.If(b_valid & taken):
             m.d.sync += self.resp_cycles.eq(self.resp_cycles + 1)
         return m
+
+
+class MemoryInterface(wiring.Component):
+    """The RTC memory interface: one :class:`~rtl.cache.Cache` per geometry in ``geoms`` (e.g.
+    trav, list and int cache of each RTC), all on one :class:`RoundRobinBus` to ``mem``.
+
+    Ports: ``unit{i}`` (the unit side of cache i), ``bases[i]`` (word address of cache i's item
+    0), ``mem`` (words; tag = ``{cache's tag, requester id}``); counters ``hits[i]``,
+    ``misses[i]``, ``grants[i]`` (memory words cache i read) and ``req_cycles`` (bus busy
+    cycles). Latency and throughput: those of the cache plus one cycle each way on the bus.
+    """
+
+    def __init__(self, geoms, *, tag_width: int = 4, policy: str = "round_robin"):
+        from .cache import Cache   # the cache imports model/, keep the bare bus import-light
+
+        if not geoms:
+            raise ValueError("MemoryInterface needs at least one cache geometry")
+        widths = {g.mem_addr_width for g in geoms}
+        if len(widths) != 1:
+            raise ValueError(f"all caches must use one memory address width, got {widths}")
+        self.caches = [Cache(g, tag_width=tag_width) for g in geoms]
+        addr_width = widths.pop()
+        bus_tag = max(len(c.mem.req.payload.tag) for c in self.caches)
+        self.bus = RoundRobinBus(len(geoms), addr_width=addr_width, tag_width=bus_tag,
+                                 policy=policy)
+        k = len(geoms)
+        members = {f"unit{i}": In(c.port.signature.flip()) for i, c in enumerate(self.caches)}
+        members.update({
+            "bases": In(addr_width).array(k),
+            "mem": Out(self.bus.mem.signature),
+            "hits": Out(COUNTER_BITS).array(k),
+            "misses": Out(COUNTER_BITS).array(k),
+            "grants": Out(COUNTER_BITS).array(k),
+            "req_cycles": Out(COUNTER_BITS),
+        })
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.bus = bus = self.bus
+        wiring.connect(m, bus.mem, wiring.flipped(self.mem))
+        m.d.comb += self.req_cycles.eq(bus.req_cycles)
+        for i, c in enumerate(self.caches):
+            m.submodules[f"cache{i}"] = c
+            wiring.connect(m, wiring.flipped(getattr(self, f"unit{i}")), c.port)
+            b, w = bus.inputs[i], len(c.mem.req.payload.tag)
+            m.d.comb += [
+                c.base.eq(self.bases[i]),
+                b.req.valid.eq(c.mem.req.valid), c.mem.req.ready.eq(b.req.ready),
+                b.req.payload.addr.eq(c.mem.req.payload.addr),
+                b.req.payload.tag.eq(c.mem.req.payload.tag),
+                c.mem.resp.valid.eq(b.resp.valid), b.resp.ready.eq(c.mem.resp.ready),
+                c.mem.resp.payload.data.eq(b.resp.payload.data),
+                c.mem.resp.payload.tag.eq(b.resp.payload.tag[:w]),
+                self.hits[i].eq(c.hits), self.misses[i].eq(c.misses),
+                self.grants[i].eq(bus.grants[i]),
+            ]
+        return m

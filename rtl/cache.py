@@ -14,7 +14,7 @@ Pipeline::
                                mem.resp -> fill buffer -> data array -> [data read] -> port.resp
 
 * Latency: a hit 3 cycles (request accepted in cycle t, response valid in t+3) when nothing older
-  waits; a miss 3 cycles + memory round trip + ``line_words - 1``. Responses come back **in
+  waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle. Responses come back **in
   request order** (a hit behind a miss waits for it), so tags are returned but never reordered.
 * Throughput: one lookup and one response per cycle; ``outstanding`` line fetches in flight;
   ``queue`` requests inside the cache.

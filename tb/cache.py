@@ -53,8 +53,12 @@ class CacheRun:
 
 def run_cache(geom: CacheGeometry, image: np.ndarray, addrs, *, base: int = 0,
               tag_width: int = 4, memory: str = "ideal", latency: int = 8, seed: int = 0,
-              idle: float = 0.0, stall: float = 0.0, check: bool = True) -> CacheRun:
-    """Simulate the cache on ``addrs`` (item indices) and, with ``check``, assert it is right."""
+              idle: float = 0.0, stall: float = 0.0, gaps=None, check: bool = True) -> CacheRun:
+    """Simulate the cache on ``addrs`` (item indices) and, with ``check``, assert it is right.
+
+    ``idle``/``stall``: probabilities of a request bubble / of response back-pressure per cycle;
+    ``gaps``: idle cycles before each request (instead of random bubbles).
+    """
     rng = random.Random(seed)
     addrs = np.asarray(addrs, dtype=np.int64)
     cache = Cache(geom, tag_width=tag_width)
@@ -77,7 +81,7 @@ def run_cache(geom: CacheGeometry, image: np.ndarray, addrs, *, base: int = 0,
 
     async def source(ctx):
         ctx.set(cache.base, base)
-        sent.extend(await drive(ctx, cache.port.req, reqs, rng=rng, idle=idle))
+        sent.extend(await drive(ctx, cache.port.req, reqs, rng=rng, idle=idle, gaps=gaps))
 
     async def sink(ctx):
         await drain(ctx, cache.port.resp, len(reqs), rng=rng, stall=stall, out=got,

