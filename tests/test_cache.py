@@ -188,3 +188,28 @@ def test_cache_synthesizes_without_latches():
     stat = synth_check(Cache(geom("tri", ways=2, sets=2, outstanding=2, queue=3,
                                   addr_width=12, mem_addr_width=14), tag_width=2), "cache")
     assert "DFF" in stat
+
+
+def test_bench_memory_writes_hit_rates(tmp_path):
+    from model.bench_memory import main
+    tr = tmp_path / "trav.npy"
+    np.save(tr, np.arange(100_000) % 5000)          # 5000 nodes fit the 64 KB trav cache
+    res = main(["--out", str(tmp_path), "--packets", "200", "--depth", "12", "--no-bandwidth",
+                "--trace", f"trav={tr}"])
+    assert (tmp_path / "memory.json").exists()
+    t = res["hit_rates"]["trav"]
+    assert t["1-way"]["misses"] == 5000 and t["4-way"]["misses"] == 5000   # compulsory only
+    assert set(res["hit_rates"]) == {"trav", "list", "int"}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("unit", ["trav", "list", "int"])
+@pytest.mark.parametrize("ways", [1, 4])
+def test_rtl_cache_standard_size_long_stream(unit, ways):
+    """Standard-size caches (64/64/144 KB) on 3000 accesses of a kd-tree-like stream."""
+    g = cache_geometry(Config(), unit, ways=ways)
+    tr = synthetic_traces(400, depth=14, seed=ways)[unit][:3000]
+    span = int(tr.max() + 1) * g.item_span // 64 + 1
+    image = np.random.default_rng(2).integers(0, 1 << 64, span, dtype=np.uint64)
+    run_cache(g, image, tr, memory="sdram", latency=Config().mem_latency, idle=0.05,
+              stall=0.05, seed=3)
