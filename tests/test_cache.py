@@ -1,5 +1,4 @@
 """Caches: the hit/miss model (model/cache.py) and the RTL cache (rtl/cache.py) against it."""
-import random
 from collections import deque
 
 import numpy as np
