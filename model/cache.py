@@ -46,7 +46,7 @@ class CacheGeometry:
 
     def __post_init__(self):
         def bad(msg):
-            raise ValueError(f"CacheGeometry({self}): {msg}")
+            raise ValueError(f"{self}: {msg}")
         if self.ways not in (1, 2, 4):
             bad("ways must be 1, 2 or 4")
         if self.line_items < 1 or self.line_items & (self.line_items - 1):

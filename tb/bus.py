@@ -152,7 +152,6 @@ def run_system(geoms, streams, *, bases=None, chips: int = 4, latency: int = 20,
     from amaranth.hdl import Elaboratable, Module
     from amaranth.lib import wiring
 
-    from model.cache import item_values
     from rtl.bus import MemoryInterface
     from rtl.memory import SDRAMMemory
 
