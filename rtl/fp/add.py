@@ -1,0 +1,94 @@
+"""Floating-point adder/subtractor, bit-exact with ``FPFormat.add`` / ``FPFormat.sub``."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from amaranth.hdl import C, Cat, Module, Mux
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from model.fp import BINARY32, FPFormat
+from .common import bits_for, canonical_nan, lzc, round_pack, special, unpack
+from .pipe import Stager, check_regs, placement
+
+__all__ = ["FPAdd"]
+
+GUARD = 3          # guard, round and sticky bits kept below the aligned significands
+
+
+class FPAdd(wiring.Component):
+    """``o = a + b`` (``op`` = 0) or ``o = a - b`` (``op`` = 1) in format ``fmt``.
+
+    Steps: unpack (order the operands by magnitude), align (shift the smaller right by the
+    exponent difference, keeping guard/round/sticky bits), add or subtract the significands,
+    normalize (leading-zero count and left shift), round and pack.
+
+    Latency: ``latency`` cycles (default 3; 0 = combinational), registers placed at the 6 step
+    boundaries (input, after unpack, after align, after add, after normalize, output) by
+    ``regs`` or, by default, output first, then after align, after normalize, after unpack,
+    after add, input. Throughput: one operation per cycle in which ``en`` is 1; with ``en`` = 0
+    every register holds (``o``/``o_valid`` too).
+
+    Ports: ``a``, ``b``, ``op``, ``i_valid``, ``en`` in; ``o``, ``o_valid`` out.
+    """
+
+    BOUNDARIES = ("input", "unpack", "align", "add", "normalize", "output")
+    ORDER = (5, 2, 4, 1, 3, 0)
+
+    def __init__(self, fmt: FPFormat = BINARY32, latency: int = 3, regs: Sequence[int] | None = None):
+        self.fmt = fmt
+        nb = len(self.BOUNDARIES)
+        self.regs = (placement(latency, nb, self.ORDER) if regs is None
+                     else check_regs(regs, nb, "FPAdd", self.BOUNDARIES))
+        self.latency = sum(self.regs)
+        super().__init__({
+            "a": In(fmt.width), "b": In(fmt.width), "op": In(1),
+            "i_valid": In(1), "en": In(1, init=1),
+            "o": Out(fmt.width), "o_valid": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        fmt = self.fmt
+        E, M = fmt.exp_bits, fmt.frac_bits
+        W = M + 1
+        n = W + GUARD                                        # aligned significand width
+        st = Stager(m, self.en, self.i_valid, self.regs)
+
+        v = st(a=self.a, b=self.b, op=self.op)
+        # -- unpack: big = operand of larger magnitude ---------------------------------------
+        ua, ub = unpack(fmt, v.a), unpack(fmt, v.b)
+        sb = ub.sign ^ v.op                                  # sign of the addend b
+        swap = ub.key > ua.key
+        eff_sub = ua.sign ^ sb
+        nan = ua.nan | ub.nan | (ua.inf & ub.inf & eff_sub)
+        inf = ua.inf | ub.inf
+        v = st(big_sig=Mux(swap, ub.sig, ua.sig), small_sig=Mux(swap, ua.sig, ub.sig),
+               big_exp=Mux(swap, ub.exp, ua.exp),
+               diff=Mux(swap, ub.exp - ua.exp, ua.exp - ub.exp)[:E],
+               sign=Mux(swap, sb, ua.sign), zero_sign=ua.sign & sb, eff_sub=eff_sub,
+               nan=nan, inf=inf, inf_sign=Mux(ua.inf, ua.sign, sb))
+        # -- align: small >> diff, bits shifted out OR into a sticky LSB -------------------------
+        d = Mux(v.diff > n, n, v.diff)[:bits_for(n)]
+        wide = Cat(C(0, n + GUARD), v.small_sig) >> d   # 2n bits: aligned | shifted out
+        small = wide[n:] | (wide[:n] != 0)
+        v = st(big=Cat(C(0, GUARD), v.big_sig), small=small, exp=v.big_exp, sign=v.sign,
+               zero_sign=v.zero_sign, eff_sub=v.eff_sub, nan=v.nan, inf=v.inf,
+               inf_sign=v.inf_sign)
+        # -- add / subtract (big >= small, so the difference is never negative) ----------------
+        s = Mux(v.eff_sub, (v.big - v.small).as_unsigned()[:n + 1], v.big + v.small)
+        v = st(s=s, exp=v.exp, sign=v.sign, zero_sign=v.zero_sign, nan=v.nan, inf=v.inf,
+               inf_sign=v.inf_sign)
+        # -- normalize: leading one to the MSB; exponent of the MSB (weight 2**(W)) -----------
+        lz = lzc(m, v.s)
+        norm = (v.s << lz)[:n + 1]
+        exp = v.exp + 1 - lz                                  # signed, wide enough
+        sign = Mux(v.s == 0, v.zero_sign, v.sign)             # exact zero: -0 only for -0 + -0
+        v = st(sig=norm, exp=exp, sign=sign, nan=v.nan, inf=v.inf, inf_sign=v.inf_sign)
+        # -- round, pack, specials -----------------------------------------------------------
+        o = Mux(v.nan, canonical_nan(fmt),
+                Mux(v.inf, special(fmt, v.inf_sign, True), round_pack(m, fmt, v.sign, v.exp, v.sig)))
+        v = st(o=o)
+        st.finish()
+        m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]
+        return m

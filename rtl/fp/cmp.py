@@ -1,0 +1,97 @@
+"""Floating-point compare (lt/le/eq) and min/max, bit-exact with ``FPFormat.lt/le/eq/min/max``."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+from types import SimpleNamespace
+
+from amaranth.hdl import Cat, Module, Mux, Value
+from amaranth.lib import data, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.fp import BINARY32, FPFormat
+from .common import canonical_nan, special, unpack
+from .pipe import Stager, check_regs, placement
+
+__all__ = ["FPCompare", "FPMinMax", "CompareLayout"]
+
+CompareLayout = data.StructLayout({"lt": 1, "le": 1, "equal": 1})
+
+
+def compare(fmt: FPFormat, a: Value, b: Value) -> SimpleNamespace:
+    """IEEE order of two encodings (denormals read as zero): ``-0 == +0``, NaN unordered."""
+    ua, ub = unpack(fmt, a), unpack(fmt, b)
+    # signed magnitude key: -0 and +0 both map to 0
+    ka = Mux(ua.sign, -ua.key, ua.key)
+    kb = Mux(ub.sign, -ub.key, ub.key)
+    ordered = ~ua.nan & ~ub.nan
+    lt, eq = ordered & (ka < kb), ordered & (ka == kb)
+    return SimpleNamespace(lt=lt, eq=eq, le=lt | eq, gt=ordered & (ka > kb), ua=ua, ub=ub)
+
+
+def canonical(fmt: FPFormat, u: SimpleNamespace, x: Value) -> Value:
+    """An operand as the hardware reads it: NaN canonical, denormal encodings signed zero."""
+    return Mux(u.nan, canonical_nan(fmt), Mux(u.zero, special(fmt, u.sign, False), x))
+
+
+class _Unit(wiring.Component):
+    BOUNDARIES = ("input", "output")
+
+    def __init__(self, fmt, latency, regs, out_shape, extra):
+        self.fmt = fmt
+        self.regs = (placement(latency, 2, (1, 0)) if regs is None
+                     else check_regs(regs, 2, type(self).__name__, self.BOUNDARIES))
+        self.latency = sum(self.regs)
+        super().__init__({
+            "a": In(fmt.width), "b": In(fmt.width), **extra,
+            "i_valid": In(1), "en": In(1, init=1),
+            "o": Out(out_shape), "o_valid": Out(1),
+        })
+
+
+class FPCompare(_Unit):
+    """``o.lt = a < b``, ``o.le = a <= b``, ``o.equal = a == b`` (IEEE: ``-0 == +0``; every
+    comparison with a NaN is false; denormal encodings read as zero).
+
+    Latency: ``latency`` cycles (default 1: registered output; 0 = combinational), registers at
+    the input and output boundaries by ``regs``. Throughput: one per cycle in which ``en`` is 1.
+    """
+
+    def __init__(self, fmt: FPFormat = BINARY32, latency: int = 1, regs: Sequence[int] | None = None):
+        super().__init__(fmt, latency, regs, CompareLayout, {})
+
+    def elaborate(self, platform):
+        m = Module()
+        st = Stager(m, self.en, self.i_valid, self.regs)
+        v = st(a=self.a, b=self.b)
+        c = compare(self.fmt, v.a, v.b)
+        v = st(o=Cat(c.lt, c.le, c.eq))
+        st.finish()
+        m.d.comb += [self.o.as_value().eq(v.o), self.o_valid.eq(st.valid)]
+        return m
+
+
+class FPMinMax(_Unit):
+    """``o = min(a, b)`` (``op`` = 0) or ``max(a, b)`` (``op`` = 1) by the model's rule:
+    ``min = b if b < a or a is NaN else a`` (``max``: ``b > a``), so a NaN is ignored when the
+    other operand is a number and of ``+0``/``-0`` the first is returned; NaN out is canonical
+    and a denormal operand comes out as signed zero.
+
+    Latency: ``latency`` cycles (default 1; 0 = combinational), registers at the input and
+    output boundaries by ``regs``. Throughput: one per cycle in which ``en`` is 1.
+    """
+
+    def __init__(self, fmt: FPFormat = BINARY32, latency: int = 1, regs: Sequence[int] | None = None):
+        super().__init__(fmt, latency, regs, fmt.width, {"op": In(1)})
+
+    def elaborate(self, platform):
+        m = Module()
+        st = Stager(m, self.en, self.i_valid, self.regs)
+        v = st(a=self.a, b=self.b, op=self.op)
+        c = compare(self.fmt, v.a, v.b)
+        take_b = Mux(v.op, c.lt, c.gt) | c.ua.nan          # max: b > a; min: b < a
+        o = Mux(take_b, canonical(self.fmt, c.ub, v.b), canonical(self.fmt, c.ua, v.a))
+        v = st(o=o)
+        st.finish()
+        m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]
+        return m
+

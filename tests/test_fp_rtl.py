@@ -1,0 +1,203 @@
+"""The FP units of rtl/fp against the golden model, in Amaranth simulation (tb/fp.py).
+
+Every test checks every output on the exact cycle it must appear (o_valid on every cycle).
+CI runs reduced vector counts; ``-m slow`` (``make bench``) runs the large ones.
+"""
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+import pytest
+from amaranth.sim import Simulator
+from hypothesis import given, settings, strategies as st
+
+from model.fp import BINARY32, FPFormat
+from rtl.fp import FPAdd, FPDiv, FPFromInt, FPMinMax, FPMul, placement
+from tb.fp import make_unit, pair_inputs, run_exhaustive, run_random, simulate
+
+E4M3 = FPFormat(4, 3)
+E8M16, E8M10 = FPFormat(8, 16), FPFormat(8, 10)
+
+
+def full_regs(kind, fmt):
+    """A register at every boundary but the input: the fastest to simulate."""
+    n = len(make_unit(kind, fmt).BOUNDARIES)
+    return (0,) + (1,) * (n - 1)
+
+
+# -------------------------------------------------------------------------------------------
+# exhaustive tiny formats: every operand pair
+# -------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["add", "mul", "div"])
+def test_exhaustive_e4m3(kind):
+    r = run_exhaustive(kind, E4M3, latency=None, regs=full_regs(kind, E4M3))
+    assert r.ops == 1 << 16
+
+
+@pytest.mark.parametrize("kind", ["add", "sub", "mul", "div", "min", "max", "cmp"])
+def test_exhaustive_e2m1(kind):
+    """E2M1 (4-bit words): all 256 pairs, combinational and pipelined."""
+    for latency in (0, 2):
+        assert run_exhaustive(kind, FPFormat(2, 1), latency=latency).ops == 256
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fmt", [E4M3, FPFormat(5, 2), FPFormat(3, 4)], ids=str)
+@pytest.mark.parametrize("kind", ["add", "sub", "mul", "div", "min", "max", "cmp"])
+def test_exhaustive_8bit_formats(fmt, kind):
+    assert run_exhaustive(kind, fmt, latency=None, regs=full_regs(kind, fmt)).ops == 1 << 16
+
+
+# -------------------------------------------------------------------------------------------
+# corner cases and random operands, bubbles and stalls, several latencies and formats
+# -------------------------------------------------------------------------------------------
+
+CI_CASES = [
+    # (kind, fmt, latency): default latencies at binary32, and the extremes elsewhere
+    *[(k, BINARY32, None) for k in ("add", "mul", "div", "cmp", "min", "conv")],
+    ("add", E8M10, 0), ("add", E8M16, 5), ("sub", E4M3, 1),
+    ("mul", E8M16, 1), ("mul", E8M10, 0), ("div", E8M10, 2), ("div", E4M3, 0),
+    ("max", E8M16, 0), ("cmp", E4M3, 2), ("conv", E8M10, 0),
+]
+
+
+@pytest.mark.parametrize("kind,fmt,latency", CI_CASES,
+                         ids=[f"{k}-{f}-L{lat}" for k, f, lat in CI_CASES])
+def test_random_with_stalls(kind, fmt, latency):
+    r = run_random(kind, fmt, 150, latency=latency, seed=zlib.crc32(f"{kind}{fmt}".encode()))
+    assert r.ops > 150 and r.cycles > r.ops        # bubbles and stalls really happened
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fmt", [BINARY32, E8M16, E8M10, E4M3], ids=str)
+@pytest.mark.parametrize("kind", ["add", "sub", "mul", "div", "cmp", "min", "max", "conv"])
+def test_random_with_stalls_long(kind, fmt):
+    for latency in (0, 1, None, 7):
+        run_random(kind, fmt, 5000, latency=latency, seed=latency or 0)
+
+
+@pytest.mark.parametrize("kind,regs", [("add", (1, 0, 2, 0, 0, 1)), ("mul", (2, 0, 0, 1, 0)),
+                                       ("div", (0, 1) + (0,) * 12 + (1,) + (0,) * 13 + (2,))])
+def test_custom_register_placement(kind, regs):
+    """Registers may sit anywhere, several at one boundary; latency is their count."""
+    r = run_random(kind, BINARY32, 100, regs=regs, seed=3)
+    assert make_unit(kind, BINARY32, regs=regs).latency == sum(regs)
+    assert r.ops > 100
+
+
+def test_reciprocal():
+    """1/x through the divider (the intersection unit's 1/det): exact-rounded, with 1/±0 = ±inf
+    and 1/x flushed for huge x."""
+    rng = np.random.default_rng(9)
+    b = np.concatenate([rng.standard_normal(200) * 10.0 ** rng.integers(-38, 38, 200),
+                        [0.0, -0.0, np.inf, -np.inf, 3.0, 2.0 ** 127, 2.0 ** -126]]).astype(np.float32)
+    b = BINARY32.flush(b)
+    a = np.ones_like(b)
+    ins, exp = pair_inputs("div", BINARY32, a, b, rng)
+    simulate(FPDiv(BINARY32), ins, exp, p_bubble=0.2, p_stall=0.2)
+    assert exp[-7] == 0x7F800000 and exp[-6] == 0xFF800000 and exp[-2] == 0
+
+
+# -------------------------------------------------------------------------------------------
+# hypothesis: binary32 operand batches through the pipelined units
+# -------------------------------------------------------------------------------------------
+
+words = st.integers(0, 0xFFFFFFFF)
+
+
+@pytest.mark.parametrize("kind", ["add", "mul", "div"])
+@settings(max_examples=4, deadline=None)
+@given(pairs=st.lists(st.tuples(words, words), min_size=1, max_size=40))
+def test_hypothesis_binary32(kind, pairs):
+    check_words(kind, pairs)
+
+
+def check_words(kind, pairs):
+    a = np.array([p[0] for p in pairs], dtype=np.uint32)
+    b = np.array([p[1] for p in pairs], dtype=np.uint32)
+    af, bf = BINARY32.from_bits(a), BINARY32.from_bits(b)
+    ins, exp = pair_inputs(kind, BINARY32, af, bf, np.random.default_rng(0))
+    ins["a"], ins["b"] = a, b                       # raw words: denormals and NaN payloads too
+    simulate(make_unit(kind, BINARY32), ins, exp, p_bubble=0.2, p_stall=0.2)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["add", "sub", "mul", "div", "min", "cmp"])
+@settings(max_examples=200, deadline=None)
+@given(pairs=st.lists(st.tuples(words, words), min_size=1, max_size=100))
+def test_hypothesis_binary32_long(kind, pairs):
+    check_words(kind, pairs)
+
+
+# -------------------------------------------------------------------------------------------
+# interface: latency, stalls, no combinational path, conversion, parameter errors
+# -------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("cls", [FPAdd, FPMul, FPDiv, FPMinMax])
+def test_no_combinational_path_and_stall_holds(cls):
+    """With latency >= 1 changing the inputs never changes the outputs in the same cycle, and
+    with en = 0 the outputs hold over clock edges."""
+    dut = cls(BINARY32, latency=2)
+    seen = []
+
+    async def bench(ctx):
+        ctx.set(dut.a, 0x3F800000)
+        ctx.set(dut.b, 0x40000000)
+        ctx.set(dut.i_valid, 1)
+        for _ in range(3):
+            await ctx.tick()
+        before = (ctx.get(dut.o), ctx.get(dut.o_valid))
+        ctx.set(dut.a, 0xC0400000)
+        ctx.set(dut.b, 0x7FC00000)
+        ctx.set(dut.i_valid, 0)
+        seen.append(before == (ctx.get(dut.o), ctx.get(dut.o_valid)))
+        ctx.set(dut.en, 0)
+        for _ in range(4):
+            await ctx.tick()
+            seen.append(before == (ctx.get(dut.o), ctx.get(dut.o_valid)))
+        ctx.set(dut.en, 1)
+        await ctx.tick()
+        await ctx.tick()
+        seen.append(ctx.get(dut.o_valid) == 0)        # the bubble arrives after 2 enabled cycles
+        seen.append(before[1] == 1)
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-8)
+    sim.add_testbench(bench)
+    sim.run()
+    assert all(seen) and len(seen) == 7, seen
+
+
+@pytest.mark.parametrize("width,signed,frac,fmt", [(32, True, 0, BINARY32), (32, True, 1, BINARY32),
+                                                   (16, False, 0, E8M10), (12, True, 3, E4M3),
+                                                   (8, True, 0, FPFormat(8, 23))])
+def test_conversion(width, signed, frac, fmt):
+    r = run_random("conv", fmt, 200, int_width=width, signed=signed, frac_bits=frac, seed=width)
+    assert r.ops > 200
+
+
+def test_pixel_centre_conversion_matches_quantize():
+    """from_fixed(2*px + 1, 1) is the pixel centre px + 0.5 rounded once (what model/raygen
+    computes with quantize), for every 13-bit px, at E8M10 where it rounds."""
+    px = np.arange(1 << 13)
+    assert np.array_equal(E8M10.to_bits(E8M10.from_fixed(2 * px + 1, 1)),
+                          E8M10.to_bits(E8M10.quantize(px + 0.5)))
+
+
+@pytest.mark.filterwarnings("ignore:.*created but never used")
+def test_placement_and_errors():
+    assert placement(0, 6, (5, 2)) == (0,) * 6
+    assert placement(3, 6, (5, 2, 4)) == (0, 0, 1, 0, 1, 1)
+    assert placement(4, 3) == (0, 1, 3)        # more registers than boundaries: extras at output
+    assert sum(placement(7, 28)) == 7 and placement(7, 28)[-1] == 1
+    assert FPDiv(BINARY32).latency == 8 and FPMul().latency == 3 and FPAdd().latency == 3
+    with pytest.raises(ValueError, match="latency"):
+        FPMul(BINARY32, latency=-1)
+    with pytest.raises(ValueError, match="boundaries"):
+        FPAdd(BINARY32, regs=(1, 1))
+    with pytest.raises(ValueError, match="int_width"):
+        FPFromInt(BINARY32, int_width=1)
+    with pytest.raises(TypeError, match="integers"):
+        BINARY32.from_fixed(np.array([0.5]))
