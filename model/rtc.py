@@ -41,8 +41,11 @@ N_COUNTERS = len(COUNTERS)
 @numba.njit(cache=True, error_model="numpy")
 def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                  r0, n, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
-                 hit_t, hit_tri, hit_u, hit_v, ctr, E, M):
-    """Trace the packet of rays ``r0 .. r0+n-1`` (lane l = ray r0 + l)."""
+                 hit_t, hit_tri, hit_u, hit_v, ctr, E, M, pid, rec, rec_n):
+    """Trace the packet of rays ``r0 .. r0+n-1`` (lane l = ray r0 + l), packet id ``pid``.
+
+    ``rec`` (K, 8) int64: when K > 0, every unit's input/output events are appended at row
+    ``rec_n[0]`` (see ``EVENTS``); recording stops (rec_n[0] > K) when the buffer is full."""
     # the read-only ray data the units keep locally, per lane
     lo = org[r0:r0 + n]
     linv = inv[r0:r0 + n]
@@ -97,6 +100,8 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 neg = negative[kind]
                 near = field + neg
                 far = field + 1 - neg
+                if rec.shape[0]:
+                    record(rec, rec_n, EV_NODE, pid, oc, node, mask, mnear, mfar, sp)
                 if mnear and mfar:
                     sp = push(sp, far, mfar, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n)
                     c_pushes += 1
@@ -116,11 +121,15 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
             if count > 0:
                 c_leaf_visits += 1
                 c_list_reads += list_words(first, count)
+            if rec.shape[0]:
+                record(rec, rec_n, EV_LEAF, pid, oc, node, mask, first, count, sp)
             for j in range(count):
                 ti = list_entry(mem, list_base, first + j)
                 c_list_ops += 1
                 sid = fetch_triangle(mem, tri_base, ti, tri)
-                m = mask & ~terminated       # shadow rays that hit stop testing
+                m = mask
+                if rec.shape[0]:
+                    record(rec, rec_n, EV_TRI, pid, oc, ti, m, sid, 0, 0)
                 while m:
                     l = lowest_lane(m)
                     m &= m - np.uint64(1)
@@ -128,22 +137,30 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                     hit, t, u, v = intersect(tri, lo[l, 0], lo[l, 1], lo[l, 2],
                                              lk[l, 0], lk[l, 1], lk[l, 2],
                                              ls[l, 0], ls[l, 1], ls[l, 2], E, M)
-                    if hit and t > np.float32(0.0) and t < best[l]:
+                    accept = hit and t > np.float32(0.0) and t < best[l]
+                    if rec.shape[0]:
+                        record(rec, rec_n, EV_INT, pid, l, ti, np.int64(hit) | (np.int64(accept) << 1),
+                               f32_bits(t), f32_bits(u), f32_bits(v))
+                    if accept:
                         best[l] = t
                         b_tri[l] = sid
                         b_u[l] = u
                         b_v[l] = v
-                        if anyhit[r0 + l]:
-                            terminated |= np.uint64(1) << np.uint64(l)
-            # rays whose closest hit lies in this cell are finished
+            # back in traversal: rays whose closest hit lies in this cell are finished, and
+            # any-hit (shadow) rays with any hit; a shadow ray keeps testing the rest of the
+            # leaf it hits in (its lane is in the leaf's mask), as the pipelined hardware does
             m = mask
             while m:
                 l = lowest_lane(m)
                 m &= m - np.uint64(1)
-                if b_tri[l] >= 0 and best[l] <= tfar[l]:
+                if b_tri[l] >= 0 and (anyhit[r0 + l] or best[l] <= tfar[l]):
                     terminated |= np.uint64(1) << np.uint64(l)
+            if rec.shape[0]:
+                record(rec, rec_n, EV_RESULT, pid, oc, node, mask, terminated, 0, sp)
             sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n)
 
+    if rec.shape[0]:
+        record(rec, rec_n, EV_DONE, pid, 0, 0, live, terminated, 0, 0)
     for l in range(n):
         r = r0 + l
         hit_tri[r] = b_tri[l]
@@ -164,6 +181,36 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     ctr[11] = max(ctr[11], c_max_stack)
 
 
+# event log rows: (kind, packet, a, b, c, d, e, f); masks are uint64 bit patterns in int64
+EV_NODE = 0     # traversal at an inner node: octant, node, mask in, near mask, far mask, sp
+EV_LEAF = 1     # leaf reached (list unit input): octant, node, mask, first entry, count, sp
+EV_TRI = 2      # list unit output / intersection input: octant, tri index, lanes tested, id
+EV_INT = 3      # one int-op: lane, tri index, flags (1 edge/det pass, 2 accepted), t, u, v bits
+EV_RESULT = 4   # intersection results back in traversal: octant, leaf node, mask, terminated
+EV_DONE = 5     # packet finished: live mask at start, terminated mask
+EVENTS = ("node", "leaf", "tri", "int", "result", "done")
+
+
+@numba.njit(cache=True, inline="always")
+def f32_bits(x):
+    return np.int64(np.float32(x).view(np.uint32))
+
+
+@numba.njit(cache=True)
+def record(rec, rec_n, kind, pid, a, b, c, d, e, f):
+    i = rec_n[0]
+    rec_n[0] = i + 1
+    if i < rec.shape[0]:
+        rec[i, 0] = kind
+        rec[i, 1] = pid
+        rec[i, 2] = np.int64(a)
+        rec[i, 3] = np.int64(b)
+        rec[i, 4] = np.int64(c)
+        rec[i, 5] = np.int64(d)
+        rec[i, 6] = np.int64(e)
+        rec[i, 7] = np.int64(f)
+
+
 @numba.njit(cache=True, inline="always")
 def popcount(x):
     c = 0
@@ -178,10 +225,25 @@ def trace_all(mem, node_base, list_base, tri_base, root, depth,
               pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
               hit_t, hit_tri, hit_u, hit_v, ctrs, E, M):
     n_packets = pk_start.shape[0] - 1
+    no_rec = np.zeros((0, 8), np.int64)
+    no_n = np.zeros(1, np.int64)
     for p in numba.prange(n_packets):
         trace_packet(mem, node_base, list_base, tri_base, root, depth,
-                     pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
-                     hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M)
+                     pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss, tnear0,
+                     tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M,
+                     p, no_rec, no_n)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def trace_recorded(mem, node_base, list_base, tri_base, root, depth,
+                   pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
+                   hit_t, hit_tri, hit_u, hit_v, ctrs, E, M, rec, rec_n):
+    """Packets one after another (packet order), appending every event to ``rec``."""
+    for p in range(pk_start.shape[0] - 1):
+        trace_packet(mem, node_base, list_base, tri_base, root, depth,
+                     pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss, tnear0,
+                     tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M,
+                     p, rec, rec_n)
 
 
 @dataclass
@@ -193,9 +255,13 @@ class Hits:
     v: np.ndarray        # (N,) float32
 
 
-def trace(image, rays, cfg, ray_setup=None) -> tuple[Hits, np.ndarray]:
-    """Trace every packet of ``rays`` through ``image``; returns hits and per-packet counters
-    (an int64 array ``(n_packets, N_COUNTERS)``, columns named by ``COUNTERS``)."""
+def trace(image, rays, cfg, ray_setup=None, record: bool = False):
+    """Trace every packet of ``rays`` through ``image``.
+
+    Returns ``(hits, counters)`` — counters an int64 array ``(n_packets, N_COUNTERS)``,
+    columns named by ``COUNTERS`` — or, with ``record=True``, ``(hits, counters, events)``
+    where ``events`` is the (K, 8) event log of every unit (see ``EVENTS``; packets traced one
+    after another, for RTL testbenches and memory-access traces; slower, for small runs)."""
     from .raygen import setup
     n = len(rays)
     sizes = np.diff(rays.pk_start)
@@ -207,13 +273,40 @@ def trace(image, rays, cfg, ray_setup=None) -> tuple[Hits, np.ndarray]:
     hit_u = np.empty(n, np.float32)
     hit_v = np.empty(n, np.float32)
     ctrs = np.zeros((rays.n_packets, N_COUNTERS), np.int64)
-    if n:
-        E, M = cfg.fmt.em
-        trace_all(image.data, image.node_base, image.list_base, image.tri_base, image.root,
-                  image.depth, rays.pk_start, rays.org, rays.dir, rs.inv, rs.k, rs.s,
-                  rs.tnear, rs.tfar, rays.tmax.astype(np.float32), rays.anyhit.astype(np.bool_),
-                  hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
-    return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs
+    E, M = cfg.fmt.em
+    args = (image.data, image.node_base, image.list_base, image.tri_base, image.root,
+            image.depth, rays.pk_start, rays.org, rays.dir, rs.inv, rs.k, rs.s,
+            rs.tnear, rs.tfar, rays.tmax.astype(np.float32), rays.anyhit.astype(np.bool_),
+            hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
+    if not record:
+        if n:
+            trace_all(*args)
+        return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs
+    cap = max(1024, 64 * n)
+    while True:
+        rec = np.zeros((cap, 8), np.int64)
+        rec_n = np.zeros(1, np.int64)
+        ctrs[:] = 0
+        if n:
+            trace_recorded(*args, rec, rec_n)
+        if rec_n[0] <= cap:
+            return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs, rec[:rec_n[0]]
+        cap = int(rec_n[0])
+
+
+def memory_trace(events: np.ndarray, image) -> dict:
+    """64-bit word addresses each unit reads, in event order: ``{"trav", "list", "int"}``."""
+    kind = events[:, 0]
+    trav = image.node_base + events[(kind == EV_NODE) | (kind == EV_LEAF), 3]   # node index
+    leaf = events[(kind == EV_LEAF) & (events[:, 6] > 0)]
+    first, count = leaf[:, 5], leaf[:, 6]
+    w0, w1 = first >> 1, (first + count - 1) >> 1
+    lst = image.list_base + np.concatenate([np.arange(a, b + 1) for a, b in zip(w0, w1)]) \
+        if len(leaf) else np.zeros(0, np.int64)
+    tri = events[kind == EV_TRI, 3]
+    inter = (image.tri_base + TRI_WORDS * tri[:, None] + np.arange(TRI_WORDS)).ravel()
+    return {"trav": trav.astype(np.int64), "list": lst.astype(np.int64),
+            "int": inter.astype(np.int64)}
 
 
 def counter_totals(ctrs: np.ndarray) -> dict:
