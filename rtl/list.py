@@ -1,0 +1,154 @@
+"""List unit: expands a leaf's triangle list into triangle addresses (``model/list.py``).
+
+A ``LeafRequest`` names list entries ``[first, first + count)``; entries are 32-bit triangle
+indices, two per 64-bit word (low half first) at word ``list_base + (entry >> 1)``. The unit
+reads every word the leaf touches once (``model.list.list_words``), keeps up to ``outstanding``
+reads in flight (the tag is the slot of a small reorder buffer), and emits one ``TriRequest``
+per entry in entry order, ``last`` on the leaf's final entry.
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Array, C, Cat, Module, Mux, Signal
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFO
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from model.config import Config
+
+from .memport import WORD_BITS, MemReadPort
+from .rtc_streams import LeafRequest, TriRequest
+
+__all__ = ["ListUnit"]
+
+COUNTER_BITS = 32
+
+
+class ListUnit(wiring.Component):
+    """Leaf list -> triangle addresses.
+
+    Ports: ``leaf`` (In stream, ``LeafRequest``), ``tri`` (Out stream, ``TriRequest``), ``mem``
+    (``MemReadPort`` requester: 64-bit words, ``addr_width`` bits, tag = reorder slot),
+    ``list_base`` (In: word address of the list section, from the image header). Counters
+    (Out, 32 bits): ``list_ops`` (entries emitted), ``words`` (words read), ``busy`` (cycles with
+    a leaf in progress or a word not yet emitted).
+
+    Timing: a leaf is accepted in the cycle its last word request is issued (or when idle);
+    one word request per cycle, at most ``outstanding`` words between request and emission;
+    one ``TriRequest`` per cycle. Latency leaf -> first entry: 1 cycle + memory latency.
+    Throughput: one entry per cycle when memory keeps up (a word serves two entries).
+    """
+
+    def __init__(self, cfg: Config, *, addr_width: int = 32, outstanding: int = 8):
+        if outstanding < 1 or outstanding & (outstanding - 1):
+            raise ValueError(f"ListUnit outstanding={outstanding}: must be a power of two >= 1 "
+                             "(it is the tag space of the memory port)")
+        self.cfg = cfg
+        self.outstanding = outstanding
+        self.tag_width = max(1, ceil_log2(outstanding))
+        super().__init__({
+            "leaf": In(stream.Signature(LeafRequest(cfg))),
+            "tri": Out(stream.Signature(TriRequest(cfg))),
+            "mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+                                   tag_width=self.tag_width)),
+            "list_base": In(addr_width),
+            "list_ops": Out(COUNTER_BITS),
+            "words": Out(COUNTER_BITS),
+            "busy": Out(COUNTER_BITS),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, n = self.cfg, self.outstanding
+        leaf, tri, req, resp = self.leaf, self.tri, self.mem.req, self.mem.resp
+
+        # ---- issue: walk the current leaf's words, one request per cycle -----------------------
+        active = Signal()
+        thread = Signal(cfg.thread_bits)
+        mask = Signal(cfg.packet_size)
+        word = Signal(32)                  # current word index (entry >> 1)
+        last_word = Signal(32)
+        first = Signal(33)
+        end = Signal(33)                   # first + count: one past the final entry
+
+        meta = data.StructLayout({"thread": cfg.thread_bits, "mask": cfg.packet_size,
+                                  "lo": 1, "hi": 1, "last": 1})
+        m.submodules.meta = fifo = SyncFIFO(width=meta.size, depth=n)
+        wr_tag = Signal(self.tag_width)
+        inflight = Signal(range(n + 1))    # words requested and not yet emitted
+
+        issue = Signal()
+        done_word = Signal()               # the head word's entries have all been emitted
+        m.d.comb += [
+            req.valid.eq(active & (inflight < n)),
+            req.payload.addr.eq(self.list_base + word),
+            req.payload.tag.eq(wr_tag),
+            issue.eq(req.valid & req.ready),
+        ]
+        w_meta = data.View(meta, fifo.w_data)
+        m.d.comb += [
+            fifo.w_en.eq(issue),
+            w_meta.thread.eq(thread), w_meta.mask.eq(mask),
+            w_meta.lo.eq(Cat(C(0, 1), word) >= first),          # entry 2w is in the leaf
+            w_meta.hi.eq(Cat(C(1, 1), word) < end),             # entry 2w+1 is in the leaf
+            w_meta.last.eq(word == last_word),
+        ]
+        final = issue & (word == last_word)
+        m.d.comb += leaf.ready.eq(~active | final)
+        with m.If(issue):
+            m.d.sync += [word.eq(word + 1), wr_tag.eq(wr_tag + 1)]
+        with m.If(final):
+            m.d.sync += active.eq(0)
+        with m.If(leaf.valid & leaf.ready):
+            p = leaf.payload
+            stop = Signal(33)
+            m.d.comb += stop.eq(p.first + p.count)
+            m.d.sync += [
+                active.eq(p.count != 0),
+                thread.eq(p.thread), mask.eq(p.mask),
+                first.eq(p.first), end.eq(stop),
+                word.eq(p.first >> 1), last_word.eq((stop - 1) >> 1),
+            ]
+        m.d.sync += inflight.eq(inflight + issue - done_word)
+
+        # ---- responses land in their slot (any order) -------------------------------------------
+        slot_data = Array(Signal(WORD_BITS, name=f"slot{i}") for i in range(n))
+        slot_full = Signal(n)
+        m.d.comb += resp.ready.eq(1)
+        rd_tag = Signal(self.tag_width)
+        got = resp.valid & resp.ready
+        set_bits = Mux(got, 1 << resp.payload.tag, 0)
+        clr_bits = Mux(done_word, 1 << rd_tag, 0)
+        m.d.sync += slot_full.eq((slot_full | set_bits) & ~clr_bits)
+        with m.If(got):
+            m.d.sync += slot_data[resp.payload.tag].eq(resp.payload.data)
+
+        # ---- emit the head word's entries in order ---------------------------------------------
+        h = data.View(meta, fifo.r_data)
+        upper = Signal()                   # the head word's low entry is already out
+        take_hi = Signal()
+        head = Signal(WORD_BITS)
+        m.d.comb += [
+            head.eq(slot_data[rd_tag]),
+            take_hi.eq(upper | ~h.lo),
+            tri.valid.eq(fifo.r_rdy & slot_full.bit_select(rd_tag, 1)),
+            tri.payload.thread.eq(h.thread),
+            tri.payload.mask.eq(h.mask),
+            tri.payload.tri.eq(Mux(take_hi, head[32:], head[:32])),
+            tri.payload.last.eq(h.last & (take_hi | ~h.hi)),
+        ]
+        emit = tri.valid & tri.ready
+        m.d.comb += [done_word.eq(emit & (take_hi | ~h.hi)), fifo.r_en.eq(done_word)]
+        with m.If(emit):
+            m.d.sync += upper.eq(~done_word)
+        with m.If(done_word):
+            m.d.sync += rd_tag.eq(rd_tag + 1)
+
+        # ---- counters --------------------------------------------------------------------------
+        with m.If(emit):
+            m.d.sync += self.list_ops.eq(self.list_ops + 1)
+        with m.If(got):
+            m.d.sync += self.words.eq(self.words + 1)
+        with m.If(active | (inflight != 0)):
+            m.d.sync += self.busy.eq(self.busy + 1)
+        return m
