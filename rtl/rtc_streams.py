@@ -111,3 +111,12 @@ def RayResult(cfg: Config) -> data.StructLayout:
         "tri": TRI_ID_BITS,
         "t": w, "u": w, "v": w,
     })
+
+
+def PacketDone(cfg: Config) -> data.StructLayout:
+    """Traversal -> intersection: thread ``thread`` (packet ``packet``) has finished all its
+    passes; read its rays' best hits out as ``RayResult`` s (model event ``EV_DONE``)."""
+    return data.StructLayout({
+        "thread": cfg.thread_bits,
+        "packet": PACKET_ID_BITS,
+    })
