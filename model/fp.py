@@ -120,7 +120,16 @@ def fmul(a, b, E, M):
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def fdiv(a, b, E, M):
-    """a / b; with error_model='numpy' x/0 is ±inf and 0/0 NaN, as IEEE and the hardware."""
+    """a / b; x/0 is ±inf and 0/0 NaN, as IEEE and the hardware.
+
+    The zero divisor is handled explicitly: this function is inlined into its caller, and a
+    caller compiled with numba's default ``error_model='python'`` would raise
+    ZeroDivisionError on ``a / 0``."""
+    if b == 0:
+        if a != a or a == 0:
+            return np.float32(np.nan)
+        neg = (np.float64(a).view(np.uint64) ^ np.float64(b).view(np.uint64)) & _SIGN64
+        return np.float32(np.inf) if neg == 0 else np.float32(-np.inf)
     if E == 8 and M == 23:
         r = np.float32(a) / np.float32(b)
         if not (abs(r) <= _FLT_MIN):
