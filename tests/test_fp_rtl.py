@@ -75,7 +75,7 @@ def test_random_with_stalls(kind, fmt, latency):
 @pytest.mark.parametrize("kind", ["add", "sub", "mul", "div", "cmp", "min", "max", "conv"])
 def test_random_with_stalls_long(kind, fmt):
     for latency in (0, 1, None, 7):
-        run_random(kind, fmt, 5000, latency=latency, seed=latency or 0)
+        run_random(kind, fmt, 3000, latency=latency, seed=latency or 0)
 
 
 @pytest.mark.parametrize("kind,regs", [("add", (1, 0, 2, 0, 0, 1)), ("mul", (2, 0, 0, 1, 0)),

@@ -20,12 +20,17 @@ CompareLayout = data.StructLayout({"lt": 1, "le": 1, "equal": 1})
 def compare(fmt: FPFormat, a: Value, b: Value) -> SimpleNamespace:
     """IEEE order of two encodings (denormals read as zero): ``-0 == +0``, NaN unordered."""
     ua, ub = unpack(fmt, a), unpack(fmt, b)
-    # signed magnitude key: -0 and +0 both map to 0
-    ka = Mux(ua.sign, -ua.key, ua.key)
-    kb = Mux(ub.sign, -ub.key, ub.key)
+    # sign-magnitude order on the keys (exponent:fraction, denormals cleared): one magnitude
+    # comparator; a sign difference decides unless both are zeros
+    mlt, meq = ua.key < ub.key, ua.key == ub.key
+    mgt = ~mlt & ~meq
     ordered = ~ua.nan & ~ub.nan
-    lt, eq = ordered & (ka < kb), ordered & (ka == kb)
-    return SimpleNamespace(lt=lt, eq=eq, le=lt | eq, gt=ordered & (ka > kb), ua=ua, ub=ub)
+    zeros = ua.zero & ub.zero
+    diff = ua.sign ^ ub.sign
+    eq = ordered & (zeros | (meq & ~diff))
+    lt = ordered & ~zeros & Mux(diff, ua.sign, Mux(ua.sign, mgt, mlt))
+    gt = ordered & ~zeros & Mux(diff, ub.sign, Mux(ua.sign, mlt, mgt))
+    return SimpleNamespace(lt=lt, eq=eq, le=lt | eq, gt=gt, ua=ua, ub=ub)
 
 
 def canonical(fmt: FPFormat, u: SimpleNamespace, x: Value) -> Value:
