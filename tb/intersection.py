@@ -1,0 +1,229 @@
+"""Testbenches of the intersection unit (``rtl/intersection.py``) against the golden model.
+
+* :func:`run_pipe`: the bare datapath (:class:`~rtl.intersection.IntersectPipe`), one test per
+  cycle with random bubbles (``i_valid`` = 0, random operands) and stalls (``en`` = 0), every
+  output checked at the exact cycle it must appear (a shift register of the pipeline's latency
+  that moves only when ``en`` is 1) against ``model.intersection.intersect``.
+* :func:`random_tests` / :func:`golden_tests`: operands for it — random rays and triangles with
+  degenerate triangles, exact edge and vertex hits, det = 0 and overflow to infinity; or the
+  int-ops (``EV_INT``) of a traced scene.
+"""
+from __future__ import annotations
+
+import random
+import time
+from collections import deque
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from model.fp import FPFormat
+from model.intersection import intersect
+from model.raygen import Rays, setup
+from rtl.intersection import IntersectPipe
+
+from .common import run
+
+
+@dataclass
+class PipeTests:
+    """Operands (float32 format values; ``k`` ints) and the model's results, one row per test."""
+    tri: np.ndarray      # (n, 9)
+    org: np.ndarray      # (n, 3)
+    k: np.ndarray        # (n, 3)
+    s: np.ndarray        # (n, 3)
+    hit: np.ndarray      # (n,) bool
+    t: np.ndarray        # (n,)
+    u: np.ndarray
+    v: np.ndarray
+
+    def __len__(self):
+        return len(self.hit)
+
+
+@numba.njit(cache=True)
+def _intersect_all(tri, org, k, s, E, M, hit, t, u, v):
+    for i in range(tri.shape[0]):
+        hit[i], t[i], u[i], v[i] = intersect(tri[i], org[i, 0], org[i, 1], org[i, 2],
+                                             k[i, 0], k[i, 1], k[i, 2],
+                                             s[i, 0], s[i, 1], s[i, 2], E, M)
+
+
+def model_tests(tri, org, k, s, fmt: FPFormat) -> PipeTests:
+    """Run ``model.intersection.intersect`` on every row (operands quantized to ``fmt``)."""
+    q = lambda x: np.ascontiguousarray(fmt.quantize(np.asarray(x, np.float64)), np.float32)
+    tri, org, s = q(tri), q(org), q(s)
+    k = np.ascontiguousarray(k, np.int64)
+    n = len(tri)
+    hit = np.zeros(n, np.bool_)
+    t, u, v = (np.zeros(n, np.float32) for _ in range(3))
+    _intersect_all(tri, org, k, s, fmt.exp_bits, fmt.frac_bits, hit, t, u, v)
+    return PipeTests(tri, org, k, s, hit, t, u, v)
+
+
+def random_tests(n: int, fmt: FPFormat, seed: int = 0) -> PipeTests:
+    """``n`` random ray/triangle pairs in six families (about n/6 each):
+
+    0. rays aimed at a random point of a random triangle (about half hit);
+    1. exact edge and vertex hits: small-integer triangles, axis-aligned rays through a vertex or
+       an edge midpoint (edge functions exactly zero);
+    2. degenerate triangles (repeated vertex, collinear vertices: det = 0) and rays in the
+       triangle's plane;
+    3. huge coordinates (products overflow to infinity, inf - inf gives NaN inside);
+    4. tiny coordinates near the smallest normal (results flush to zero);
+    5. random finite bit patterns for every operand, any kx/ky/kz in 0..3 and random S.
+    """
+    rng = np.random.default_rng(seed)
+    fam = np.arange(n) % 6
+    tri = rng.normal(size=(n, 9)) * 4
+    org = rng.normal(size=(n, 3)) * 8
+    bary = rng.dirichlet([1, 1, 1], size=n) * rng.uniform(0.7, 1.3, (n, 1))
+    target = (bary[:, :1] * tri[:, 0:3] + bary[:, 1:2] * tri[:, 3:6] + bary[:, 2:3] * tri[:, 6:9])
+    dirn = target - org
+    # 1: exact edge/vertex hits on an integer grid
+    f = fam == 1
+    m = int(f.sum())
+    g = rng.integers(-4, 5, size=(m, 9)).astype(np.float64)
+    g[:, 2::3] = rng.integers(-2, 3, size=(m, 1))               # triangle in a z plane
+    pick = rng.integers(0, 3, m)
+    va = g.reshape(m, 3, 3)[np.arange(m), pick]
+    vb = g.reshape(m, 3, 3)[np.arange(m), (pick + 1) % 3]
+    on = np.where(rng.random((m, 1)) < 0.5, va, (va + vb) / 2)  # a vertex or an edge midpoint
+    axis_dir = np.zeros((m, 3))
+    axis_dir[:, 2] = np.where(rng.random(m) < 0.5, -1.0, 1.0)
+    tri[f], org[f], dirn[f] = g, on - 5 * axis_dir, axis_dir
+    # 2: degenerate triangles
+    f = fam == 2
+    m = int(f.sum())
+    d = tri[f].reshape(m, 3, 3)
+    kind = rng.integers(0, 3, m)
+    d[kind == 0, 1] = d[kind == 0, 0]                              # A == B
+    d[kind == 1, 2] = 2 * d[kind == 1, 1] - d[kind == 1, 0]        # C on line AB
+    d[kind == 2] = np.round(d[kind == 2])
+    tri[f] = d.reshape(m, 9)
+    inplane = kind == 2
+    dirn[np.flatnonzero(f)[inplane]] = d[inplane, 1] - d[inplane, 0] + 1e-30
+    org[np.flatnonzero(f)[inplane]] = d[inplane, 0] - (d[inplane, 1] - d[inplane, 0])
+    # 3: huge, 4: tiny
+    for fi, scale in ((3, 1e37), (4, fmt.min_normal * 8)):
+        f = fam == fi
+        tri[f] *= scale * rng.uniform(0.5, 30, (int(f.sum()), 1))
+        org[f] *= scale * rng.uniform(0.5, 30, (int(f.sum()), 1))
+        dirn[f] = np.where(rng.random((int(f.sum()), 1)) < 0.5, dirn[f],
+                           (tri[f, 0:3] - org[f]))
+    dirn[np.all(dirn == 0, axis=1)] = (0, 0, 1)
+    hi = fmt.max_finite
+    tri, org = np.clip(tri, -hi, hi), np.clip(org, -hi, hi)
+    rays = Rays(fmt.quantize(org), fmt.quantize(dirn), np.full(n, np.inf, np.float32),
+                np.zeros(n, np.uint8), np.zeros(n, np.int32), np.array([0, n], np.int64))
+    with np.errstate(all="ignore"):          # huge/tiny families: inf and NaN in the clipping
+        rs = setup(rays, np.array([[-1, -1, -1], [1, 1, 1]], np.float32), fmt)
+    k, s = rs.k.copy(), rs.s.astype(np.float64)
+    # 5: random finite bit patterns, any k, random S
+    f = fam == 5
+    m = int(f.sum())
+
+    def bits(shape):
+        e = rng.integers(0, 255, shape).astype(np.uint32)       # exponent < 255: finite
+        x = (rng.integers(0, 2, shape).astype(np.uint32) << 31) | (e << 23) | \
+            rng.integers(0, 1 << 23, shape).astype(np.uint32)
+        return x.view(np.float32).astype(np.float64)
+    tri[f], org[f], s[f] = bits((m, 9)), bits((m, 3)), bits((m, 3))
+    k[f] = rng.integers(0, 4, (m, 3))
+    return model_tests(np.clip(tri, -hi, hi), np.clip(org, -hi, hi), k,
+                       np.clip(s, -hi, hi), fmt)
+
+
+def golden_tests(g) -> tuple[PipeTests, np.ndarray]:
+    """The int-ops of a traced scene (``EV_INT`` in order) as datapath operands, and the
+    model's recorded flags/t/u/v bits ``(n, 4)`` (the same tests, as the tracer logged them)."""
+    from model.rtc import EV_INT
+    from model.intersection import TRI_WORDS
+    ev = g.events[g.events[:, 0] == EV_INT]
+    words = g.image.data
+    idx = g.image.tri_base + TRI_WORDS * ev[:, 3][:, None] + np.arange(TRI_WORDS)
+    w = words[idx]                                                  # (n, 5) uint64
+    halves = np.stack([w & np.uint64(0xFFFFFFFF), w >> np.uint64(32)], axis=2).reshape(-1, 10)
+    tri = halves[:, :9].astype(np.uint32).view(np.float32)
+    ray = g.rays.pk_start[ev[:, 1]] + ev[:, 2]
+    t = model_tests(tri, g.rays.org[ray], g.setup.k[ray], g.setup.s[ray], g.cfg.fmt)
+    return t, ev[:, 4:8]
+
+
+def _pack(fmt: FPFormat, x: np.ndarray) -> list[int]:
+    b = fmt.to_bits(x).astype(np.uint64)
+    out = np.zeros(len(b), dtype=object)
+    for j in range(b.shape[1]):
+        out = out + (b[:, j].astype(object) << (fmt.width * j))
+    return [int(v) for v in out]
+
+
+@dataclass
+class PipeRun:
+    tests: int
+    cycles: int
+    seconds: float
+    latency: int
+
+    @property
+    def cycles_per_s(self) -> float:
+        return self.cycles / self.seconds
+
+
+def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float = 0.2,
+             p_stall: float = 0.2, latencies: dict | None = None) -> PipeRun:
+    """Drive ``tests`` through the datapath and check every output at its exact cycle."""
+    n = len(tests)
+    dut = IntersectPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
+    L = dut.latency
+    tri, org, s = _pack(fmt, tests.tri), _pack(fmt, tests.org), _pack(fmt, tests.s)
+    k = [int(a) | int(b) << 2 | int(c) << 4 for a, b, c in tests.k]
+    hit = tests.hit.astype(int).tolist()
+    tb, ub, vb = (fmt.to_bits(x).astype(np.int64).tolist() for x in (tests.t, tests.u, tests.v))
+    rnd = random.Random(seed)
+    w = fmt.width
+    stats = {}
+
+    async def bench(ctx):
+        pipe = deque([None] * L)
+        i = cycle = 0
+        while i < n or any(x is not None for x in pipe):
+            en = rnd.random() >= p_stall
+            valid = i < n and rnd.random() >= p_bubble
+            if valid:
+                vals = (tri[i], org[i], k[i], s[i], i)
+            else:
+                vals = (rnd.getrandbits(9 * w), rnd.getrandbits(3 * w), rnd.getrandbits(6),
+                        rnd.getrandbits(3 * w), 0)
+            for port, x in zip((dut.tri, dut.org, dut.k, dut.s, dut.tag), vals):
+                ctx.set(port.as_value() if hasattr(port, "as_value") else port, x)
+            ctx.set(dut.i_valid, valid)
+            ctx.set(dut.en, en)
+            head = pipe[-1]
+            o_valid = ctx.get(dut.o_valid)
+            if o_valid != (head is not None):
+                raise AssertionError(f"IntersectPipe: cycle {cycle}: o_valid={o_valid}, expected "
+                                     f"{int(head is not None)}")
+            if head is not None:
+                got = (ctx.get(dut.o_tag), ctx.get(dut.hit), ctx.get(dut.t), ctx.get(dut.u),
+                       ctx.get(dut.v))
+                want = (head, hit[head], tb[head], ub[head], vb[head])
+                if got != want:
+                    raise AssertionError(
+                        f"IntersectPipe: cycle {cycle}, test #{head}: (tag, hit, t, u, v) = "
+                        f"{tuple(hex(x) for x in got)}, model {tuple(hex(x) for x in want)}; "
+                        f"tri={tests.tri[head].tolist()} org={tests.org[head].tolist()} "
+                        f"k={tests.k[head].tolist()} s={tests.s[head].tolist()}")
+            if en:
+                pipe.pop()
+                pipe.appendleft(i if valid else None)
+                if valid:
+                    i += 1
+            await ctx.tick()
+            cycle += 1
+        stats["cycles"] = cycle
+
+    t0 = time.perf_counter()
+    run(dut, bench)
+    return PipeRun(n, stats["cycles"], time.perf_counter() - t0, L)
