@@ -79,7 +79,8 @@ class FPAdd(wiring.Component):
         s = Mux(v.eff_sub, (v.big - v.small).as_unsigned()[:n + 1], v.big + v.small)
         v = st(s=s, exp=v.exp, sign=v.sign, zero_sign=v.zero_sign, nan=v.nan, inf=v.inf,
                inf_sign=v.inf_sign)
-        # -- normalize: leading one to the MSB; exponent of the MSB (weight 2**(W)) -----------
+        # -- normalize: leading one to the MSB; the sum's bit n is one binade above big's ----
+        # hidden bit (bit n-1, exponent big_exp)
         lz = lzc(m, v.s)
         norm = (v.s << lz)[:n + 1]
         exp = v.exp + 1 - lz                                  # signed, wide enough
@@ -87,7 +88,8 @@ class FPAdd(wiring.Component):
         v = st(sig=norm, exp=exp, sign=sign, nan=v.nan, inf=v.inf, inf_sign=v.inf_sign)
         # -- round, pack, specials -----------------------------------------------------------
         o = Mux(v.nan, canonical_nan(fmt),
-                Mux(v.inf, special(fmt, v.inf_sign, True), round_pack(m, fmt, v.sign, v.exp, v.sig)))
+                Mux(v.inf, special(fmt, v.inf_sign, True),
+                    round_pack(m, fmt, v.sign, v.exp, v.sig)))
         v = st(o=o)
         st.finish()
         m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]
