@@ -1,0 +1,519 @@
+"""Traversal unit of the RTC: up to ``cfg.threads`` packets walk the kd-tree, bit-exact with
+``model.rtc.trace_packet`` / ``model.traversal``.
+
+Per thread (packet in flight) the unit keeps: the read-only ray data of its lanes (org, inv,
+any-hit) and the per-lane interval ``[tnear, tfar]`` in the sub-units' local memories; the
+active mask, current node, octant pass, stack pointer and terminated mask in registers; a stack
+of ``cfg.stack_depth`` entries (node, mask) in an on-chip ``Memory`` and, per entry and lane,
+the far interval in the sub-units' stack memories.
+
+Interval storage: a thread's current intervals live either in its *near* slot ``N`` or in its
+stack slot ``S[sp]`` (flag ``cur``). A step at an inner node writes, for every active lane,
+the near interval ``[tnear, min(tfar, dist)]`` to ``N`` and the far interval
+``[max(tnear, dist), tfar]`` to ``S[sp]`` (each lane reads its own word before it overwrites
+it, so doing this in place is safe). Then: both children needed -> push entry ``sp`` (its
+intervals are already in ``S[sp]``), descend near (``cur = N``); near only -> ``cur = N``; far
+only -> ``cur = S``. A pop of entry ``i`` sets ``sp = i``, ``cur = S``: no interval is copied.
+
+Engines (each a small state machine; threads are picked round-robin among those waiting):
+
+* loader: takes ``RayIn`` packets into a free thread (``load_thread`` says which), one lane
+  per cycle;
+* fetcher: one 64-bit node read per packet visit (``node`` port, tag = thread);
+* step engine: decodes the node; at an inner node the ``k`` sub-units each run their static
+  share of the active lanes (lane ``l`` -> sub-unit ``l // (lanes/k)``), one lane per cycle
+  through ``sub -> mul -> compare, min/max`` (latency 8 + the FP units'); synchronous mode:
+  the step ends when all sub-units have drained. At a non-empty leaf it emits a
+  ``LeafRequest`` and parks the thread; empty leaves and finished leaves pop the stack (one
+  entry per 2 cycles); an exhausted stack starts the next octant pass or finishes the packet;
+* result engine: one ``LaneResult`` per cycle; terminates lanes with
+  ``hit & (anyhit | t <= tfar)``; the leaf's ``last`` result makes the thread pop;
+* done engine: emits ``PacketDone``; the thread is free again on ``release``.
+
+Counters (ports, 32 bit): ``busy`` (cycles the step engine works), ``sub_busy[k]`` (cycles a
+sub-unit has a lane in flight), ``trav_ops`` (active lanes classified), ``trav_steps`` (inner
+node steps), ``node_reads``, ``leaf_reqs``, ``passes``, ``pushes``, ``packets_done``.
+Asynchronous sub-units (``cfg.trav_sync=False``) are not implemented.
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from model.config import Config
+from model.fp import FPFormat
+from .fp import FPAdd, FPCompare, FPMinMax, FPMul
+from .fp.cmp import compare
+from .memport import WORD_BITS, MemReadPort
+from .rtc_streams import LaneResult, LeafRequest, PacketDone, RayIn, lane_bits
+
+__all__ = ["Traversal", "TravSubunit", "from_binary32", "rr_pick", "lowest"]
+
+COUNTER_BITS = 32
+NODE_BITS = 30
+
+# thread states
+FREE, LOAD, NEXTPASS, FETCH, WAIT_MEM, HAVE_NODE, WAIT_LEAF, POP, DONE, DRAIN = range(10)
+
+
+def from_binary32(fmt: FPFormat, b: Value) -> Value:
+    """A binary32 bit pattern of a format value (memory holds those) as a format word."""
+    if (fmt.exp_bits, fmt.frac_bits) == (8, 23):
+        return b[:32]
+    E, M = fmt.exp_bits, fmt.frac_bits
+    e32 = b[23:31]
+    emax = (1 << E) - 1
+    e = Mux(e32 == 0, 0, Mux(e32 == 0xFF, emax, (e32 - 127 + fmt.bias)[:E]))
+    return Cat(b[23 - M:23], e[:E], b[31])
+
+
+def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:
+    """(any, index of the lowest set bit) of ``bits``: a priority encoder."""
+    bits = Value.cast(bits)
+    idx = Signal(range(max(2, len(bits))), name=f"{name}_idx")
+    for i in reversed(range(len(bits))):
+        with m.If(bits[i]):
+            m.d.comb += idx.eq(i)
+    anyb = Signal(name=f"{name}_any")
+    m.d.comb += anyb.eq(bits.any())
+    return anyb, idx
+
+
+def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signal]:
+    """Round-robin: (any, first set bit of ``req`` at or after ``ptr``); len(req) a power of 2."""
+    n = len(req)
+    if n == 1:
+        return lowest(m, req, name)
+    rot = Signal(n, name=f"{name}_rot")
+    m.d.comb += rot.eq((Cat(req, req) >> ptr)[:n])
+    anyb, off = lowest(m, rot, name)
+    idx = Signal(range(n), name=f"{name}_pick")
+    m.d.comb += idx.eq((ptr + off)[:ceil_log2(n)])
+    return anyb, idx
+
+
+class TravSubunit(wiring.Component):
+    """One traversal sub-unit: its static share of ``R = lanes / k`` lanes of every thread.
+
+    Memories (per sub-unit): ray data ``org, inv`` (T x R), ``anyhit`` (T x R), near slot
+    intervals ``N`` (T x R) and stack slot intervals ``S`` (T x depth x R), each interval word
+    ``tnear | tfar << w``.
+
+    A step (``start`` strobe with ``mask``; ``thread``, ``axis``, ``split``, ``sp``, ``cur`` held
+    until ``idle``) classifies the active lanes lowest first, one per cycle: ray read (1),
+    ``split - org[axis]`` (FPAdd), ``* inv[axis]`` (FPMul), interval read timed to meet
+    ``dist``, compares and min/max (1), write of both intervals (1). ``near``/``far`` collect
+    ``not (dist < tnear)`` / ``not (dist > tfar)`` per lane. Latency ``LAT`` cycles per lane,
+    throughput one lane per cycle.
+
+    ``ld_*``: write one lane's ray data and initial interval (the loader); ``ld_block`` says the
+    datapath writes ``N`` this cycle (the loader must wait). ``rq_*``: read a lane's ``tfar``
+    (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid one cycle later.
+    """
+
+    def __init__(self, cfg: Config):
+        self.cfg = cfg
+        fmt = cfg.fmt
+        w = fmt.width
+        self.R = R = cfg.rays_per_subunit
+        self.rbits = max(1, ceil_log2(R))
+        self.tbits = cfg.thread_bits
+        self.dbits = max(1, ceil_log2(cfg.stack_depth))
+        self.add = FPAdd(fmt)
+        self.mul = FPMul(fmt)
+        self.LAT = 1 + self.add.latency + self.mul.latency + 1   # issue -> write stage
+        super().__init__({
+            "start": In(1), "mask": In(R), "thread": In(self.tbits), "axis": In(2),
+            "split": In(w), "sp": In(self.dbits), "cur": In(1),
+            "idle": Out(1), "near": Out(R), "far": Out(R), "issue": Out(1),
+            "ld_en": In(1), "ld_thread": In(self.tbits), "ld_lane": In(self.rbits),
+            "ld_org": In(data.ArrayLayout(w, 3)), "ld_inv": In(data.ArrayLayout(w, 3)),
+            "ld_tnear": In(w), "ld_tfar": In(w), "ld_anyhit": In(1), "ld_block": Out(1),
+            "rq_thread": In(self.tbits), "rq_lane": In(self.rbits), "rq_sp": In(self.dbits),
+            "rq_cur": In(1), "rq_tfar": Out(w), "rq_anyhit": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, fmt = self.cfg, self.cfg.fmt
+        w, R, rb, tb, db = fmt.width, self.R, self.rbits, self.tbits, self.dbits
+        T = cfg.threads
+        m.submodules.ray = ray = Memory(shape=6 * w, depth=T << rb, init=[])
+        m.submodules.anyhit = ah = Memory(shape=1, depth=T << rb, init=[])
+        m.submodules.nmem = nmem = Memory(shape=2 * w, depth=T << rb, init=[])
+        m.submodules.smem = smem = Memory(shape=2 * w, depth=T << (rb + db), init=[])
+        ray_r, ray_w = ray.read_port(), ray.write_port()
+        ah_r, ah_w = ah.read_port(), ah.write_port()
+        n_r, n_rq, n_w = nmem.read_port(), nmem.read_port(), nmem.write_port()
+        s_r, s_rq, s_w = smem.read_port(), smem.read_port(), smem.write_port()
+        m.submodules.add, m.submodules.mul = add, mul = self.add, self.mul
+        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=1)
+        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=1)
+        m.submodules.vmin = vmin = FPMinMax(fmt, latency=1)
+        m.submodules.vmax = vmax = FPMinMax(fmt, latency=1)
+
+        # ---- issue: lanes of the step's mask, lowest first, one per cycle
+        rem = Signal(R)
+        has, lane0 = lowest(m, rem, "issue")
+        with m.If(self.start):
+            m.d.sync += rem.eq(self.mask)
+        with m.Elif(has):
+            m.d.sync += rem.eq(rem & ~(Const(1, R) << lane0))
+        K = self.LAT
+        v = [Signal(name=f"v{k}") for k in range(K + 1)]
+        ln = [Signal(rb, name=f"lane{k}") for k in range(K + 1)]
+        m.d.comb += [v[0].eq(has), ln[0].eq(lane0), self.issue.eq(has)]
+        for k in range(1, K + 1):
+            m.d.sync += [v[k].eq(v[k - 1]), ln[k].eq(ln[k - 1])]
+        m.d.comb += self.idle.eq(~rem.any() & ~Cat(*v[1:]).any())
+
+        # ---- k=0: ray read; k=1: split - org[axis]
+        m.d.comb += ray_r.addr.eq(Cat(ln[0], self.thread))
+        org = [ray_r.data[i * w:(i + 1) * w] for i in range(3)]
+        inv = [ray_r.data[(3 + i) * w:(4 + i) * w] for i in range(3)]
+        m.d.comb += [add.a.eq(self.split), add.b.eq(Array(org)[self.axis]), add.op.eq(1),
+                     add.i_valid.eq(v[1])]
+        inv_d = Array(inv)[self.axis]
+        for i in range(add.latency):
+            nxt = Signal(w, name=f"inv_d{i}")
+            m.d.sync += nxt.eq(inv_d)
+            inv_d = nxt
+        # ---- k=1+La: * inv[axis]; dist at k=K-2
+        m.d.comb += [mul.a.eq(add.o), mul.b.eq(inv_d), mul.i_valid.eq(add.o_valid)]
+        dist = mul.o
+        kd = 1 + add.latency + mul.latency          # stage where dist is valid
+        assert kd == K - 1
+        # interval read issued one stage earlier, so it meets dist
+        m.d.comb += [n_r.addr.eq(Cat(ln[kd - 1], self.thread)),
+                     s_r.addr.eq(Cat(ln[kd - 1], self.sp, self.thread))]
+        iv = Mux(self.cur, s_r.data, n_r.data)
+        tnear, tfar = iv[:w], iv[w:]
+        m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(v[kd]),
+                     gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(v[kd]),
+                     vmin.a.eq(tfar), vmin.b.eq(dist), vmin.op.eq(0), vmin.i_valid.eq(v[kd]),
+                     vmax.a.eq(tnear), vmax.b.eq(dist), vmax.op.eq(1), vmax.i_valid.eq(v[kd])]
+        tnear_d, tfar_d = Signal(w), Signal(w)
+        m.d.sync += [tnear_d.eq(tnear), tfar_d.eq(tfar)]
+        # ---- k=K-1: write near interval to N, far interval to S[sp]; collect the masks
+        kw = K
+        near, far = Signal(R), Signal(R)
+        m.d.comb += [self.near.eq(near), self.far.eq(far), self.ld_block.eq(v[kw])]
+        bit = Const(1, R) << ln[kw]
+        with m.If(self.start):
+            m.d.sync += [near.eq(0), far.eq(0)]
+        with m.Elif(v[kw]):
+            with m.If(~lt_near.o.lt):
+                m.d.sync += near.eq(near | bit)
+            with m.If(~gt_far.o.lt):
+                m.d.sync += far.eq(far | bit)
+        m.d.comb += [s_w.addr.eq(Cat(ln[kw], self.sp, self.thread)),
+                     s_w.data.eq(Cat(vmax.o, tfar_d)), s_w.en.eq(v[kw])]
+        # N: the datapath's write wins; the loader is held off by ld_block
+        with m.If(v[kw]):
+            m.d.comb += [n_w.addr.eq(Cat(ln[kw], self.thread)), n_w.data.eq(Cat(tnear_d, vmin.o)),
+                         n_w.en.eq(1)]
+        with m.Else():
+            m.d.comb += [n_w.addr.eq(Cat(self.ld_lane, self.ld_thread)),
+                         n_w.data.eq(Cat(self.ld_tnear, self.ld_tfar)), n_w.en.eq(self.ld_en)]
+        m.d.comb += [ray_w.addr.eq(Cat(self.ld_lane, self.ld_thread)),
+                     ray_w.data.eq(Cat(self.ld_org.as_value(), self.ld_inv.as_value())),
+                     ray_w.en.eq(self.ld_en & ~v[kw]),
+                     ah_w.addr.eq(Cat(self.ld_lane, self.ld_thread)), ah_w.data.eq(self.ld_anyhit),
+                     ah_w.en.eq(self.ld_en & ~v[kw])]
+
+        # ---- result-side read: tfar of the current slot and anyhit, one cycle later
+        m.d.comb += [n_rq.addr.eq(Cat(self.rq_lane, self.rq_thread)),
+                     s_rq.addr.eq(Cat(self.rq_lane, self.rq_sp, self.rq_thread)),
+                     ah_r.addr.eq(Cat(self.rq_lane, self.rq_thread))]
+        cur_d = Signal()
+        m.d.sync += cur_d.eq(self.rq_cur)
+        m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_rq.data, n_rq.data)[w:]),
+                     self.rq_anyhit.eq(ah_r.data)]
+        return m
+
+
+class Traversal(wiring.Component):
+    """The traversal unit: ``cfg.threads`` packets in flight, ``cfg.trav_subunits`` sub-units.
+
+    Ports: ``rays`` (``RayIn`` in; ``load_thread`` = the thread a transfer goes to), ``node``
+    (memory read port, 64-bit words, tag = thread), ``leaf`` (``LeafRequest`` out), ``result``
+    (``LaneResult`` in, always ready), ``done`` (``PacketDone`` out), ``release`` (thread id in,
+    always ready: the thread's results were read out, it may take a new packet), ``node_base``
+    and ``root`` (memory image constants, held). Counters: see the module docstring.
+
+    Latency of one inner-node step of a packet with ``a`` active lanes in its busiest sub-unit:
+    2 (pick, dispatch) + ``a`` + ``TravSubunit.LAT`` + 1 (decide); node fetch: memory latency
+    + 2. Threads overlap fetches, leaves and steps; the sub-units serve one step at a time.
+    """
+
+    def __init__(self, cfg: Config, *, addr_width: int = 32):
+        if not cfg.trav_sync:
+            raise NotImplementedError("Traversal: asynchronous sub-units (trav_sync=False) are not "
+                                      "implemented; use Config(trav_sync=True)")
+        self.cfg = cfg
+        self.subunits = [TravSubunit(cfg) for _ in range(cfg.trav_subunits)]
+        tb = cfg.thread_bits
+        counters = {name: Out(COUNTER_BITS) for name in (
+            "busy", "trav_ops", "trav_steps", "node_reads", "leaf_reqs", "passes", "pushes",
+            "packets_done")}
+        super().__init__({
+            "rays": In(stream.Signature(RayIn(cfg))),
+            "load_thread": Out(tb),
+            "node": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS, tag_width=tb)),
+            "leaf": Out(stream.Signature(LeafRequest(cfg))),
+            "result": In(stream.Signature(LaneResult(cfg))),
+            "done": Out(stream.Signature(PacketDone(cfg))),
+            "release": In(stream.Signature(tb)),
+            "node_base": In(addr_width), "root": In(NODE_BITS),
+            "sub_busy": Out(COUNTER_BITS).array(cfg.trav_subunits),
+            **counters,
+        })
+
+    def _split_lane(self, m: Module, lane: Value, name: str) -> tuple[Signal, Signal]:
+        """(sub-unit, lane within it) of a packet lane: lane l -> (l // R, l % R)."""
+        R, k = self.cfg.rays_per_subunit, self.cfg.trav_subunits
+        sub = Signal(range(max(2, k)), name=f"{name}_sub")
+        loc = Signal(max(1, ceil_log2(R)), name=f"{name}_loc")
+        m.d.comb += [sub.eq(sum(lane >= j * R for j in range(1, k))) if k > 1 else sub.eq(0)]
+        m.d.comb += loc.eq(lane - sub * R)
+        return sub, loc
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, fmt = self.cfg, self.cfg.fmt
+        T, L, k = cfg.threads, cfg.packet_size, cfg.trav_subunits
+        R = cfg.rays_per_subunit
+        tb = cfg.thread_bits
+        db = max(1, ceil_log2(cfg.stack_depth))
+        subs = self.subunits
+        for j, s in enumerate(subs):
+            m.submodules[f"sub{j}"] = s
+
+        # ---- per-thread state (registers)
+        def per_thread(shape, name, init=0):
+            return Array(Signal(shape, name=f"{name}{t}", init=init) for t in range(T))
+        state = per_thread(4, "state", FREE)
+        node = per_thread(NODE_BITS, "node")
+        word = per_thread(WORD_BITS, "word")
+        mask = per_thread(L, "mask")
+        term = per_thread(L, "term")
+        sp = per_thread(db, "sp")
+        cur = per_thread(1, "cur")
+        octant = per_thread(3, "oct")
+        todo = per_thread(8, "todo")
+        packet = per_thread(len(self.rays.payload.packet), "packet")
+
+        m.submodules.stack = stack = Memory(shape=NODE_BITS + L, depth=T << db, init=[])
+        st_r, st_w = stack.read_port(), stack.write_port()
+        m.submodules.passmask = pmem = Memory(shape=8 * L, depth=T, init=[])
+        pm_r, pm_w = pmem.read_port(), pmem.write_port()
+
+        def in_state(s):
+            return Cat(*(state[t] == s for t in range(T)))
+
+        # ---- loader: RayIn lanes into a free thread
+        ld_active = Signal()
+        ld_thread = Signal(tb)
+        acc = [Signal(L, name=f"acc{o}") for o in range(8)]
+        free_any, free_idx = lowest(m, in_state(FREE), "free")
+        with m.If(~ld_active & free_any):
+            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx), state[free_idx].eq(LOAD)]
+        p = self.rays.payload
+        lane_sub, lane_loc = self._split_lane(m, p.lane, "ld")
+        blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
+        m.d.comb += [self.rays.ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
+        take = self.rays.valid & self.rays.ready
+        live = compare(fmt, p.tnear, p.tfar).le
+        lane_bit = Signal(L)
+        m.d.comb += lane_bit.eq(Mux(live, Const(1, L) << p.lane, 0))
+        acc_new = [Signal(L, name=f"acc_new{o}") for o in range(8)]
+        for o in range(8):
+            m.d.comb += acc_new[o].eq(acc[o] | Mux(p.octant == o, lane_bit, 0))
+        for j, s in enumerate(subs):
+            m.d.comb += [s.ld_en.eq(take & (lane_sub == j)), s.ld_thread.eq(ld_thread),
+                         s.ld_lane.eq(lane_loc), s.ld_org.eq(p.org), s.ld_inv.eq(p.inv),
+                         s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
+        m.d.comb += [pm_w.addr.eq(ld_thread), pm_w.data.eq(Cat(*acc_new))]
+        with m.If(take):
+            m.d.sync += [packet[ld_thread].eq(p.packet)] + [acc[o].eq(acc_new[o]) for o in range(8)]
+            with m.If(p.last):
+                m.d.comb += pm_w.en.eq(1)
+                m.d.sync += [ld_active.eq(0), state[ld_thread].eq(NEXTPASS),
+                             todo[ld_thread].eq(Cat(*(a.any() for a in acc_new))),
+                             term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
+
+        # ---- fetcher: node reads, round-robin over threads in FETCH
+        req = self.node.req
+        f_ptr = Signal(tb)
+        f_any, f_idx = rr_pick(m, in_state(FETCH), f_ptr, "fetch")
+        with m.If((~req.valid | req.ready) & f_any):
+            m.d.sync += [req.valid.eq(1), req.payload.tag.eq(f_idx),
+                         req.payload.addr.eq(self.node_base + node[f_idx]),
+                         state[f_idx].eq(WAIT_MEM), f_ptr.eq(f_idx + 1)]
+        with m.Elif(req.ready):
+            m.d.sync += req.valid.eq(0)
+        with m.If(req.valid & req.ready):
+            m.d.sync += self.node_reads.eq(self.node_reads + 1)
+        resp = self.node.resp
+        m.d.comb += resp.ready.eq(1)
+        with m.If(resp.valid):
+            m.d.sync += [word[resp.payload.tag].eq(resp.payload.data),
+                         state[resp.payload.tag].eq(HAVE_NODE)]
+
+        # ---- result engine: terminate lanes after a leaf
+        rs = self.result.payload
+        m.d.comb += self.result.ready.eq(1)
+        r_sub, r_loc = self._split_lane(m, rs.lane, "rq")
+        for s in subs:
+            m.d.comb += [s.rq_thread.eq(rs.thread), s.rq_lane.eq(r_loc), s.rq_sp.eq(sp[rs.thread]),
+                         s.rq_cur.eq(cur[rs.thread])]
+        r_v, r_thread, r_lane, r_hit, r_t, r_last = (Signal(), Signal(tb), Signal(lane_bits(cfg)),
+                                                     Signal(), Signal(fmt.width), Signal())
+        r_sub1 = Signal(range(max(2, k)))
+        m.d.sync += [r_v.eq(self.result.valid), r_thread.eq(rs.thread), r_lane.eq(rs.lane),
+                     r_hit.eq(rs.hit), r_t.eq(rs.t), r_last.eq(rs.last), r_sub1.eq(r_sub)]
+        tfar = Array(s.rq_tfar for s in subs)[r_sub1]
+        anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
+        kill = r_hit & (anyhit | compare(fmt, r_t, tfar).le)
+        with m.If(r_v):
+            with m.If(kill):
+                m.d.sync += term[r_thread].eq(term[r_thread] | (Const(1, L) << r_lane))
+            with m.If(r_last):
+                m.d.sync += state[r_thread].eq(POP)
+
+        # ---- done engine
+        d_any, d_idx = lowest(m, in_state(DONE), "done")
+        dn = self.done
+        with m.If((~dn.valid | dn.ready) & d_any):
+            m.d.sync += [dn.valid.eq(1), dn.payload.thread.eq(d_idx),
+                         dn.payload.packet.eq(packet[d_idx]), state[d_idx].eq(DRAIN)]
+        with m.Elif(dn.ready):
+            m.d.sync += dn.valid.eq(0)
+        with m.If(dn.valid & dn.ready):
+            m.d.sync += self.packets_done.eq(self.packets_done + 1)
+        m.d.comb += self.release.ready.eq(1)
+        with m.If(self.release.valid):
+            m.d.sync += state[self.release.payload].eq(FREE)
+
+        # ---- step engine
+        e_ptr = Signal(tb)
+        e_any, e_idx = rr_pick(m, in_state(HAVE_NODE) | in_state(POP) | in_state(NEXTPASS),
+                               e_ptr, "step")
+        e_t = Signal(tb)
+        e_kind = Signal(4)
+        e_word = Signal(WORD_BITS)
+        e_mask = Signal(L)
+        e_sp = Signal(db)
+        e_cur = Signal()
+        e_oct = Signal(3)
+        axis = e_word[:2]
+        field = e_word[2:32]
+        hi = e_word[32:]
+        for j, s in enumerate(subs):
+            m.d.comb += [s.mask.eq(e_mask[j * R:(j + 1) * R]), s.thread.eq(e_t), s.axis.eq(axis),
+                         s.split.eq(from_binary32(fmt, hi)), s.sp.eq(e_sp), s.cur.eq(e_cur)]
+        all_idle = Cat(*(s.idle for s in subs)).all()
+        mn = Cat(*(s.near for s in subs))
+        mf = Cat(*(s.far for s in subs))
+        neg = e_oct.bit_select(axis, 1)
+        near_node = (field + neg)[:NODE_BITS]
+        far_node = (field + 1 - neg)[:NODE_BITS]
+        lo_oc_any, lo_oc = lowest(m, todo[e_t], "pass")
+        st_mask = st_r.data[NODE_BITS:]
+        popped = st_mask & ~term[e_t]
+        lf = self.leaf
+
+        with m.If(lf.valid & lf.ready):
+            m.d.sync += [lf.valid.eq(0), self.leaf_reqs.eq(self.leaf_reqs + 1)]
+        issued = sum(s.issue for s in subs)
+        m.d.sync += self.trav_ops.eq(self.trav_ops + issued)
+        for j, s in enumerate(subs):
+            with m.If(~s.idle):
+                m.d.sync += self.sub_busy[j].eq(self.sub_busy[j] + 1)
+
+        with m.FSM(name="step"):
+            with m.State("IDLE"):
+                with m.If(e_any):
+                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(state[e_idx]), e_word.eq(word[e_idx]),
+                                 e_mask.eq(mask[e_idx]), e_sp.eq(sp[e_idx]), e_cur.eq(cur[e_idx]),
+                                 e_oct.eq(octant[e_idx]), e_ptr.eq(e_idx + 1)]
+                    m.next = "DISPATCH"
+            with m.State("DISPATCH"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                with m.If(e_kind == HAVE_NODE):
+                    with m.If(axis != 3):
+                        m.d.comb += [s.start.eq(1) for s in subs]
+                        m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
+                        m.next = "RUN"
+                    with m.Elif(field != 0):
+                        m.next = "LEAF"
+                    with m.Else():
+                        m.next = "POP"
+                with m.Elif(e_kind == POP):
+                    m.next = "POP"
+                with m.Else():
+                    m.next = "PASS"
+            with m.State("RUN"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                with m.If(all_idle):
+                    m.next = "DECIDE"
+            with m.State("DECIDE"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                m.next = "IDLE"
+                with m.If(mn.any() & mf.any()):
+                    m.d.comb += [st_w.addr.eq(Cat(e_sp, e_t)), st_w.data.eq(Cat(far_node, mf)),
+                                 st_w.en.eq(1)]
+                    m.d.sync += [sp[e_t].eq(e_sp + 1), node[e_t].eq(near_node), mask[e_t].eq(mn),
+                                 cur[e_t].eq(0), state[e_t].eq(FETCH),
+                                 self.pushes.eq(self.pushes + 1)]
+                with m.Elif(mn.any()):
+                    m.d.sync += [node[e_t].eq(near_node), mask[e_t].eq(mn), cur[e_t].eq(0),
+                                 state[e_t].eq(FETCH)]
+                with m.Else():
+                    # far only; no child at all ends the pass, as in the model
+                    m.d.sync += [node[e_t].eq(far_node), mask[e_t].eq(mf), cur[e_t].eq(1),
+                                 state[e_t].eq(Mux(mf.any(), FETCH, NEXTPASS))]
+            with m.State("LEAF"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                with m.If(~lf.valid | lf.ready):
+                    m.d.sync += [lf.valid.eq(1), lf.payload.thread.eq(e_t),
+                                 lf.payload.first.eq(hi), lf.payload.count.eq(field),
+                                 lf.payload.mask.eq(e_mask), state[e_t].eq(WAIT_LEAF)]
+                    m.next = "IDLE"
+            with m.State("POP"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                with m.If(e_sp == 0):
+                    m.next = "PASS"
+                with m.Else():
+                    m.d.comb += st_r.addr.eq(Cat((e_sp - 1)[:db], e_t))
+                    m.d.sync += e_sp.eq(e_sp - 1)
+                    m.next = "POP2"
+            with m.State("POP2"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                with m.If(popped.any()):
+                    m.d.sync += [node[e_t].eq(st_r.data[:NODE_BITS]), mask[e_t].eq(popped),
+                                 sp[e_t].eq(e_sp), cur[e_t].eq(1), state[e_t].eq(FETCH)]
+                    m.next = "IDLE"
+                with m.Else():
+                    m.next = "POP"
+            with m.State("PASS"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                with m.If(~lo_oc_any):
+                    m.d.sync += state[e_t].eq(DONE)
+                    m.next = "IDLE"
+                with m.Else():
+                    m.d.comb += pm_r.addr.eq(e_t)
+                    m.d.sync += [e_oct.eq(lo_oc),
+                                 todo[e_t].eq(todo[e_t] & ~(Const(1, 8) << lo_oc))]
+                    m.next = "PASS2"
+            with m.State("PASS2"):
+                m.d.sync += self.busy.eq(self.busy + 1)
+                m.d.sync += [mask[e_t].eq(pm_r.data.word_select(e_oct, L)),
+                             node[e_t].eq(self.root), sp[e_t].eq(0), cur[e_t].eq(0),
+                             octant[e_t].eq(e_oct), state[e_t].eq(FETCH),
+                             self.passes.eq(self.passes + 1)]
+                m.next = "IDLE"
+        return m
