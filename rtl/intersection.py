@@ -22,6 +22,7 @@ from model.config import Config
 from model.fp import FPFormat
 
 from .fp import FPAdd, FPDiv, FPMul
+from .fp.cmp import compare
 from .fp.common import unpack
 from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, RayIn, RayResult,
@@ -112,7 +113,8 @@ class IntersectPipe(wiring.Component):
     In: ``tri`` (9 format words: A, B, C), ``org`` (3), ``k`` (kx, ky, kz), ``s`` (Sx, Sy, Sz),
     ``tag`` (carried along unchanged), ``i_valid``, ``en``. Out after ``latency`` enabled cycles:
     ``o_valid``, ``hit`` (edge test passed and det != 0), ``t``, ``u``, ``v`` (zero when not
-    ``hit``, as the model returns them), ``tag``.
+    ``hit``, as the model returns them), ``o_tag``; ``pre_tag`` is the tag one stage earlier
+    (for a read that must land together with the result).
 
     Operations (all rounded to the format, the model's order): 9 subs (vertices - origin), 9
     muls (Sx, Sy times the z of each vertex; Sz times it), 6 subs (shear), 6 muls + 3 subs (edge
@@ -138,7 +140,7 @@ class IntersectPipe(wiring.Component):
             "k": In(data.ArrayLayout(2, 3)), "s": In(data.ArrayLayout(w, 3)),
             "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
             "o_valid": Out(1), "hit": Out(1), "t": Out(w), "u": Out(w), "v": Out(w),
-            "o_tag": Out(tag_width),
+            "o_tag": Out(tag_width), "pre_tag": Out(tag_width),
         })
         dry = Module()
         dry._MustUse__silence = True
@@ -196,6 +198,7 @@ class IntersectPipe(wiring.Component):
             self.v.eq(Mux(hit, sch.at(v[0], v[1], L), 0)),
             self.o_valid.eq(sch.at(self.i_valid, 0, L)),
             self.o_tag.eq(sch.at(self.tag, 0, L)),
+            self.pre_tag.eq(sch.at(self.tag, 0, L - 1)),
         ]
         return m, L
 
@@ -207,3 +210,278 @@ class IntersectPipe(wiring.Component):
 
     def elaborate(self, platform):
         return self._build(Module())[0]
+
+
+class IntersectionUnit(wiring.Component):
+    """The RTC's intersection unit: triangle fetch, per-lane tests, closest hit, results.
+
+    Ports
+    -----
+    ``ray_in`` (In stream, :func:`RayWrite`): the RTC writes each ray of a packet (thread, lane)
+        before the packet's first leaf; the unit keeps org, k, s and resets the lane's best hit
+        to (t = tmax, none). ``ready`` is low only in a cycle where a hit is being stored.
+    ``tri_in`` (In stream, ``TriRequest``): a triangle for the lanes in ``mask`` (nonzero);
+        ``last`` marks the leaf's final triangle.
+    ``mem`` (``MemReadPort`` requester, 64-bit words, tag = slot * 8 + word): 5 reads per
+        triangle from ``tri_base + 5 * tri`` (``tri_base``: In, from the image header).
+    ``lane_out`` (Out stream, ``LaneResult``): for a leaf's last triangle, one result per lane
+        of the mask in lane order (``last`` on the highest lane): has-hit and best t.
+    ``done`` (In stream, :func:`PacketDone`) / ``result`` (Out stream, ``RayResult``): read out
+        the final hit of every lane of ``mask`` in lane order, labelled with ``packet``
+        (tri = all ones and t = +inf on a miss). Send ``done`` only after the packet's last
+        ``LaneResult`` was taken.
+    Counters (Out, 32 bits): ``int_ops`` (rays tested), ``tris`` (triangles fetched), ``words``
+    (memory words read), ``busy`` (cycles with a triangle held or a test in flight).
+
+    Timing: up to ``tri_slots`` triangles are fetched ahead (one request per cycle, 5 per
+    triangle) of the one being tested; tests issue one lane per cycle with no gap between
+    triangles. A test's result is stored 2 + ``IntersectPipe.latency`` cycles after its issue
+    (34 for binary32); the LaneResult leaves one cycle later. The whole pipeline stalls only while
+    ``lane_out`` is full and not taken.
+    """
+
+    def __init__(self, cfg: Config, *, addr_width: int = 32, tri_slots: int = 4,
+                 latencies: dict | None = None):
+        if tri_slots < 2 or tri_slots & (tri_slots - 1):
+            raise ValueError(f"IntersectionUnit tri_slots={tri_slots}: must be a power of two "
+                             ">= 2 (one triangle tested while the next is fetched)")
+        self.cfg, self.fmt, self.tri_slots = cfg, cfg.fmt, tri_slots
+        self.slot_bits = ceil_log2(tri_slots)
+        self.tag_width = self.slot_bits + 3
+        self.lanes = cfg.packet_size
+        self.lane_bits = lane_bits(cfg)
+        self.pipe_meta = data.StructLayout({
+            "thread": cfg.thread_bits, "lane": self.lane_bits, "id": TRI_ID_BITS,
+            "tri_last": 1, "lane_last": 1})
+        self.pipe = IntersectPipe(cfg.fmt, tag_width=self.pipe_meta.size, latencies=latencies)
+        super().__init__({
+            "ray_in": In(stream.Signature(RayWrite(cfg))),
+            "tri_in": In(stream.Signature(TriRequest(cfg))),
+            "mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+                                   tag_width=self.tag_width)),
+            "tri_base": In(addr_width),
+            "lane_out": Out(stream.Signature(LaneResult(cfg))),
+            "done": In(stream.Signature(PacketDone(cfg))),
+            "result": Out(stream.Signature(RayResult(cfg))),
+            "int_ops": Out(COUNTER_BITS), "tris": Out(COUNTER_BITS),
+            "words": Out(COUNTER_BITS), "busy": Out(COUNTER_BITS),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, fmt, w = self.cfg, self.fmt, self.fmt.width
+        n_slots, lanes = self.tri_slots, self.lanes
+        m.submodules.pipe = pipe = self.pipe
+        en = Signal()                      # the test pipeline advances
+        m.d.comb += en.eq(~self.lane_out.valid | self.lane_out.ready)
+
+        def addr(thread, lane):
+            return Cat(lane[:self.lane_bits], thread[:cfg.thread_bits])
+        depth = 1 << (cfg.thread_bits + self.lane_bits)
+
+        # ---- local ray store (read-only data) and best-hit store ---------------------------------
+        ray_l = data.StructLayout({"org": data.ArrayLayout(w, 3), "k": data.ArrayLayout(2, 3),
+                                   "s": data.ArrayLayout(w, 3)})
+        best_l = data.StructLayout({"t": w, "u": w, "v": w, "tri": TRI_ID_BITS, "hit": 1})
+        m.submodules.rays = rays = Memory(shape=ray_l, depth=depth, init=[])
+        m.submodules.best = best = Memory(shape=best_l, depth=depth, init=[])
+        ray_w = rays.write_port()
+        best_w = best.write_port()
+        ray_r = rays.read_port()
+        best_r = best.read_port(transparent_for=(best_w,))
+        out_r = best.read_port()
+
+        # ---- triangle fetch: tri_slots slots, 5 words each, responses in any order --------------
+        slot_words = Array(Array(Signal(WORD_BITS, name=f"s{i}w{j}") for j in range(TRI_WORDS))
+                           for i in range(n_slots))
+        slot_got = Array(Signal(TRI_WORDS, name=f"s{i}_got") for i in range(n_slots))
+        slot_mask = Array(Signal(lanes, name=f"s{i}_mask") for i in range(n_slots))
+        slot_thread = Array(Signal(cfg.thread_bits, name=f"s{i}_thread") for i in range(n_slots))
+        slot_last = Signal(n_slots)
+        alloc = Signal(n_slots)
+        alloc_set, alloc_clr = Signal(n_slots), Signal(n_slots)
+        m.d.sync += alloc.eq((alloc | alloc_set) & ~alloc_clr)
+
+        f_slot = Signal(self.slot_bits)    # slot being fetched into
+        f_word = Signal(range(TRI_WORDS))
+        f_addr = Signal(len(self.mem.req.payload.addr))
+        fetching = Signal()
+        req = self.mem.req
+        m.d.comb += [
+            req.valid.eq(fetching),
+            req.payload.addr.eq(f_addr + f_word),
+            req.payload.tag.eq(Cat(f_word, C(0, 3 - len(f_word)), f_slot)),
+        ]
+        issue_last = req.valid & req.ready & (f_word == TRI_WORDS - 1)
+        with m.If(req.valid & req.ready):
+            m.d.sync += f_word.eq(Mux(f_word == TRI_WORDS - 1, 0, f_word + 1))
+        with m.If(issue_last):
+            m.d.sync += [fetching.eq(0), f_slot.eq(f_slot + 1)]
+        tri_in = self.tri_in
+        m.d.comb += tri_in.ready.eq(~fetching & ~alloc.bit_select(f_slot, 1))
+        with m.If(tri_in.valid & tri_in.ready):
+            p = tri_in.payload
+            m.d.comb += alloc_set.eq(1 << f_slot)
+            m.d.sync += [
+                fetching.eq(1), f_word.eq(0),
+                f_addr.eq(self.tri_base + p.tri * TRI_WORDS),
+                slot_mask[f_slot].eq(p.mask), slot_thread[f_slot].eq(p.thread),
+                slot_last.bit_select(f_slot, 1).eq(p.last),
+                slot_got[f_slot].eq(0),
+            ]
+        resp = self.mem.resp
+        m.d.comb += resp.ready.eq(1)
+        r_slot = resp.payload.tag[3:]
+        r_word = resp.payload.tag[:3]
+        with m.If(resp.valid):
+            m.d.sync += slot_words[r_slot][r_word].eq(resp.payload.data)
+            m.d.sync += slot_got[r_slot].eq(slot_got[r_slot] | (1 << r_word))
+
+        # ---- test issue: one lane per cycle, lanes of the mask in order --------------------------
+        t_slot = Signal(self.slot_bits)
+        testing = Signal()                 # part of t_slot's mask is already issued
+        rem = Signal(lanes)
+        ready_slot = alloc.bit_select(t_slot, 1) & (slot_got[t_slot] == (1 << TRI_WORDS) - 1)
+        cur = Signal(lanes)
+        m.d.comb += cur.eq(Mux(testing, rem, slot_mask[t_slot]))
+        go = Signal()
+        m.d.comb += go.eq(en & ready_slot)
+        lowest = Signal(lanes)
+        m.d.comb += lowest.eq(cur & -cur)
+        lane = Signal(self.lane_bits)
+        for i in range(lanes):
+            with m.If(lowest[i]):
+                m.d.comb += lane.eq(i)
+        rest = Signal(lanes)
+        m.d.comb += rest.eq(cur & (cur - 1))
+        with m.If(go):
+            m.d.sync += rem.eq(rest)
+            with m.If(rest == 0):
+                m.d.comb += alloc_clr.eq(1 << t_slot)
+                m.d.sync += [testing.eq(0), t_slot.eq(t_slot + 1)]
+            with m.Else():
+                m.d.sync += testing.eq(1)
+
+        # stage 1: the triangle (format words) and the lane; the ray store read lands here too
+        words = slot_words[t_slot]
+        s1_valid = Signal()
+        s1_tri = Signal(data.ArrayLayout(w, 9))
+        s1_meta = Signal(self.pipe_meta)
+        halves = [words[j // 2][32 * (j % 2):32 * (j % 2) + 32] for j in range(9)]
+        thread = slot_thread[t_slot]
+        m.d.comb += [ray_r.addr.eq(addr(thread, lane)), ray_r.en.eq(en)]
+        with m.If(en):
+            m.d.sync += [
+                s1_valid.eq(go & (cur != 0)),
+                s1_tri.eq(Cat(*(from_binary32(fmt, h) for h in halves))),
+                s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
+                s1_meta.id.eq(words[4][32:]),
+                s1_meta.tri_last.eq(slot_last.bit_select(t_slot, 1)),
+                s1_meta.lane_last.eq(rest == 0),
+            ]
+        ray = ray_r.data
+        m.d.comb += [
+            pipe.tri.eq(s1_tri), pipe.org.eq(ray.org), pipe.k.eq(ray.k), pipe.s.eq(ray.s),
+            pipe.tag.eq(s1_meta), pipe.i_valid.eq(s1_valid), pipe.en.eq(en),
+        ]
+
+        # ---- closest-hit update at the end of the pipeline ---------------------------------------
+        # the best-hit read is presented one stage before the datapath's output; the read port is
+        # transparent to the update's write, so back-to-back tests of one lane see each other
+        L = pipe.latency
+        pre = data.View(self.pipe_meta, pipe.pre_tag)
+        m.d.comb += [best_r.addr.eq(addr(pre.thread, pre.lane)), best_r.en.eq(en)]
+        o_meta = data.View(self.pipe_meta, pipe.o_tag)
+        old = best_r.data
+        gt0 = Signal()
+        lt_best = Signal()
+        m.d.comb += [gt0.eq(compare(fmt, Const(0, w), pipe.t).lt),
+                     lt_best.eq(compare(fmt, pipe.t, old.t).lt)]
+        accept = Signal()
+        m.d.comb += accept.eq(pipe.o_valid & pipe.hit & gt0 & lt_best)
+        store = Signal()
+        m.d.comb += store.eq(en & accept)
+
+        ray_in = self.ray_in
+        m.d.comb += ray_in.ready.eq(~store)
+        rp = ray_in.payload
+        m.d.comb += [
+            ray_w.addr.eq(addr(rp.thread, rp.ray.lane)),
+            ray_w.data.org.eq(rp.ray.org), ray_w.data.k.eq(rp.ray.k), ray_w.data.s.eq(rp.ray.s),
+            ray_w.en.eq(ray_in.valid & ray_in.ready),
+        ]
+        with m.If(store):
+            m.d.comb += [
+                best_w.addr.eq(addr(o_meta.thread, o_meta.lane)), best_w.en.eq(1),
+                best_w.data.t.eq(pipe.t), best_w.data.u.eq(pipe.u), best_w.data.v.eq(pipe.v),
+                best_w.data.tri.eq(o_meta.id), best_w.data.hit.eq(1),
+            ]
+        with m.Else():
+            m.d.comb += [
+                best_w.addr.eq(addr(rp.thread, rp.ray.lane)), best_w.en.eq(ray_in.valid),
+                best_w.data.t.eq(rp.ray.tmax), best_w.data.hit.eq(0),
+            ]
+
+        # ---- LaneResult after the leaf's last triangle ---------------------------------------------
+        lo = self.lane_out
+        with m.If(lo.ready):
+            m.d.sync += lo.valid.eq(0)
+        with m.If(en & pipe.o_valid & o_meta.tri_last):
+            m.d.sync += [
+                lo.valid.eq(1),
+                lo.payload.thread.eq(o_meta.thread), lo.payload.lane.eq(o_meta.lane),
+                lo.payload.hit.eq(accept | old.hit),
+                lo.payload.t.eq(Mux(accept, pipe.t, old.t)),
+                lo.payload.last.eq(o_meta.lane_last),
+            ]
+
+        # ---- final results of a finished packet ----------------------------------------------------
+        done, res = self.done, self.result
+        d_active = Signal()
+        d_rem = Signal(lanes)
+        d_thread = Signal(cfg.thread_bits)
+        d_packet = Signal(PACKET_ID_BITS)
+        d_low = Signal(lanes)
+        d_lane = Signal(self.lane_bits)
+        m.d.comb += d_low.eq(d_rem & -d_rem)
+        for i in range(lanes):
+            with m.If(d_low[i]):
+                m.d.comb += d_lane.eq(i)
+        adv = Signal()
+        m.d.comb += [adv.eq(~res.valid | res.ready), done.ready.eq(~d_active)]
+        with m.If(done.valid & done.ready):
+            m.d.sync += [d_active.eq(done.payload.mask != 0), d_rem.eq(done.payload.mask),
+                         d_thread.eq(done.payload.thread), d_packet.eq(done.payload.packet)]
+        m.d.comb += [out_r.addr.eq(addr(d_thread, d_lane)), out_r.en.eq(adv)]
+        r_lane = Signal(self.lane_bits)
+        r_last = Signal()
+        r_packet = Signal(PACKET_ID_BITS)
+        with m.If(adv):
+            m.d.sync += [res.valid.eq(d_active), r_lane.eq(d_lane), r_packet.eq(d_packet),
+                         r_last.eq((d_rem & (d_rem - 1)) == 0)]
+            with m.If(d_active):
+                m.d.sync += d_rem.eq(d_rem & (d_rem - 1))
+                with m.If((d_rem & (d_rem - 1)) == 0):
+                    m.d.sync += d_active.eq(0)
+        hb = out_r.data
+        inf = Const(((1 << fmt.exp_bits) - 1) << fmt.frac_bits, w)
+        m.d.comb += [
+            res.payload.packet.eq(r_packet), res.payload.lane.eq(r_lane),
+            res.payload.last.eq(r_last),
+            res.payload.tri.eq(Mux(hb.hit, hb.tri, (1 << TRI_ID_BITS) - 1)),
+            res.payload.t.eq(Mux(hb.hit, hb.t, inf)),
+            res.payload.u.eq(Mux(hb.hit, hb.u, 0)), res.payload.v.eq(Mux(hb.hit, hb.v, 0)),
+        ]
+
+        # ---- counters -----------------------------------------------------------------------------
+        with m.If(go & (cur != 0)):
+            m.d.sync += self.int_ops.eq(self.int_ops + 1)
+        with m.If(tri_in.valid & tri_in.ready):
+            m.d.sync += self.tris.eq(self.tris + 1)
+        with m.If(resp.valid):
+            m.d.sync += self.words.eq(self.words + 1)
+        inflight = Signal(range(L + 3))
+        m.d.sync += inflight.eq(inflight + (go & (cur != 0)) - (en & pipe.o_valid))
+        with m.If((alloc != 0) | (inflight != 0) | lo.valid):
+            m.d.sync += self.busy.eq(self.busy + 1)
+        return m

@@ -18,12 +18,17 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from amaranth.hdl import Module
+from amaranth.lib import wiring
+
 from model.fp import FPFormat
 from model.intersection import intersect
 from model.raygen import Rays, setup
-from rtl.intersection import IntersectPipe
+from model.rtc import C
+from rtl.intersection import IntersectionUnit, IntersectPipe
+from rtl.memory import IdealMemory
 
-from .common import run
+from .common import drain, drive, run, watch
 
 
 @dataclass
@@ -227,3 +232,189 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
     t0 = time.perf_counter()
     run(dut, bench)
     return PipeRun(n, stats["cycles"], time.perf_counter() - t0, L)
+
+
+# ---- the whole unit ---------------------------------------------------------------------------
+
+MASK64 = (1 << 64) - 1
+
+
+class IntBench(wiring.Component):
+    """The intersection unit with an ``IdealMemory`` on its port; its streams passed through."""
+
+    def __init__(self, cfg, image, *, latency: int = 20, tri_slots: int = 4):
+        addr_width = max(8, int(len(image.data) - 1).bit_length())
+        self.unit = IntersectionUnit(cfg, addr_width=addr_width, tri_slots=tri_slots)
+        self.memory = IdealMemory(image.data, addr_width=addr_width,
+                                  tag_width=self.unit.tag_width, latency=latency)
+        self.tri_base = image.tri_base
+        sig = self.unit.signature.members
+        super().__init__({k: sig[k] for k in ("ray_in", "tri_in", "lane_out", "done", "result",
+                                              "int_ops", "tris", "words", "busy")})
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.unit, m.submodules.memory = u, mem = self.unit, self.memory
+        wiring.connect(m, u.mem, mem.port)
+        for name in ("ray_in", "tri_in", "done"):
+            wiring.connect(m, wiring.flipped(getattr(self, name)), getattr(u, name))
+        for name in ("lane_out", "result"):
+            wiring.connect(m, getattr(u, name), wiring.flipped(getattr(self, name)))
+        m.d.comb += u.tri_base.eq(self.tri_base)
+        for name in ("int_ops", "tris", "words", "busy"):
+            m.d.comb += getattr(self, name).eq(getattr(u, name))
+        return m
+
+
+@dataclass
+class UnitStreams:
+    """What the unit receives and must produce, from the golden model's event log."""
+    rays: list            # RayWrite payloads
+    tris: list            # TriRequest payloads
+    ints: list            # (thread, lane, hit, t, u, v) per datapath output, in order
+    lanes: list           # LaneResult payloads
+    done: list            # PacketDone payloads
+    results: list         # RayResult payloads
+    int_ops: int
+    leaves: int
+
+
+def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
+    """The intersection unit's streams for the first ``max_leaves`` non-empty leaves (all:
+    then the final results are the model's ``Hits``, checked against the replay below)."""
+    from model.rtc import EV_INT, EV_LEAF, EV_TRI
+    cfg, fmt, ev = g.cfg, g.cfg.fmt, g.events
+    T = cfg.threads
+    n_packets = g.rays.n_packets
+    if n_packets > T:
+        raise ValueError(f"{n_packets} packets but {T} threads: the bench loads every packet's "
+                         "rays once; use a smaller image")
+    bits = lambda x: int(fmt.to_bits(np.float32(x)))
+    f32 = lambda b: np.uint32(b).view(np.float32)
+    rays = []
+    for p in range(n_packets):
+        r0, r1 = int(g.rays.pk_start[p]), int(g.rays.pk_start[p + 1])
+        for r in range(r0, r1):
+            rays.append({"thread": p % T, "ray": {
+                "packet": p, "lane": r - r0, "last": int(r == r1 - 1),
+                "org": [bits(x) for x in g.rays.org[r]],
+                "k": [int(x) for x in g.setup.k[r]], "s": [bits(x) for x in g.setup.s[r]],
+                "tmax": bits(g.rays.tmax[r]), "anyhit": int(g.rays.anyhit[r])}})
+    # replay the model's accept decisions to know every lane's best hit after each leaf
+    best = {}
+    for p in range(n_packets):
+        r0, r1 = int(g.rays.pk_start[p]), int(g.rays.pk_start[p + 1])
+        for r in range(r0, r1):
+            best[p, r - r0] = [0, bits(g.rays.tmax[r]), 0, 0, -1]   # hit, t, u, v, tri id
+    tris, ints, lanes = [], [], []
+    leaves, sid, remaining, mask, int_ops = 0, -1, 0, 0, 0
+    for row in ev:
+        kind, pid = int(row[0]), int(row[1])
+        if kind == EV_LEAF and row[6] > 0:
+            if max_leaves is not None and leaves == max_leaves:
+                break
+            leaves += 1
+            remaining, mask = int(row[6]), int(row[4]) & MASK64
+        elif kind == EV_TRI:
+            remaining -= 1
+            sid = int(row[5])
+            tris.append({"thread": pid % T, "tri": int(row[3]), "mask": mask,
+                         "last": int(remaining == 0)})
+        elif kind == EV_INT:
+            lane, flags = int(row[2]), int(row[4])
+            t, u, v = (bits(f32(x)) for x in row[5:8])
+            ints.append((pid % T, lane, flags & 1, t, u, v))
+            int_ops += 1
+            if flags & 2:
+                best[pid, lane] = [1, t, u, v, sid]
+        if kind == EV_INT and remaining == 0:
+            # the leaf's last triangle: this lane's result goes back to traversal
+            top = mask.bit_length() - 1
+            h = best[pid, lane]
+            lanes.append({"thread": pid % T, "lane": lane, "hit": h[0], "t": h[1],
+                          "last": int(lane == top)})
+    done, results = [], []
+    inf = bits(np.float32(np.inf))
+    for p in range(n_packets):
+        r0, r1 = int(g.rays.pk_start[p]), int(g.rays.pk_start[p + 1])
+        done.append({"thread": p % T, "packet": p, "mask": (1 << (r1 - r0)) - 1})
+        for r in range(r0, r1):
+            h, t, u, v, tri = best[p, r - r0]
+            results.append({"packet": p, "lane": r - r0, "last": int(r == r1 - 1),
+                            "tri": tri & 0xFFFFFFFF if h else 0xFFFFFFFF,
+                            "t": t if h else inf, "u": u if h else 0, "v": v if h else 0})
+    if max_leaves is None:       # the replay must agree with the model's own final hits
+        hits = g.hits
+        want = [{"tri": int(hits.tri[r]) & 0xFFFFFFFF, "t": bits(hits.t[r]),
+                 "u": bits(hits.u[r]), "v": bits(hits.v[r])} for r in range(len(hits.t))]
+        assert [{k: x[k] for k in ("tri", "t", "u", "v")} for x in results] == want
+    return UnitStreams(rays, tris, ints, lanes, done, results, int_ops, leaves)
+
+
+@dataclass
+class UnitRun:
+    int_ops: int
+    cycles: int
+    seconds: float
+    counters: dict
+
+    @property
+    def cycles_per_s(self) -> float:
+        return self.cycles / self.seconds
+
+
+def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0.3,
+             stall: float = 0.3, latency: int = 20, tri_slots: int = 4) -> UnitRun:
+    """Load the packets' rays, feed the golden TriRequests with random bubbles, drain the
+    LaneResults with random back-pressure, then read out every packet's final hits; check the
+    datapath outputs (``EV_INT``), the LaneResults, the RayResults and the counters."""
+    s = unit_streams(g, max_leaves)
+    dut = IntBench(g.cfg, g.image, latency=latency, tri_slots=tri_slots)
+    rng = random.Random(seed)
+    pipe = dut.unit.pipe
+    ints, lanes, results, info = [], [], [], {}
+
+    async def source(ctx):
+        await drive(ctx, dut.ray_in, s.rays)
+        await drive(ctx, dut.tri_in, s.tris, rng=rng, idle=idle, t0=len(s.rays))
+
+    async def sink(ctx):
+        await drain(ctx, dut.lane_out, len(s.lanes), rng=rng, stall=stall, out=lanes,
+                    timeout=3000)
+        await drive(ctx, dut.done, s.done)
+        info["cycles"] = lanes[-1][0] if lanes else 0
+
+    async def readout(ctx):
+        await drain(ctx, dut.result, len(s.results), rng=rng, stall=stall, out=results,
+                    timeout=100_000)
+        await ctx.tick().repeat(2)
+        info.update({k: ctx.get(getattr(dut, k)) for k in ("int_ops", "tris", "words", "busy")})
+
+    async def monitor(ctx):
+        await watch(ctx, pipe.o_valid & pipe.en, pipe.o_tag, pipe.hit, pipe.t, pipe.u, pipe.v,
+                    out=ints)
+
+    t0 = time.perf_counter()
+    run(dut, source, sink, readout, background=[monitor])
+    seconds = time.perf_counter() - t0
+    meta = dut.unit.pipe_meta
+    for i, (row, want) in enumerate(zip(ints, s.ints)):
+        cycle, tag, *out = row
+        tag = meta.from_bits(tag)
+        got = (int(tag.thread), int(tag.lane), *out)
+        if got != want:
+            raise AssertionError(f"datapath output #{i} at cycle {cycle}: (thread, lane, hit, "
+                                 f"t, u, v) = {got}, model (EV_INT) {want}")
+    assert len(ints) == len(s.ints), (len(ints), len(s.ints))
+    for name, got, want in (("LaneResult", lanes, s.lanes), ("RayResult", results, s.results)):
+        for i, ((cycle, p), w) in enumerate(zip(got, want)):
+            if p != w:
+                raise AssertionError(f"{name} #{i} at cycle {cycle}: {p}, model {w}")
+        assert len(got) == len(want)
+    assert info["int_ops"] == s.int_ops, (info, s.int_ops)
+    assert info["tris"] == len(s.tris), (info, len(s.tris))
+    assert info["words"] == 5 * len(s.tris), info
+    if max_leaves is None:
+        tot = g.counters.sum(axis=0)
+        assert info["int_ops"] == tot[C["int_ops"]] and info["words"] == tot[C["int_reads"]]
+    return UnitRun(s.int_ops, info["cycles"], seconds, info)

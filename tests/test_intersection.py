@@ -29,3 +29,26 @@ def test_pipe_random_binary32_exact_cycle():
 def test_pipe_random_binary32_thousands():
     r = run_pipe(random_tests(3000, FMT, seed=2), FMT, seed=2, p_bubble=0.1, p_stall=0.1)
     print(f"IntersectPipe: {r.cycles} cycles in {r.seconds:.1f} s = {r.cycles_per_s:.0f} cycles/s")
+
+
+@pytest.fixture(scope="module")
+def cornell(kd_cache):
+    from tb.list import golden
+    from .conftest import ROOT
+    return golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(), kd_cache)
+
+
+def test_unit_matches_model_first_leaves(cornell):
+    """The first leaves of 4 Cornell packets: every datapath output against EV_INT in order,
+    every LaneResult against the model's best hit after the leaf, every lane's final hit."""
+    from tb.intersection import run_unit
+    r = run_unit(cornell, max_leaves=8, seed=1, idle=0.3, stall=0.3, latency=20)
+    assert r.int_ops > 100 and r.counters["busy"] > 0
+
+
+@pytest.mark.slow
+def test_unit_matches_model_whole_image(cornell):
+    from tb.intersection import run_unit
+    r = run_unit(cornell, seed=2, idle=0.2, stall=0.2, latency=20)
+    print(f"IntersectionUnit: {r.cycles} cycles in {r.seconds:.1f} s = "
+          f"{r.cycles_per_s:.0f} cycles/s")
