@@ -418,3 +418,19 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
         tot = g.counters.sum(axis=0)
         assert info["int_ops"] == tot[C["int_ops"]] and info["words"] == tot[C["int_reads"]]
     return UnitRun(s.int_ops, info["cycles"], seconds, info)
+
+
+if __name__ == "__main__":          # speed figures: python -m tb.intersection [width height]
+    import sys
+    import tempfile
+    from model.config import Config
+    from tb.list import golden
+    w, h = (int(x) for x in sys.argv[1:3]) if len(sys.argv) > 2 else (16, 16)
+    fmt = FPFormat()
+    r = run_pipe(random_tests(600, fmt, seed=1), fmt, seed=1, p_bubble=0.0, p_stall=0.0)
+    print(f"IntersectPipe (every stage busy): {r.cycles} cycles in {r.seconds:.1f} s = "
+          f"{r.cycles_per_s:.0f} cycles/s")
+    g = golden("scenes/cornell.toml", w, h, Config(), tempfile.mkdtemp())
+    r = run_unit(g, seed=1, idle=0.2, stall=0.2)
+    print(f"IntersectionUnit (cornell {w}x{h}, {r.int_ops} int-ops): {r.cycles} cycles in "
+          f"{r.seconds:.1f} s = {r.cycles_per_s:.0f} cycles/s; counters {r.counters}")

@@ -172,3 +172,15 @@ def run_list(g: Golden, *, seed: int = 0, idle: float = 0.3, stall: float = 0.3,
         assert counters["words"] == tot[C["list_reads"]]
     return ListRun(len(leaves), len(want), counters["cycles"], seconds, counters["words"],
                    counters["busy"], [tag for _, tag in tags])
+
+
+if __name__ == "__main__":          # speed figure: python -m tb.list [width height]
+    import sys
+    import tempfile
+    w, h = (int(x) for x in sys.argv[1:3]) if len(sys.argv) > 2 else (16, 16)
+    g = golden("scenes/cornell.toml", w, h, Config(), tempfile.mkdtemp())
+    for label, kw in (("ideal memory, 30% bubbles/back-pressure", {}),
+                      ("no bubbles, 16 outstanding", dict(idle=0, stall=0, outstanding=16))):
+        r = run_list(g, seed=1, **kw)
+        print(f"ListUnit ({label}): {r.leaves} leaves, {r.entries} entries, {r.words} words, "
+              f"{r.cycles} cycles in {r.seconds:.2f} s = {r.cycles_per_s:.0f} cycles/s")
