@@ -88,10 +88,27 @@ def main(argv=None) -> dict:
     ap.add_argument("--words-per-chip", type=int, default=100,
                     help="words per chip in each SDRAM bandwidth run (Amaranth simulation)")
     ap.add_argument("--no-bandwidth", action="store_true", help="skip the SDRAM simulation")
+    ap.add_argument("--scene", default=None,
+                    help="record the golden model's access streams on this scene (eye rays; "
+                         "packets in order) instead of a synthetic stream")
+    ap.add_argument("--res", default="256x192", help="resolution for --scene, WxH")
     args = ap.parse_args(argv)
     cfg = Config()
 
     traces, source = {}, {}
+    if args.scene:
+        from .raygen import eye_rays
+        from .render import prepare
+        from .rtc import item_trace, trace
+        from .scene import load_scene
+        scene = load_scene(args.scene)
+        w, h = (int(x) for x in args.res.split("x"))
+        prep = prepare(scene, cfg)
+        _, _, events = trace(prep.image, eye_rays(scene.camera, w, h, cfg), cfg, record=True)
+        for unit, tr in item_trace(events).items():
+            traces[unit] = tr
+            source[unit] = (f"golden model, {scene.name} {w}x{h} eye rays, packets in order "
+                            f"({len(tr)} requests)")
     for spec in args.trace:
         unit, _, path = spec.partition("=")
         if unit not in UNITS or not path:

@@ -14,7 +14,7 @@ import numba
 import numpy as np
 
 from .fp import sign_bit
-from .intersection import TRI_WORDS, fetch_triangle, intersect
+from .intersection import TRI_WORDS, fetch_triangle, intersect, intersect32
 from .list import list_entry, list_words
 from .traversal import (LEAF, bits_to_f32, classify, clip_far, clip_near, decode_node,
                         lowest_lane, pop, push)
@@ -134,9 +134,14 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                     l = lowest_lane(m)
                     m &= m - np.uint64(1)
                     c_int_ops += 1
-                    hit, t, u, v = intersect(tri, lo[l, 0], lo[l, 1], lo[l, 2],
-                                             lk[l, 0], lk[l, 1], lk[l, 2],
-                                             ls[l, 0], ls[l, 1], ls[l, 2], E, M)
+                    if E == 8 and M == 23:
+                        hit, t, u, v = intersect32(tri, lo[l, 0], lo[l, 1], lo[l, 2],
+                                                   lk[l, 0], lk[l, 1], lk[l, 2],
+                                                   ls[l, 0], ls[l, 1], ls[l, 2])
+                    else:
+                        hit, t, u, v = intersect(tri, lo[l, 0], lo[l, 1], lo[l, 2],
+                                                 lk[l, 0], lk[l, 1], lk[l, 2],
+                                                 ls[l, 0], ls[l, 1], ls[l, 2], E, M)
                     accept = hit and t > np.float32(0.0) and t < best[l]
                     if rec.shape[0]:
                         record(rec, rec_n, EV_INT, pid, l, ti, np.int64(hit) | (np.int64(accept) << 1),
@@ -307,6 +312,17 @@ def memory_trace(events: np.ndarray, image) -> dict:
     inter = (image.tri_base + TRI_WORDS * tri[:, None] + np.arange(TRI_WORDS)).ravel()
     return {"trav": trav.astype(np.int64), "list": lst.astype(np.int64),
             "int": inter.astype(np.int64)}
+
+
+def item_trace(events: np.ndarray) -> dict:
+    """Item addresses each unit asks its cache for, in event order: node indices (trav),
+    list-entry indices (list), triangle indices (int)."""
+    kind = events[:, 0]
+    leaf = events[(kind == EV_LEAF) & (events[:, 6] > 0)]
+    lst = (np.concatenate([np.arange(f, f + c) for f, c in zip(leaf[:, 5], leaf[:, 6])])
+           if len(leaf) else np.zeros(0, np.int64))
+    return {"trav": events[(kind == EV_NODE) | (kind == EV_LEAF), 3].astype(np.int64),
+            "list": lst.astype(np.int64), "int": events[kind == EV_TRI, 3].astype(np.int64)}
 
 
 def counter_totals(ctrs: np.ndarray) -> dict:

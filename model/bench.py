@@ -1,0 +1,123 @@
+"""Golden-model benchmark: rays per second next to Embree on the same rays, kd-tree build time.
+
+    python -m model.bench --out build/bench [--mesh PATH] [--res 1024x768] [--build-copies 10]
+
+Writes ``<out>/model.json``:
+
+* ``primary``: the golden model's primary rays per second (all cores, numba ``prange`` over
+  packets) for binary32 and a reduced format (E8M16), and Embree's (``embreex``,
+  ``rtcIntersect1`` per ray, one thread) on the *same* rays of the same scene, measured in one
+  run (best of ``--repeat``), plus hit/miss agreement between the model and Embree;
+* ``kdtree_build``: build seconds for a >= 1M-triangle scene (``--build-copies`` copies of the
+  mesh, offset in space; no cache).
+
+Default mesh: ``../shared/meshes/dragon.obj`` (the issue's reference); if absent, the
+procedural ``scenes/terrain.toml``.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config
+from .fp import FPFormat
+from .kdtree import build_kdtree
+from .raygen import eye_rays, setup
+from .render import prepare
+from .rtc import counter_totals, trace
+from .scene import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def best_time(fn, repeat: int) -> float:
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def primary(scene, fmt: FPFormat, res, repeat: int, embree) -> dict:
+    cfg = Config(fmt=fmt)
+    prep = prepare(scene, cfg, cache_dir=None)
+    rays = eye_rays(scene.camera, *res, cfg)
+    rs = setup(rays, prep.image.bounds, cfg.fmt)
+    hits, ctrs = trace(prep.image, rays, cfg, rs)          # compile + warm up
+    dt = best_time(lambda: trace(prep.image, rays, cfg, rs), repeat)
+    out = {"format": str(fmt), "rays": len(rays), "seconds": dt,
+           "rays_per_second": len(rays) / dt, "hit_fraction": float((hits.tri >= 0).mean()),
+           "counters": counter_totals(ctrs), "kdtree_depth": prep.tree.depth}
+    if embree is not None:
+        from .oracle import Embree
+        emb = Embree(prep.tris, scene.tri_id)
+        e_hits = emb.intersect(rays.org, rays.dir)
+        e_dt = best_time(lambda: emb.intersect(rays.org, rays.dir), repeat)
+        out["embree_rays_per_second"] = len(rays) / e_dt
+        out["ratio_to_embree"] = out["rays_per_second"] / out["embree_rays_per_second"]
+        out["hit_agreement_with_embree"] = float(((hits.tri >= 0) == (e_hits[0] >= 0)).mean())
+    return out
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", default="build/bench", help="output directory")
+    ap.add_argument("--mesh", default=None, help="scene or mesh for the primary-ray benchmark")
+    ap.add_argument("--res", default="1024x768", help="resolution, WxH")
+    ap.add_argument("--repeat", type=int, default=3, help="timed repetitions (best is kept)")
+    ap.add_argument("--build-copies", type=int, default=10,
+                    help="copies of the mesh in the kd-tree build benchmark (>= 1M triangles)")
+    args = ap.parse_args(argv)
+    res = tuple(int(x) for x in args.res.split("x"))
+    mesh = args.mesh
+    if mesh is None:
+        dragon = ROOT.parent / "shared" / "meshes" / "dragon.obj"
+        mesh = str(dragon if dragon.exists() else ROOT / "scenes" / "terrain.toml")
+    scene = load_scene(mesh)
+    try:
+        import embreex  # noqa: F401
+        embree = True
+    except ImportError:
+        embree = None
+    import numba
+    result = {"scene": scene.name, "source": mesh, "triangles": len(scene.tris),
+              "resolution": list(res), "cores": os.cpu_count(),
+              "numba_threads": numba.config.NUMBA_NUM_THREADS,
+              "machine": platform.processor() or platform.machine(), "primary": []}
+    for fmt in (FPFormat(8, 23), FPFormat(8, 16)):
+        r = primary(scene, fmt, res, args.repeat, embree)
+        result["primary"].append(r)
+        print(f"{fmt}: model {r['rays_per_second'] / 1e6:.2f} M rays/s"
+              + (f", Embree {r['embree_rays_per_second'] / 1e6:.2f} M rays/s, ratio "
+                 f"{r['ratio_to_embree']:.2f}, hit agreement {r['hit_agreement_with_embree']:.5f}"
+                 if embree else ""))
+    # kd-tree build of >= 1M triangles: copies of the mesh side by side
+    cfg = Config()
+    tris = cfg.fmt.quantize(scene.tris).astype(np.float32)
+    ext = float(np.ptp(tris.reshape(-1, 3), axis=0).max())
+    copies = [tris + np.float32(1.1 * ext * i) * np.array([1, 0, 0], np.float32)
+              for i in range(args.build_copies)]
+    big = cfg.fmt.quantize(np.concatenate(copies)).astype(np.float32)
+    build_kdtree(tris[:1000], cfg, cache_dir=None)                   # compile
+    t0 = time.perf_counter()
+    tree = build_kdtree(big, cfg, cache_dir=None)
+    dt = time.perf_counter() - t0
+    result["kdtree_build"] = {"triangles": len(big), "seconds": dt, "nodes": tree.n_nodes,
+                              "depth": tree.depth}
+    print(f"kd-tree build: {len(big)} triangles in {dt:.2f} s")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "model.json").write_text(json.dumps(result, indent=1))
+    print(f"wrote {out / 'model.json'}")
+    return result
+
+
+if __name__ == "__main__":
+    main()
