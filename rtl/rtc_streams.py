@@ -115,8 +115,10 @@ def RayResult(cfg: Config) -> data.StructLayout:
 
 def PacketDone(cfg: Config) -> data.StructLayout:
     """Traversal -> intersection: thread ``thread`` (packet ``packet``) has finished all its
-    passes; read its rays' best hits out as ``RayResult`` s (model event ``EV_DONE``)."""
+    passes; read the best hits of its lanes in ``mask`` (the lanes the packet has) out as
+    ``RayResult`` s (model event ``EV_DONE``)."""
     return data.StructLayout({
         "thread": cfg.thread_bits,
         "packet": PACKET_ID_BITS,
+        "mask": cfg.packet_size,
     })

@@ -305,6 +305,7 @@ class Traversal(wiring.Component):
         octant = per_thread(3, "oct")
         todo = per_thread(8, "todo")
         packet = per_thread(len(self.rays.payload.packet), "packet")
+        lanes = per_thread(L, "lanes")              # lanes the packet has (for the readout)
 
         m.submodules.stack = stack = Memory(shape=NODE_BITS + L, depth=T << db, init=[])
         st_r, st_w = stack.read_port(), stack.write_port()
@@ -318,6 +319,7 @@ class Traversal(wiring.Component):
         ld_active = Signal()
         ld_thread = Signal(tb)
         acc = [Signal(L, name=f"acc{o}") for o in range(8)]
+        acc_lanes = Signal(L)
         free_any, free_idx = lowest(m, in_state(FREE), "free")
         with m.If(~ld_active & free_any):
             m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx), state[free_idx].eq(LOAD)]
@@ -327,8 +329,8 @@ class Traversal(wiring.Component):
         m.d.comb += [self.rays.ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
         take = self.rays.valid & self.rays.ready
         live = compare(fmt, p.tnear, p.tfar).le
-        lane_bit = Signal(L)
-        m.d.comb += lane_bit.eq(Mux(live, Const(1, L) << p.lane, 0))
+        lane_bit, lane_one = Signal(L), Signal(L)
+        m.d.comb += [lane_one.eq(Const(1, L) << p.lane), lane_bit.eq(Mux(live, lane_one, 0))]
         acc_new = [Signal(L, name=f"acc_new{o}") for o in range(8)]
         for o in range(8):
             m.d.comb += acc_new[o].eq(acc[o] | Mux(p.octant == o, lane_bit, 0))
@@ -338,10 +340,12 @@ class Traversal(wiring.Component):
                          s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
         m.d.comb += [pm_w.addr.eq(ld_thread), pm_w.data.eq(Cat(*acc_new))]
         with m.If(take):
-            m.d.sync += [packet[ld_thread].eq(p.packet)] + [acc[o].eq(acc_new[o]) for o in range(8)]
+            m.d.sync += [packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one)]
+            m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
             with m.If(p.last):
                 m.d.comb += pm_w.en.eq(1)
-                m.d.sync += [ld_active.eq(0), state[ld_thread].eq(NEXTPASS),
+                m.d.sync += [ld_active.eq(0), state[ld_thread].eq(NEXTPASS), acc_lanes.eq(0),
+                             lanes[ld_thread].eq(acc_lanes | lane_one),
                              todo[ld_thread].eq(Cat(*(a.any() for a in acc_new))),
                              term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
 
@@ -389,7 +393,8 @@ class Traversal(wiring.Component):
         dn = self.done
         with m.If((~dn.valid | dn.ready) & d_any):
             m.d.sync += [dn.valid.eq(1), dn.payload.thread.eq(d_idx),
-                         dn.payload.packet.eq(packet[d_idx]), state[d_idx].eq(DRAIN)]
+                         dn.payload.packet.eq(packet[d_idx]), dn.payload.mask.eq(lanes[d_idx]),
+                         state[d_idx].eq(DRAIN)]
         with m.Elif(dn.ready):
             m.d.sync += dn.valid.eq(0)
         with m.If(dn.valid & dn.ready):

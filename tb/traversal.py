@@ -189,6 +189,11 @@ def run_traversal(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int =
                     mismatches.append(("done", t, p))
                     raise AssertionError(f"done: thread {t} packet {p} (loaded: "
                                          f"{thread_packet.get(t)}, done before: {p in done})")
+                n = int(rays.pk_start[p + 1] - rays.pk_start[p])
+                if int(dp.mask) != (1 << n) - 1:
+                    mismatches.append(("done mask", p, int(dp.mask)))
+                    raise AssertionError(f"packet {p} done with lane mask {int(dp.mask):#x}, "
+                                         f"it has {n} lanes")
                 if seen[p] != len(expect[p]):
                     mismatches.append(("leaves", p, seen[p], len(expect[p])))
                     raise AssertionError(f"packet {p} done after {seen[p]} leaves; model "
@@ -201,9 +206,12 @@ def run_traversal(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int =
             "packets_done")}
         state["counters"]["sub_busy"] = [ctx.get(x) for x in dut.sub_busy]
 
-    t0 = time.perf_counter()
-    run(top, feeder, responder)
-    secs = time.perf_counter() - t0
+    async def clock(ctx):
+        await ctx.tick()
+        state["t_first"] = time.perf_counter()     # after the simulator compiled the design
+
+    run(top, feeder, responder, clock)
+    secs = time.perf_counter() - state["t_first"]
     return TravRun(state["cycle"], sum(seen.values()), done, state["counters"], tot, mismatches,
                    secs)
 

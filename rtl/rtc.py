@@ -1,0 +1,159 @@
+"""The ray tracing core (RTC): traversal -> list -> intersection -> traversal.
+
+:class:`RTC` wires the three units with ``lib.stream`` interfaces (``wiring.connect``) and
+exposes their three memory read ports (node, list, triangle) for the caches and the bus.
+:class:`RTCSim` puts an :class:`~rtl.memory.IdealMemory` holding the memory image behind each
+port (simulation stand-in until the caches are connected).
+
+Packets: ``rays`` takes ``RayIn`` lanes; a free thread of the traversal unit takes the next
+packet (``rays.ready`` is low while every thread is busy). Each lane goes, in the same cycle,
+to the traversal unit and, with its thread, to the intersection unit (``RayWrite``). When
+traversal finishes a packet it sends ``PacketDone`` to the intersection unit, which reads the
+packet's best hits out on ``results`` (``RayResult``); after the packet's last result the
+thread is released for the next packet.
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Module, Signal
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.config import Config
+from .intersection import IntersectionUnit
+from .list import ListUnit
+from .memory import IdealMemory
+from .memport import WORD_BITS, MemReadPort
+from .rtc_streams import RayIn, RayResult
+from .traversal import NODE_BITS, Traversal
+
+__all__ = ["RTC", "RTCSim", "COUNTERS"]
+
+COUNTER_BITS = 32
+# counter port -> (unit, port of that unit)
+COUNTERS = {
+    "trav_busy": ("trav", "busy"), "trav_ops": ("trav", "trav_ops"),
+    "trav_steps": ("trav", "trav_steps"), "node_reads": ("trav", "node_reads"),
+    "leaf_reqs": ("trav", "leaf_reqs"), "passes": ("trav", "passes"),
+    "pushes": ("trav", "pushes"), "packets_done": ("trav", "packets_done"),
+    "list_busy": ("list", "busy"), "list_ops": ("list", "list_ops"),
+    "list_reads": ("list", "words"),
+    "int_busy": ("int", "busy"), "int_ops": ("int", "int_ops"), "int_tris": ("int", "tris"),
+    "int_reads": ("int", "words"),
+}
+
+
+class RTC(wiring.Component):
+    """One ray tracing core.
+
+    Ports: ``rays`` (In stream ``RayIn``), ``results`` (Out stream ``RayResult``), memory
+    read ports ``node_mem``, ``list_mem``, ``tri_mem`` (64-bit words; tags: the units'),
+    memory image constants ``node_base``, ``list_base``, ``tri_base``, ``root`` (In, held).
+    Counters (Out, 32 bits): see ``COUNTERS``, ``sub_busy[k]`` (traversal sub-units) and
+    ``cycles`` (since reset).
+
+    Latency and throughput are the units' (see their docstrings); up to ``cfg.threads``
+    packets are in flight.
+    """
+
+    def __init__(self, cfg: Config, *, addr_width: int = 32):
+        self.cfg = cfg
+        self.trav = Traversal(cfg, addr_width=addr_width)
+        self.list = ListUnit(cfg, addr_width=addr_width)
+        self.int = IntersectionUnit(cfg, addr_width=addr_width)
+        ports = {
+            "rays": In(stream.Signature(RayIn(cfg))),
+            "results": Out(stream.Signature(RayResult(cfg))),
+            "node_mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+                                        tag_width=cfg.thread_bits)),
+            "list_mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+                                        tag_width=self.list.tag_width)),
+            "tri_mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+                                       tag_width=self.int.tag_width)),
+            "node_base": In(addr_width), "list_base": In(addr_width),
+            "tri_base": In(addr_width), "root": In(NODE_BITS),
+            "sub_busy": Out(COUNTER_BITS).array(cfg.trav_subunits),
+            "cycles": Out(COUNTER_BITS),
+        }
+        ports.update({name: Out(COUNTER_BITS) for name in COUNTERS})
+        super().__init__(ports)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.trav = trav = self.trav
+        m.submodules.list = lst = self.list
+        m.submodules.int = inter = self.int
+
+        wiring.connect(m, trav.leaf, lst.leaf)
+        wiring.connect(m, lst.tri, inter.tri_in)
+        wiring.connect(m, inter.lane_out, trav.result)
+        wiring.connect(m, trav.done, inter.done)
+        wiring.connect(m, inter.result, wiring.flipped(self.results))
+        wiring.connect(m, trav.node, wiring.flipped(self.node_mem))
+        wiring.connect(m, lst.mem, wiring.flipped(self.list_mem))
+        wiring.connect(m, inter.mem, wiring.flipped(self.tri_mem))
+        m.d.comb += [trav.node_base.eq(self.node_base), trav.root.eq(self.root),
+                     lst.list_base.eq(self.list_base), inter.tri_base.eq(self.tri_base)]
+
+        # a ray lane goes to traversal and (with its thread) to intersection in the same cycle
+        rays, ri = self.rays, inter.ray_in
+        m.d.comb += [trav.rays.payload.eq(rays.payload),
+                     ri.payload.ray.eq(rays.payload), ri.payload.thread.eq(trav.load_thread),
+                     trav.rays.valid.eq(rays.valid & ri.ready),
+                     ri.valid.eq(rays.valid & trav.rays.ready),
+                     rays.ready.eq(trav.rays.ready & ri.ready)]
+
+        # the intersection unit reads out one packet at a time: release its thread after the
+        # packet's last result
+        readout = Signal(self.cfg.thread_bits)
+        with m.If(trav.done.valid & trav.done.ready):
+            m.d.sync += readout.eq(trav.done.payload.thread)
+        res = self.results
+        m.d.comb += [trav.release.valid.eq(res.valid & res.ready & res.payload.last),
+                     trav.release.payload.eq(readout)]
+
+        units = {"trav": trav, "list": lst, "int": inter}
+        for name, (unit, port) in COUNTERS.items():
+            m.d.comb += getattr(self, name).eq(getattr(units[unit], port))
+        for j in range(self.cfg.trav_subunits):
+            m.d.comb += self.sub_busy[j].eq(trav.sub_busy[j])
+        m.d.sync += self.cycles.eq(self.cycles + 1)
+        return m
+
+
+class RTCSim(wiring.Component):
+    """An :class:`RTC` with an :class:`IdealMemory` (``mem_latency`` cycles) holding ``image``
+    behind each of its three memory ports; image constants from the image header.
+
+    Ports: ``rays``, ``results`` as the RTC's; the RTC itself is ``self.rtc`` (its counters
+    can be read in simulation).
+    """
+
+    def __init__(self, cfg: Config, image, *, mem_latency: int = 20, queue: int | None = None):
+        self.cfg, self.image = cfg, image
+        self.rtc = RTC(cfg)
+        q = queue if queue is not None else mem_latency + 8
+        self.mems = {
+            "node": IdealMemory(image.data, addr_width=32, tag_width=cfg.thread_bits,
+                                latency=mem_latency, queue=max(q, cfg.threads)),
+            "list": IdealMemory(image.data, addr_width=32, tag_width=self.rtc.list.tag_width,
+                                latency=mem_latency, queue=q),
+            "tri": IdealMemory(image.data, addr_width=32, tag_width=self.rtc.int.tag_width,
+                               latency=mem_latency, queue=q),
+        }
+        super().__init__({
+            "rays": In(stream.Signature(RayIn(cfg))),
+            "results": Out(stream.Signature(RayResult(cfg))),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.rtc = rtc = self.rtc
+        for name, mem in self.mems.items():
+            m.submodules[f"{name}_mem"] = mem
+            wiring.connect(m, getattr(rtc, f"{name}_mem"), mem.port)
+        img = self.image
+        m.d.comb += [rtc.node_base.eq(img.node_base), rtc.list_base.eq(img.list_base),
+                     rtc.tri_base.eq(img.tri_base), rtc.root.eq(img.root)]
+        wiring.connect(m, wiring.flipped(self.rays), rtc.rays)
+        wiring.connect(m, rtc.results, wiring.flipped(self.results))
+        return m
