@@ -25,10 +25,10 @@ from .fp import FPAdd, FPDiv, FPMul
 from .fp.cmp import compare
 from .fp.common import unpack
 from .memport import WORD_BITS, MemReadPort
-from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, RayIn, RayResult,
-                          TriRequest, lane_bits)
+from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, PacketDone, RayIn,
+                          RayResult, TriRequest, lane_bits)
 
-__all__ = ["IntersectPipe", "IntersectionUnit", "RayWrite", "PacketDone", "from_binary32",
+__all__ = ["IntersectPipe", "IntersectionUnit", "RayWrite", "from_binary32",
            "TRI_WORDS"]
 
 COUNTER_BITS = 32
@@ -38,12 +38,6 @@ TRI_WORDS = 5
 def RayWrite(cfg: Config) -> data.StructLayout:
     """A ray written into the unit's local store: the RTC's ``RayIn`` and the thread it runs in."""
     return data.StructLayout({"thread": cfg.thread_bits, "ray": RayIn(cfg)})
-
-
-def PacketDone(cfg: Config) -> data.StructLayout:
-    """Read out the final hits of ``thread``'s lanes in ``mask``, labelled with ``packet``."""
-    return data.StructLayout({"thread": cfg.thread_bits, "packet": PACKET_ID_BITS,
-                              "mask": cfg.packet_size})
 
 
 def from_binary32(fmt: FPFormat, x: Value) -> Value:
@@ -226,7 +220,7 @@ class IntersectionUnit(wiring.Component):
         triangle from ``tri_base + 5 * tri`` (``tri_base``: In, from the image header).
     ``lane_out`` (Out stream, ``LaneResult``): for a leaf's last triangle, one result per lane
         of the mask in lane order (``last`` on the highest lane): has-hit and best t.
-    ``done`` (In stream, :func:`PacketDone`) / ``result`` (Out stream, ``RayResult``): read out
+    ``done`` (In stream, ``PacketDone``) / ``result`` (Out stream, ``RayResult``): read out
         the final hit of every lane of ``mask`` in lane order, labelled with ``packet``
         (tri = all ones and t = +inf on a miss). Send ``done`` only after the packet's last
         ``LaneResult`` was taken.
@@ -234,7 +228,8 @@ class IntersectionUnit(wiring.Component):
     (memory words read), ``busy`` (cycles with a triangle held or a test in flight).
 
     Timing: up to ``tri_slots`` triangles are fetched ahead (one request per cycle, 5 per
-    triangle) of the one being tested; tests issue one lane per cycle with no gap between
+    triangle, a new triangle every 5 cycles) of the one being tested; tests issue one lane per
+    cycle with no gap between
     triangles. A test's result is stored 2 + ``IntersectPipe.latency`` cycles after its issue
     (34 for binary32); the LaneResult leaves one cycle later. The whole pipeline stalls only while
     ``lane_out`` is full and not taken.
@@ -317,17 +312,20 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += f_word.eq(Mux(f_word == TRI_WORDS - 1, 0, f_word + 1))
         with m.If(issue_last):
             m.d.sync += [fetching.eq(0), f_slot.eq(f_slot + 1)]
+        # the next request is taken in the cycle the current one's last word goes out
         tri_in = self.tri_in
-        m.d.comb += tri_in.ready.eq(~fetching & ~alloc.bit_select(f_slot, 1))
+        nxt = Signal(self.slot_bits)
+        m.d.comb += [nxt.eq(Mux(fetching, f_slot + 1, f_slot)),
+                     tri_in.ready.eq((~fetching | issue_last) & ~alloc.bit_select(nxt, 1))]
         with m.If(tri_in.valid & tri_in.ready):
             p = tri_in.payload
-            m.d.comb += alloc_set.eq(1 << f_slot)
+            m.d.comb += alloc_set.eq(1 << nxt)
             m.d.sync += [
-                fetching.eq(1), f_word.eq(0),
+                fetching.eq(1), f_word.eq(0), f_slot.eq(nxt),
                 f_addr.eq(self.tri_base + p.tri * TRI_WORDS),
-                slot_mask[f_slot].eq(p.mask), slot_thread[f_slot].eq(p.thread),
-                slot_last.bit_select(f_slot, 1).eq(p.last),
-                slot_got[f_slot].eq(0),
+                slot_mask[nxt].eq(p.mask), slot_thread[nxt].eq(p.thread),
+                slot_last.bit_select(nxt, 1).eq(p.last),
+                slot_got[nxt].eq(0),
             ]
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)

@@ -434,3 +434,34 @@ if __name__ == "__main__":          # speed figures: python -m tb.intersection [
     r = run_unit(g, seed=1, idle=0.2, stall=0.2)
     print(f"IntersectionUnit (cornell {w}x{h}, {r.int_ops} int-ops): {r.cycles} cycles in "
           f"{r.seconds:.1f} s = {r.cycles_per_s:.0f} cycles/s; counters {r.counters}")
+
+
+def golden_stack(cfg, cache_dir, layers: int = 10, rays_per_packet: int = 1):
+    """A stack of ``layers`` parallel quads (two triangles each) facing rays from +z, listed
+    far to near, and a few rays per packet: every test of a lane hits and is closer than the
+    last, back to back when a packet has one ray (the best-hit read-after-write case)."""
+    from model.kdtree import build_kdtree
+    from model.layout import build_image
+    from tb.list import Golden
+    quads = []
+    for i in range(layers):
+        z = float(-i)
+        quads += [[(-1, -1, z), (1, -1, z), (1, 1, z)], [(-1, -1, z), (1, 1, z), (-1, 1, z)]]
+    # reversed: memory (and list) order runs from the farthest layer to the nearest
+    tris = cfg.fmt.quantize(np.array(quads[::-1], np.float64)).astype(np.float32)
+    tree = build_kdtree(tris, cfg, cache_dir=cache_dir)
+    image = build_image(tris, tree, cfg)
+    rng = np.random.default_rng(3)
+    n = 8
+    org = np.zeros((n, 3), np.float32)
+    org[:, :2] = cfg.fmt.quantize(rng.uniform(-0.9, 0.9, (n, 2)))
+    org[:, 2] = 5
+    dirn = np.tile(np.array([0, 0, -1], np.float32), (n, 1))
+    dirn[:, :2] = cfg.fmt.quantize(rng.uniform(-0.01, 0.01, (n, 2)))
+    pk = np.arange(0, n + 1, rays_per_packet).astype(np.int64)
+    rays = Rays(org, dirn, np.full(n, np.inf, np.float32), np.zeros(n, np.uint8),
+                np.zeros(n, np.int32), pk)
+    rs = setup(rays, image.bounds, cfg.fmt)
+    from model.rtc import trace
+    hits, ctrs, events = trace(image, rays, cfg, ray_setup=rs, record=True)
+    return Golden(cfg, image, rays, rs, hits, ctrs, events)

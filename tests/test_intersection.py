@@ -52,3 +52,25 @@ def test_unit_matches_model_whole_image(cornell):
     r = run_unit(cornell, seed=2, idle=0.2, stall=0.2, latency=20)
     print(f"IntersectionUnit: {r.cycles} cycles in {r.seconds:.1f} s = "
           f"{r.cycles_per_s:.0f} cycles/s")
+
+
+def test_unit_every_test_accepts_small_slots_fast_memory(kd_cache):
+    """One-ray packets against a stack of quads listed far to near: every layer's hit replaces
+    the previous best; two triangle slots and a 2-cycle memory; LaneResults back-pressured."""
+    from tb.intersection import golden_stack, run_unit
+    from model.rtc import EV_INT
+    g = golden_stack(Config(kd_leaf_size=32), kd_cache, layers=6)
+    ints = g.events[g.events[:, 0] == EV_INT]
+    assert (ints[:, 4] & 2).sum() // 2 >= 6 * 8                     # >= 6 accepts per ray
+    r = run_unit(g, seed=5, idle=0.0, stall=0.4, latency=2, tri_slots=2)
+    assert r.counters["tris"] == len(ints) and r.int_ops == len(ints)      # one ray per packet
+
+
+@pytest.mark.slow
+def test_unit_synthesizes_small_config():
+    """Yosys, generic synth (about 5 minutes): 2 threads of 2x2 rays (the ray and best-hit
+    memories become flip-flops in the generic flow, so keep them small); no latches."""
+    from rtl.intersection import IntersectionUnit
+    from tb.common import synth_check
+    stat = synth_check(IntersectionUnit(Config(threads=2, tile_w=2, tile_h=2)), "intersection")
+    print(stat)
