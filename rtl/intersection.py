@@ -238,6 +238,7 @@ class IntersectionUnit(wiring.Component):
     def __init__(self, cfg: Config, *, addr_width: int = 32, tri_slots: int = 4,
                  latencies: dict | None = None):
         if tri_slots < 2 or tri_slots & (tri_slots - 1):
+            self._MustUse__silence = True        # never elaborated: no warning
             raise ValueError(f"IntersectionUnit tri_slots={tri_slots}: must be a power of two "
                              ">= 2 (one triangle tested while the next is fetched)")
         self.cfg, self.fmt, self.tri_slots = cfg, cfg.fmt, tri_slots

@@ -40,8 +40,9 @@ class ListUnit(wiring.Component):
     """
 
     def __init__(self, cfg: Config, *, addr_width: int = 32, outstanding: int = 8):
-        if outstanding < 1 or outstanding & (outstanding - 1):
-            raise ValueError(f"ListUnit outstanding={outstanding}: must be a power of two >= 1 "
+        if outstanding < 2 or outstanding & (outstanding - 1):
+            self._MustUse__silence = True        # never elaborated: no warning
+            raise ValueError(f"ListUnit outstanding={outstanding}: must be a power of two >= 2 "
                              "(it is the tag space of the memory port)")
         self.cfg = cfg
         self.outstanding = outstanding

@@ -74,3 +74,19 @@ def test_unit_synthesizes_small_config():
     from tb.common import synth_check
     stat = synth_check(IntersectionUnit(Config(threads=2, tile_w=2, tile_h=2)), "intersection")
     print(stat)
+
+
+@pytest.mark.parametrize("fmt", [FPFormat(8, 16), FPFormat(6, 10)], ids=str)
+def test_pipe_reduced_formats_exact_cycle(fmt):
+    r = run_pipe(random_tests(60, fmt, seed=4), fmt, seed=4)
+    assert r.tests == 60
+
+
+@pytest.mark.slow
+def test_unit_reduced_format(kd_cache):
+    """E8M16: triangles come from memory as binary32 patterns and are sliced to the format."""
+    from tb.list import golden
+    from tb.intersection import run_unit
+    from .conftest import ROOT
+    g = golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(fmt=FPFormat(8, 16)), kd_cache)
+    run_unit(g, max_leaves=20, seed=1)

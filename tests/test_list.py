@@ -69,7 +69,6 @@ def test_list_unit_every_alignment(kd_cache):
     assert r.words == sum(list_words(lf["first"], lf["count"]) for lf in leaves)
 
 
-@pytest.mark.filterwarnings("ignore::amaranth.hdl.UnusedElaboratable")
 def test_list_unit_rejects_bad_outstanding():
     with pytest.raises(ValueError, match="power of two"):
         ListUnit(CFG, outstanding=6)
