@@ -69,8 +69,7 @@ class _Schedule:
         value = Value.cast(value)
         if isinstance(value, Const) or t == t0:
             return value
-        chain = self.taps.setdefault(id(value), [value])
-        self.taps.setdefault(("keep", id(value)), value)      # keep id() stable
+        chain = self.taps.setdefault(id(value), [value])     # chain[0] keeps id() unique
         while len(chain) <= t - t0:
             prev = chain[-1]
             reg = Signal.like(prev, name=f"dly{self.n}", reset_less=True)

@@ -45,7 +45,7 @@ def test_list_unit_throughput(cornell):
     assert r.cycles < 1.25 * r.entries + 40, (r.cycles, r.entries)
 
 
-def test_list_unit_every_alignment(kd_cache):
+def test_list_unit_every_alignment():
     """Synthetic list: every first parity and counts 1..7 (and a huge first index)."""
     rng = np.random.default_rng(5)
     words = rng.integers(0, 2**63, 64, dtype=np.int64).astype(np.uint64) * np.uint64(2)
