@@ -1,0 +1,268 @@
+"""Verilog export of the chip's units and of the one-RTC top (``make verilog``).
+
+Run: ``.venv/bin/python -m rtl.export --top <top> [configuration options] [--out DIR]``; writes
+``DIR/<top>.v`` (default ``build/verilog``). ``--list`` names the tops. Every field of
+:class:`model.config.Config` is an option (``--threads 2 --trav-subunits 1 --trav-cache-kb 4``),
+``--fmt E8M16`` sets the FP format, ``--latency N`` the pipeline latency of an ``fp_*`` top.
+
+The ``rtc`` top (:class:`RTCTop`) is the synthesizable one-RTC chip: the RTC's three word read
+ports (node, list, triangle), each through a word cache, share one :class:`RoundRobinBus` to a
+single memory read port ``mem`` (``docs/memory-interface.md``, ``docs/fpga.md``) that an FPGA
+memory controller serves. ``rtc_core`` is the bare RTC (three memory ports).
+``rtl/memory.py``'s memories are simulation models and are not exported.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import re
+import sys
+from pathlib import Path
+from typing import Callable
+
+from amaranth.back import verilog
+from amaranth.hdl import Module
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from model.cache import CacheGeometry, cache_geometry
+from model.config import Config, ConfigError
+from model.fp import FPFormat
+
+__all__ = ["RTCTop", "TOPS", "build_top", "export", "word_cache_geometry", "main"]
+
+COUNTER_BITS = 32
+
+
+def word_cache_geometry(cfg: Config, kb: int) -> CacheGeometry:
+    """A cache of 64-bit memory words (item = word, item address = word address) of ``kb`` KB
+    rounded down to a power of two (the default 144 KB int cache becomes 128 KB), with the
+    configuration's ways, line length, outstanding misses and queue."""
+    size = 1 << ((kb * 1024).bit_length() - 1) if kb >= 1 else 0
+    return CacheGeometry(size_bytes=size, line_items=cfg.cache_line_words, item_bits=64,
+                         item_span=64, ways=cfg.cache_ways, outstanding=cfg.cache_outstanding,
+                         queue=cfg.cache_queue)
+
+
+class RTCTop(wiring.Component):
+    """One RTC with a single memory read port: the synthesizable top for an FPGA.
+
+    The RTC's node, list and triangle ports (64-bit words) each go through a word cache
+    (:func:`word_cache_geometry` of ``trav_cache_kb``, ``list_cache_kb``, ``int_cache_kb``,
+    each rounded down to a power of two;
+    ``caches=False`` leaves them out) onto a :class:`~rtl.bus.RoundRobinBus`, whose port is
+    ``mem``: ``MemReadPort`` requester, 32-bit word addresses, 64-bit data, tag =
+    ``{requester tag, requester id (2 bits: 0 node, 1 list, 2 triangle)}``.
+
+    Ports: ``rays``, ``results``, ``node_base``, ``list_base``, ``tri_base``, ``root`` and the
+    counters as :class:`~rtl.rtc.RTC`; ``mem``; ``hits[3]``, ``misses[3]`` (caches) and
+    ``mem_reads`` (words read from memory). Latency: the RTC's plus, per memory access, the
+    cache's (hit 3 cycles) and one bus register each way; one memory request per cycle.
+    The caches use the RTC's word addresses as item addresses (not the item caches of
+    ``model/cache.py``'s ``cache_geometry``: the RTC's units read words).
+    """
+
+    def __init__(self, cfg: Config, *, caches: bool = True):
+        from .bus import RoundRobinBus
+        from .cache import Cache
+        from .rtc import COUNTERS, RTC
+
+        self.cfg, self.with_caches = cfg, caches
+        self.rtc = rtc = RTC(cfg)
+        self.ports = ("node_mem", "list_mem", "tri_mem")
+        tag_widths = [len(getattr(rtc, p).req.payload.tag) for p in self.ports]
+        if caches:
+            kbs = (cfg.trav_cache_kb, cfg.list_cache_kb, cfg.int_cache_kb)
+            try:
+                geoms = [word_cache_geometry(cfg, kb) for kb in kbs]
+            except ValueError as e:
+                raise ConfigError(f"RTCTop word caches of {kbs} KB: {e} (pick power-of-two "
+                                  "sizes with --trav-cache-kb/--list-cache-kb/--int-cache-kb)")
+            self.caches = [Cache(g, tag_width=w) for g, w in zip(geoms, tag_widths)]
+            bus_tags = [len(c.mem.req.payload.tag) for c in self.caches]
+        else:
+            self.caches = []
+            bus_tags = tag_widths
+        self.bus = RoundRobinBus(3, addr_width=32, tag_width=max(bus_tags))
+        members = {name: m for name, m in rtc.signature.members.items()
+                   if name not in self.ports}
+        members.update({
+            "mem": Out(self.bus.mem.signature),
+            "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
+            "mem_reads": Out(COUNTER_BITS),
+        })
+        self._counters = list(COUNTERS) + ["cycles"]
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.rtc = rtc = self.rtc
+        m.submodules.bus = bus = self.bus
+        wiring.connect(m, bus.mem, wiring.flipped(self.mem))
+        for i, name in enumerate(self.ports):
+            port, b = getattr(rtc, name), bus.inputs[i]
+            if self.caches:
+                c = self.caches[i]
+                m.submodules[f"cache_{name.split('_')[0]}"] = c
+                wiring.connect(m, port, c.port)
+                m.d.comb += [c.base.eq(0), self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
+                port = c.mem
+            # the bus input's tag may be wider than this requester's: zero-extend, truncate back
+            w = len(port.req.payload.tag)
+            m.d.comb += [
+                b.req.valid.eq(port.req.valid), port.req.ready.eq(b.req.ready),
+                b.req.payload.addr.eq(port.req.payload.addr),
+                b.req.payload.tag.eq(port.req.payload.tag),
+                port.resp.valid.eq(b.resp.valid), b.resp.ready.eq(port.resp.ready),
+                port.resp.payload.data.eq(b.resp.payload.data),
+                port.resp.payload.tag.eq(b.resp.payload.tag[:w]),
+            ]
+        wiring.connect(m, wiring.flipped(self.rays), rtc.rays)
+        wiring.connect(m, rtc.results, wiring.flipped(self.results))
+        for name in ("node_base", "list_base", "tri_base", "root"):
+            m.d.comb += getattr(rtc, name).eq(getattr(self, name))
+        for name in self._counters:
+            m.d.comb += getattr(self, name).eq(getattr(rtc, name))
+        for j in range(self.cfg.trav_subunits):
+            m.d.comb += self.sub_busy[j].eq(rtc.sub_busy[j])
+        m.d.comb += self.mem_reads.eq(bus.req_cycles)
+        return m
+
+
+def _fp(kind: str) -> Callable:
+    def make(cfg: Config, latency: int | None):
+        from . import fp
+        cls = {"add": fp.FPAdd, "mul": fp.FPMul, "div": fp.FPDiv, "cmp": fp.FPCompare,
+               "minmax": fp.FPMinMax, "conv": fp.FPFromInt}[kind]
+        kw = {} if latency is None else {"latency": latency}
+        return cls(cfg.fmt, **kw)
+    return make
+
+
+def _cache(unit: str) -> Callable:
+    def make(cfg: Config, latency):
+        from .cache import Cache
+        return Cache(cache_geometry(cfg, unit))
+    return make
+
+
+def _memif(cfg: Config, latency):
+    from .bus import MemoryInterface
+    return MemoryInterface([cache_geometry(cfg, u) for u in ("trav", "list", "int")])
+
+
+def _bus(cfg: Config, latency):
+    from .bus import RoundRobinBus
+    return RoundRobinBus(3, addr_width=32, tag_width=4)
+
+
+def _unit(path: str, cls: str) -> Callable:
+    def make(cfg: Config, latency):
+        import importlib
+        return getattr(importlib.import_module(path, __package__), cls)(cfg)
+    return make
+
+
+def _pipe(cfg: Config, latency):
+    from .intersection import IntersectPipe
+    return IntersectPipe(cfg.fmt)
+
+
+# top name -> (factory(cfg, latency) -> component, description)
+TOPS: dict[str, tuple[Callable, str]] = {
+    "fp_add": (_fp("add"), "FP adder/subtractor (rtl/fp/add.py)"),
+    "fp_mul": (_fp("mul"), "FP multiplier (rtl/fp/mul.py)"),
+    "fp_div": (_fp("div"), "FP divider (rtl/fp/div.py)"),
+    "fp_cmp": (_fp("cmp"), "FP compare (rtl/fp/cmp.py)"),
+    "fp_minmax": (_fp("minmax"), "FP min/max (rtl/fp/cmp.py)"),
+    "fp_conv": (_fp("conv"), "int -> FP (rtl/fp/conv.py)"),
+    "cache_trav": (_cache("trav"), "kd-node cache (rtl/cache.py, trav geometry)"),
+    "cache_list": (_cache("list"), "list-entry cache (rtl/cache.py, list geometry)"),
+    "cache_int": (_cache("int"), "triangle cache (rtl/cache.py, int geometry)"),
+    "bus": (_bus, "round-robin bus, 3 requesters (rtl/bus.py)"),
+    "memif": (_memif, "trav+list+int caches on the bus (rtl/bus.py MemoryInterface)"),
+    "traversal": (_unit(".traversal", "Traversal"), "traversal unit (rtl/traversal.py)"),
+    "list": (_unit(".list", "ListUnit"), "list unit (rtl/list.py)"),
+    "intersect_pipe": (_pipe, "intersection datapath (rtl/intersection.py IntersectPipe)"),
+    "intersection": (_unit(".intersection", "IntersectionUnit"),
+                     "intersection unit (rtl/intersection.py)"),
+    "rtc_core": (_unit(".rtc", "RTC"), "the RTC, three memory ports (rtl/rtc.py)"),
+    "rtc": (lambda cfg, latency: RTCTop(cfg), "one RTC + word caches + bus, one memory port"),
+    "rtc_nocache": (lambda cfg, latency: RTCTop(cfg, caches=False),
+                    "one RTC + bus (no caches), one memory port"),
+}
+
+
+def parse_fmt(text: str) -> FPFormat:
+    m = re.fullmatch(r"E(\d+)M(\d+)", text)
+    if not m:
+        raise ConfigError(f"--fmt {text!r}: write the format as E<exp>M<frac>, e.g. E8M23")
+    return FPFormat(int(m[1]), int(m[2]))
+
+
+def build_top(top: str, cfg: Config, latency: int | None = None) -> wiring.Component:
+    """The component for ``top`` (a key of :data:`TOPS`) built from ``cfg``."""
+    if top not in TOPS:
+        raise ConfigError(f"unknown top {top!r}; choose one of: {', '.join(TOPS)}")
+    if latency is not None and not top.startswith("fp_"):
+        raise ConfigError(f"--latency applies to the fp_* tops only, not {top!r}")
+    return TOPS[top][0](cfg, latency)
+
+
+def export(top: str, cfg: Config, out_dir: Path | str = "build/verilog",
+           latency: int | None = None, name: str | None = None) -> Path:
+    """Write ``out_dir/<name or top>.v`` (module ``name or top``) and return its path."""
+    name = name or top
+    text = verilog.convert(build_top(top, cfg, latency), name=name)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{name}.v"
+    path.write_text(text)
+    return path
+
+
+def add_config_args(ap: argparse.ArgumentParser) -> None:
+    """One option per :class:`Config` field (``--trav-cache-kb``), plus ``--fmt``."""
+    g = ap.add_argument_group("configuration (model/config.py Config; defaults are Config's)")
+    g.add_argument("--fmt", help="FP format E<exp>M<frac> (default E8M23, binary32)")
+    for f in dataclasses.fields(Config):
+        if f.name == "fmt":
+            continue
+        default = getattr(Config(), f.name)
+        typ = {bool: lambda s: s.lower() in ("1", "true", "yes", "on")}.get(type(default),
+                                                                            type(default))
+        g.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=typ, default=None,
+                       metavar=type(default).__name__.upper(), help=f"default {default}")
+
+
+def config_from_args(args: argparse.Namespace) -> Config:
+    changes = {f.name: getattr(args, f.name) for f in dataclasses.fields(Config)
+               if f.name != "fmt" and getattr(args, f.name, None) is not None}
+    if args.fmt:
+        changes["fmt"] = parse_fmt(args.fmt)
+    return Config(**changes)
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m rtl.export",
+                                 description="Write the Verilog of a unit or of the one-RTC top.")
+    ap.add_argument("--top", default="rtc", help="what to export (default rtc; --list names all)")
+    ap.add_argument("--list", action="store_true", help="list the tops and exit")
+    ap.add_argument("--out", default="build/verilog", help="output directory (build/verilog)")
+    ap.add_argument("--name", help="Verilog module and file name (default: the top's name)")
+    ap.add_argument("--latency", type=int, help="pipeline latency of an fp_* top")
+    add_config_args(ap)
+    args = ap.parse_args(argv)
+    if args.list:
+        for k, (_, desc) in TOPS.items():
+            print(f"{k:15s} {desc}")
+        return
+    try:
+        path = export(args.top, config_from_args(args), args.out, args.latency, args.name)
+    except (ConfigError, ValueError, NotImplementedError) as e:
+        raise SystemExit(f"rtl.export: {e}")
+    print(f"rtl.export: wrote {path} ({path.stat().st_size // 1024} KB)")
+
+
+if __name__ == "__main__":
+    main()
