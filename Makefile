@@ -22,10 +22,13 @@ sim: setup
 	$(PY) -m model render $(SCENE) --res $(RES) --out $(OUT)
 
 ## make bench: long sweeps and speed measurements, written to build/bench/
+BENCH_SCENE ?= scenes/office.toml
 bench: setup
 	mkdir -p build/bench
-	$(PY) -m pytest -q -m slow
 	$(PY) -m model.bench --out build/bench
+	$(PY) -m model.bench_memory --scene $(BENCH_SCENE) --out build/bench
+	if [ -f model/bench_threads.py ]; then $(PY) -m model.bench_threads --out build/bench; fi
+	$(PY) -m pytest -q -m slow
 
 clean:
 	rm -rf build

@@ -164,6 +164,10 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         "counters_by_kind": by_kind,
         "memory_reads_64bit": {"trav": totals["node_reads"], "list": totals["list_reads"],
                                "int": totals["int_reads"]},
+        # packet steps including idle lanes: the share of lanes doing work in each unit
+        "lane_utilization": {
+            "trav": totals["trav_ops"] / max(1, totals["trav_steps"] * cfg.packet_size),
+            "int": totals["int_ops"] / max(1, totals["int_steps"] * cfg.packet_size)},
         "kdtree": kdtree_stats(prep.tree, len(prep.tris)),
         "memory_image_bytes": int(image.data.nbytes),
         "build_seconds": round(prep.build_seconds, 4),

@@ -78,3 +78,15 @@ def test_help_explains_every_option():
     for opt in ("--res", "--out", "--frac-bits", "--exp-bits", "--reflect-depth",
                 "--oversampling", "--no-shadows", "--kd-depth", "--leaf-size", "--tile"):
         assert opt in r.stdout
+
+
+def test_oversampling_traces_n_squared_rays_per_pixel(tmp_path):
+    r = run("render", "scenes/cornell.toml", "--res", "16x8", "--oversampling", "2",
+            "--reflect-depth", "0", "--no-shadows", "--out", str(tmp_path), "--quiet")
+    assert r.returncode == 0, r.stderr
+    rays = np.load(tmp_path / "rays.npz")
+    eye = rays["kind"] == 0
+    assert eye.sum() == 4 * 16 * 8
+    assert np.array_equal(np.bincount(rays["pixel"][eye], minlength=128), np.full(128, 4))
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert 0 < stats["lane_utilization"]["trav"] <= 1
