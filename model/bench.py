@@ -5,7 +5,7 @@
 Writes ``<out>/model.json``:
 
 * ``primary``: the golden model's primary rays per second (all cores, numba ``prange`` over
-  packets) for binary32 and a reduced format (E8M16), and Embree's (``embreex``,
+  packets, and one thread) for binary32 and a reduced format (E8M16), and Embree's (``embreex``,
   ``rtcIntersect1`` per ray, one thread) on the *same* rays of the same scene, measured in one
   run (best of ``--repeat``), plus hit/miss agreement between the model and Embree;
 * ``kdtree_build``: build seconds for a >= 1M-triangle scene (``--build-copies`` copies of the
@@ -50,10 +50,16 @@ def primary(scene, fmt: FPFormat, res, repeat: int, embree) -> dict:
     prep = prepare(scene, cfg, cache_dir=None)
     rays = eye_rays(scene.camera, *res, cfg)
     rs = setup(rays, prep.image.bounds, cfg.fmt)
+    import numba
     hits, ctrs = trace(prep.image, rays, cfg, rs)          # compile + warm up
     dt = best_time(lambda: trace(prep.image, rays, cfg, rs), repeat)
-    out = {"format": str(fmt), "rays": len(rays), "seconds": dt,
-           "rays_per_second": len(rays) / dt, "hit_fraction": float((hits.tri >= 0).mean()),
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)                                # Embree's run is one thread too
+    dt1 = best_time(lambda: trace(prep.image, rays, cfg, rs), repeat)
+    numba.set_num_threads(threads)
+    out = {"format": str(fmt), "rays": len(rays), "seconds": dt, "threads": threads,
+           "rays_per_second": len(rays) / dt, "rays_per_second_1_thread": len(rays) / dt1,
+           "hit_fraction": float((hits.tri >= 0).mean()),
            "counters": counter_totals(ctrs), "kdtree_depth": prep.tree.depth}
     if embree is not None:
         from .oracle import Embree
@@ -62,6 +68,8 @@ def primary(scene, fmt: FPFormat, res, repeat: int, embree) -> dict:
         e_dt = best_time(lambda: emb.intersect(rays.org, rays.dir), repeat)
         out["embree_rays_per_second"] = len(rays) / e_dt
         out["ratio_to_embree"] = out["rays_per_second"] / out["embree_rays_per_second"]
+        out["ratio_to_embree_1_thread"] = (out["rays_per_second_1_thread"]
+                                           / out["embree_rays_per_second"])
         out["hit_agreement_with_embree"] = float(((hits.tri >= 0) == (e_hits[0] >= 0)).mean())
     return out
 
@@ -94,10 +102,11 @@ def main(argv=None) -> dict:
     for fmt in (FPFormat(8, 23), FPFormat(8, 16)):
         r = primary(scene, fmt, res, args.repeat, embree)
         result["primary"].append(r)
-        print(f"{fmt}: model {r['rays_per_second'] / 1e6:.2f} M rays/s"
-              + (f", Embree {r['embree_rays_per_second'] / 1e6:.2f} M rays/s, ratio "
-                 f"{r['ratio_to_embree']:.2f}, hit agreement {r['hit_agreement_with_embree']:.5f}"
-                 if embree else ""))
+        print(f"{fmt}: model {r['rays_per_second'] / 1e6:.2f} M rays/s ({r['threads']} threads),"
+              f" {r['rays_per_second_1_thread'] / 1e6:.2f} M rays/s (1 thread)"
+              + (f"; Embree {r['embree_rays_per_second'] / 1e6:.2f} M rays/s (1 thread), ratio "
+                 f"{r['ratio_to_embree']:.2f} / {r['ratio_to_embree_1_thread']:.2f}, "
+                 f"hit agreement {r['hit_agreement_with_embree']:.5f}" if embree else ""))
     # kd-tree build of >= 1M triangles: copies of the mesh side by side
     cfg = Config()
     tris = cfg.fmt.quantize(scene.tris).astype(np.float32)
