@@ -124,6 +124,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     entry["cells"] = cells
     entry["resources"] = {key: cells.get(cell, 0) for cell, key in CELL_KEYS.items()}
 
+    entry["status"] = "synthesized"
+    _save(out, label, entry)           # a long place and route may be cut short: keep synthesis
     if pnr:
         print(f"rtl.fpga: {label}: {entry['resources']}, placing and routing", file=sys.stderr,
               flush=True)
@@ -141,13 +143,18 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         entry.update(parse_report(json.loads((wd / "report.json").read_text())))
         entry["freq_target_mhz"] = freq
         entry["seed"] = seed
+        entry["status"] = "routed"
+        _save(out, label, entry)
+    return entry
 
+
+def _save(out: Path, label: str, entry: dict) -> None:
+    """Add or replace ``entry`` in ``out/report.json`` and rewrite ``out/README.md``."""
     report = out / "report.json"
     runs = json.loads(report.read_text())["runs"] if report.exists() else {}
     runs[label] = entry
     report.write_text(json.dumps({"device": DEVICE["name"], "runs": runs}, indent=1) + "\n")
     (out / "README.md").write_text(table(runs))
-    return entry
 
 
 def table(runs: dict) -> str:
@@ -155,6 +162,7 @@ def table(runs: dict) -> str:
     rows = ["| run | top | format | FP latency | LUT4 | CCU2C | FF | DSP (MULT18X18D) | "
             "BRAM (DP16KD) | Fmax clk (MHz) | critical path start -> end | P&R s |",
             "|" + "---|" * 12]
+    rows[0] = rows[0].replace("| FF |", "| FF (unit + wrapper) |")
     for label, e in runs.items():
         r = e["resources"]
         fmax = e.get("fmax", {}).get("$glbnet$clk", e.get("fmax", {}).get("clk"))
@@ -164,7 +172,7 @@ def table(runs: dict) -> str:
                   None)
         path = f"`{cp['start']}` -> `{cp['end']}` ({cp['delay_ns']} ns)" if cp else "-"
         rows.append(f"| {label} | {e['top']} | {e['fmt']} | {e.get('latency') or '-'} | "
-                    f"{r['lut4']} | {r['carry']} | {r['ff']} | {r['dsp']} | {r['bram']} | "
+                    f"{r['lut4']} | {r['carry']} | {r['ff'] - e['wrapper']['ff']} + {e['wrapper']['ff']} | {r['dsp']} | {r['bram']} | "
                     f"{fmax['achieved_mhz'] if fmax else '-'} | {path} | {e.get('pnr_s', '-')} |")
     return ("# FPGA runs (`python -m rtl.fpga`)\n\nDevice: " + DEVICE["name"] + ", YoWASP Yosys "
             "`synth_ecp5` + nextpnr-ecp5, every unit inside `rtl/fpga/wrapper.py`'s PinWrapper "
