@@ -197,7 +197,8 @@ def check_bus(mode: str = "bmc", depth: int = 20, *, workdir=None, **kwargs):
     (:class:`rtl.formal.smtbmc.SmtbmcResult`; ``result.failed`` lists the source lines of
     failed assertions, see ``harness.props``)."""
     h = BusFormal(**kwargs)
-    return h, run_smtbmc(h, ports=h.ports, mode=mode, depth=depth, name="bus_formal", workdir=workdir)
+    return h, run_smtbmc(h, ports=h.ports, mode=mode, depth=depth, name="bus_formal",
+                         workdir=workdir)
 
 
 def main(argv=None):

@@ -32,7 +32,7 @@ class SmtbmcResult:
     mode: str             # "bmc", "prove" (k-induction) or "cover"
     depth: int
     passed: bool          # bmc/prove: no assertion can fail; cover: every Cover was reached
-    failed: list = field(default_factory=list)   # src "file:line" of failed asserts / unreached covers
+    failed: list = field(default_factory=list)   # "file:line" of failed asserts/unreached covers
     seconds: float = 0.0
     log: str = ""
 
@@ -74,9 +74,10 @@ def run_smtbmc(top, *, ports=(), mode: str = "bmc", depth: int = 20, name: str =
     ``mode``: ``"bmc"`` (no assertion fails in ``depth`` steps from reset), ``"prove"``
     (BMC to ``depth`` as the base case, then k-induction with ``k = depth``: if both pass, no
     assertion ever fails; an induction failure can also mean the invariants are too weak),
-    ``"cover"`` (each ``Cover`` is reached within ``depth`` steps). All runs use ``--presat``, so contradictory assumptions are
-    reported as a failure instead of a vacuous pass. ``workdir`` keeps the files (model, log,
-    counterexample ``trace.vcd`` if ``vcd``); by default a temporary directory is used.
+    ``"cover"`` (each ``Cover`` is reached within ``depth`` steps). All runs use ``--presat``:
+    contradictory assumptions raise ``AssertionError`` instead of passing vacuously.
+    ``workdir`` keeps the files (model, log, counterexample ``trace.vcd`` if ``vcd``); by default
+    a temporary directory is used.
     """
     if mode not in ("bmc", "prove", "cover"):
         raise ValueError(f"mode={mode!r}: use 'bmc', 'prove' or 'cover'")
