@@ -123,11 +123,15 @@ def run_rtc(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int = 20,
 
 class RTCSelfTest:
     """A self-stimulating RTC (no Python in the per-cycle loop, so it also exports to Verilog
-    for Verilator): a ray ROM feeds every lane back to back, a sink takes every result at once
-    and stores it at ``packet * lanes + lane``; ``finished`` rises after the last result.
+    for Verilator): a ray ROM feeds every lane, a sink takes the results and stores each at
+    ``packet * lanes + lane``; ``finished`` rises after the last result. With ``idle`` /
+    ``stall`` (multiples of 1/16) an LFSR makes random input bubbles / result back-pressure.
     ``build()`` returns the Amaranth module."""
 
-    def __init__(self, image, rays, cfg: Config, *, mem_latency: int = 20):
+    def __init__(self, image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
+                 stall: float = 0.0, seed: int = 1):
+        self.idle_q, self.stall_q = round(idle * 16), round(stall * 16)
+        self.seed = seed
         from amaranth.lib import data
         from rtl.rtc_streams import RayIn, RayResult
         self.cfg, self.rays = cfg, rays
@@ -140,7 +144,7 @@ class RTCSelfTest:
         self.n = len(self.words)
 
     def build(self):
-        from amaranth.hdl import Module, Signal
+        from amaranth.hdl import Cat, Module, Signal
         from amaranth.lib.memory import Memory
         from rtl.rtc_streams import RayIn
         m = Module()
@@ -157,27 +161,38 @@ class RTCSelfTest:
         i = Signal(range(self.n + 1))
         got = Signal(range(self.n + 1))
         self.finished = Signal()
-        m.d.comb += [rd.addr.eq(i), dut.rays.payload.eq(rd.data), dut.rays.valid.eq(i < self.n)]
+        # 16-bit Fibonacci LFSRs (taps 16, 14, 13, 11): one for bubbles, one for back-pressure
+        lfsr = []
+        for j in range(2):
+            r = Signal(16, init=(self.seed * 40503 + j * 21011) % 65535 + 1, name=f"lfsr{j}")
+            m.d.sync += r.eq(Cat(r[1:], r[0] ^ r[2] ^ r[3] ^ r[5]))
+            lfsr.append(r)
+        go, hold = Signal(), Signal()
+        m.d.comb += go.eq(hold | (lfsr[0][:4] >= self.idle_q))
+        m.d.comb += [rd.addr.eq(i), dut.rays.payload.eq(rd.data),
+                     dut.rays.valid.eq((i < self.n) & go)]
+        m.d.sync += hold.eq(dut.rays.valid & ~dut.rays.ready)     # once valid, stay valid
         with m.If(dut.rays.valid & dut.rays.ready):
             m.d.sync += i.eq(i + 1)
         res = dut.results
-        m.d.comb += [res.ready.eq(1), wr.addr.eq(res.payload.packet * lanes + res.payload.lane),
-                     wr.data.eq(res.payload), wr.en.eq(res.valid)]
-        with m.If(res.valid):
+        m.d.comb += [res.ready.eq(lfsr[1][:4] >= self.stall_q), wr.addr.eq(res.payload.packet * lanes + res.payload.lane),
+                     wr.data.eq(res.payload), wr.en.eq(res.valid & res.ready)]
+        with m.If(res.valid & res.ready):
             m.d.sync += got.eq(got + 1)
         m.d.comb += self.finished.eq(got == self.n)
         return m
 
 
-def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20,
-                 max_cycles: int = 10_000_000) -> RTCRun:
+def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
+                 stall: float = 0.0, seed: int = 1, max_cycles: int = 10_000_000) -> RTCRun:
     """Run :class:`RTCSelfTest` in Amaranth's simulator until every result is out; compare
     with the model like :func:`run_rtc`."""
     from amaranth.lib import data
     from amaranth.sim import Simulator
     hits, ctrs = trace(image, rays, cfg)
     want = expected(hits, cfg)
-    st = RTCSelfTest(image, rays, cfg, mem_latency=mem_latency)
+    st = RTCSelfTest(image, rays, cfg, mem_latency=mem_latency, idle=idle, stall=stall,
+                     seed=seed)
     top = st.build()
     rtc = st.sim.rtc
     sim = Simulator(top)

@@ -35,13 +35,13 @@ def test_traversal_replays_model_cornell(kd_cache):
 
 
 def test_traversal_reuses_threads(kd_cache):
-    """8 packets of 16 rays through 2 threads (threads are freed and reloaded), 2 sub-units."""
+    """4 packets of 16 rays through 2 threads (threads are freed and reloaded), 2 sub-units."""
     cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2)
-    image, rays = small_case(ROOT / "scenes/terrain.toml", 16, 8, cfg, kd_cache)
-    assert rays.n_packets == 8
-    r = run_traversal(image, rays, cfg, seed=5, mem_latency=20)
+    image, rays = small_case(ROOT / "scenes/office.toml", 8, 8, cfg, kd_cache)
+    assert rays.n_packets == 4
+    r = run_traversal(image, rays, cfg, seed=5, mem_latency=6)
     check(r)
-    assert sorted(r.packets_done) == list(range(8))
+    assert sorted(r.packets_done) == list(range(4))
 
 
 def test_subunit_classifies_like_model_at_fixed_latency():
@@ -114,6 +114,7 @@ def test_async_subunits_rejected():
         Traversal(Config(trav_sync=False))
 
 
+@pytest.mark.slow
 def test_traversal_synthesizes_without_latches():
     """A small configuration through Yosys ``synth -flatten`` (memories become flip-flops)."""
     cfg = Config(threads=2, tile_w=2, tile_h=2, trav_subunits=2, kd_max_depth=2)
