@@ -157,11 +157,18 @@ def _save(out: Path, label: str, entry: dict) -> None:
     (out / "README.md").write_text(table(runs))
 
 
+def lut_total(r: dict) -> int:
+    """LUT4s used: logic LUTs, 2 per CCU2C carry cell, 6 per TRELLIS_DPR16X4 (4 RAM + 2 write
+    LUTs), as nextpnr's "Total LUT4s" counts them."""
+    return r["lut4"] + 2 * r["carry"] + 6 * r["lutram"]
+
+
 def table(runs: dict) -> str:
     """Markdown table of the runs in ``report.json``."""
-    rows = ["| run | top | format | FP latency | LUT4 | CCU2C | FF | DSP (MULT18X18D) | "
+    rows = ["| run | top | format | FP latency | LUT4 total (logic + carry + RAM) | FF | "
+            "DSP (MULT18X18D) | "
             "BRAM (DP16KD) | Fmax clk (MHz) | critical path start -> end | P&R s |",
-            "|" + "---|" * 12]
+            "|" + "---|" * 11]
     rows[0] = rows[0].replace("| FF |", "| FF (unit + wrapper) |")
     for label, e in runs.items():
         r = e["resources"]
@@ -172,11 +179,13 @@ def table(runs: dict) -> str:
                   None)
         path = f"`{cp['start']}` -> `{cp['end']}` ({cp['delay_ns']} ns)" if cp else "-"
         rows.append(f"| {label} | {e['top']} | {e['fmt']} | {e.get('latency') or '-'} | "
-                    f"{r['lut4']} | {r['carry']} | {r['ff'] - e['wrapper']['ff']} + {e['wrapper']['ff']} | {r['dsp']} | {r['bram']} | "
+                    f"{lut_total(r)} ({r['lut4']} + {2 * r['carry']} + {6 * r['lutram']}) | "
+                    f"{r['ff'] - e['wrapper']['ff']} + {e['wrapper']['ff']} | {r['dsp']} | "
+                    f"{r['bram']} | "
                     f"{fmax['achieved_mhz'] if fmax else '-'} | {path} | {e.get('pnr_s', '-')} |")
     return ("# FPGA runs (`python -m rtl.fpga`)\n\nDevice: " + DEVICE["name"] + ", YoWASP Yosys "
             "`synth_ecp5` + nextpnr-ecp5, every unit inside `rtl/fpga/wrapper.py`'s PinWrapper "
-            "(resources include the wrapper's registers).\n\n" + "\n".join(rows) + "\n")
+            "(FF: the unit's + the wrapper's; LUT4 of the wrapper: about one per output bit).\n\n" + "\n".join(rows) + "\n")
 
 
 def main(argv=None) -> None:
