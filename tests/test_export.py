@@ -215,3 +215,51 @@ def test_big_units_export(tmp_path, top):
     p = ex.export(top, SMALL, tmp_path)
     out = lint(p, top)
     assert out.returncode == 0 and "%Warning" not in out.stdout + out.stderr, out.stderr[-3000:]
+
+
+class _TopSim(wiring.Component):
+    """The ``rtc`` top with an IdealMemory holding ``image`` on its one memory port: a stand-in
+    for ``tb.rtc``'s RTCSim (same ``rays``/``results`` ports, counters on ``.rtc``)."""
+
+    def __init__(self, cfg, image, *, mem_latency: int, caches: bool = True):
+        from amaranth.lib import stream
+        from rtl.memory import IdealMemory
+        from rtl.rtc_streams import RayIn, RayResult
+        self.image = image
+        self.rtc = ex.RTCTop(cfg, caches=caches)
+        tag = self.rtc.signature.members["mem"].signature.tag_width
+        self.memory = IdealMemory(image.data, addr_width=32, tag_width=tag, latency=mem_latency,
+                                  queue=mem_latency + 8)
+        super().__init__({"rays": In(stream.Signature(RayIn(cfg))),
+                          "results": Out(stream.Signature(RayResult(cfg)))})
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.top = top = self.rtc
+        m.submodules.memory = self.memory
+        wiring.connect(m, top.mem, self.memory.port)
+        img = self.image
+        m.d.comb += [top.node_base.eq(img.node_base), top.list_base.eq(img.list_base),
+                     top.tri_base.eq(img.tri_base), top.root.eq(img.root)]
+        wiring.connect(m, wiring.flipped(self.rays), top.rays)
+        wiring.connect(m, top.results, wiring.flipped(self.results))
+        return m
+
+
+@pytest.mark.parametrize("caches", [True, pytest.param(False, marks=pytest.mark.slow)])
+def test_rtc_top_matches_model(caches, kd_cache, monkeypatch):
+    """The ``rtc`` top (RTC + word caches + bus, one memory port) on an ideal memory traces
+    2 packets of 4x4 eye rays bit-exactly like the golden model, with the model's counters."""
+    import tb.rtc
+    from tb.traversal import small_case
+    cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1,
+                 list_cache_kb=1, int_cache_kb=1, cache_outstanding=2)
+    image, rays = small_case(ROOT / "scenes/cornell.toml", 8, 4, cfg, kd_cache)
+    monkeypatch.setattr(tb.rtc, "RTCSim", lambda c, img, mem_latency: _TopSim(
+        c, img, mem_latency=mem_latency, caches=caches))
+    r = tb.rtc.run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=5,
+                            max_cycles=20_000)
+    print(f"rtc top: {r.cycles} cycles")
+    assert r.mismatches == []
+    assert r.counter_mismatches() == {}
+    assert r.counters["int_ops"] > 0
