@@ -32,8 +32,6 @@ from .wrapper import PinWrapper, overhead
 __all__ = ["run", "parse_stat", "parse_report", "table", "main"]
 
 DEVICE = {"arg": "--85k", "package": "CABGA381", "name": "LFE5U-85F CABGA381"}
-# ECP5-85k resources (Lattice ECP5 family data sheet): LUT4s, FFs, 18x18 multipliers, DP16KD
-AVAILABLE = {"lut4": 83640, "ff": 83640, "dsp": 156, "bram": 208}
 CELL_KEYS = {"LUT4": "lut4", "TRELLIS_FF": "ff", "MULT18X18D": "dsp", "DP16KD": "bram",
              "CCU2C": "carry", "PFUMX": "pfumx", "L6MUX21": "l6mux", "TRELLIS_DPR16X4": "lutram",
              "ALU54B": "alu54"}
