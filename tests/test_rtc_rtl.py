@@ -55,3 +55,14 @@ def test_rtc_matches_model_standard(scene, kd_cache):
 def test_rtc_synthesizes_without_latches():
     cfg = Config(threads=2, tile_w=2, tile_h=2, trav_subunits=2, kd_max_depth=2)
     assert "cells" in synth_check(RTC(cfg), "rtc")
+
+
+@pytest.mark.slow
+def test_threads_sweep_writes_bench():
+    """``make bench``: the threads sweep (``model.bench_threads``) -> build/bench/threads.json;
+    every run is checked against the model, and more threads must not be slower."""
+    from model.bench_threads import main
+    res = main(["--out", str(ROOT / "build" / "bench")])
+    cycles = [r["cycles"] for r in res["runs"]]
+    assert all(b <= a for a, b in zip(cycles, cycles[1:])), cycles
+    assert res["runs"][1]["speedup"] > 1.5          # 2 threads hide most of one's latency
