@@ -1,11 +1,8 @@
 """Traversal unit (``rtl/traversal.py``) against the golden model's event log (``tb/traversal.py``)."""
-import random
-
 import numpy as np
 import pytest
 
 from model.config import Config
-from model.fp import BINARY32
 from model.traversal import classify
 from rtl.traversal import Traversal, TravSubunit
 from tb.common import run, synth_check
