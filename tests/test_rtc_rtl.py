@@ -22,10 +22,10 @@ def check(r):
     assert r.counters["int_ops"] > 0
 
 
-@pytest.mark.parametrize("scene,res,seed", [("cornell", (8, 4), 1), ("office", (12, 4), 2),
+@pytest.mark.parametrize("scene,res,seed", [("cornell", (12, 4), 1), ("office", (4, 4), 2),
                                             ("conference", (4, 4), 3)])
 def test_rtc_matches_model(scene, res, seed, kd_cache):
-    """1-3 packets per scene (office: 3 packets through 2 threads, so a thread is reused);
+    """1-3 packets per scene (Cornell: 3 packets through 2 threads, so a thread is reused);
     LFSR-driven input bubbles and result back-pressure (in hardware: no Python per cycle)."""
     image, rays = small_case(ROOT / f"scenes/{scene}.toml", *res, TINY, kd_cache)
     assert rays.n_packets == res[0] * res[1] // 16
