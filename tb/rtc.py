@@ -247,7 +247,7 @@ def synth_stat(component, name: str) -> str:
         v, st = Path(d) / f"{name}.v", Path(d) / "stat.txt"
         v.write_text(verilog.convert(component, name=name))
         script = (f"read_verilog {v.name}; hierarchy -top {name}; proc; flatten; opt; "
-                  f"memory -nomap; opt; wreduce; alumacc; opt; techmap; opt -fast; abc -fast; "
+                  f"memory -nomap; opt; wreduce; alumacc; opt; techmap; opt -fast; abc; "
                   f"opt_clean; check -assert; select -assert-none {LATCHES}; "
                   f"tee -q -o {st.name} stat")
         p = subprocess.run([yosys_exe(), "-q", "-p", script], capture_output=True, text=True,
