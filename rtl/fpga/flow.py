@@ -161,6 +161,14 @@ def lut_total(r: dict) -> int:
     return r["lut4"] + 2 * r["carry"] + 6 * r["lutram"]
 
 
+def _fmax_text(e: dict, fmax: dict | None) -> str:
+    if fmax:
+        return str(fmax["achieved_mhz"])
+    if "placement_estimate" in e:     # routing did not finish: nextpnr's post-placement figure
+        return f"~{e['placement_estimate']['fmax_mhz']} (placed, not routed)"
+    return "-"
+
+
 def table(runs: dict) -> str:
     """Markdown table of the runs in ``report.json``."""
     rows = ["| run | top | format | FP latency | LUT4 total (logic + carry + RAM) | FF | "
@@ -180,7 +188,7 @@ def table(runs: dict) -> str:
                     f"{lut_total(r)} ({r['lut4']} + {2 * r['carry']} + {6 * r['lutram']}) | "
                     f"{r['ff'] - e['wrapper']['ff']} + {e['wrapper']['ff']} | {r['dsp']} | "
                     f"{r['bram']} | "
-                    f"{fmax['achieved_mhz'] if fmax else '-'} | {path} | {e.get('pnr_s', '-')} |")
+                    f"{_fmax_text(e, fmax)} | {path} | {e.get('pnr_s', '-')} |")
     return ("# FPGA runs (`python -m rtl.fpga`)\n\nDevice: " + DEVICE["name"] + ", YoWASP Yosys "
             "`synth_ecp5` + nextpnr-ecp5, every unit inside `rtl/fpga/wrapper.py`'s PinWrapper "
             "(FF: the unit's + the wrapper's; LUT4 of the wrapper: about one per output bit).\n\n" + "\n".join(rows) + "\n")
