@@ -41,7 +41,7 @@ verilog: setup
 	$(PY) -m rtl.export --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
-##   (YoWASP Yosys + nextpnr, tens of minutes; not in CI) -> build/fpga/report.json, README.md
+##   (YoWASP Yosys + nextpnr, an hour or more on 2 cores; not in CI) -> build/fpga/report.json, README.md
 FPGA_TOP    ?= rtc
 FPGA_CONFIG ?= --threads 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8
 fpga: setup

@@ -8,8 +8,8 @@ adds or replaces its entry in ``build/fpga/report.json``; ``build/fpga/README.md
 of every entry. ``--table`` only rewrites the README from the report.
 
 nextpnr runs with ``--timing-allow-fail`` (it exits 1 on failed timing otherwise), under
-``nice -n 10`` and one thread; place and route of the one-RTC design takes tens of minutes on
-2 cores. Fmax is nextpnr's for the ``clk`` domain (register to register: the wrapper registers
+``nice -n 10`` and one thread; place and route of the one-RTC design takes an hour or more on
+2 shared cores (placement alone took 22 min here). Fmax is nextpnr's for the ``clk`` domain (register to register: the wrapper registers
 every pin); the pins are placed by nextpnr (no LPF).
 """
 from __future__ import annotations
