@@ -90,7 +90,7 @@ def main(argv=None) -> dict:
         mesh = str(dragon if dragon.exists() else ROOT / "scenes" / "terrain.toml")
     scene = load_scene(mesh)
     try:
-        import embreex  # noqa: F401
+        import embreex  # noqa: F401  (test/bench dependency: is it installed?)
         embree = True
     except ImportError:
         embree = None

@@ -16,7 +16,7 @@ import numpy as np
 from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
-from .raygen import EYE, REFLECTION, SHADOW, Rays, eye_rays
+from .raygen import EYE, Rays, eye_rays
 from .rtc import COUNTERS, Hits, counter_totals, trace
 from .shading import AMBIENT, Shader
 
@@ -94,8 +94,9 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     bg = np.asarray(scene.background, np.float32)
 
     def run(rays: Rays):
-        if bar is not None:
-            bar.total += 0 if rays.kind.size and rays.kind[0] == EYE else len(rays)
+        if bar is not None and len(rays) and rays.kind[0] != EYE:
+            bar.total += len(rays)          # secondary rays are known only once they are made
+            bar.refresh()
         hits, ctrs = trace_rays(image, rays, cfg, bar)
         all_rays.append(rays)
         all_hits.append(hits)

@@ -140,7 +140,7 @@ def test_reduced_precision_still_close_to_embree(kd_cache):
 
 def test_event_log_matches_counters_and_results(kd_cache):
     """The recorded unit streams add up to the counters and reproduce every ray's result."""
-    from model.rtc import EV_DONE, EV_INT, EV_LEAF, EV_NODE, EV_TRI, memory_trace
+    from model.rtc import EV_DONE, EV_INT, EV_NODE, EV_TRI, memory_trace
     scene = load_scene(SCENES[0])
     prep = prepare(scene, CFG, cache_dir=kd_cache)
     rays = eye_rays(scene.camera, 24, 16, CFG)
