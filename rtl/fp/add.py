@@ -5,11 +5,11 @@ from collections.abc import Sequence
 
 from amaranth.hdl import C, Cat, Module, Mux
 from amaranth.lib import wiring
-from amaranth.lib.wiring import In, Out
+from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
 from .common import bits_for, canonical_nan, lzc, round_pack, special, unpack
-from .pipe import Stager, check_regs, placement
+from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPAdd"]
 
@@ -41,11 +41,7 @@ class FPAdd(wiring.Component):
         self.regs = (placement(latency, nb, self.ORDER) if regs is None
                      else check_regs(regs, nb, "FPAdd", self.BOUNDARIES))
         self.latency = sum(self.regs)
-        super().__init__({
-            "a": In(fmt.width), "b": In(fmt.width), "op": In(1),
-            "i_valid": In(1), "en": In(1, init=1),
-            "o": Out(fmt.width), "o_valid": Out(1),
-        })
+        super().__init__(unit_ports(fmt.width, fmt.width, b=In(fmt.width), op=In(1)))
 
     def elaborate(self, platform):
         m = Module()

@@ -6,11 +6,11 @@ from types import SimpleNamespace
 
 from amaranth.hdl import Cat, Module, Mux, Value
 from amaranth.lib import data, wiring
-from amaranth.lib.wiring import In, Out
+from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
 from .common import canonical_nan, special, unpack
-from .pipe import Stager, check_regs, placement
+from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPCompare", "FPMinMax", "CompareLayout"]
 
@@ -46,11 +46,7 @@ class _Unit(wiring.Component):
         self.regs = (placement(latency, 2, (1, 0)) if regs is None
                      else check_regs(regs, 2, type(self).__name__, self.BOUNDARIES))
         self.latency = sum(self.regs)
-        super().__init__({
-            "a": In(fmt.width), "b": In(fmt.width), **extra,
-            "i_valid": In(1), "en": In(1, init=1),
-            "o": Out(out_shape), "o_valid": Out(1),
-        })
+        super().__init__(unit_ports(fmt.width, out_shape, b=In(fmt.width), **extra))
 
 
 class FPCompare(_Unit):

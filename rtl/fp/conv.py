@@ -5,11 +5,10 @@ from collections.abc import Sequence
 
 from amaranth.hdl import C, Cat, Module, Mux
 from amaranth.lib import wiring
-from amaranth.lib.wiring import In, Out
 
 from model.fp import BINARY32, FPFormat
 from .common import lzc, round_pack
-from .pipe import Stager, check_regs, placement
+from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPFromInt"]
 
@@ -42,10 +41,7 @@ class FPFromInt(wiring.Component):
         self.regs = (placement(latency, nb, self.ORDER) if regs is None
                      else check_regs(regs, nb, "FPFromInt", self.BOUNDARIES))
         self.latency = sum(self.regs)
-        super().__init__({
-            "a": In(int_width), "i_valid": In(1), "en": In(1, init=1),
-            "o": Out(fmt.width), "o_valid": Out(1),
-        })
+        super().__init__(unit_ports(int_width, fmt.width))
 
     def elaborate(self, platform):
         m = Module()

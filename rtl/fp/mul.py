@@ -3,13 +3,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from amaranth.hdl import Cat, Module, Mux
+from amaranth.hdl import Module, Mux
 from amaranth.lib import wiring
-from amaranth.lib.wiring import In, Out
+from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
 from .common import canonical_nan, round_pack, special, unpack
-from .pipe import Stager, check_regs, placement
+from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPMul"]
 
@@ -37,11 +37,7 @@ class FPMul(wiring.Component):
         self.regs = (placement(latency, nb, self.ORDER) if regs is None
                      else check_regs(regs, nb, "FPMul", self.BOUNDARIES))
         self.latency = sum(self.regs)
-        super().__init__({
-            "a": In(fmt.width), "b": In(fmt.width),
-            "i_valid": In(1), "en": In(1, init=1),
-            "o": Out(fmt.width), "o_valid": Out(1),
-        })
+        super().__init__(unit_ports(fmt.width, fmt.width, b=In(fmt.width)))
 
     def elaborate(self, platform):
         m = Module()

@@ -90,3 +90,12 @@ class Stager:
     def finish(self) -> None:
         if self.k != len(self.regs):
             raise RuntimeError(f"unit crossed {self.k} of its {len(self.regs)} boundaries")
+
+
+def unit_ports(a_width: int, o_shape, **extra) -> dict:
+    """The ports every pipelined FP unit has: operand(s), ``i_valid``, ``en`` (stall: 0 holds
+    every register; defaults to 1), result ``o`` and ``o_valid``; ``extra`` adds inputs such as
+    a second operand ``b`` or an ``op`` select. Pass to ``wiring.Component.__init__``."""
+    from amaranth.lib.wiring import In, Out
+    return {"a": In(a_width), **extra, "i_valid": In(1), "en": In(1, init=1),
+            "o": Out(o_shape), "o_valid": Out(1)}
