@@ -29,6 +29,11 @@ class Config:
     threads: int = 16              # packets in flight per RTC
     trav_subunits: int = 4         # traversal sub-units per RTC (a packet is split statically)
     trav_sync: bool = True         # sub-units run synchronously (False: asynchronously)
+    # pipeline stages of the RTL's FP units (0: the unit's default: add 3, mul 3, divider
+    # ceil((M+3)/4)+1 = 8 at binary32); more stages trade latency for clock rate (docs/fpga.md)
+    fp_add_latency: int = 0
+    fp_mul_latency: int = 0
+    fp_div_latency: int = 0
     tile_w: int = 8                # a packet is a tile_w x tile_h tile of eye rays
     tile_h: int = 8
 
@@ -66,6 +71,10 @@ class Config:
                      "cache_outstanding", "cache_line_words"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
+        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency"):
+            if not 0 <= getattr(self, name) <= 64:
+                raise ConfigError(f"{name}={getattr(self, name)} must be in 0..64 (pipeline "
+                                  "stages of that FP unit; 0 = the unit's default)")
         if self.reflect_depth < 0:
             raise ConfigError(f"reflect_depth={self.reflect_depth} must be >= 0")
         if self.oversampling < 1:
@@ -115,6 +124,11 @@ class Config:
     @property
     def mem_bytes_per_s(self) -> float:
         return self.mem_chips * self.mem_chip_bits / 8 * self.clock_mhz * 1e6 / self.mem_clock_ratio
+
+    def fp_latencies(self) -> dict:
+        """``{"add": n, "mul": n, "div": n}`` for the RTL's FP units; None = the unit's default."""
+        return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
+                "div": self.fp_div_latency or None}
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)

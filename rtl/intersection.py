@@ -248,6 +248,8 @@ class IntersectionUnit(wiring.Component):
         self.pipe_meta = data.StructLayout({
             "thread": cfg.thread_bits, "lane": self.lane_bits, "id": TRI_ID_BITS,
             "tri_last": 1, "lane_last": 1})
+        if latencies is None:
+            latencies = cfg.fp_latencies()
         self.pipe = IntersectPipe(cfg.fmt, tag_width=self.pipe_meta.size, latencies=latencies)
         super().__init__({
             "ray_in": In(stream.Signature(RayWrite(cfg))),
