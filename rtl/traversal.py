@@ -39,6 +39,7 @@ from __future__ import annotations
 
 from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
@@ -56,7 +57,7 @@ COUNTER_BITS = 32
 NODE_BITS = 30
 
 # thread states
-FREE, LOAD, NEXTPASS, FETCH, WAIT_MEM, HAVE_NODE, WAIT_LEAF, POP, DONE, DRAIN = range(10)
+FREE, LOAD, NEXTPASS, FETCH, WAIT_MEM, HAVE_NODE, WAIT_LEAF, POP, DONE, DRAIN, STEP = range(11)
 
 
 def from_binary32(fmt: FPFormat, b: Value) -> Value:
@@ -95,6 +96,18 @@ def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signa
     return anyb, idx
 
 
+def step_layout(cfg: Config) -> data.StructLayout:
+    """A step for one sub-unit: its lanes of the active mask and the node's split plane."""
+    return data.StructLayout({
+        "mask": cfg.rays_per_subunit, "thread": cfg.thread_bits, "axis": 2,
+        "split": cfg.fmt.width, "sp": max(1, ceil_log2(cfg.stack_depth)), "cur": 1})
+
+
+def step_result_layout(cfg: Config) -> data.StructLayout:
+    """A sub-unit's verdict on a step: lanes that need the near / the far child."""
+    return data.StructLayout({"near": cfg.rays_per_subunit, "far": cfg.rays_per_subunit})
+
+
 class TravSubunit(wiring.Component):
     """One traversal sub-unit: its static share of ``R = lanes / k`` lanes of every thread.
 
@@ -102,19 +115,25 @@ class TravSubunit(wiring.Component):
     intervals ``N`` (T x R) and stack slot intervals ``S`` (T x depth x R), each interval word
     ``tnear | tfar << w``.
 
-    A step (``start`` strobe with ``mask``; ``thread``, ``axis``, ``split``, ``sp``, ``cur`` held
-    until ``idle``) classifies the active lanes lowest first, one per cycle: ray read (1),
-    ``split - org[axis]`` (FPAdd), ``* inv[axis]`` (FPMul), interval read timed to meet
-    ``dist``, compares and min/max (1), write of both intervals (1). ``near``/``far`` collect
-    ``not (dist < tnear)`` / ``not (dist > tfar)`` per lane. Latency ``LAT`` cycles per lane,
-    throughput one lane per cycle.
+    Steps arrive on ``step`` (a queue of ``queue`` entries); one is taken when the issue stage
+    is free (or frees in this cycle) and ``go`` is 1 (synchronous mode: the traversal raises
+    ``go`` only when every sub-unit ``can_start``). A step issues its active lanes lowest first,
+    one per cycle (a step with no lane of this sub-unit takes one cycle), back to back with the
+    next step, whatever its thread: thread, sp, cur, axis and split travel with each lane.
+    Per lane: ray read (1), register (1), ``split - org[axis]`` (FPAdd), ``* inv[axis]``
+    (FPMul), interval read timed to meet ``dist``, compares and min/max (1), write of both
+    intervals: ``LAT`` cycles from issue to write. After a step's last lane the verdict
+    (``near`` = not (dist < tnear), ``far`` = not (dist > tfar) per lane) goes to ``res`` (a
+    queue of ``cfg.threads`` entries: at most one step per thread is ever outstanding, so it
+    never overflows). ``a`` active lanes: the verdict is valid ``a + STEP_LAT`` cycles after the
+    step's transfer on an idle sub-unit; throughput one lane per cycle.
 
     ``ld_*``: write one lane's ray data and initial interval (the loader); ``ld_block`` says the
     datapath writes ``N`` this cycle (the loader must wait). ``rq_*``: read a lane's ``tfar``
     (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid one cycle later.
     """
 
-    def __init__(self, cfg: Config):
+    def __init__(self, cfg: Config, *, queue: int = 4):
         self.cfg = cfg
         fmt = cfg.fmt
         w = fmt.width
@@ -122,13 +141,17 @@ class TravSubunit(wiring.Component):
         self.rbits = max(1, ceil_log2(R))
         self.tbits = cfg.thread_bits
         self.dbits = max(1, ceil_log2(cfg.stack_depth))
-        self.add = FPAdd(fmt)
-        self.mul = FPMul(fmt)
-        self.LAT = 1 + self.add.latency + self.mul.latency + 1   # issue -> write stage
+        self.queue = queue
+        lat = cfg.fp_latencies()
+        self.add = FPAdd(fmt) if lat["add"] is None else FPAdd(fmt, latency=lat["add"])
+        self.mul = FPMul(fmt) if lat["mul"] is None else FPMul(fmt, latency=lat["mul"])
+        self.LAT = 2 + self.add.latency + self.mul.latency + 1   # issue -> write stage
+        self.STEP_LAT = self.LAT + 2      # step transfer -> verdict valid, minus active lanes
         super().__init__({
-            "start": In(1), "mask": In(R), "thread": In(self.tbits), "axis": In(2),
-            "split": In(w), "sp": In(self.dbits), "cur": In(1),
-            "idle": Out(1), "near": Out(R), "far": Out(R), "issue": Out(1),
+            "step": In(stream.Signature(step_layout(cfg))),
+            "go": In(1, init=1), "can_start": Out(1),
+            "res": Out(stream.Signature(step_result_layout(cfg))),
+            "idle": Out(1), "issue": Out(1),
             "ld_en": In(1), "ld_thread": In(self.tbits), "ld_lane": In(self.rbits),
             "ld_org": In(data.ArrayLayout(w, 3)), "ld_inv": In(data.ArrayLayout(w, 3)),
             "ld_tnear": In(w), "ld_tfar": In(w), "ld_anyhit": In(1), "ld_block": Out(1),
@@ -155,74 +178,100 @@ class TravSubunit(wiring.Component):
         m.submodules.vmin = vmin = FPMinMax(fmt, latency=1)
         m.submodules.vmax = vmax = FPMinMax(fmt, latency=1)
 
-        # ---- issue: lanes of the step's mask, lowest first, one per cycle
-        rem = Signal(R)
+        # ---- step queue and issue stage: lanes of the step's mask, lowest first, one per cycle
+        slay = step_layout(cfg)
+        m.submodules.queue = q = SyncFIFO(width=slay.size, depth=self.queue)
+        m.d.comb += [q.w_data.eq(self.step.payload), q.w_en.eq(self.step.valid),
+                     self.step.ready.eq(q.w_rdy)]
+        head = slay(q.r_data)
+        act = Signal()                      # a step is issuing
+        d = Signal(slay)                    # ... this one
+        rem = Signal(R)                     # its lanes not issued yet
         has, lane0 = lowest(m, rem, "issue")
-        with m.If(self.start):
-            m.d.sync += rem.eq(self.mask)
-        with m.Elif(has):
+        last = Signal()
+        m.d.comb += last.eq(~(rem & ~(Const(1, R) << lane0)).any())
+        boundary = ~act | last
+        take = Signal()
+        m.d.comb += [self.can_start.eq(q.r_rdy & boundary), take.eq(self.can_start & self.go),
+                     q.r_en.eq(take)]
+        with m.If(take):
+            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask)]
+        with m.Elif(act & last):
+            m.d.sync += act.eq(0)
+        with m.Elif(act):
             m.d.sync += rem.eq(rem & ~(Const(1, R) << lane0))
-        K = self.LAT
-        v = [Signal(name=f"v{k}") for k in range(K + 1)]
-        ln = [Signal(rb, name=f"lane{k}") for k in range(K + 1)]
-        m.d.comb += [v[0].eq(has), ln[0].eq(lane0), self.issue.eq(has)]
-        for k in range(1, K + 1):
-            m.d.sync += [v[k].eq(v[k - 1]), ln[k].eq(ln[k - 1])]
-        m.d.comb += self.idle.eq(~rem.any() & ~Cat(*v[1:]).any())
 
-        # ---- k=0: ray read; k=1: split - org[axis]
-        m.d.comb += ray_r.addr.eq(Cat(ln[0], self.thread))
-        org = [ray_r.data[i * w:(i + 1) * w] for i in range(3)]
-        inv = [ray_r.data[(3 + i) * w:(4 + i) * w] for i in range(3)]
-        m.d.comb += [add.a.eq(self.split), add.b.eq(Array(org)[self.axis]), add.op.eq(1),
-                     add.i_valid.eq(v[1])]
-        inv_d = Array(inv)[self.axis]
+        # ---- the pipeline: per stage a slot (e), a lane in it (v), its step's tag
+        tag = data.StructLayout({"e": 1, "v": 1, "last": 1, "lane": rb, "thread": tb,
+                                 "sp": db, "cur": 1})
+        K = self.LAT
+        st = [Signal(tag, name=f"s{k}") for k in range(K + 1)]
+        m.d.comb += [st[0].e.eq(act), st[0].v.eq(act & has), st[0].last.eq(last),
+                     st[0].lane.eq(lane0), st[0].thread.eq(d.thread), st[0].sp.eq(d.sp),
+                     st[0].cur.eq(d.cur), self.issue.eq(act & has)]
+        for k in range(1, K + 1):
+            m.d.sync += st[k].eq(st[k - 1])
+        m.d.comb += self.idle.eq(~act & ~q.r_rdy & ~Cat(*(s.e for s in st[1:])).any())
+
+        # ---- k=0: ray read; k=1: register; k=2: split - org[axis]
+        m.d.comb += ray_r.addr.eq(Cat(st[0].lane, st[0].thread))
+        axis1, split1, axis2, split2 = Signal(2), Signal(w), Signal(2), Signal(w)
+        ray2 = Signal(6 * w)
+        m.d.sync += [axis1.eq(d.axis), split1.eq(d.split), axis2.eq(axis1), split2.eq(split1),
+                     ray2.eq(ray_r.data)]
+        org = [ray2[i * w:(i + 1) * w] for i in range(3)]
+        inv = [ray2[(3 + i) * w:(4 + i) * w] for i in range(3)]
+        m.d.comb += [add.a.eq(split2), add.b.eq(Array(org)[axis2]), add.op.eq(1),
+                     add.i_valid.eq(st[2].v)]
+        inv_d = Array(inv)[axis2]
         for i in range(add.latency):
             nxt = Signal(w, name=f"inv_d{i}")
             m.d.sync += nxt.eq(inv_d)
             inv_d = nxt
-        # ---- k=1+La: * inv[axis]; dist at k=K-2
+        # ---- k=2+La: * inv[axis]; dist at k=K-1
         m.d.comb += [mul.a.eq(add.o), mul.b.eq(inv_d), mul.i_valid.eq(add.o_valid)]
         dist = mul.o
-        kd = 1 + add.latency + mul.latency          # stage where dist is valid
+        kd = 2 + add.latency + mul.latency          # stage where dist is valid
         assert kd == K - 1
         # interval read issued one stage earlier, so it meets dist
-        m.d.comb += [n_r.addr.eq(Cat(ln[kd - 1], self.thread)),
-                     s_r.addr.eq(Cat(ln[kd - 1], self.sp, self.thread))]
-        iv = Mux(self.cur, s_r.data, n_r.data)
+        m.d.comb += [n_r.addr.eq(Cat(st[kd - 1].lane, st[kd - 1].thread)),
+                     s_r.addr.eq(Cat(st[kd - 1].lane, st[kd - 1].sp, st[kd - 1].thread))]
+        iv = Mux(st[kd].cur, s_r.data, n_r.data)
         tnear, tfar = iv[:w], iv[w:]
-        m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(v[kd]),
-                     gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(v[kd]),
-                     vmin.a.eq(tfar), vmin.b.eq(dist), vmin.op.eq(0), vmin.i_valid.eq(v[kd]),
-                     vmax.a.eq(tnear), vmax.b.eq(dist), vmax.op.eq(1), vmax.i_valid.eq(v[kd])]
+        m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
+                     gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(st[kd].v),
+                     vmin.a.eq(tfar), vmin.b.eq(dist), vmin.op.eq(0), vmin.i_valid.eq(st[kd].v),
+                     vmax.a.eq(tnear), vmax.b.eq(dist), vmax.op.eq(1), vmax.i_valid.eq(st[kd].v)]
         tnear_d, tfar_d = Signal(w), Signal(w)
         m.d.sync += [tnear_d.eq(tnear), tfar_d.eq(tfar)]
-        # ---- k=K-1: write near interval to N, far interval to S[sp]; collect the masks
-        kw = K
-        near, far = Signal(R), Signal(R)
-        m.d.comb += [self.near.eq(near), self.far.eq(far), self.ld_block.eq(v[kw])]
-        bit = Const(1, R) << ln[kw]
-        with m.If(self.start):
-            m.d.sync += [near.eq(0), far.eq(0)]
-        with m.Elif(v[kw]):
-            with m.If(~lt_near.o.lt):
-                m.d.sync += near.eq(near | bit)
-            with m.If(~gt_far.o.lt):
-                m.d.sync += far.eq(far | bit)
-        m.d.comb += [s_w.addr.eq(Cat(ln[kw], self.sp, self.thread)),
-                     s_w.data.eq(Cat(vmax.o, tfar_d)), s_w.en.eq(v[kw])]
+        # ---- k=K: write near interval to N, far interval to S[sp]; collect the verdict
+        sw = st[K]
+        near, far = Signal(R), Signal(R)            # this step's lanes so far
+        near_n, far_n = Signal(R), Signal(R)
+        bit = Mux(sw.v, Const(1, R) << sw.lane, 0)
+        m.d.comb += [near_n.eq(near | Mux(~lt_near.o.lt, bit, 0)),
+                     far_n.eq(far | Mux(~gt_far.o.lt, bit, 0))]
+        m.submodules.results = rq = SyncFIFO(width=2 * R, depth=T)
+        m.d.comb += [rq.w_data.eq(Cat(near_n, far_n)), rq.w_en.eq(sw.e & sw.last),
+                     self.res.payload.eq(rq.r_data), self.res.valid.eq(rq.r_rdy),
+                     rq.r_en.eq(self.res.ready)]
+        with m.If(sw.e):
+            m.d.sync += [near.eq(Mux(sw.last, 0, near_n)), far.eq(Mux(sw.last, 0, far_n))]
+        m.d.comb += [s_w.addr.eq(Cat(sw.lane, sw.sp, sw.thread)),
+                     s_w.data.eq(Cat(vmax.o, tfar_d)), s_w.en.eq(sw.v)]
+        m.d.comb += self.ld_block.eq(sw.v)
         # N: the datapath's write wins; the loader is held off by ld_block
-        with m.If(v[kw]):
-            m.d.comb += [n_w.addr.eq(Cat(ln[kw], self.thread)), n_w.data.eq(Cat(tnear_d, vmin.o)),
+        with m.If(sw.v):
+            m.d.comb += [n_w.addr.eq(Cat(sw.lane, sw.thread)), n_w.data.eq(Cat(tnear_d, vmin.o)),
                          n_w.en.eq(1)]
         with m.Else():
             m.d.comb += [n_w.addr.eq(Cat(self.ld_lane, self.ld_thread)),
                          n_w.data.eq(Cat(self.ld_tnear, self.ld_tfar)), n_w.en.eq(self.ld_en)]
         m.d.comb += [ray_w.addr.eq(Cat(self.ld_lane, self.ld_thread)),
                      ray_w.data.eq(Cat(self.ld_org.as_value(), self.ld_inv.as_value())),
-                     ray_w.en.eq(self.ld_en & ~v[kw]),
+                     ray_w.en.eq(self.ld_en & ~sw.v),
                      ah_w.addr.eq(Cat(self.ld_lane, self.ld_thread)), ah_w.data.eq(self.ld_anyhit),
-                     ah_w.en.eq(self.ld_en & ~v[kw])]
+                     ah_w.en.eq(self.ld_en & ~sw.v)]
 
         # ---- result-side read: tfar of the current slot and anyhit, one cycle later
         m.d.comb += [n_rq.addr.eq(Cat(self.rq_lane, self.rq_thread)),
@@ -250,9 +299,6 @@ class Traversal(wiring.Component):
     """
 
     def __init__(self, cfg: Config, *, addr_width: int = 32):
-        if not cfg.trav_sync:
-            raise NotImplementedError("Traversal: asynchronous sub-units (trav_sync=False) are not "
-                                      "implemented; use Config(trav_sync=True)")
         self.cfg = cfg
         self.subunits = [TravSubunit(cfg) for _ in range(cfg.trav_subunits)]
         tb = cfg.thread_bits
@@ -417,15 +463,21 @@ class Traversal(wiring.Component):
         axis = e_word[:2]
         field = e_word[2:32]
         hi = e_word[32:]
+        # the step queue of every sub-unit gets the same steps in the same order; the threads
+        # of outstanding steps wait in `order` (at most one step per thread is outstanding)
+        m.submodules.order = order = SyncFIFO(width=tb, depth=T)
+        disp = Signal()                              # push a step to every sub-unit
+        m.d.comb += [order.w_data.eq(e_t), order.w_en.eq(disp)]
         for j, s in enumerate(subs):
-            m.d.comb += [s.mask.eq(e_mask[j * R:(j + 1) * R]), s.thread.eq(e_t), s.axis.eq(axis),
-                         s.split.eq(from_binary32(fmt, hi)), s.sp.eq(e_sp), s.cur.eq(e_cur)]
-        all_idle = Cat(*(s.idle for s in subs)).all()
-        mn = Cat(*(s.near for s in subs))
-        mf = Cat(*(s.far for s in subs))
-        neg = e_oct.bit_select(axis, 1)
-        near_node = (field + neg)[:NODE_BITS]
-        far_node = (field + 1 - neg)[:NODE_BITS]
+            m.d.comb += [s.step.payload.mask.eq(e_mask[j * R:(j + 1) * R]),
+                         s.step.payload.thread.eq(e_t), s.step.payload.axis.eq(axis),
+                         s.step.payload.split.eq(from_binary32(fmt, hi)),
+                         s.step.payload.sp.eq(e_sp), s.step.payload.cur.eq(e_cur),
+                         s.step.valid.eq(disp)]
+        room = Cat(*(s.step.ready for s in subs)).all()
+        # synchronous sub-units start each step together; asynchronous ones start when free
+        go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
+        m.d.comb += [s.go.eq(go) for s in subs]
         lo_oc_any, lo_oc = lowest(m, todo[e_t], "pass")
         st_mask = st_r.data[NODE_BITS:]
         popped = st_mask & ~term[e_t]
@@ -439,20 +491,52 @@ class Traversal(wiring.Component):
             with m.If(~s.idle):
                 m.d.sync += self.sub_busy[j].eq(self.sub_busy[j] + 1)
 
+        # ---- decide engine: the oldest outstanding step, once every sub-unit's verdict is in
+        dt = order.r_data
+        dec = Signal()
+        m.d.comb += dec.eq(order.r_rdy & Cat(*(s.res.valid for s in subs)).all())
+        m.d.comb += [order.r_en.eq(dec)] + [s.res.ready.eq(dec) for s in subs]
+        mn = Cat(*(s.res.payload.near for s in subs))
+        mf = Cat(*(s.res.payload.far for s in subs))
+        d_word, d_sp = word[dt], sp[dt]
+        d_field = d_word[2:32]
+        neg = octant[dt].bit_select(d_word[:2], 1)
+        near_node = (d_field + neg)[:NODE_BITS]
+        far_node = (d_field + 1 - neg)[:NODE_BITS]
+        with m.If(dec):
+            with m.If(mn.any() & mf.any()):
+                m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
+                             st_w.en.eq(1)]
+                m.d.sync += [sp[dt].eq(d_sp + 1), node[dt].eq(near_node), mask[dt].eq(mn),
+                             cur[dt].eq(0), state[dt].eq(FETCH), self.pushes.eq(self.pushes + 1)]
+            with m.Elif(mn.any()):
+                m.d.sync += [node[dt].eq(near_node), mask[dt].eq(mn), cur[dt].eq(0),
+                             state[dt].eq(FETCH)]
+            with m.Else():
+                # far only; no child at all ends the pass, as in the model
+                m.d.sync += [node[dt].eq(far_node), mask[dt].eq(mf), cur[dt].eq(1),
+                             state[dt].eq(Mux(mf.any(), FETCH, NEXTPASS))]
+        ctl_busy = Signal()
+        m.d.comb += ctl_busy.eq(1)
+        with m.If(ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()):
+            m.d.sync += self.busy.eq(self.busy + 1)
+
         with m.FSM(name="step"):
             with m.State("IDLE"):
+                m.d.comb += ctl_busy.eq(0)
                 with m.If(e_any):
                     m.d.sync += [e_t.eq(e_idx), e_kind.eq(state[e_idx]), e_word.eq(word[e_idx]),
                                  e_mask.eq(mask[e_idx]), e_sp.eq(sp[e_idx]), e_cur.eq(cur[e_idx]),
                                  e_oct.eq(octant[e_idx]), e_ptr.eq(e_idx + 1)]
                     m.next = "DISPATCH"
             with m.State("DISPATCH"):
-                m.d.sync += self.busy.eq(self.busy + 1)
                 with m.If(e_kind == HAVE_NODE):
                     with m.If(axis != 3):
-                        m.d.comb += [s.start.eq(1) for s in subs]
-                        m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
-                        m.next = "RUN"
+                        with m.If(room):
+                            m.d.comb += disp.eq(1)
+                            m.d.sync += [self.trav_steps.eq(self.trav_steps + 1),
+                                         state[e_t].eq(STEP)]
+                            m.next = "IDLE"
                     with m.Elif(field != 0):
                         m.next = "LEAF"
                     with m.Else():
@@ -461,35 +545,13 @@ class Traversal(wiring.Component):
                     m.next = "POP"
                 with m.Else():
                     m.next = "PASS"
-            with m.State("RUN"):
-                m.d.sync += self.busy.eq(self.busy + 1)
-                with m.If(all_idle):
-                    m.next = "DECIDE"
-            with m.State("DECIDE"):
-                m.d.sync += self.busy.eq(self.busy + 1)
-                m.next = "IDLE"
-                with m.If(mn.any() & mf.any()):
-                    m.d.comb += [st_w.addr.eq(Cat(e_sp, e_t)), st_w.data.eq(Cat(far_node, mf)),
-                                 st_w.en.eq(1)]
-                    m.d.sync += [sp[e_t].eq(e_sp + 1), node[e_t].eq(near_node), mask[e_t].eq(mn),
-                                 cur[e_t].eq(0), state[e_t].eq(FETCH),
-                                 self.pushes.eq(self.pushes + 1)]
-                with m.Elif(mn.any()):
-                    m.d.sync += [node[e_t].eq(near_node), mask[e_t].eq(mn), cur[e_t].eq(0),
-                                 state[e_t].eq(FETCH)]
-                with m.Else():
-                    # far only; no child at all ends the pass, as in the model
-                    m.d.sync += [node[e_t].eq(far_node), mask[e_t].eq(mf), cur[e_t].eq(1),
-                                 state[e_t].eq(Mux(mf.any(), FETCH, NEXTPASS))]
             with m.State("LEAF"):
-                m.d.sync += self.busy.eq(self.busy + 1)
                 with m.If(~lf.valid | lf.ready):
                     m.d.sync += [lf.valid.eq(1), lf.payload.thread.eq(e_t),
                                  lf.payload.first.eq(hi), lf.payload.count.eq(field),
                                  lf.payload.mask.eq(e_mask), state[e_t].eq(WAIT_LEAF)]
                     m.next = "IDLE"
             with m.State("POP"):
-                m.d.sync += self.busy.eq(self.busy + 1)
                 with m.If(e_sp == 0):
                     m.next = "PASS"
                 with m.Else():
@@ -497,7 +559,6 @@ class Traversal(wiring.Component):
                     m.d.sync += e_sp.eq(e_sp - 1)
                     m.next = "POP2"
             with m.State("POP2"):
-                m.d.sync += self.busy.eq(self.busy + 1)
                 with m.If(popped.any()):
                     m.d.sync += [node[e_t].eq(st_r.data[:NODE_BITS]), mask[e_t].eq(popped),
                                  sp[e_t].eq(e_sp), cur[e_t].eq(1), state[e_t].eq(FETCH)]
@@ -505,7 +566,6 @@ class Traversal(wiring.Component):
                 with m.Else():
                     m.next = "POP"
             with m.State("PASS"):
-                m.d.sync += self.busy.eq(self.busy + 1)
                 with m.If(~lo_oc_any):
                     m.d.sync += state[e_t].eq(DONE)
                     m.next = "IDLE"
@@ -515,7 +575,6 @@ class Traversal(wiring.Component):
                                  todo[e_t].eq(todo[e_t] & ~(Const(1, 8) << lo_oc))]
                     m.next = "PASS2"
             with m.State("PASS2"):
-                m.d.sync += self.busy.eq(self.busy + 1)
                 m.d.sync += [mask[e_t].eq(pm_r.data.word_select(e_oct, L)),
                              node[e_t].eq(self.root), sp[e_t].eq(0), cur[e_t].eq(0),
                              octant[e_t].eq(e_oct), state[e_t].eq(FETCH),

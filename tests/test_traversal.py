@@ -42,73 +42,104 @@ def test_traversal_reuses_threads(kd_cache):
 
 
 def test_subunit_classifies_like_model_at_fixed_latency():
-    """One step of one sub-unit: near/far masks equal ``model.traversal.classify``, the unit is
-    idle exactly ``lanes + LAT`` cycles after ``start``, and the stored intervals equal the
+    """Steps through one sub-unit: each verdict (near/far masks) equals
+    ``model.traversal.classify``; the first comes exactly ``lanes + STEP_LAT`` cycles after its
+    transfer; steps of other threads queued behind it follow back to back (one lane per cycle,
+    an empty step one cycle, no pipeline drain in between); the stored intervals equal the
     model's clipped near interval (N) and far interval (S[sp])."""
-    cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=1, kd_max_depth=4)
+    cfg = Config(threads=4, tile_w=4, tile_h=4, trav_subunits=1, kd_max_depth=4)
     fmt, R = cfg.fmt, cfg.rays_per_subunit
     rng = np.random.default_rng(7)
-    org = fmt.quantize(rng.uniform(-4, 4, (R, 3))).astype(np.float32)
-    d = rng.normal(size=(R, 3)).astype(np.float32)
-    d[3, 1] = 0.0                                   # inv = inf: dist is +-inf or NaN
-    inv = fmt.div(np.float32(1.0), fmt.quantize(d))
-    tnear = fmt.quantize(rng.uniform(0, 2, R)).astype(np.float32)
-    tfar = fmt.quantize(tnear + rng.uniform(0, 6, R)).astype(np.float32)
-    split = np.float32(fmt.quantize(np.float32(0.75)))
-    mask = 0b1011_0110_1111_1011
-    axis, thread, sp = 1, 1, 2
-    dist = np.zeros(R, np.float32)
-    tn, tf = tnear.copy(), tfar.copy()
-    mn, mf = classify(split, axis, np.uint64(mask), R, org, inv, tn, tf, dist, *fmt.em)
     bits = lambda x: int(fmt.to_bits(np.float32(x)))
+    steps = []     # (thread, axis, split, sp, mask, org, inv, tnear, tfar)
+    for thread, axis, sp, mask in ((1, 1, 2, 0b1011_0110_1111_1011), (3, 0, 1, 0b0110_0000_0001),
+                                   (0, 2, 0, 0), (2, 2, 3, 0xFFFF)):
+        org = fmt.quantize(rng.uniform(-4, 4, (R, 3))).astype(np.float32)
+        d = rng.normal(size=(R, 3)).astype(np.float32)
+        d[3, 1] = 0.0                               # inv = inf: dist is +-inf or NaN
+        inv = fmt.div(np.float32(1.0), fmt.quantize(d))
+        tnear = fmt.quantize(rng.uniform(0, 2, R)).astype(np.float32)
+        tfar = fmt.quantize(tnear + rng.uniform(0, 6, R)).astype(np.float32)
+        split = np.float32(fmt.quantize(np.float32(rng.uniform(-1, 1))))
+        steps.append((thread, axis, split, sp, mask, org, inv, tnear, tfar))
+    want = []
+    for thread, axis, split, sp, mask, org, inv, tnear, tfar in steps:
+        dist = np.zeros(R, np.float32)
+        tn, tf = tnear.copy(), tfar.copy()
+        mn, mf = classify(split, axis, np.uint64(mask), R, org, inv, tn, tf, dist, *fmt.em)
+        want.append((int(mn), int(mf), dist))
 
     dut = TravSubunit(cfg)
-    got = {}
+    got = {"res": [], "at": []}
 
     async def tb(ctx):
-        for lane in range(R):
-            ctx.set(dut.ld_en, 1)
-            ctx.set(dut.ld_thread, thread)
-            ctx.set(dut.ld_lane, lane)
-            ctx.set(dut.ld_org, [bits(x) for x in org[lane]])
-            ctx.set(dut.ld_inv, [bits(x) for x in inv[lane]])
-            ctx.set(dut.ld_tnear, bits(tnear[lane]))
-            ctx.set(dut.ld_tfar, bits(tfar[lane]))
-            await ctx.tick()
+        for thread, axis, split, sp, mask, org, inv, tnear, tfar in steps:
+            for lane in range(R):
+                ctx.set(dut.ld_en, 1)
+                ctx.set(dut.ld_thread, thread)
+                ctx.set(dut.ld_lane, lane)
+                ctx.set(dut.ld_org, [bits(x) for x in org[lane]])
+                ctx.set(dut.ld_inv, [bits(x) for x in inv[lane]])
+                ctx.set(dut.ld_tnear, bits(tnear[lane]))
+                ctx.set(dut.ld_tfar, bits(tfar[lane]))
+                await ctx.tick()
         ctx.set(dut.ld_en, 0)
-        for name, val in (("thread", thread), ("axis", axis), ("split", bits(split)),
-                          ("sp", sp), ("cur", 0), ("mask", mask), ("start", 1)):
-            ctx.set(getattr(dut, name), val)
-        await ctx.tick()
-        ctx.set(dut.start, 0)
-        cycles = 0
+        ctx.set(dut.res.ready, 1)
+        cycle, sent = 0, 0
+        while len(got["res"]) < len(steps):
+            if sent < len(steps):
+                thread, axis, split, sp, mask = steps[sent][:5]
+                ctx.set(dut.step.payload, {"thread": thread, "axis": axis, "split": bits(split),
+                                           "sp": sp, "cur": 0, "mask": mask})
+                ctx.set(dut.step.valid, 1)
+                sent += ctx.get(dut.step.ready)
+            else:
+                ctx.set(dut.step.valid, 0)
+            if ctx.get(dut.res.valid):
+                p = ctx.get(dut.res.payload)
+                got["res"].append((p["near"], p["far"]))
+                got["at"].append(cycle)
+            await ctx.tick()
+            cycle += 1
+            assert cycle < 500
+        ctx.set(dut.step.valid, 0)
         while not ctx.get(dut.idle):
             await ctx.tick()
-            cycles += 1
-        got["cycles"] = cycles
-        got["near"], got["far"] = ctx.get(dut.near), ctx.get(dut.far)
-        got["tfar_n"], got["tfar_s"] = [], []
-        for cur, key in ((0, "tfar_n"), (1, "tfar_s")):
-            for lane in range(R):
-                ctx.set(dut.rq_thread, thread)
-                ctx.set(dut.rq_lane, lane)
-                ctx.set(dut.rq_sp, sp)
-                ctx.set(dut.rq_cur, cur)
-                await ctx.tick()
-                got[key].append(ctx.get(dut.rq_tfar))
+        got["tfar_n"], got["tfar_s"] = {}, {}
+        for thread, axis, split, sp, mask in (s[:5] for s in steps):
+            for cur, key in ((0, "tfar_n"), (1, "tfar_s")):
+                for lane in range(R):
+                    ctx.set(dut.rq_thread, thread)
+                    ctx.set(dut.rq_lane, lane)
+                    ctx.set(dut.rq_sp, sp)
+                    ctx.set(dut.rq_cur, cur)
+                    await ctx.tick()
+                    got[key][thread, lane] = ctx.get(dut.rq_tfar)
 
     run(dut, tb)
-    assert (got["near"], got["far"]) == (int(mn), int(mf))
-    assert got["cycles"] == bin(mask).count("1") + dut.LAT
-    lanes = [l for l in range(R) if mask >> l & 1]
-    # near interval's tfar = min(tfar, dist); the far interval keeps tfar
-    assert [got["tfar_n"][l] for l in lanes] == [bits(fmt.min(tfar[l], dist[l])) for l in lanes]
-    assert [got["tfar_s"][l] for l in lanes] == [bits(tfar[l]) for l in lanes]
+    assert got["res"] == [(mn, mf) for mn, mf, _ in want]
+    lanes = [max(1, bin(s[4]).count("1")) for s in steps]     # an empty step takes one cycle
+    # the first step was transferred in cycle 0 (the queue had room), the others queued
+    # behind it: each verdict follows the previous one by the step's issue cycles
+    assert got["at"][0] == lanes[0] + dut.STEP_LAT
+    assert [b - a for a, b in zip(got["at"], got["at"][1:])] == lanes[1:]
+    for (thread, axis, split, sp, mask, org, inv, tnear, tfar), (_, _, dist) in zip(steps, want):
+        act = [l for l in range(R) if mask >> l & 1]
+        # near interval's tfar = min(tfar, dist); the far interval keeps tfar
+        assert [got["tfar_n"][thread, l] for l in act] == \
+            [bits(fmt.min(tfar[l], dist[l])) for l in act]
+        assert [got["tfar_s"][thread, l] for l in act] == [bits(tfar[l]) for l in act]
 
 
-def test_async_subunits_rejected():
-    with pytest.raises(NotImplementedError, match="trav_sync=True"):
-        Traversal(Config(trav_sync=False))
+@pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])
+def test_traversal_subunit_modes(kd_cache, sync):
+    """Synchronous and asynchronous sub-units: the same leaves, done and counters as the model
+    (the office, 4 threads, 4 sub-units over 16-ray packets, so groups are often idle)."""
+    cfg = Config(threads=4, tile_w=4, tile_h=4, trav_subunits=4, trav_sync=sync)
+    image, rays = small_case(ROOT / "scenes/office.toml", 8, 8, cfg, kd_cache)
+    r = run_traversal(image, rays, cfg, seed=9, mem_latency=8)
+    check(r)
+    assert sorted(r.packets_done) == list(range(rays.n_packets))
 
 
 @pytest.mark.slow
