@@ -32,8 +32,22 @@ def full_regs(kind, fmt):
 
 @pytest.mark.parametrize("kind", ["add", "mul", "div"])
 def test_exhaustive_e4m3(kind):
-    r = run_exhaustive(kind, E4M3, latency=None, regs=full_regs(kind, E4M3))
+    """Every boundary registered, round and pack cut in two; the multiplier's significands
+    (4 bits) split in 2-bit halves so its partial-product boundary is used too."""
+    kw = {"dsp_bits": 2} if kind == "mul" else {}
+    r = run_exhaustive(kind, E4M3, latency=None, regs=full_regs(kind, E4M3), **kw)
     assert r.ops == 1 << 16
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind,latency", [("add", 6), ("mul", 4), ("mul", 5), ("div", 9)])
+def test_exhaustive_e4m3_round_cut(kind, latency):
+    """The smallest latencies whose default placement cuts round and pack (and, mul 5, the
+    partial products), exhaustively: only the new boundaries plus the defaults' registers."""
+    kw = {"dsp_bits": 3} if kind == "mul" else {}
+    dut = make_unit(kind, E4M3, latency, **kw)
+    assert dut.regs[dut.BOUNDARIES.index("round")] == 1
+    assert run_exhaustive(kind, E4M3, latency=latency, **kw).ops == 1 << 16
 
 
 @pytest.mark.parametrize("kind", ["add", "sub", "mul", "div", "min", "max", "cmp"])
@@ -78,13 +92,47 @@ def test_random_with_stalls_long(kind, fmt):
         run_random(kind, fmt, 3000, latency=latency, seed=latency or 0)
 
 
-@pytest.mark.parametrize("kind,regs", [("add", (1, 0, 2, 0, 0, 1)), ("mul", (2, 0, 0, 1, 0)),
-                                       ("div", (0, 1) + (0,) * 12 + (1,) + (0,) * 13 + (2,))])
+@pytest.mark.parametrize("kind,regs", [
+    ("add", (1, 0, 2, 0, 0, 0, 1)), ("mul", (2, 0, 0, 1, 0, 0, 0)),
+    ("div", (0, 1) + (0,) * 12 + (1,) + (0,) * 13 + (0, 2)),
+    # round and pack cut; binary32 products from four registered 18-bit partial products
+    ("add", (0, 0, 0, 0, 0, 2, 1)), ("mul", (0, 0, 1, 0, 0, 1, 1)), ("mul", (0, 1, 1, 1, 1, 1, 1)),
+    ("div", (0,) * 28 + (1, 0)), ("div", (0, 0) + (1,) * 26 + (1, 1))])
 def test_custom_register_placement(kind, regs):
     """Registers may sit anywhere, several at one boundary; latency is their count."""
     r = run_random(kind, BINARY32, 100, regs=regs, seed=3)
     assert make_unit(kind, BINARY32, regs=regs).latency == sum(regs)
     assert r.ops > 100
+
+
+FAST_CASES = [("add", 6), ("add", 7), ("mul", 4), ("mul", 5), ("mul", 6), ("div", 9),
+              ("div", 16)]
+
+
+@pytest.mark.parametrize("kind,latency", FAST_CASES, ids=[f"{k}-L{n}" for k, n in FAST_CASES])
+def test_round_cut_latencies_binary32(kind, latency):
+    """The latencies that use the round (and, mul >= 5, partial-product) boundaries, binary32
+    corner cases and random operands with bubbles and stalls."""
+    assert run_random(kind, BINARY32, 120, latency=latency, seed=latency).ops > 120
+
+
+def test_default_placements_unchanged():
+    """The register placements of the latencies 1-5 (add), 1-3 (mul) and up to the default 8
+    (div) are the ones from before the round and partial-product boundaries existed (written
+    here as boundary names), so the RTC's cycle timing does not move."""
+    def named(unit):
+        return [b for b, n in zip(unit.BOUNDARIES, unit.regs) for _ in range(n)]
+    assert named(FPAdd(latency=3)) == ["align", "normalize", "output"]
+    assert named(FPAdd(latency=5)) == ["unpack", "align", "add", "normalize", "output"]
+    assert named(FPMul(latency=3)) == ["unpack", "multiply", "output"]
+    assert named(FPMul(latency=2)) == ["multiply", "output"]
+    assert named(FPDiv(latency=8)) == ["q2", "q5", "q8", "q12", "q16", "q19", "q22", "output"]
+    assert named(FPDiv(latency=4)) == ["q5", "q12", "q19", "output"]
+    # above those, round and pack is cut first (mul: before the partial products)
+    assert named(FPAdd(latency=6)) == ["unpack", "align", "add", "normalize", "round", "output"]
+    assert named(FPMul(latency=4)) == ["unpack", "multiply", "round", "output"]
+    assert named(FPMul(latency=5)) == ["unpack", "partial", "multiply", "round", "output"]
+    assert "round" in named(FPDiv(latency=9)) and named(FPDiv(latency=9))[-1] == "output"
 
 
 def test_reciprocal():
@@ -197,6 +245,10 @@ def test_placement_and_errors():
         FPMul(BINARY32, latency=-1)
     with pytest.raises(ValueError, match="boundaries"):
         FPAdd(BINARY32, regs=(1, 1))
+    with pytest.raises(ValueError, match="boundaries"):
+        FPMul(BINARY32, regs=(0, 1, 1, 0, 1))         # the 5-boundary layout of before
+    with pytest.raises(ValueError, match="dsp_bits"):
+        FPMul(BINARY32, dsp_bits=0)
     with pytest.raises(ValueError, match="int_width"):
         FPFromInt(BINARY32, int_width=1)
     with pytest.raises(TypeError, match="integers"):

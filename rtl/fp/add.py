@@ -8,7 +8,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
-from .common import bits_for, canonical_nan, lzc, round_pack, special, unpack
+from .common import bits_for, canonical_nan, lzc, pack, round_inc, special, unpack
 from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPAdd"]
@@ -21,19 +21,21 @@ class FPAdd(wiring.Component):
 
     Steps: unpack (order the operands by magnitude), align (shift the smaller right by the
     exponent difference, keeping guard/round/sticky bits), add or subtract the significands,
-    normalize (leading-zero count and left shift), round and pack.
+    normalize (leading-zero count and left shift), round (the RNE increment), pack (exponent
+    carry, flush/overflow and special-value select).
 
-    Latency: ``latency`` cycles (default 3; 0 = combinational), registers placed at the 6 step
-    boundaries (input, after unpack, after align, after add, after normalize, output) by
-    ``regs`` or, by default, output first, then after align, after normalize, after unpack,
-    after add, input. Throughput: one operation per cycle in which ``en`` is 1; with ``en`` = 0
-    every register holds (``o``/``o_valid`` too).
+    Latency: ``latency`` cycles (default 3; 0 = combinational), registers placed at the 7 step
+    boundaries (input, after unpack, after align, after add, after normalize, after round,
+    output) by ``regs`` or, by default, output first, then after align, after normalize, after
+    unpack, after add, after round, input (so latencies 1-5 place them as before the round
+    boundary existed; 6 is the first to cut round and pack). Throughput: one operation per
+    cycle in which ``en`` is 1; with ``en`` = 0 every register holds (``o``/``o_valid`` too).
 
     Ports: ``a``, ``b``, ``op``, ``i_valid``, ``en`` in; ``o``, ``o_valid`` out.
     """
 
-    BOUNDARIES = ("input", "unpack", "align", "add", "normalize", "output")
-    ORDER = (5, 2, 4, 1, 3, 0)
+    BOUNDARIES = ("input", "unpack", "align", "add", "normalize", "round", "output")
+    ORDER = (6, 2, 4, 1, 3, 5, 0)
 
     def __init__(self, fmt: FPFormat = BINARY32, latency: int = 3, regs: Sequence[int] | None = None):
         self.fmt = fmt
@@ -82,10 +84,12 @@ class FPAdd(wiring.Component):
         exp = v.exp + 1 - lz                                  # signed, wide enough
         sign = Mux(v.s == 0, v.zero_sign, v.sign)             # exact zero: -0 only for -0 + -0
         v = st(sig=norm, exp=exp, sign=sign, nan=v.nan, inf=v.inf, inf_sign=v.inf_sign)
-        # -- round, pack, specials -----------------------------------------------------------
+        # -- round: RNE increment, flags for both outcomes of its carry -----------------------
+        v = st(**round_inc(m, fmt, v.exp, v.sig), sign=v.sign, nan=v.nan, inf=v.inf,
+               inf_sign=v.inf_sign)
+        # -- pack, specials ------------------------------------------------------------------
         o = Mux(v.nan, canonical_nan(fmt),
-                Mux(v.inf, special(fmt, v.inf_sign, True),
-                    round_pack(m, fmt, v.sign, v.exp, v.sig)))
+                Mux(v.inf, special(fmt, v.inf_sign, True), pack(fmt, v.sign, v)))
         v = st(o=o)
         st.finish()
         m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]

@@ -13,7 +13,7 @@ from amaranth.hdl import C, Cat, Const, Module, Mux, Signal, Value
 
 from model.fp import FPFormat
 
-__all__ = ["wire", "unpack", "lzc", "round_pack", "special", "canonical_nan", "bits_for"]
+__all__ = ["wire", "unpack", "lzc", "round_pack", "round_inc", "pack", "special", "canonical_nan", "bits_for"]
 
 
 def bits_for(n: int) -> int:
@@ -82,27 +82,50 @@ def special(fmt: FPFormat, sign: Value, inf: bool) -> Value:
     return Cat(C(0, M), C((1 << E) - 1 if inf else 0, E), sign)
 
 
-def round_pack(m: Module, fmt: FPFormat, sign: Value, exp: Value, sig: Value,
-               sticky: Value = C(0, 1)) -> Value:
-    """Round a normalized significand and pack it, flushing and overflowing after rounding.
-
-    ``sig`` (n >= M+1 bits) has its leading one at the MSB (or is all zero: a zero result);
-    its value is ``sig / 2**(n-1) * 2**(exp - bias)`` plus, if ``sticky``, something nonzero
-    below the LSB. ``exp`` is a signed biased exponent wide enough for any intermediate value.
-    """
+def round_inc(m: Module, fmt: FPFormat, exp: Value, sig: Value,
+              sticky: Value = C(0, 1)) -> dict:
+    """First half of :func:`round_pack`: the round-to-nearest-even increment of a normalized
+    significand, and the flush/overflow flags for both outcomes of its carry (so the second
+    half only selects). Returns the values to carry to :func:`pack` (a dict: pass it through a
+    pipeline boundary, e.g. ``st(**rounded, sign=...)``, to cut round and pack in two)."""
     E, M = fmt.exp_bits, fmt.frac_bits
     W = M + 1
-    sig = Value.cast(sig)
+    sig, exp = Value.cast(sig), Value.cast(exp)
     n = len(sig)
     assert n >= W, f"round_pack: significand of {n} bits < M+1={W}"
     keep = sig[n - W:]
     guard = sig[n - W - 1] if n > W else C(0, 1)
     rest = (sig[:n - W - 1] != 0) if n > W + 1 else C(0, 1)
     inc = wire(m, guard & (rest | sticky | keep[0]), "rnd_inc")
-    r = wire(m, keep + inc, "rnd_sig")               # W+1 bits; r == 2**W on a carry
-    e = wire(m, exp + r[W], "rnd_exp")               # the carry moves one binade up
     emax = (1 << E) - 1
-    flush = (sig == 0) | (e < 1)
-    over = e >= emax
+    e1 = exp + 1                                     # the exponent if the increment carries
+    return dict(rnd_sig=keep + inc,                  # W+1 bits; == 2**W on a carry
+                rnd_e0=exp[:E], rnd_e1=e1[:E], rnd_zero=sig == 0,
+                rnd_flush0=exp < 1, rnd_flush1=e1 < 1, rnd_over0=exp >= emax, rnd_over1=e1 >= emax)
+
+
+def pack(fmt: FPFormat, sign: Value, r) -> Value:
+    """Second half of :func:`round_pack`: the encoding from :func:`round_inc`'s values ``r``
+    (a dict or a namespace with the same names): flush to signed zero or overflow to signed
+    infinity after rounding, else sign, exponent (one binade up if the increment carried) and
+    fraction."""
+    M = fmt.frac_bits
+    r = r if isinstance(r, dict) else vars(r)
+    carry = r["rnd_sig"][M + 1]
+    flush = r["rnd_zero"] | Mux(carry, r["rnd_flush1"], r["rnd_flush0"])
+    over = Mux(carry, r["rnd_over1"], r["rnd_over0"])
     return Mux(flush, special(fmt, sign, False),
-               Mux(over, special(fmt, sign, True), Cat(r[:M], e[:E], sign)))
+               Mux(over, special(fmt, sign, True),
+                   Cat(r["rnd_sig"][:M], Mux(carry, r["rnd_e1"], r["rnd_e0"]), sign)))
+
+
+def round_pack(m: Module, fmt: FPFormat, sign: Value, exp: Value, sig: Value,
+               sticky: Value = C(0, 1)) -> Value:
+    """Round a normalized significand and pack it, flushing and overflowing after rounding
+    (:func:`round_inc` then :func:`pack`, in one cycle).
+
+    ``sig`` (n >= M+1 bits) has its leading one at the MSB (or is all zero: a zero result);
+    its value is ``sig / 2**(n-1) * 2**(exp - bias)`` plus, if ``sticky``, something nonzero
+    below the LSB. ``exp`` is a signed biased exponent wide enough for any intermediate value.
+    """
+    return pack(fmt, sign, round_inc(m, fmt, exp, sig, sticky))

@@ -8,7 +8,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
-from .common import canonical_nan, round_pack, special, unpack
+from .common import canonical_nan, pack, round_inc, special, unpack
 from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPDiv"]
@@ -21,12 +21,16 @@ class FPDiv(wiring.Component):
     Steps: unpack (classes, sign, exponent difference), M+3 restoring-division steps of one
     quotient bit each (W = M+1 significand bits: the quotient of two significands lies in
     (1/2, 2), so M+3 bits give W significant bits and a guard bit; the remainder is the sticky
-    bit), then round and pack (a one-bit normalization is folded into the rounding step).
+    bit), then round (a one-bit normalization and the RNE increment) and pack (exponent carry,
+    flush/overflow and special-value select).
 
     Latency: ``latency`` cycles (default ``ceil((M+3)/4) + 1``: four quotient bits per stage
-    plus the output register; 0 = combinational). Registers sit at the M+5 step boundaries
-    (input, after unpack, after each quotient bit, output), spread evenly unless ``regs``
-    gives a count per boundary. Throughput: one operation per cycle in which ``en`` is 1.
+    plus the output register; 0 = combinational). Registers sit at the M+6 step boundaries
+    (input, after unpack, after each quotient bit, after round, output), given per boundary by
+    ``regs`` or placed by ``latency``: up to the default latency they are spread evenly over
+    the boundaries other than "after round" (as before that boundary existed); above it one
+    register goes after round and the other ``latency - 1`` are spread that way.
+    Throughput: one operation per cycle in which ``en`` is 1.
 
     Ports: ``a``, ``b``, ``i_valid``, ``en`` in; ``o``, ``o_valid`` out.
     """
@@ -35,12 +39,19 @@ class FPDiv(wiring.Component):
                  regs: Sequence[int] | None = None):
         self.fmt = fmt
         self.qbits = fmt.frac_bits + 3
-        self.BOUNDARIES = ("input", "unpack", *(f"q{i}" for i in range(self.qbits)), "output")
+        self.BOUNDARIES = ("input", "unpack", *(f"q{i}" for i in range(self.qbits)), "round",
+                           "output")
         nb = len(self.BOUNDARIES)
+        default = -(-self.qbits // 4) + 1
         if latency is None:
-            latency = -(-self.qbits // 4) + 1
-        self.regs = (placement(latency, nb) if regs is None
-                     else check_regs(regs, nb, "FPDiv", self.BOUNDARIES))
+            latency = default
+        if regs is None:
+            cut = isinstance(latency, int) and latency > default
+            spread = placement(latency - cut, nb - 1)     # over every boundary but "round"
+            regs = spread[:-1] + ((spread[-1], 1) if cut else (0, spread[-1]))
+            self.regs = regs
+        else:
+            self.regs = check_regs(regs, nb, "FPDiv", self.BOUNDARIES)
         self.latency = sum(self.regs)
         super().__init__(unit_ports(fmt.width, fmt.width, b=In(fmt.width)))
 
@@ -72,10 +83,11 @@ class FPDiv(wiring.Component):
         top = v.q[self.qbits - 1]
         sig = Mux(top, v.q, v.q << 1)[:self.qbits]
         exp = v.exp - 1 + top
+        v = st(**round_inc(m, fmt, exp, sig, sticky=v.r != 0), sign=v.sign, nan=v.nan,
+               inf=v.inf, zero=v.zero)
         o = Mux(v.nan, canonical_nan(fmt),
                 Mux(v.inf, special(fmt, v.sign, True),
-                    Mux(v.zero, special(fmt, v.sign, False),
-                        round_pack(m, fmt, v.sign, exp, sig, sticky=v.r != 0))))
+                    Mux(v.zero, special(fmt, v.sign, False), pack(fmt, v.sign, v))))
         v = st(o=o)
         st.finish()
         m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]

