@@ -97,7 +97,7 @@ def test_random_with_stalls_long(kind, fmt):
     ("div", (0, 1) + (0,) * 12 + (1,) + (0,) * 13 + (0, 2)),
     # round and pack cut; binary32 products from four registered 18-bit partial products
     ("add", (0, 0, 0, 0, 0, 2, 1)), ("mul", (0, 0, 1, 0, 0, 1, 1)), ("mul", (0, 1, 1, 1, 1, 1, 1)),
-    ("div", (0,) * 28 + (1, 0)), ("div", (0, 0) + (1,) * 26 + (1, 1))])
+    ("div", (0, 1) + (0, 1) * 13 + (1, 0)), ("div", (0, 0) + (1,) * 26 + (1, 1))])
 def test_custom_register_placement(kind, regs):
     """Registers may sit anywhere, several at one boundary; latency is their count."""
     r = run_random(kind, BINARY32, 100, regs=regs, seed=3)
