@@ -48,7 +48,7 @@ class FPAdd(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         fmt = self.fmt
-        E, M = fmt.exp_bits, fmt.frac_bits
+        M = fmt.frac_bits
         W = M + 1
         n = W + GUARD                                        # aligned significand width
         st = Stager(m, self.en, self.i_valid, self.regs)
@@ -61,14 +61,16 @@ class FPAdd(wiring.Component):
         eff_sub = ua.sign ^ sb
         nan = ua.nan | ub.nan | (ua.inf & ub.inf & eff_sub)
         inf = ua.inf | ub.inf
+        # shift distance, saturated at n (both signs computed beside the magnitude compare)
+        dab, dba = ua.exp - ub.exp, ub.exp - ua.exp
+        sh = bits_for(n)
+        d = Mux(swap, Mux(dba > n, n, dba[:sh]), Mux(dab > n, n, dab[:sh]))[:sh]
         v = st(big_sig=Mux(swap, ub.sig, ua.sig), small_sig=Mux(swap, ua.sig, ub.sig),
-               big_exp=Mux(swap, ub.exp, ua.exp),
-               diff=Mux(swap, ub.exp - ua.exp, ua.exp - ub.exp)[:E],
+               big_exp=Mux(swap, ub.exp, ua.exp), d=d,
                sign=Mux(swap, sb, ua.sign), zero_sign=ua.sign & sb, eff_sub=eff_sub,
                nan=nan, inf=inf, inf_sign=Mux(ua.inf, ua.sign, sb))
-        # -- align: small >> diff, bits shifted out OR into a sticky LSB -------------------------
-        d = Mux(v.diff > n, n, v.diff)[:bits_for(n)]
-        wide = Cat(C(0, n + GUARD), v.small_sig) >> d   # 2n bits: aligned | shifted out
+        # -- align: small >> d, bits shifted out OR into a sticky LSB ---------------------------
+        wide = Cat(C(0, n + GUARD), v.small_sig) >> v.d  # 2n bits: aligned | shifted out
         small = wide[n:] | (wide[:n] != 0)
         v = st(big=Cat(C(0, GUARD), v.big_sig), small=small, exp=v.big_exp, sign=v.sign,
                zero_sign=v.zero_sign, eff_sub=v.eff_sub, nan=v.nan, inf=v.inf,
