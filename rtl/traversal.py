@@ -20,20 +20,25 @@ Engines (each a small state machine; threads are picked round-robin among those 
 * loader: takes ``RayIn`` packets into a free thread (``load_thread`` says which), one lane
   per cycle;
 * fetcher: one 64-bit node read per packet visit (``node`` port, tag = thread);
-* step engine: decodes the node; at an inner node the ``k`` sub-units each run their static
-  share of the active lanes (lane ``l`` -> sub-unit ``l // (lanes/k)``), one lane per cycle
-  through ``sub -> mul -> compare, min/max`` (latency 8 + the FP units'); synchronous mode:
-  the step ends when all sub-units have drained. At a non-empty leaf it emits a
-  ``LeafRequest`` and parks the thread; empty leaves and finished leaves pop the stack (one
-  entry per 2 cycles); an exhausted stack starts the next octant pass or finishes the packet;
+* control engine: decodes the node (2 cycles per event); at an inner node it queues the step
+  in every sub-unit (lane ``l`` -> sub-unit ``l // (lanes/k)``) and moves on to the next
+  thread; at a non-empty leaf it emits a ``LeafRequest`` and parks the thread; empty leaves
+  and finished leaves pop the stack (one entry per 2 cycles); an exhausted stack starts the
+  next octant pass or finishes the packet;
+* sub-units: one lane per cycle through ``sub -> mul -> compare, min/max``, steps of different
+  threads back to back; synchronous mode (``cfg.trav_sync``): all sub-units start a step
+  together; asynchronous: each starts its next step as soon as it has issued its lanes of the
+  previous one (an idle group costs one cycle);
+* decide engine: when every sub-unit's verdict on the oldest outstanding step is in, combines
+  them and goes near / far / both (push) / ends the pass, in one cycle;
 * result engine: one ``LaneResult`` per cycle; terminates lanes with
   ``hit & (anyhit | t <= tfar)``; the leaf's ``last`` result makes the thread pop;
 * done engine: emits ``PacketDone``; the thread is free again on ``release``.
 
-Counters (ports, 32 bit): ``busy`` (cycles the step engine works), ``sub_busy[k]`` (cycles a
+Counters (ports, 32 bit): ``busy`` (cycles the control engine, a sub-unit or the decide
+engine works), ``sub_busy[k]`` (cycles a
 sub-unit has a lane in flight), ``trav_ops`` (active lanes classified), ``trav_steps`` (inner
 node steps), ``node_reads``, ``leaf_reqs``, ``passes``, ``pushes``, ``packets_done``.
-Asynchronous sub-units (``cfg.trav_sync=False``) are not implemented.
 """
 from __future__ import annotations
 
@@ -293,9 +298,10 @@ class Traversal(wiring.Component):
     always ready: the thread's results were read out, it may take a new packet), ``node_base``
     and ``root`` (memory image constants, held). Counters: see the module docstring.
 
-    Latency of one inner-node step of a packet with ``a`` active lanes in its busiest sub-unit:
-    2 (pick, dispatch) + ``a`` + ``TravSubunit.LAT`` + 1 (decide); node fetch: memory latency
-    + 2. Threads overlap fetches, leaves and steps; the sub-units serve one step at a time.
+    Latency of one inner-node step of a packet with ``a`` active lanes in its busiest sub-unit
+    (idle unit): 2 (pick, dispatch) + ``a`` + ``TravSubunit.STEP_LAT`` + 1 (decide); node
+    fetch: memory latency + 2. Throughput: the sub-units issue steps of different threads back
+    to back, one lane per cycle each; the control engine takes 2 cycles per step.
     """
 
     def __init__(self, cfg: Config, *, addr_width: int = 32):
