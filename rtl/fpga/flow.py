@@ -8,9 +8,13 @@ adds or replaces its entry in ``build/fpga/report.json``; ``build/fpga/README.md
 of every entry. ``--table`` only rewrites the README from the report.
 
 nextpnr runs with ``--timing-allow-fail`` (it exits 1 on failed timing otherwise), under
-``nice -n 10`` and one thread; place and route of the one-RTC design takes an hour or more on
-2 shared cores (placement alone took 22 min here). Fmax is nextpnr's for the ``clk`` domain (register to register: the wrapper registers
-every pin); the pins are placed by nextpnr (no LPF).
+``nice -n 10`` and one thread, with ``--router`` (router1 by default; router2 is the one that
+finishes the one-RTC design) and ``--placer`` (heap); ``--reuse LABEL`` places and routes the
+netlist of an earlier run again (same top and options) without exporting and synthesizing.
+Place and route of the one-RTC design takes most of an hour on 2 shared cores (HeAP placement
+11 min, simulated-annealing refinement 22+ min, then routing). Fmax is nextpnr's for the
+``clk`` domain (register to register: the wrapper registers every pin); the pins are placed
+by nextpnr (no LPF).
 """
 from __future__ import annotations
 
@@ -70,6 +74,15 @@ def pnr_times(log: str) -> dict[str, float]:
         if m:
             out[key] = float(m.group(1))
     return out
+
+
+def placement_fmax(log: str) -> float | None:
+    """nextpnr's Fmax estimate for ``clk`` after placement (the first "Max frequency" line
+    after the simulated-annealing refinement), MHz; None if placement did not finish."""
+    i = log.find("SA placement time")
+    m = re.search(r"Max frequency for clock '[^']*clk[^']*': ([\d.]+) MHz", log[i:]) \
+        if i >= 0 else None
+    return float(m.group(1)) if m else None
 
 
 def _cell_name(end: dict) -> str:
@@ -173,14 +186,20 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         (wd / "report.json").unlink(missing_ok=True)
         p = subprocess.run(cmd, cwd=wd, capture_output=True, text=True)
         entry["pnr_s"] = round(time.time() - t0, 1)
-        entry["pnr_times_s"] = pnr_times((wd / "nextpnr.log").read_text())
+        log = (wd / "nextpnr.log").read_text() if (wd / "nextpnr.log").exists() else ""
+        entry["pnr_times_s"] = pnr_times(log)
+        entry["router"], entry["placer"] = router, placer
+        est = placement_fmax(log)
+        if est is not None:
+            entry["placement_estimate"] = {"fmax_mhz": est}
         if p.returncode or not (wd / "report.json").exists():
+            entry["status"] = f"place and route failed or stopped (exit {p.returncode})"
+            _save(out, label, entry)
             raise SystemExit(f"rtl.fpga: nextpnr failed on {label} (see {wd}/nextpnr.log):\n"
                              f"{p.stderr[-3000:]}")
         entry.update(parse_report(json.loads((wd / "report.json").read_text())))
         entry["freq_target_mhz"] = freq
         entry["seed"] = seed
-        entry["router"], entry["placer"] = router, placer
         entry["status"] = "routed"
         _save(out, label, entry)
     return entry

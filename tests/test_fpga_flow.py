@@ -1,0 +1,44 @@
+"""rtl.fpga.flow helpers that need no Yosys or nextpnr run: log parsing, --reuse checks."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from model.config import Config
+from rtl.fpga.flow import placement_fmax, pnr_times, run
+
+LOG = """Info: HeAP Placer Time: 668.70s
+Info:   of which solving equations: 419.13s
+Info: Max frequency for clock '$glbnet$clk$TRELLIS_IO_IN': 12.00 MHz (FAIL at 100.00 MHz)
+Info: Running simulated annealing placer for refinement.
+Info: SA placement time 1299.70s
+
+Info: Max frequency for clock '$glbnet$clk$TRELLIS_IO_IN': 26.54 MHz (FAIL at 100.00 MHz)
+Info: Routing..
+Info: Router2 time 301.25s
+Info: Max frequency for clock '$glbnet$clk$TRELLIS_IO_IN': 31.02 MHz (FAIL at 100.00 MHz)
+"""
+
+
+def test_pnr_times_and_placement_estimate():
+    assert pnr_times(LOG) == {"heap_place": 668.7, "sa_place": 1299.7, "route": 301.25}
+    assert placement_fmax(LOG) == 26.54           # after refinement, not the earlier line
+    r1 = "Info: SA placement time 5.67s\nInfo: Routing complete.\nInfo: Router1 time 10.41s\n"
+    assert pnr_times(r1) == {"sa_place": 5.67, "route": 10.41}
+    assert placement_fmax("Info: HeAP Placer Time: 1.0s\n") is None   # placement unfinished
+
+
+def test_reuse_checks(tmp_path):
+    cfg = Config()
+    with pytest.raises(SystemExit, match="no such run"):
+        run("fp_add", cfg, out=tmp_path, reuse="nothing", pnr=False)
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "fpga_top.json").write_text("{}")
+    (tmp_path / "old" / "fpga_top.stat").write_text("")
+    old = {"top": "fp_mul", "config": cfg.to_dict(), "latency": 3}
+    (tmp_path / "report.json").write_text(json.dumps({"runs": {"old": old}}))
+    with pytest.raises(SystemExit, match="another top or configuration"):
+        run("fp_add", cfg, out=tmp_path, reuse="old", pnr=False)
+    with pytest.raises(SystemExit, match="another top or configuration"):
+        run("fp_mul", cfg.replace(fp_mul_latency=5), out=tmp_path, reuse="old", pnr=False)
