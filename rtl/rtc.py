@@ -31,7 +31,8 @@ __all__ = ["RTC", "RTCSim", "COUNTERS"]
 COUNTER_BITS = 32
 # counter port -> (unit, port of that unit)
 COUNTERS = {
-    "trav_busy": ("trav", "busy"), "trav_ops": ("trav", "trav_ops"),
+    "trav_busy": ("trav", "busy"), "trav_ctl_busy": ("trav", "ctl_busy"),
+    "trav_ops": ("trav", "trav_ops"),
     "trav_steps": ("trav", "trav_steps"), "node_reads": ("trav", "node_reads"),
     "leaf_reqs": ("trav", "leaf_reqs"), "passes": ("trav", "passes"),
     "pushes": ("trav", "pushes"), "packets_done": ("trav", "packets_done"),

@@ -36,7 +36,7 @@ Engines (each a small state machine; threads are picked round-robin among those 
 * done engine: emits ``PacketDone``; the thread is free again on ``release``.
 
 Counters (ports, 32 bit): ``busy`` (cycles the control engine, a sub-unit or the decide
-engine works), ``sub_busy[k]`` (cycles a
+engine works), ``ctl_busy`` (cycles the control engine works), ``sub_busy[k]`` (cycles a
 sub-unit has a lane in flight), ``trav_ops`` (active lanes classified), ``trav_steps`` (inner
 node steps), ``node_reads``, ``leaf_reqs``, ``passes``, ``pushes``, ``packets_done``.
 """
@@ -309,7 +309,7 @@ class Traversal(wiring.Component):
         self.subunits = [TravSubunit(cfg) for _ in range(cfg.trav_subunits)]
         tb = cfg.thread_bits
         counters = {name: Out(COUNTER_BITS) for name in (
-            "busy", "trav_ops", "trav_steps", "node_reads", "leaf_reqs", "passes", "pushes",
+            "busy", "ctl_busy", "trav_ops", "trav_steps", "node_reads", "leaf_reqs", "passes", "pushes",
             "packets_done")}
         super().__init__({
             "rays": In(stream.Signature(RayIn(cfg))),
@@ -526,6 +526,8 @@ class Traversal(wiring.Component):
         m.d.comb += ctl_busy.eq(1)
         with m.If(ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()):
             m.d.sync += self.busy.eq(self.busy + 1)
+        with m.If(ctl_busy):
+            m.d.sync += self.ctl_busy.eq(self.ctl_busy + 1)
 
         with m.FSM(name="step"):
             with m.State("IDLE"):
