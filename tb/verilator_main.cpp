@@ -1,0 +1,226 @@
+// C++ main for the Verilator build of tb/frame.py's RTCFrame (driven by tb/verilator.py).
+//
+//   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE.fst]
+//
+// IN (little-endian): "RTCIN01\0", u64 blocks, then per block: u32 sel, u32 addr, u64 count,
+//   count x u64 words (written through the load port at ld_addr = addr, addr + 1, ...).
+// Holds reset for 4 cycles, loads every block (one word per cycle), pulses start, then clocks
+// until `finished` or N cycles after start (exit 2, naming the limit). Every result transfer
+// (res_valid) is recorded.
+// OUT (little-endian): "RTCOUT1\0", u32 status (0 finished, 2 cycle limit), u32 res_words,
+//   u32 ctr_words, u32 0, u64 cycles (RTC cycles since start), u64 results, u64 load cycles,
+//   f64 CPU seconds of the run loop, f64 CPU seconds of the load, then results x res_words u32,
+//   ctr_words u32 counters.
+// stderr: "progress <cycles> <results>" every --progress cycles (default 65536), errors.
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <ctime>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "Vframe.h"
+#include "verilated.h"
+#if VM_TRACE
+#include "verilated_fst_c.h"
+#endif
+
+static void die(const char* what, const std::string& detail) {
+    std::fprintf(stderr, "error: %s: %s\n", what, detail.c_str());
+    std::exit(1);
+}
+
+struct Sim {
+    VerilatedContext* ctx;
+    Vframe* top;
+#if VM_TRACE
+    VerilatedFstC* tfp = nullptr;
+#endif
+    uint64_t time = 0;
+
+    void dump() {
+#if VM_TRACE
+        if (tfp) tfp->dump(time);
+#endif
+        time++;
+    }
+    // inputs are set before calling; one rising edge
+    void tick() {
+        top->clk = 0;
+        top->eval();
+        dump();
+        top->clk = 1;
+        top->eval();
+        dump();
+    }
+};
+
+template <typename W>
+static void put_wide(std::vector<uint32_t>& out, const W& w, size_t words) {
+    for (size_t i = 0; i < words; i++) out.push_back(w[i]);
+}
+
+int main(int argc, char** argv) {
+    if (argc < 3) {
+        std::fprintf(stderr, "usage: %s IN OUT [--max-cycles N] [--progress N] [--trace F.fst]\n",
+                     argv[0]);
+        return 1;
+    }
+    std::string in_path = argv[1], out_path = argv[2], trace_path;
+    uint64_t max_cycles = 100000000ull, progress = 65536;
+    for (int i = 3; i < argc; i++) {
+        std::string a = argv[i];
+        if (i + 1 >= argc) die("arguments", a + " needs a value");
+        if (a == "--max-cycles") max_cycles = std::strtoull(argv[++i], nullptr, 10);
+        else if (a == "--progress") progress = std::strtoull(argv[++i], nullptr, 10);
+        else if (a == "--trace") trace_path = argv[++i];
+        else die("arguments", "unknown option " + a);
+    }
+    if (progress == 0) progress = ~0ull;
+
+    // --- read the whole input file ----------------------------------------------------------
+    FILE* f = std::fopen(in_path.c_str(), "rb");
+    if (!f) die(in_path.c_str(), "cannot open the input file");
+    std::vector<uint8_t> buf;
+    {
+        uint8_t tmp[1 << 16];
+        size_t n;
+        while ((n = std::fread(tmp, 1, sizeof tmp, f)) > 0) buf.insert(buf.end(), tmp, tmp + n);
+        std::fclose(f);
+    }
+    size_t pos = 0;
+    auto need = [&](size_t n, const char* what) {
+        if (pos + n > buf.size())
+            die(in_path.c_str(), std::string("truncated input file (") + what + " at byte " +
+                                     std::to_string(pos) + " of " + std::to_string(buf.size()) +
+                                     "); write it with tb.verilator.write_input");
+    };
+    auto u32 = [&]() { uint32_t v; std::memcpy(&v, &buf[pos], 4); pos += 4; return v; };
+    auto u64 = [&]() { uint64_t v; std::memcpy(&v, &buf[pos], 8); pos += 8; return v; };
+    need(16, "header");
+    if (std::memcmp(&buf[0], "RTCIN01\0", 8) != 0)
+        die(in_path.c_str(), "not an RTCFrame input file (magic is not RTCIN01)");
+    pos = 8;
+    uint64_t blocks = u64();
+
+    // --- model ------------------------------------------------------------------------------
+    Sim s;
+    s.ctx = new VerilatedContext;
+    s.ctx->commandArgs(1, argv);
+    s.top = new Vframe{s.ctx};
+#if VM_TRACE
+    if (!trace_path.empty()) {
+        s.ctx->traceEverOn(true);
+        s.tfp = new VerilatedFstC;
+        s.top->trace(s.tfp, 99);
+        s.tfp->open(trace_path.c_str());
+    }
+#else
+    if (!trace_path.empty())
+        die("--trace", "this binary was built without tracing; build with trace=True "
+                       "(python -m tb.verilator --trace FILE)");
+#endif
+    Vframe* top = s.top;
+    top->ld_valid = 0;
+    top->start = 0;
+    top->rst = 1;
+    for (int i = 0; i < 4; i++) s.tick();
+    top->rst = 0;
+    const uint64_t cap_mem = top->cap_mem_words, cap_rays = top->cap_ray_slots;
+
+    std::clock_t c0 = std::clock();
+    uint64_t load_cycles = 0;
+    for (uint64_t b = 0; b < blocks; b++) {
+        need(16, "block header");
+        uint32_t sel = u32(), addr = u32();
+        uint64_t count = u64();
+        if (count > (buf.size() - pos) / 8) need(count * 8, "block data");
+        uint64_t cap = sel == 0 ? cap_mem : sel == 1 ? cap_rays * 8 : sel == 2 ? 16 : 0;
+        if (cap == 0) die(in_path.c_str(), "block with unknown target " + std::to_string(sel));
+        if ((uint64_t)addr + count > cap)
+            die(in_path.c_str(),
+                "block " + std::to_string(b) + " (target " + std::to_string(sel) + ") writes words " +
+                    std::to_string(addr) + ".." + std::to_string(addr + count) +
+                    ", the design has " + std::to_string(cap) +
+                    " (memory words / ray slots x 8 / constants): rebuild with larger mem_words / "
+                    "ray_slots");
+        top->ld_sel = sel;
+        top->ld_valid = 1;
+        for (uint64_t i = 0; i < count; i++) {
+            top->ld_addr = addr + (uint32_t)i;
+            top->ld_data = u64();
+            s.tick();
+            load_cycles++;
+        }
+        top->ld_valid = 0;
+    }
+    double load_s = double(std::clock() - c0) / CLOCKS_PER_SEC;
+
+    top->start = 1;
+    s.tick();
+    top->start = 0;
+
+    const size_t res_words = sizeof(top->res_data) / sizeof(top->res_data[0]);
+    const size_t ctr_words = sizeof(top->counters) / sizeof(top->counters[0]);
+    std::vector<uint32_t> results;
+    uint64_t n_results = 0, cycles = 0, next_progress = progress;
+    uint32_t status = 0;
+    c0 = std::clock();
+    while (true) {
+        top->clk = 0;
+        top->eval();
+        if (top->finished) break;
+        if (cycles >= max_cycles) {
+            status = 2;
+            break;
+        }
+        if (top->res_valid) {
+            put_wide(results, top->res_data, res_words);
+            n_results++;
+        }
+        s.dump();
+        top->clk = 1;
+        top->eval();
+        s.dump();
+        cycles++;
+        if (cycles >= next_progress) {
+            std::fprintf(stderr, "progress %llu %llu\n", (unsigned long long)cycles,
+                         (unsigned long long)n_results);
+            std::fflush(stderr);
+            next_progress += progress;
+        }
+    }
+    double run_s = double(std::clock() - c0) / CLOCKS_PER_SEC;
+    std::fprintf(stderr, "progress %llu %llu\n", (unsigned long long)cycles,
+                 (unsigned long long)n_results);
+    if (status == 2)
+        std::fprintf(stderr,
+                     "error: cycle limit: %llu results after --max-cycles %llu cycles (deadlock, "
+                     "or raise the limit)\n",
+                     (unsigned long long)n_results, (unsigned long long)max_cycles);
+
+    // --- write the output file --------------------------------------------------------------
+    FILE* o = std::fopen(out_path.c_str(), "wb");
+    if (!o) die(out_path.c_str(), "cannot create the output file");
+    uint32_t hdr[4] = {status, (uint32_t)res_words, (uint32_t)ctr_words, 0};
+    uint64_t rtc_cycles = top->cycles;
+    uint64_t nums[3] = {rtc_cycles, n_results, load_cycles};
+    double secs[2] = {run_s, load_s};
+    std::vector<uint32_t> ctrs;
+    put_wide(ctrs, top->counters, ctr_words);
+    bool ok = std::fwrite("RTCOUT1\0", 1, 8, o) == 8 && std::fwrite(hdr, 4, 4, o) == 4 &&
+              std::fwrite(nums, 8, 3, o) == 3 && std::fwrite(secs, 8, 2, o) == 2 &&
+              std::fwrite(results.data(), 4, results.size(), o) == results.size() &&
+              std::fwrite(ctrs.data(), 4, ctrs.size(), o) == ctrs.size();
+    ok = std::fclose(o) == 0 && ok;
+    if (!ok) die(out_path.c_str(), "write failed (disk full?)");
+#if VM_TRACE
+    if (s.tfp) s.tfp->close();
+#endif
+    top->final();
+    delete top;
+    delete s.ctx;
+    return status;
+}
