@@ -286,11 +286,12 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
     mw = mem_words if mem_words is not None else words
     rsl = ray_slots if ray_slots is not None else n
     if words > _pow2(mw, MIN_MEM_WORDS):
-        raise ValueError(f"the memory image has {words} words, more than mem_words={mw}: "
-                         f"pass mem_words >= {words} (or leave it out)")
+        raise ValueError(f"the memory image has {words} words, the simulation holds "
+                         f"{_pow2(mw, MIN_MEM_WORDS)} (mem_words={mw} rounded up to a power of "
+                         f"two): pass mem_words >= {words} (or leave it out)")
     if n > _pow2(rsl, MIN_RAY_SLOTS):
-        raise ValueError(f"{n} rays do not fit ray_slots={rsl}: pass ray_slots >= {n} "
-                         "(or leave it out)")
+        raise ValueError(f"{n} rays do not fit the simulation's {_pow2(rsl, MIN_RAY_SLOTS)} "
+                         f"ray slots (ray_slots={rsl}): pass ray_slots >= {n} (or leave it out)")
     b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
               trace=trace_file is not None, root=build_root, log=log)
     hits, ctrs = trace(image, rays, cfg)
@@ -368,9 +369,11 @@ def main(argv=None) -> int:
     ap.add_argument("--latency", type=int, default=None,
                     help="cycles of the three ideal memories (>= 2; default: --mem-latency, 20)")
     ap.add_argument("--idle", type=float, default=0.0,
-                    help="fraction of cycles without a ray offered, in 1/16 (default 0)")
+                    help="fraction of cycles without a ray offered (0 .. 15/16, in steps of "
+                         "1/16; default 0)")
     ap.add_argument("--stall", type=float, default=0.0,
-                    help="fraction of cycles results are back-pressured, in 1/16 (default 0)")
+                    help="fraction of cycles the results are back-pressured (0 .. 15/16; "
+                         "default 0)")
     ap.add_argument("--seed", type=int, default=1, help="LFSR seed for --idle/--stall")
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles (default 100000000)")

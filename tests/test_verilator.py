@@ -1,0 +1,161 @@
+"""The Verilator frame path (``tb/frame.py``, ``tb/verilator.py``, ``tb/verilator_main.cpp``):
+an RTC on a real image in Verilator against the golden model, cycle for cycle against the
+Amaranth simulator, the binary cache, and the errors users see.
+
+One small configuration (2 threads, 2 sub-units, 4x4 packets) is built once (~1-2 minutes on
+the shared 2-core machine, cached in build/verilator/ between sessions); every test reuses it.
+"""
+import dataclasses
+import random
+import struct
+import subprocess
+
+import numpy as np
+import pytest
+
+from model.config import Config
+from rtl.memory import IdealMemory
+from tb.common import drain, drive, run
+from tb.traversal import small_case
+
+from .conftest import ROOT
+
+vl = pytest.importorskip("tb.verilator")
+try:
+    vl.verilator_exe()
+    HAVE_VERILATOR = True
+except vl.VerilatorMissing:
+    HAVE_VERILATOR = False
+needs_verilator = pytest.mark.skipif(not HAVE_VERILATOR,
+                                     reason="verilator not installed (run `make setup`)")
+
+TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2)
+LATENCY = 4
+
+
+def case(scene, w, h, kd_cache):
+    return small_case(ROOT / f"scenes/{scene}.toml", w, h, TINY, kd_cache)
+
+
+def frame(image, rays, **kw):
+    kw = {"mem_latency": LATENCY, "progress": False, **kw}
+    return vl.run_frame(image, rays, TINY, **kw)
+
+
+def check(r, rays):
+    assert r.rays == len(rays)
+    assert r.mismatches == []
+    assert r.counter_mismatches() == {}
+    assert r.counters["packets_done"] == rays.n_packets
+    assert r.counters["int_ops"] > 0 and r.cycles > 0
+
+
+@needs_verilator
+def test_cornell_frame_matches_model(kd_cache):
+    """Cornell 16x16 (16 packets through 2 threads) with LFSR bubbles and back-pressure:
+    every ray's triangle, t, u, v bits and the counters equal the model's."""
+    image, rays = case("cornell", 16, 16, kd_cache)
+    r = frame(image, rays, idle=0.25, stall=0.3, seed=1)
+    check(r, rays)
+    assert r.counters["node_mem_reads"] == r.model["node_reads"]
+    assert r.counters["tri_mem_reads"] == r.model["int_reads"]
+    assert r.load_cycles >= len(image.data) + 8 * len(rays)
+
+
+@needs_verilator
+def test_same_cycles_as_pysim(kd_cache):
+    """The same RTC, rays, seed and bubbles in Amaranth's simulator (``run_rtc_free``): the
+    same counters, busy cycles included, and the same cycle count (pysim samples ``finished``
+    one clock edge later, so it reports one cycle more)."""
+    from tb.rtc import run_rtc_free
+    image, rays = case("cornell", 4, 4, kd_cache)
+    r = frame(image, rays, idle=0.25, stall=0.25, seed=7)
+    p = run_rtc_free(image, rays, TINY, mem_latency=LATENCY, idle=0.25, stall=0.25, seed=7)
+    check(r, rays)
+    assert p.mismatches == []
+    assert {k: r.counters[k] for k in p.counters} == p.counters
+    assert "trav_busy" in p.counters and "sub_busy" in p.counters
+    assert r.cycles == p.cycles - 1
+
+
+@needs_verilator
+def test_second_scene_reuses_the_binary(kd_cache):
+    """Office (a 124 k-word image) runs on the binary Cornell built: loaded, not rebuilt."""
+    image, rays = case("cornell", 4, 4, kd_cache)
+    first = frame(image, rays)
+    image, rays = case("office", 8, 8, kd_cache)
+    r = frame(image, rays, stall=0.5, seed=3)
+    check(r, rays)
+    assert not r.build.built and r.build.binary == first.build.binary
+    assert r.build.binary.exists()
+
+
+def test_build_key_follows_configuration_and_sources(tmp_path, monkeypatch):
+    kw = {"mem_words": 1 << 17, "ray_slots": 1 << 12, "mem_latency": 4}
+    k = vl.build_key(TINY, **kw)
+    assert k == vl.build_key(TINY, **kw)
+    assert k != vl.build_key(TINY.replace(threads=4), **kw)
+    assert k != vl.build_key(TINY, **{**kw, "mem_latency": 5})
+    assert k != vl.build_key(TINY, **{**kw, "mem_words": 1 << 18})
+    assert any(p.name == "traversal.py" for p in vl._sources())
+    src = tmp_path / "unit.py"
+    src.write_text("a = 1\n")
+    monkeypatch.setattr(vl, "ROOT", tmp_path)
+    monkeypatch.setattr(vl, "_sources", lambda: [src])
+    before = vl.build_key(TINY, **kw)
+    src.write_text("a = 2\n")
+    assert vl.build_key(TINY, **kw) != before
+
+
+@needs_verilator
+def test_bad_inputs_say_what_is_wrong(kd_cache, tmp_path):
+    image, rays = case("cornell", 4, 4, kd_cache)
+    with pytest.raises(vl.FrameError, match=r"max_cycles=300 .*raise"):
+        frame(image, rays, max_cycles=300)
+    huge = dataclasses.replace(image, data=np.zeros((1 << 17) + 1, np.uint64))
+    with pytest.raises(ValueError, match=r"131073 words, the simulation holds 131072 .*"
+                                         r"pass mem_words >= 131073"):
+        frame(huge, rays, mem_words=1000)
+    with pytest.raises(ValueError, match=r"idle=1.0.*\[0, 15/16\]"):
+        vl.write_input(tmp_path / "x.bin", image, rays, TINY, idle=1.0)
+    # the binary itself: a truncated input file, a block beyond the memory
+    b = vl.build(TINY, mem_latency=LATENCY)
+    good = tmp_path / "in.bin"
+    vl.write_input(good, image, rays, TINY)
+    bad = tmp_path / "bad.bin"
+    bad.write_bytes(good.read_bytes()[:1000])
+    p = subprocess.run([str(b.binary), str(bad), str(tmp_path / "o.bin")],
+                                     capture_output=True, text=True)
+    assert p.returncode == 1 and "truncated input file" in p.stderr
+    big = tmp_path / "big.bin"
+    big.write_bytes(vl.IN_MAGIC + struct.pack("<QIIQ", 1, 0, b.mem_words - 1, 2) +
+                    bytes(16))
+    p = subprocess.run([str(b.binary), str(big), str(tmp_path / "o.bin")],
+                                     capture_output=True, text=True)
+    assert p.returncode == 1 and f"the design has {b.mem_words}" in p.stderr
+
+
+def test_ideal_memory_load_port():
+    """``IdealMemory(load=True)``: words written through the load port are read back, in
+    request order with their tags."""
+    dut = IdealMemory(None, addr_width=6, tag_width=4, latency=3, load=True, depth=40)
+    assert dut.depth == 64
+    words = [random.Random(1).getrandbits(64) for _ in range(64)]
+    addrs = [5, 63, 0, 17, 17, 40]
+    got = []
+
+    async def load_then_read(ctx):
+        ctx.set(dut.ld_en, 1)
+        for a, w in enumerate(words):
+            ctx.set(dut.ld_addr, a)
+            ctx.set(dut.ld_data, w)
+            await ctx.tick()
+        ctx.set(dut.ld_en, 0)
+        await drive(ctx, dut.port.req, [{"addr": a, "tag": i} for i, a in enumerate(addrs)])
+
+    async def sink(ctx):
+        await drain(ctx, dut.port.resp, len(addrs), out=got)
+
+    run(dut, load_then_read, sink)
+    assert [p["data"] for _, p in got] == [words[a] for a in addrs]
+    assert [p["tag"] for _, p in got] == list(range(len(addrs)))
