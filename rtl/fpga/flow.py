@@ -228,6 +228,16 @@ def _fmax_text(e: dict, fmax: dict | None) -> str:
     return "-"
 
 
+def _latency_text(e: dict) -> str:
+    """An fp_* top's latency; for a bigger top the FP unit latencies of its Config."""
+    if e.get("latency") is not None:
+        return str(e["latency"])
+    c = e.get("config", {})
+    lat = [f"{k} {c.get(f'fp_{k}_latency') or 'default'}" for k in ("add", "mul", "div")]
+    return ", ".join(lat) if any(c.get(f"fp_{k}_latency") for k in ("add", "mul", "div")) \
+        else "default"
+
+
 def table(runs: dict) -> str:
     """Markdown table of the runs in ``report.json``."""
     rows = ["| run | top | format | FP latency | LUT4 total (logic + carry + RAM) | FF | "
@@ -243,7 +253,7 @@ def table(runs: dict) -> str:
         cp = next((c for c in e.get("critical_paths", []) if c["from_clock"] == c["to_clock"]),
                   None)
         path = f"`{cp['start']}` -> `{cp['end']}` ({cp['delay_ns']} ns)" if cp else "-"
-        rows.append(f"| {label} | {e['top']} | {e['fmt']} | {e.get('latency') or '-'} | "
+        rows.append(f"| {label} | {e['top']} | {e['fmt']} | {_latency_text(e)} | "
                     f"{lut_total(r)} ({r['lut4']} + {2 * r['carry']} + {6 * r['lutram']}) | "
                     f"{r['ff'] - e['wrapper']['ff']} + {e['wrapper']['ff']} | {r['dsp']} | "
                     f"{r['bram']} | "
