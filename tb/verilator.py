@@ -57,7 +57,7 @@ FLAGS = ["--cc", "--exe", "--build", "-j", "2", "-Wno-WIDTH", "-Wno-fatal",
          "-MAKEFLAGS", "CFG_CXXFLAGS_STD=-std=gnu++17",
          "-MAKEFLAGS", "CFG_LDLIBS_THREADS=-pthread"]
 MIN_MEM_WORDS = 1 << 17           # office (124 k words) and Cornell share a binary
-MIN_RAY_SLOTS = 1 << 12           # 64x48 rays
+MIN_RAY_SLOTS = 1 << 16           # up to 256x256 rays (4 MB of ray memory)
 IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
 
 
@@ -123,14 +123,17 @@ class FrameBuild:
 
 
 def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_RAY_SLOTS,
-          mem_latency: int = 20, trace: bool = False, root: Path | str = BUILD_ROOT,
+          mem_latency: int = 20, trace: bool | str = False, root: Path | str = BUILD_ROOT,
           log=sys.stderr) -> FrameBuild:
     """Export ``RTCFrame`` and compile it with Verilator, or reuse the cached binary.
 
     ``mem_words`` / ``ray_slots`` are rounded up to powers of two (at least 2^17 words and
-    2^12 rays, so small scenes share one binary). Safe against concurrent builds (file lock).
+    2^16 rays, so small scenes and frames up to 256x256 share one binary). Safe against
+    concurrent builds (file lock).
     """
     mem_words, ray_slots = _pow2(mem_words, MIN_MEM_WORDS), _pow2(ray_slots, MIN_RAY_SLOTS)
+    if trace not in (False, "fst", "vcd"):
+        raise ValueError(f"trace={trace!r}: False, 'fst' or 'vcd'")
     if mem_latency < 2:
         raise ConfigError(f"memory latency {mem_latency}: must be >= 2 cycles (IdealMemory)")
     exe = verilator_exe()
@@ -162,11 +165,15 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         t1 = time.perf_counter()
         print(f"tb.verilator: export {t1 - t0:.1f} s; compiling with Verilator ...", file=log,
               flush=True)
-        cmd = [exe, *FLAGS, *(["--trace-fst"] if trace else []), "--top-module", TOP,
+        tflags = {False: [], "fst": ["--trace-fst"], "vcd": ["--trace"]}[trace]
+        cmd = [exe, *FLAGS, *tflags, "--top-module", TOP,
                "-o", "Vframe", "-Mdir", "obj_dir", f"{TOP}.v", MEM_V.name, MAIN_CPP.name]
         p = subprocess.run(cmd, cwd=d, capture_output=True, text=True)
         (d / "build.log").write_text(p.stdout + p.stderr)
         if p.returncode or not binary.exists():
+            if "lz4.h" in p.stdout + p.stderr:
+                raise RuntimeError("Verilator's FST writer needs the LZ4 headers: apt-get "
+                                   "install liblz4-dev, or trace to a .vcd file instead")
             raise RuntimeError(f"Verilator build failed (exit {p.returncode}) in {d}; "
                                f"command: {' '.join(cmd)}\n{(p.stdout + p.stderr)[-4000:]}")
         secs = time.perf_counter() - t0
@@ -263,6 +270,12 @@ def _field(words: np.ndarray, offset: int, width: int) -> np.ndarray:
     return (v & np.uint64((1 << width) - 1)).astype(np.int64)
 
 
+def _trace_kind(path) -> bool | str:
+    if path is None:
+        return False
+    return "vcd" if str(path).endswith(".vcd") else "fst"
+
+
 @dataclass
 class VerilatorRun(RTCRun):
     build: FrameBuild | None = None
@@ -293,7 +306,7 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
         raise ValueError(f"{n} rays do not fit the simulation's {_pow2(rsl, MIN_RAY_SLOTS)} "
                          f"ray slots (ray_slots={rsl}): pass ray_slots >= {n} (or leave it out)")
     b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
-              trace=trace_file is not None, root=build_root, log=log)
+              trace=_trace_kind(trace_file), root=build_root, log=log)
     hits, ctrs = trace(image, rays, cfg)
     want = expected(hits, cfg)
     with tempfile.TemporaryDirectory(prefix="rtcframe") as tmp:
@@ -378,7 +391,8 @@ def main(argv=None) -> int:
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles (default 100000000)")
     ap.add_argument("--trace", metavar="OUT.fst",
-                    help="write an FST waveform (builds a separate, slower tracing binary)")
+                    help="write a waveform of every signal: FST, or VCD if the name ends in "
+                         ".vcd (builds a separate, slower tracing binary; for short runs)")
     ap.add_argument("--json", metavar="OUT.json", help="write the figures as JSON")
     ap.add_argument("--build-dir", default=str(BUILD_ROOT),
                     help="where binaries are cached (default build/verilator)")

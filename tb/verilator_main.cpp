@@ -1,6 +1,6 @@
 // C++ main for the Verilator build of tb/frame.py's RTCFrame (driven by tb/verilator.py).
 //
-//   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE.fst]
+//   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE]   (FILE: FST or VCD, as built)
 //
 // IN (little-endian): "RTCIN01\0", u64 blocks, then per block: u32 sel, u32 addr, u64 count,
 //   count x u64 words (written through the load port at ld_addr = addr, addr + 1, ...).
@@ -23,8 +23,12 @@
 
 #include "Vframe.h"
 #include "verilated.h"
-#if VM_TRACE
+#if VM_TRACE_FST
 #include "verilated_fst_c.h"
+typedef VerilatedFstC Trace;
+#elif VM_TRACE
+#include "verilated_vcd_c.h"
+typedef VerilatedVcdC Trace;
 #endif
 
 static void die(const char* what, const std::string& detail) {
@@ -36,7 +40,7 @@ struct Sim {
     VerilatedContext* ctx;
     Vframe* top;
 #if VM_TRACE
-    VerilatedFstC* tfp = nullptr;
+    Trace* tfp = nullptr;
 #endif
     uint64_t time = 0;
 
@@ -113,7 +117,7 @@ int main(int argc, char** argv) {
 #if VM_TRACE
     if (!trace_path.empty()) {
         s.ctx->traceEverOn(true);
-        s.tfp = new VerilatedFstC;
+        s.tfp = new Trace;
         s.top->trace(s.tfp, 99);
         s.tfp->open(trace_path.c_str());
     }

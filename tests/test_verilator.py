@@ -91,7 +91,7 @@ def test_second_scene_reuses_the_binary(kd_cache):
 
 
 def test_build_key_follows_configuration_and_sources(tmp_path, monkeypatch):
-    kw = {"mem_words": 1 << 17, "ray_slots": 1 << 12, "mem_latency": 4}
+    kw = {"mem_words": 1 << 17, "ray_slots": 1 << 16, "mem_latency": 4}
     k = vl.build_key(TINY, **kw)
     assert k == vl.build_key(TINY, **kw)
     assert k != vl.build_key(TINY.replace(threads=4), **kw)
