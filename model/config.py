@@ -29,6 +29,8 @@ class Config:
     threads: int = 16              # packets in flight per RTC
     trav_subunits: int = 4         # traversal sub-units per RTC (a packet is split statically)
     trav_sync: bool = True         # sub-units run synchronously (False: asynchronously)
+    int_tri_slots: int = 8         # triangles the intersection unit holds (fetched ahead + tested)
+    list_outstanding: int = 8      # list-word reads the list unit keeps in flight
     # pipeline stages of the RTL's FP units (0: the unit's default: add 3, mul 3, divider
     # ceil((M+3)/4)+1 = 8 at binary32); more stages trade latency for clock rate (docs/fpga.md)
     fp_add_latency: int = 0
@@ -75,6 +77,12 @@ class Config:
             if not 0 <= getattr(self, name) <= 64:
                 raise ConfigError(f"{name}={getattr(self, name)} must be in 0..64 (pipeline "
                                   "stages of that FP unit; 0 = the unit's default)")
+        if self.int_tri_slots < 2 or not _pow2(self.int_tri_slots):
+            raise ConfigError(f"int_tri_slots={self.int_tri_slots} must be a power of two >= 2 "
+                              "(one triangle is tested while the next ones are fetched)")
+        if self.list_outstanding < 2 or not _pow2(self.list_outstanding):
+            raise ConfigError(f"list_outstanding={self.list_outstanding} must be a power of two "
+                              ">= 2")
         if self.reflect_depth < 0:
             raise ConfigError(f"reflect_depth={self.reflect_depth} must be >= 0")
         if self.oversampling < 1:

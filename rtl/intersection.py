@@ -234,8 +234,10 @@ class IntersectionUnit(wiring.Component):
     ``lane_out`` is full and not taken.
     """
 
-    def __init__(self, cfg: Config, *, addr_width: int = 32, tri_slots: int = 4,
+    def __init__(self, cfg: Config, *, addr_width: int = 32, tri_slots: int | None = None,
                  latencies: dict | None = None):
+        if tri_slots is None:
+            tri_slots = cfg.int_tri_slots
         if tri_slots < 2 or tri_slots & (tri_slots - 1):
             self._MustUse__silence = True        # never elaborated: no warning
             raise ValueError(f"IntersectionUnit tri_slots={tri_slots}: must be a power of two "

@@ -39,7 +39,9 @@ class ListUnit(wiring.Component):
     Throughput: one entry per cycle when memory keeps up (a word serves two entries).
     """
 
-    def __init__(self, cfg: Config, *, addr_width: int = 32, outstanding: int = 8):
+    def __init__(self, cfg: Config, *, addr_width: int = 32, outstanding: int | None = None):
+        if outstanding is None:
+            outstanding = cfg.list_outstanding
         if outstanding < 2 or outstanding & (outstanding - 1):
             self._MustUse__silence = True        # never elaborated: no warning
             raise ValueError(f"ListUnit outstanding={outstanding}: must be a power of two >= 2 "

@@ -1,0 +1,37 @@
+"""Config: the RTL-only parameters (FP latencies, intersection slots, list reads in flight) are
+checked with errors that name them, and the units take their sizes from the Config."""
+import pytest
+
+from model.config import Config, ConfigError
+from rtl.intersection import IntersectionUnit
+from rtl.list import ListUnit
+from rtl.traversal import TravSubunit
+
+SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
+
+
+@pytest.mark.parametrize("field,value", [
+    ("fp_add_latency", -1), ("fp_mul_latency", 65), ("fp_div_latency", -3),
+    ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
+    ("list_outstanding", 1)])
+def test_bad_rtl_parameters_are_named(field, value):
+    with pytest.raises(ConfigError, match=field):
+        Config(**{field: value})
+
+
+def test_units_take_latencies_and_sizes_from_config():
+    base = Config(**SMALL)
+    slow = base.replace(fp_add_latency=5, fp_mul_latency=4, int_tri_slots=16,
+                        list_outstanding=4)
+    assert base.fp_latencies() == {"add": None, "mul": None, "div": None}
+    sub0, sub1 = TravSubunit(base), TravSubunit(slow)
+    assert (sub0.add.latency, sub0.mul.latency) == (3, 3)
+    assert (sub1.add.latency, sub1.mul.latency) == (5, 4)
+    assert sub1.LAT - sub0.LAT == 3
+    i0, i1 = IntersectionUnit(base), IntersectionUnit(slow)
+    assert (i0.tri_slots, i1.tri_slots) == (8, 16)
+    assert i1.pipe.latency > i0.pipe.latency
+    assert i1.pipe.latencies["add"] == 5 and i1.pipe.latencies["mul"] == 4
+    assert ListUnit(slow).outstanding == 4 and ListUnit(base).outstanding == 8
+    for u in (sub0, sub1, i0, i1):
+        u._MustUse__silence = True
