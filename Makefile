@@ -27,7 +27,11 @@ bench: setup
 	mkdir -p build/bench
 	$(PY) -m model.bench --out build/bench
 	$(PY) -m model.bench_memory --scene $(BENCH_SCENE) --out build/bench
-	if [ -f model/bench_threads.py ]; then $(PY) -m model.bench_threads --out build/bench; fi
+	$(PY) -m model.bench_threads --out build/bench
+	$(PY) -m model.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
+	    --out build/bench --name threads_standard.json
+	$(PY) -m model.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
+	    --mode async --out build/bench --name threads_standard_async.json
 	$(PY) -m pytest -q -m slow
 
 clean:

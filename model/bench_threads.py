@@ -1,14 +1,14 @@
 """Threads sweep: cycles of one RTC (Amaranth RTL, ideal memories) for 1, 2, 4, 8, 16 packets in
 flight, and the speedup over one thread next to the paper's (8 -> 7.5x, 16 -> 12.2x).
 
-Run: ``.venv/bin/python -m model.bench_threads [--scene scenes/cornell.toml] [--res 16x16]
-[--tile 4x4] [--subunits 2] [--latency 20] [--threads 1,2,4,8,16] [--sim amaranth|verilator]
-[--out build/bench]``; writes ``<out>/threads.json``. Every run is checked against the golden
-model (ray results and counters; a mismatch is an error). ``--sim amaranth`` (default) runs the
-RTC in Amaranth's simulator (self-stimulating, no Python per cycle), a few hundred cycles per
-second: keep the image small. ``--sim verilator`` runs it through ``tb.verilator`` (one build
-of about a minute per thread count, cached in build/verilator/, then ~10^5 cycles/s), for
-bigger images.
+Run: ``.venv/bin/python -m model.bench_threads [--scene scenes/cornell.toml] [--res 64x64]
+[--tile 4x4] [--subunits 2] [--mode sync|async] [--latency 20] [--threads 1,2,4,8,16]
+[--sim verilator|amaranth] [--out build/bench] [--name threads.json]``. Every run is checked
+against the golden model (ray results and counters; a mismatch is an error). ``--sim
+verilator`` (default) runs the RTC through ``tb.verilator`` (one build of 1-2 minutes per thread
+count, cached in build/verilator/, then ~2*10^5 cycles/s); ``--sim amaranth`` runs it in
+Amaranth's simulator (self-stimulating, no Python per cycle), a few hundred cycles per second:
+keep the image tiny (e.g. 16x16).
 """
 from __future__ import annotations
 
@@ -62,15 +62,18 @@ def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], 
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scene", default="scenes/cornell.toml")
-    ap.add_argument("--res", default="16x16", help="image WxH (default 16x16)")
+    ap.add_argument("--scene", default="scenes/cornell.toml", help="scene TOML (cornell)")
+    ap.add_argument("--res", default="64x64", help="image WxH (default 64x64)")
     ap.add_argument("--tile", default="4x4", help="packet tile WxH (default 4x4: 16 rays)")
     ap.add_argument("--subunits", type=int, default=2, help="traversal sub-units (default 2)")
     ap.add_argument("--latency", type=int, default=20, help="memory latency in cycles (>= 2)")
-    ap.add_argument("--threads", default="1,2,4,8,16")
-    ap.add_argument("--sim", default="amaranth", choices=("amaranth", "verilator"),
+    ap.add_argument("--threads", default="1,2,4,8,16", help="comma list of thread counts")
+    ap.add_argument("--mode", choices=("sync", "async"), default="sync",
+                    help="traversal sub-units synchronous (default) or asynchronous")
+    ap.add_argument("--sim", default="verilator", choices=("amaranth", "verilator"),
                     help="simulator: amaranth (pysim, small images) or verilator (tb.verilator)")
-    ap.add_argument("--out", default="build/bench")
+    ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
+    ap.add_argument("--name", help="output file name (default threads.json)")
     args = ap.parse_args(argv)
     try:
         w, h = (int(x) for x in args.res.lower().split("x"))
@@ -79,11 +82,14 @@ def main(argv=None) -> dict:
     except ValueError:
         raise SystemExit(f"bench_threads: --res {args.res!r} / --tile {args.tile!r} / --threads "
                          f"{args.threads!r}: write WxH (e.g. 16x16) and a comma list (1,2,4)")
-    cfg = Config(tile_w=tw, tile_h=th, trav_subunits=args.subunits)
+    cfg = Config(tile_w=tw, tile_h=th, trav_subunits=args.subunits,
+                 trav_sync=args.mode == "sync")
     res = sweep(args.scene, w, h, cfg, threads, args.latency, sim=args.sim)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "threads.json").write_text(json.dumps(res, indent=1))
+    out_file = out / (args.name or "threads.json")
+    out_file.write_text(json.dumps(res, indent=1))
+    print(f"wrote {out_file}")
     for run in res["runs"]:
         print(f"{run['threads']:>3} threads: {run['cycles']:>8} cycles  speedup "
               f"{run['speedup']}  (paper {run['paper_speedup']})")
