@@ -17,15 +17,18 @@ Info: SA placement time 1299.70s
 Info: Max frequency for clock '$glbnet$clk$TRELLIS_IO_IN': 26.54 MHz (FAIL at 100.00 MHz)
 Info: Routing..
 Info: Router2 time 301.25s
+Info: Routing complete.
+Info: Router1 time 10.53s
 Info: Max frequency for clock '$glbnet$clk$TRELLIS_IO_IN': 31.02 MHz (FAIL at 100.00 MHz)
 """
 
 
 def test_pnr_times_and_placement_estimate():
-    assert pnr_times(LOG) == {"heap_place": 668.7, "sa_place": 1299.7, "route": 301.25}
+    assert pnr_times(LOG) == {"heap_place": 668.7, "sa_place": 1299.7, "router2": 301.25,
+                              "router1": 10.53}
     assert placement_fmax(LOG) == 26.54           # after refinement, not the earlier line
     r1 = "Info: SA placement time 5.67s\nInfo: Routing complete.\nInfo: Router1 time 10.41s\n"
-    assert pnr_times(r1) == {"sa_place": 5.67, "route": 10.41}
+    assert pnr_times(r1) == {"sa_place": 5.67, "router1": 10.41}
     assert placement_fmax("Info: HeAP Placer Time: 1.0s\n") is None   # placement unfinished
 
 

@@ -69,9 +69,9 @@ def pnr_times(log: str) -> dict[str, float]:
     out = {}
     for key, pat in (("heap_place", r"HeAP Placer Time: ([\d.]+)s"),
                      ("sa_place", r"SA placement time ([\d.]+)s"),
-                     ("route", r"Router2 time ([\d.]+)s"),
-                     ("route", r"Routing complete\.\s*\n.*?Router1 time ([\d.]+)s")):
-        m = re.search(pat, log, re.S)
+                     ("router2", r"Router2 time ([\d.]+)s"),
+                     ("router1", r"Router1 time ([\d.]+)s")):   # after router2: a legality pass
+        m = re.search(pat, log)
         if m:
             out[key] = float(m.group(1))
     return out
