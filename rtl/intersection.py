@@ -112,7 +112,8 @@ class IntersectPipe(wiring.Component):
     Operations (all rounded to the format, the model's order): 9 subs (vertices - origin), 9
     muls (Sx, Sy times the z of each vertex; Sz times it), 6 subs (shear), 6 muls + 3 subs (edge
     functions U, V, W), 2 adds (det), 3 muls + 2 adds (T), 1 div (1/det), 3 muls (t, u, v):
-    20 add/sub, 21 mul, 1 div. Latency (binary32, default FP latencies 3/3/8): 32 cycles.
+    20 add/sub, 21 mul, 1 div. The operands are registered first (they come from block RAM).
+    Latency (binary32, default FP latencies 3/3/8): 33 cycles.
     Throughput: one test per cycle in which ``en`` is 1 (``en`` = 0 holds every stage).
     ``latencies``: optional ``{"add": n, "mul": n, "div": n}`` for the FP units.
     """
@@ -142,16 +143,20 @@ class IntersectPipe(wiring.Component):
     def _build(self, m, dry=False):
         fmt, w = self.fmt, self.fmt.width
         sch = _Schedule(m, self.en, fmt, self.latencies, dry)
-        kx, ky, kz = self.k[0], self.k[1], self.k[2]
-        sx, sy, sz = (self.s[0], 0), (self.s[1], 0), (self.s[2], 0)
+        # the operands are registered first (they come straight from block RAM in the unit)
+        t0 = 1
+        kx, ky, kz = (sch.at(self.k[i], 0, t0) for i in range(3))
+        sx, sy, sz = ((sch.at(self.s[i], 0, t0), t0) for i in range(3))
+        tri = [sch.at(self.tri[i], 0, t0) for i in range(9)]
+        org = [sch.at(self.org[i], 0, t0) for i in range(3)]
         # -- vertices relative to the origin, then into the ray's sheared space -------------------
-        rel = [sch.op("sub", (self.tri[3 * v + a], 0), (self.org[a], 0), f"rel{v}{a}")
+        rel = [sch.op("sub", (tri[3 * v + a], t0), (org[a], t0), f"rel{v}{a}")
                for v in range(3) for a in range(3)]
         sheared, zs = [], []
         for v, name in enumerate("abc"):
             p = rel[3 * v:3 * v + 3]
             t = p[0][1]
-            px, py, pz = ((_pick([q[0] for q in p], sch.at(kk, 0, t)), t) for kk in (kx, ky, kz))
+            px, py, pz = ((_pick([q[0] for q in p], sch.at(kk, t0, t)), t) for kk in (kx, ky, kz))
             # name the picks: one mux each, shared by every use
             px, py, pz = [(self._wire(m, q[0], f"{name}{c}_pick"), q[1])
                           for q, c in ((px, "x"), (py, "y"), (pz, "z"))]

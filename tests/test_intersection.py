@@ -22,7 +22,7 @@ def test_random_tests_cover_the_corner_cases():
 
 def test_pipe_random_binary32_exact_cycle():
     r = run_pipe(random_tests(240, FMT, seed=1), FMT, seed=1, p_bubble=0.2, p_stall=0.2)
-    assert r.latency == 32 and r.cycles >= 240 + 32
+    assert r.latency == 33 and r.cycles >= 240 + 33
 
 
 @pytest.mark.slow
