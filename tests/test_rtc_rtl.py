@@ -33,6 +33,15 @@ def test_rtc_matches_model(scene, res, seed, kd_cache):
     check(r)
 
 
+def test_rtc_matches_model_with_deep_fp_pipelines_and_async_subunits(kd_cache):
+    """The FPGA timing configuration (add 6, mul 5, div 20 stages) with asynchronous sub-units:
+    the same bits and counters (the units re-time themselves from the FP latencies)."""
+    cfg = TINY.replace(fp_add_latency=6, fp_mul_latency=5, fp_div_latency=20, trav_sync=False)
+    image, rays = small_case(ROOT / "scenes/office.toml", 4, 4, cfg, kd_cache)
+    r = run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=4)
+    check(r)
+
+
 @pytest.mark.slow
 def test_rtc_python_testbench_standard(kd_cache):
     """Standard configuration, 2 packets of 64 rays, Python-driven random bubbles and stalls."""
