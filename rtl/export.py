@@ -259,7 +259,7 @@ def main(argv=None) -> None:
         return
     try:
         path = export(args.top, config_from_args(args), args.out, args.latency, args.name)
-    except (ConfigError, ValueError, NotImplementedError) as e:
+    except (ConfigError, ValueError) as e:
         raise SystemExit(f"rtl.export: {e}")
     print(f"rtl.export: wrote {path} ({path.stat().st_size // 1024} KB)")
 

@@ -40,10 +40,11 @@ def yosys_exe() -> str:
 
 
 def cell_counts(stat: str) -> dict[str, int]:
-    """Cell type -> count from Yosys ``stat`` output (both its old and new layouts)."""
+    """Cell type -> count from Yosys ``stat`` output (both its old and new layouts; the new one
+    may put an area column between count and name)."""
     counts = {}
     for line in stat.splitlines():
-        m = re.match(r"^\s+(\d+)\s+(\$?[A-Za-z_][\w$]*)\s*$", line) or \
+        m = re.match(r"^\s+(\d+)\s+(?:[\d.]+\s+)?(\$?[A-Za-z_][\w$]*)\s*$", line) or \
             re.match(r"^\s+(\$?[A-Za-z_][\w$]*)\s+(\d+)\s*$", line)
         if m:
             a, b = m.groups()

@@ -31,6 +31,7 @@ from amaranth.back import verilog
 
 from model.config import Config, ConfigError
 from rtl.export import TOPS, add_config_args, build_top, config_from_args
+from rtl.fp.synth import cell_counts
 from .wrapper import PinWrapper, overhead
 
 __all__ = ["run", "parse_stat", "parse_report", "table", "main"]
@@ -52,16 +53,9 @@ def tool(name: str) -> str:
 
 
 def parse_stat(text: str) -> dict[str, int]:
-    """ECP5 cell counts from Yosys ``stat`` (top-level, flattened design)."""
-    counts: dict[str, int] = {}
-    for line in text.splitlines():
-        m = re.match(r"^\s+(\d+)\s+(?:[\d.]+\s+)?([A-Z][A-Z0-9_]+)\s*$", line) or \
-            re.match(r"^\s+([A-Z][A-Z0-9_]+)\s+(\d+)\s*$", line)
-        if m:
-            a, b = m.groups()
-            n, cell = (int(a), b) if a.isdigit() else (int(b), a)
-            counts[cell] = n
-    return counts
+    """ECP5 cell counts from Yosys ``stat`` (top-level, flattened design): the upper-case
+    library cells of :func:`rtl.fp.synth.cell_counts`."""
+    return {k: n for k, n in cell_counts(text).items() if re.fullmatch(r"[A-Z][A-Z0-9_]+", k)}
 
 
 def pnr_times(log: str) -> dict[str, float]:
@@ -300,7 +294,7 @@ def main(argv=None) -> None:
         e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
                 seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
                 placer=args.placer, reuse=args.reuse)
-    except (ConfigError, ValueError, NotImplementedError) as err:
+    except (ConfigError, ValueError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
                                              "synth_s", "pnr_s")}, indent=1))
