@@ -26,7 +26,25 @@ from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import RayIn, RayResult
 from .traversal import NODE_BITS, Traversal
 
-__all__ = ["RTC", "RTCSim", "COUNTERS"]
+__all__ = ["RTC", "RTCSim", "COUNTERS", "HEADER", "drive_header", "attach_memories"]
+
+# the memory image's header constants an RTC top takes as inputs
+HEADER = ("node_base", "list_base", "tri_base", "root")
+
+
+def drive_header(m: Module, top, values) -> None:
+    """Drive ``top``'s header inputs (``HEADER``) from ``values``: an object with those
+    attributes (a memory image) or a dict (e.g. of loaded constant registers)."""
+    for k in HEADER:
+        m.d.comb += getattr(top, k).eq(values[k] if isinstance(values, dict) else getattr(values, k))
+
+
+def attach_memories(m: Module, rtc, mems: dict) -> None:
+    """Add each memory of ``mems`` (``{"node" | "list" | "tri": memory}``) as a submodule and
+    connect it to the RTC's port of that name."""
+    for name, mem in mems.items():
+        m.submodules[f"{name}_mem"] = mem
+        wiring.connect(m, getattr(rtc, f"{name}_mem"), mem.port)
 
 COUNTER_BITS = 32
 # counter port -> (unit, port of that unit)
@@ -149,12 +167,8 @@ class RTCSim(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         m.submodules.rtc = rtc = self.rtc
-        for name, mem in self.mems.items():
-            m.submodules[f"{name}_mem"] = mem
-            wiring.connect(m, getattr(rtc, f"{name}_mem"), mem.port)
-        img = self.image
-        m.d.comb += [rtc.node_base.eq(img.node_base), rtc.list_base.eq(img.list_base),
-                     rtc.tri_base.eq(img.tri_base), rtc.root.eq(img.root)]
+        attach_memories(m, rtc, self.mems)
+        drive_header(m, rtc, self.image)
         wiring.connect(m, wiring.flipped(self.rays), rtc.rays)
         wiring.connect(m, rtc.results, wiring.flipped(self.results))
         return m

@@ -38,7 +38,7 @@ from amaranth.utils import ceil_log2
 
 from model.config import Config
 from rtl.memory import IdealMemory
-from rtl.rtc import COUNTERS, RTC
+from rtl.rtc import COUNTERS, RTC, attach_memories, drive_header
 from rtl.rtc_streams import RayIn, RayResult
 
 __all__ = ["RTCFrame", "VerilogMemory", "CONSTS", "SEL_IMAGE", "SEL_RAYS", "SEL_CONST", "counter_names",
@@ -126,12 +126,9 @@ class _Run(Elaboratable):
         cfg = t.cfg
         m = Module()
         m.submodules.rtc = rtc = t.rtc
-        for name, mem in t.mems.items():
-            m.submodules[f"{name}_mem"] = mem
-            wiring.connect(m, getattr(rtc, f"{name}_mem"), mem.port)
+        attach_memories(m, rtc, t.mems)
         c = t.const
-        m.d.comb += [rtc.node_base.eq(c["node_base"]), rtc.list_base.eq(c["list_base"]),
-                     rtc.tri_base.eq(c["tri_base"]), rtc.root.eq(c["root"])]
+        drive_header(m, rtc, c)
 
         # feeder: ray slot i -> rays, LFSR bubbles (as RTCSelfTest)
         rd = t.ray_rd

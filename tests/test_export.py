@@ -22,6 +22,7 @@ from model.fp import FPFormat
 from rtl import export as ex
 from rtl.fpga import PinWrapper, port_bits
 from rtl.fpga.flow import parse_report, parse_stat
+from rtl.rtc import drive_header
 
 ROOT = Path(__file__).resolve().parents[1]
 VLT = ROOT / "rtl" / "saarcor.vlt"
@@ -238,9 +239,7 @@ class _TopSim(wiring.Component):
         m.submodules.top = top = self.rtc
         m.submodules.memory = self.memory
         wiring.connect(m, top.mem, self.memory.port)
-        img = self.image
-        m.d.comb += [top.node_base.eq(img.node_base), top.list_base.eq(img.list_base),
-                     top.tri_base.eq(img.tri_base), top.root.eq(img.root)]
+        drive_header(m, top, self.image)
         wiring.connect(m, wiring.flipped(self.rays), top.rays)
         wiring.connect(m, top.results, wiring.flipped(self.results))
         return m
