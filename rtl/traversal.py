@@ -465,7 +465,7 @@ class Traversal(wiring.Component):
         e_mask = Signal(L)
         e_sp = Signal(db)
         e_cur = Signal()
-        e_oct = Signal(3)
+        e_oct = Signal(3)                            # the octant a new pass starts
         axis = e_word[:2]
         field = e_word[2:32]
         hi = e_word[32:]
@@ -535,7 +535,7 @@ class Traversal(wiring.Component):
                 with m.If(e_any):
                     m.d.sync += [e_t.eq(e_idx), e_kind.eq(state[e_idx]), e_word.eq(word[e_idx]),
                                  e_mask.eq(mask[e_idx]), e_sp.eq(sp[e_idx]), e_cur.eq(cur[e_idx]),
-                                 e_oct.eq(octant[e_idx]), e_ptr.eq(e_idx + 1)]
+                                 e_ptr.eq(e_idx + 1)]
                     m.next = "DISPATCH"
             with m.State("DISPATCH"):
                 with m.If(e_kind == HAVE_NODE):

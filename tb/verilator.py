@@ -19,11 +19,9 @@ CLI: ``.venv/bin/python -m tb.verilator --scene scenes/office.toml --res 64x48 [
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import fcntl
 import hashlib
 import json
-import os
 import shutil
 import struct
 import subprocess
