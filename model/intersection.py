@@ -10,7 +10,10 @@ Hardware: one ray per cycle, fully pipelined; the triangle is fetched once per p
 import numba
 import numpy as np
 
+from .events import EV_INT, record
 from .fp import fadd, fdiv, fmul, fsub
+from .lanes import lowest_lane
+from .layout import TRI_WORDS
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
@@ -149,9 +152,6 @@ def intersect32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
     return True, t, u, v
 
 
-TRI_WORDS = 5   # a triangle occupies 5 aligned 64-bit words (288 bits of geometry + its id)
-
-
 @numba.njit(cache=True, inline="always")
 def fetch_triangle(mem, tri_base, i, out):
     """Read triangle ``i`` (5 words) into ``out`` (9 float32); returns its scene-order id."""
@@ -166,3 +166,39 @@ def fetch_triangle(mem, tri_base, i, out):
         else:
             return np.int64(hi)
     return np.int64(-1)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, rec, rec_n, pid):
+    """The intersection unit on one triangle: test every lane of ``mask`` in lane order (the
+    issue stage), and keep the closest hit (best-hit update): a hit is accepted when
+    ``0 < t < best``. ``lo``/``lk``/``ls`` are the packet's ray store (origin, shear axes and
+    constants), ``best``/``b_tri``/``b_u``/``b_v`` its best-hit store. Returns the int-ops done."""
+    ops = 0
+    m = mask
+    while m:
+        l = lowest_lane(m)
+        m &= m - np.uint64(1)
+        ops += 1
+        if E == 8 and M == 23:
+            hit, t, u, v = intersect32(tri, lo[l, 0], lo[l, 1], lo[l, 2], lk[l, 0], lk[l, 1],
+                                       lk[l, 2], ls[l, 0], ls[l, 1], ls[l, 2])
+        else:
+            hit, t, u, v = intersect(tri, lo[l, 0], lo[l, 1], lo[l, 2], lk[l, 0], lk[l, 1],
+                                     lk[l, 2], ls[l, 0], ls[l, 1], ls[l, 2], E, M)
+        accept = hit and t > _ZERO and t < best[l]
+        if rec.shape[0]:
+            record(rec, rec_n, EV_INT, pid, l, ti, np.int64(hit) | (np.int64(accept) << 1),
+                   _bits(t), _bits(u), _bits(v))
+        if accept:
+            best[l] = t
+            b_tri[l] = sid
+            b_u[l] = u
+            b_v[l] = v
+    return ops
+
+
+@numba.njit(cache=True, inline="always")
+def _bits(x):
+    return np.int64(np.float32(x).view(np.uint32))
+

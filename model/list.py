@@ -20,3 +20,12 @@ def list_words(first, count):
     if count == 0:
         return 0
     return ((first + count - 1) >> 1) - (first >> 1) + 1
+
+
+@numba.njit(cache=True, inline="always")
+def leaf_entries(mem, list_base, first, count, out):
+    """The list unit on one leaf: the triangle indices of entries ``[first, first + count)`` in
+    entry order into ``out``; returns the 64-bit words it read."""
+    for j in range(count):
+        out[j] = list_entry(mem, list_base, first + j)
+    return list_words(first, count)

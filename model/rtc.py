@@ -13,11 +13,13 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from .fp import sign_bit
-from .intersection import TRI_WORDS, fetch_triangle, intersect, intersect32
-from .list import list_entry, list_words
-from .traversal import (LEAF, bits_to_f32, classify, clip_far, clip_near, decode_node,
-                        lowest_lane, pop, push)
+from .events import EV_DONE, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI, decode, record
+from .intersection import fetch_triangle, test_triangle
+from .lanes import popcount
+from .layout import TRI_WORDS
+from .list import leaf_entries
+from .traversal import (LEAF, bits_to_f32, classify, decide, decode_node, pass_mask, pop,
+                        start_packet, terminate)
 
 # per-packet counters; the names are the keys of the statistics
 COUNTERS = (
@@ -45,13 +47,13 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     """Trace the packet of rays ``r0 .. r0+n-1`` (lane l = ray r0 + l), packet id ``pid``.
 
     ``rec`` (K, 8) int64: when K > 0, every unit's input/output events are appended at row
-    ``rec_n[0]`` (see ``EVENTS``); recording stops (rec_n[0] > K) when the buffer is full."""
+    ``rec_n[0]`` (``model.events``); recording stops (rec_n[0] > K) when the buffer is full."""
     # the read-only ray data the units keep locally, per lane
     lo = org[r0:r0 + n]
     linv = inv[r0:r0 + n]
     lk = kk[r0:r0 + n]
     ls = ss[r0:r0 + n]
-    # dynamic per-lane state
+    # dynamic per-lane state: the traversal's interval, the intersection's best hit
     tnear = tnear0[r0:r0 + n].copy()
     tfar = tfar0[r0:r0 + n].copy()
     best = tmax[r0:r0 + n].copy()      # hits must lie in (0, tmax)
@@ -64,102 +66,58 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     s_near = np.empty((depth + 1, n), np.float32)
     s_far = np.empty((depth + 1, n), np.float32)
     tri = np.empty(9, np.float32)
+    entries = np.empty(64, np.int64)
+    octant = np.empty(n, np.int64)
     c_passes = c_trav_steps = c_trav_ops = c_node_reads = c_leaf_visits = 0
     c_list_ops = c_list_reads = c_int_ops = c_pushes = c_max_stack = 0
 
-    # rays start active if their clipped interval is non-empty; lanes grouped by octant
-    live = np.uint64(0)
-    octant = np.empty(n, np.int64)
-    for l in range(n):
-        octant[l] = (sign_bit(dirn[r0 + l, 0]) | (sign_bit(dirn[r0 + l, 1]) << 1) |
-                     (sign_bit(dirn[r0 + l, 2]) << 2))
-        if tnear[l] <= tfar[l]:
-            live |= np.uint64(1) << np.uint64(l)
+    live = start_packet(dirn, r0, n, tnear, tfar, octant)
     terminated = np.uint64(0)
-
     for oc in range(8):
-        mask = np.uint64(0)
-        for l in range(n):
-            if octant[l] == oc and (live & (np.uint64(1) << np.uint64(l))):
-                mask |= np.uint64(1) << np.uint64(l)
+        mask = pass_mask(oc, octant, live, n)
         if mask == 0:
             continue
         c_passes += 1
-        negative = (oc >> 0) & 1, (oc >> 1) & 1, (oc >> 2) & 1
         node = np.int64(root)
         sp = 0
         while mask:
             kind, field, hi = decode_node(mem[node_base + node])
             c_node_reads += 1
             if kind != LEAF:
-                # ---- traversal unit: inner node
+                # ---- traversal unit: the sub-units classify, the decide engine moves on
                 c_trav_steps += 1
                 c_trav_ops += popcount(mask)
                 mnear, mfar = classify(bits_to_f32(hi), kind, mask, n, lo, linv, tnear, tfar,
                                        dist, E, M)
-                neg = negative[kind]
-                near = field + neg
-                far = field + 1 - neg
                 if rec.shape[0]:
                     record(rec, rec_n, EV_NODE, pid, oc, node, mask, mnear, mfar, sp)
-                if mnear and mfar:
-                    sp = push(sp, far, mfar, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n)
+                node, mask, sp, pushed = decide(oc, kind, field, mnear, mfar, sp, dist, tnear,
+                                                tfar, s_node, s_mask, s_near, s_far, n)
+                if pushed:
                     c_pushes += 1
                     c_max_stack = max(c_max_stack, sp)
-                    clip_near(mnear, dist, tfar, n)
-                    node, mask = near, mnear
-                elif mnear:
-                    clip_near(mnear, dist, tfar, n)
-                    node, mask = near, mnear
-                else:
-                    clip_far(mfar, dist, tnear, n)
-                    node, mask = far, mfar
                 continue
             # ---- leaf: list unit -> intersection unit -> back to traversal
             count = field
             first = np.int64(hi)
-            if count > 0:
-                c_leaf_visits += 1
-                c_list_reads += list_words(first, count)
             if rec.shape[0]:
                 record(rec, rec_n, EV_LEAF, pid, oc, node, mask, first, count, sp)
+            if count > 0:
+                c_leaf_visits += 1
+                if count > entries.shape[0]:
+                    entries = np.empty(count, np.int64)
+                c_list_reads += leaf_entries(mem, list_base, first, count, entries)
             for j in range(count):
-                ti = list_entry(mem, list_base, first + j)
+                ti = entries[j]
                 c_list_ops += 1
                 sid = fetch_triangle(mem, tri_base, ti, tri)
-                m = mask
                 if rec.shape[0]:
-                    record(rec, rec_n, EV_TRI, pid, oc, ti, m, sid, 0, 0)
-                while m:
-                    l = lowest_lane(m)
-                    m &= m - np.uint64(1)
-                    c_int_ops += 1
-                    if E == 8 and M == 23:
-                        hit, t, u, v = intersect32(tri, lo[l, 0], lo[l, 1], lo[l, 2],
-                                                   lk[l, 0], lk[l, 1], lk[l, 2],
-                                                   ls[l, 0], ls[l, 1], ls[l, 2])
-                    else:
-                        hit, t, u, v = intersect(tri, lo[l, 0], lo[l, 1], lo[l, 2],
-                                                 lk[l, 0], lk[l, 1], lk[l, 2],
-                                                 ls[l, 0], ls[l, 1], ls[l, 2], E, M)
-                    accept = hit and t > np.float32(0.0) and t < best[l]
-                    if rec.shape[0]:
-                        record(rec, rec_n, EV_INT, pid, l, ti, np.int64(hit) | (np.int64(accept) << 1),
-                               f32_bits(t), f32_bits(u), f32_bits(v))
-                    if accept:
-                        best[l] = t
-                        b_tri[l] = sid
-                        b_u[l] = u
-                        b_v[l] = v
-            # back in traversal: rays whose closest hit lies in this cell are finished, and
-            # any-hit (shadow) rays with any hit; a shadow ray keeps testing the rest of the
-            # leaf it hits in (its lane is in the leaf's mask), as the pipelined hardware does
-            m = mask
-            while m:
-                l = lowest_lane(m)
-                m &= m - np.uint64(1)
-                if b_tri[l] >= 0 and (anyhit[r0 + l] or best[l] <= tfar[l]):
-                    terminated |= np.uint64(1) << np.uint64(l)
+                    record(rec, rec_n, EV_TRI, pid, oc, ti, mask, sid, 0, 0)
+                c_int_ops += test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v,
+                                           E, M, rec, rec_n, pid)
+            # back in traversal; a shadow ray keeps testing the rest of the leaf it hits in
+            # (its lane is in the leaf's mask), as the pipelined hardware does
+            terminated = terminate(mask, terminated, b_tri, anyhit, r0, best, tfar)
             if rec.shape[0]:
                 record(rec, rec_n, EV_RESULT, pid, oc, node, mask, terminated, 0, sp)
             sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n)
@@ -184,46 +142,6 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     ctr[9] += TRI_WORDS * c_list_ops
     ctr[10] += c_pushes
     ctr[11] = max(ctr[11], c_max_stack)
-
-
-# event log rows: (kind, packet, a, b, c, d, e, f); masks are uint64 bit patterns in int64
-EV_NODE = 0     # traversal at an inner node: octant, node, mask in, near mask, far mask, sp
-EV_LEAF = 1     # leaf reached (list unit input): octant, node, mask, first entry, count, sp
-EV_TRI = 2      # list unit output / intersection input: octant, tri index, lanes tested, id
-EV_INT = 3      # one int-op: lane, tri index, flags (1 edge/det pass, 2 accepted), t, u, v bits
-EV_RESULT = 4   # intersection results back in traversal: octant, leaf node, mask, terminated
-EV_DONE = 5     # packet finished: live mask at start, terminated mask
-EVENTS = ("node", "leaf", "tri", "int", "result", "done")
-
-
-@numba.njit(cache=True, inline="always")
-def f32_bits(x):
-    return np.int64(np.float32(x).view(np.uint32))
-
-
-@numba.njit(cache=True)
-def record(rec, rec_n, kind, pid, a, b, c, d, e, f):
-    i = rec_n[0]
-    rec_n[0] = i + 1
-    if i < rec.shape[0]:
-        rec[i, 0] = kind
-        rec[i, 1] = pid
-        rec[i, 2] = np.int64(a)
-        rec[i, 3] = np.int64(b)
-        rec[i, 4] = np.int64(c)
-        rec[i, 5] = np.int64(d)
-        rec[i, 6] = np.int64(e)
-        rec[i, 7] = np.int64(f)
-
-
-@numba.njit(cache=True, inline="always")
-def popcount(x):
-    """Set bits of a 64-bit mask (SWAR, constant time)."""
-    x = np.uint64(x)
-    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return np.int64((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -266,7 +184,7 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False):
 
     Returns ``(hits, counters)`` — counters an int64 array ``(n_packets, N_COUNTERS)``,
     columns named by ``COUNTERS`` — or, with ``record=True``, ``(hits, counters, events)``
-    where ``events`` is the (K, 8) event log of every unit (see ``EVENTS``; packets traced one
+    where ``events`` is the event log of every unit (``model.events.EVENT_DTYPE``; packets traced one
     after another, for RTL testbenches and memory-access traces; slower, for small runs)."""
     from .raygen import setup
     n = len(rays)
@@ -296,34 +214,31 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False):
         if n:
             trace_recorded(*args, rec, rec_n)
         if rec_n[0] <= cap:
-            return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs, rec[:rec_n[0]]
+            return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs, decode(rec[:rec_n[0]])
         cap = int(rec_n[0])
 
 
 def memory_trace(events: np.ndarray, image) -> dict:
     """64-bit word addresses each unit reads, in event order: ``{"trav", "list", "int"}``."""
-    kind = events[:, 0]
-    trav = image.node_base + events[(kind == EV_NODE) | (kind == EV_LEAF), 3]   # node index
-    leaf = events[(kind == EV_LEAF) & (events[:, 6] > 0)]
-    first, count = leaf[:, 5], leaf[:, 6]
-    w0, w1 = first >> 1, (first + count - 1) >> 1
-    lst = image.list_base + np.concatenate([np.arange(a, b + 1) for a, b in zip(w0, w1)]) \
-        if len(leaf) else np.zeros(0, np.int64)
-    tri = events[kind == EV_TRI, 3]
-    inter = (image.tri_base + TRI_WORDS * tri[:, None] + np.arange(TRI_WORDS)).ravel()
-    return {"trav": trav.astype(np.int64), "list": lst.astype(np.int64),
+    items = item_trace(events)
+    leaf = events[(events["kind"] == EV_LEAF) & (events["count"] > 0)]
+    w0, w1 = leaf["first"] >> 1, (leaf["first"] + leaf["count"] - 1) >> 1
+    lst = (image.list_base + np.concatenate([np.arange(a, b + 1) for a, b in zip(w0, w1)])
+           if len(leaf) else np.zeros(0, np.int64))
+    inter = (image.tri_base + TRI_WORDS * items["int"][:, None] + np.arange(TRI_WORDS)).ravel()
+    return {"trav": image.node_base + items["trav"], "list": lst.astype(np.int64),
             "int": inter.astype(np.int64)}
 
 
 def item_trace(events: np.ndarray) -> dict:
     """Item addresses each unit asks its cache for, in event order: node indices (trav),
     list-entry indices (list), triangle indices (int)."""
-    kind = events[:, 0]
-    leaf = events[(kind == EV_LEAF) & (events[:, 6] > 0)]
-    lst = (np.concatenate([np.arange(f, f + c) for f, c in zip(leaf[:, 5], leaf[:, 6])])
+    kind = events["kind"]
+    leaf = events[(kind == EV_LEAF) & (events["count"] > 0)]
+    lst = (np.concatenate([np.arange(f, f + c) for f, c in zip(leaf["first"], leaf["count"])])
            if len(leaf) else np.zeros(0, np.int64))
-    return {"trav": events[(kind == EV_NODE) | (kind == EV_LEAF), 3].astype(np.int64),
-            "list": lst.astype(np.int64), "int": events[kind == EV_TRI, 3].astype(np.int64)}
+    return {"trav": events["node"][(kind == EV_NODE) | (kind == EV_LEAF)].astype(np.int64),
+            "list": lst.astype(np.int64), "int": events["tri"][kind == EV_TRI].astype(np.int64)}
 
 
 def counter_totals(ctrs: np.ndarray) -> dict:

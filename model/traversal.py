@@ -1,4 +1,10 @@
-"""Traversal unit (golden model): one packet step at a kd-tree node.
+"""Traversal unit (golden model): a packet's walk through the kd-tree, step by step.
+
+The steps have the names of the RTL's engines (``rtl/traversal.py``): :func:`start_packet`
+(loader) and :func:`pass_mask` (one pass per direction octant present in the packet),
+:func:`decode_node` (control engine), :func:`classify` (the sub-units), :func:`decide` (near /
+far / push), :func:`terminate` (result engine) and :func:`pop`. ``model.rtc.trace_packet``
+runs them in the order the RTC does.
 
 A trav-op is one active ray at one inner node: ``dist = (split - o[axis]) * inv[axis]`` (one FP
 sub, one FP mul), then two compares decide which children the ray needs and a min/max clips its
@@ -12,22 +18,10 @@ list entry.
 import numba
 import numpy as np
 
-from .fp import fmax, fmin, fmul, fsub
+from .fp import fmax, fmin, fmul, fsub, sign_bit
+from .lanes import lowest_lane
 
 LEAF = 3
-
-# de Bruijn sequence: index of a mask's lowest set bit in three integer operations
-_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
-_DEBRUIJN_IDX = np.zeros(64, np.int64)
-for _i in range(64):
-    _DEBRUIJN_IDX[(((1 << _i) * 0x03F79D71B4CB0A89) & (2**64 - 1)) >> 58] = _i
-
-
-@numba.njit(cache=True, inline="always")
-def lowest_lane(m):
-    """Index of the lowest set bit of a non-zero lane mask."""
-    return _DEBRUIJN_IDX[((m & (~m + np.uint64(1))) * _DEBRUIJN) >> np.uint64(58)]
-
 
 @numba.njit(cache=True, inline="always")
 def decode_node(w):
@@ -113,3 +107,65 @@ def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
                 tfar[l] = s_far[sp, l]
             return sp, s_node[sp], mask
     return 0, np.int64(0), np.uint64(0)
+
+
+# ---- the traversal unit's control: passes, the decide step, termination -----------------------
+
+@numba.njit(cache=True, error_model="numpy")
+def start_packet(dirn, r0, n, tnear, tfar, octant):
+    """Load a packet: per lane its direction octant (sign bits x | y << 1 | z << 2) into
+    ``octant``; returns the live mask (rays whose clipped interval is non-empty)."""
+    live = np.uint64(0)
+    for l in range(n):
+        octant[l] = (sign_bit(dirn[r0 + l, 0]) | (sign_bit(dirn[r0 + l, 1]) << 1) |
+                     (sign_bit(dirn[r0 + l, 2]) << 2))
+        if tnear[l] <= tfar[l]:
+            live |= np.uint64(1) << np.uint64(l)
+    return live
+
+
+@numba.njit(cache=True, inline="always")
+def pass_mask(oc, octant, live, n):
+    """The lanes of an octant pass: live rays whose direction lies in octant ``oc``."""
+    mask = np.uint64(0)
+    for l in range(n):
+        if octant[l] == oc and (live & (np.uint64(1) << np.uint64(l))):
+            mask |= np.uint64(1) << np.uint64(l)
+    return mask
+
+
+@numba.njit(cache=True, error_model="numpy")
+def decide(oc, axis, child, mnear, mfar, sp, dist, tnear, tfar, s_node, s_mask, s_near, s_far,
+           n):
+    """The decide engine, after every sub-unit classified its lanes at an inner node.
+
+    The near child is ``child + neg`` (``neg``: the pass's direction sign on ``axis``), the
+    far child the other one. Both needed: push the far child (rays of ``mfar``) and go near;
+    near only: go near; else go far (an empty ``mfar`` ends the pass). Returns
+    ``(node, mask, sp, pushed)``."""
+    neg = (oc >> axis) & 1
+    near = child + neg
+    far = child + 1 - neg
+    if mnear and mfar:
+        sp = push(sp, far, mfar, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n)
+        clip_near(mnear, dist, tfar, n)
+        return near, mnear, sp, True
+    if mnear:
+        clip_near(mnear, dist, tfar, n)
+        return near, mnear, sp, False
+    clip_far(mfar, dist, tnear, n)
+    return far, mfar, sp, False
+
+
+@numba.njit(cache=True, error_model="numpy")
+def terminate(mask, terminated, b_tri, anyhit, r0, best, tfar):
+    """The result engine, after a leaf's triangles: a lane of ``mask`` ends if it has a hit
+    and either is an any-hit (shadow) ray or its closest hit lies in this cell
+    (``t <= tfar``). Returns the new terminated mask."""
+    m = mask
+    while m:
+        l = lowest_lane(m)
+        m &= m - np.uint64(1)
+        if b_tri[l] >= 0 and (anyhit[r0 + l] or best[l] <= tfar[l]):
+            terminated |= np.uint64(1) << np.uint64(l)
+    return terminated

@@ -212,7 +212,7 @@ def main(argv=None) -> None:
     if not m:
         raise SystemExit(f"--fmt {args.fmt!r}: write it as E<exp>M<frac>, e.g. E8M23")
     fmt = FPFormat(int(m[1]), int(m[2]))
-    print(f"| unit | format | latency | ops | cycles | s | cycles/s |\n|---|---|---|---|---|---|---|")
+    print("| unit | format | latency | ops | cycles | s | cycles/s |\n|---|---|---|---|---|---|---|")
     for kind in args.units.split(","):
         r = run_random(kind, fmt, args.n)
         lat = make_unit(kind, fmt).latency

@@ -24,6 +24,8 @@ from amaranth.lib import wiring
 from model.fp import FPFormat
 from model.intersection import intersect
 from model.raygen import Rays, setup
+from model.events import EV_INT, EV_LEAF, EV_TRI
+from model.layout import TRI_WORDS
 from model.rtc import C
 from rtl.intersection import IntersectionUnit, IntersectPipe
 from rtl.memory import IdealMemory
@@ -143,17 +145,15 @@ def random_tests(n: int, fmt: FPFormat, seed: int = 0) -> PipeTests:
 def golden_tests(g) -> tuple[PipeTests, np.ndarray]:
     """The int-ops of a traced scene (``EV_INT`` in order) as datapath operands, and the
     model's recorded flags/t/u/v bits ``(n, 4)`` (the same tests, as the tracer logged them)."""
-    from model.rtc import EV_INT
-    from model.intersection import TRI_WORDS
-    ev = g.events[g.events[:, 0] == EV_INT]
+    ev = g.events[g.events["kind"] == EV_INT]
     words = g.image.data
-    idx = g.image.tri_base + TRI_WORDS * ev[:, 3][:, None] + np.arange(TRI_WORDS)
+    idx = g.image.tri_base + TRI_WORDS * ev["tri"][:, None] + np.arange(TRI_WORDS)
     w = words[idx]                                                  # (n, 5) uint64
     halves = np.stack([w & np.uint64(0xFFFFFFFF), w >> np.uint64(32)], axis=2).reshape(-1, 10)
     tri = halves[:, :9].astype(np.uint32).view(np.float32)
-    ray = g.rays.pk_start[ev[:, 1]] + ev[:, 2]
+    ray = g.rays.pk_start[ev["packet"]] + ev["lane"]
     t = model_tests(tri, g.rays.org[ray], g.setup.k[ray], g.setup.s[ray], g.cfg.fmt)
-    return t, ev[:, 4:8]
+    return t, np.stack([ev["flags"], ev["t"], ev["u"], ev["v"]], axis=1).astype(np.int64)
 
 
 def _pack(fmt: FPFormat, x: np.ndarray) -> list[int]:
@@ -282,7 +282,6 @@ class UnitStreams:
 def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
     """The intersection unit's streams for the first ``max_leaves`` non-empty leaves (all:
     then the final results are the model's ``Hits``, checked against the replay below)."""
-    from model.rtc import EV_INT, EV_LEAF, EV_TRI
     cfg, fmt, ev = g.cfg, g.cfg.fmt, g.events
     T = cfg.threads
     n_packets = g.rays.n_packets
@@ -309,20 +308,20 @@ def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
     tris, ints, lanes = [], [], []
     leaves, sid, remaining, mask, int_ops = 0, -1, 0, 0, 0
     for row in ev:
-        kind, pid = int(row[0]), int(row[1])
-        if kind == EV_LEAF and row[6] > 0:
+        kind, pid = int(row["kind"]), int(row["packet"])
+        if kind == EV_LEAF and row["count"] > 0:
             if max_leaves is not None and leaves == max_leaves:
                 break
             leaves += 1
-            remaining, mask = int(row[6]), int(row[4]) & MASK64
+            remaining, mask = int(row["count"]), int(row["mask"])
         elif kind == EV_TRI:
             remaining -= 1
-            sid = int(row[5])
-            tris.append({"thread": pid % T, "tri": int(row[3]), "mask": mask,
+            sid = int(row["id"])
+            tris.append({"thread": pid % T, "tri": int(row["tri"]), "mask": mask,
                          "last": int(remaining == 0)})
         elif kind == EV_INT:
-            lane, flags = int(row[2]), int(row[4])
-            t, u, v = (bits(f32(x)) for x in row[5:8])
+            lane, flags = int(row["lane"]), int(row["flags"])
+            t, u, v = (bits(f32(row[x])) for x in "tuv")
             ints.append((pid % T, lane, flags & 1, t, u, v))
             int_ops += 1
             if flags & 2:

@@ -20,7 +20,8 @@ from amaranth.lib import wiring
 from model.config import Config
 from model.render import prepare
 from model.raygen import eye_rays, setup
-from model.rtc import C, EV_LEAF, EV_TRI, trace
+from model.events import EV_LEAF, EV_TRI
+from model.rtc import C, trace
 from model.scene import load_scene
 from rtl.list import ListUnit
 from rtl.memory import IdealMemory, SDRAMMemory
@@ -58,19 +59,19 @@ def leaf_stream(g: Golden) -> tuple[list[dict], list[dict]]:
     leaves, tris = [], []
     i = 0
     while i < len(ev):
-        kind, pid = int(ev[i, 0]), int(ev[i, 1])
-        if kind == EV_LEAF and ev[i, 6] > 0:
-            mask = int(ev[i, 4]) & MASK64
-            count = int(ev[i, 6])
-            leaves.append({"thread": pid % cfg.threads, "first": int(ev[i, 5]), "count": count,
-                           "mask": mask})
+        kind, pid = int(ev["kind"][i]), int(ev["packet"][i])
+        if kind == EV_LEAF and ev["count"][i] > 0:
+            mask = int(ev["mask"][i])
+            count = int(ev["count"][i])
+            leaves.append({"thread": pid % cfg.threads, "first": int(ev["first"][i]),
+                           "count": count, "mask": mask})
             # the model records the leaf's EV_TRI events next, interleaved with its EV_INTs
             j, seen = i + 1, 0
             while seen < count:
-                if ev[j, 0] == EV_TRI:
-                    assert int(ev[j, 4]) & MASK64 == mask
+                if ev["kind"][j] == EV_TRI:
+                    assert int(ev["mask"][j]) == mask
                     seen += 1
-                    tris.append({"thread": pid % cfg.threads, "tri": int(ev[j, 3]),
+                    tris.append({"thread": pid % cfg.threads, "tri": int(ev["tri"][j]),
                                  "mask": mask, "last": int(seen == count)})
                 j += 1
         i += 1

@@ -132,7 +132,6 @@ class RTCSelfTest:
                  stall: float = 0.0, seed: int = 1):
         self.idle_q, self.stall_q = round(idle * 16), round(stall * 16)
         self.seed = seed
-        from amaranth.lib import data
         from rtl.rtc_streams import RayIn, RayResult
         self.cfg, self.rays = cfg, rays
         self.sim = RTCSim(cfg, image, mem_latency=mem_latency)

@@ -23,7 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from model.config import Config
-from model.rtc import EV_INT, EV_LEAF, EV_RESULT, counter_totals, trace
+from model.events import EV_INT, EV_LEAF, EV_RESULT
+from model.rtc import counter_totals, trace
 from rtl.memory import IdealMemory
 from rtl.traversal import Traversal
 
@@ -64,18 +65,18 @@ def leaf_results(events: np.ndarray, rays, cfg: Config) -> dict[int, list]:
     out: dict[int, list] = defaultdict(list)
     pending = None
     for ev in events:
-        kind, p = int(ev[0]), int(ev[1])
+        kind, p = int(ev["kind"]), int(ev["packet"])
         if p not in best_t:
             a, b = int(rays.pk_start[p]), int(rays.pk_start[p + 1])
             best_t[p] = tmax[a:b].copy()
             has_hit[p] = np.zeros(b - a, bool)
         if kind == EV_LEAF:
-            pending = (int(ev[5]), int(ev[6]), int(ev[4]) & ((1 << 64) - 1))
-        elif kind == EV_INT and (ev[4] & 2):
+            pending = (int(ev["first"]), int(ev["count"]), int(ev["mask"]))
+        elif kind == EV_INT and (ev["flags"] & 2):
             # the model records binary32 bits; the stream carries format words
-            t = np.array([ev[5]], np.uint32).view(np.float32)
-            best_t[p][ev[2]] = int(fmt.to_bits(t)[0])
-            has_hit[p][ev[2]] = True
+            t = np.array([ev["t"]], np.uint32).view(np.float32)
+            best_t[p][ev["lane"]] = int(fmt.to_bits(t)[0])
+            has_hit[p][ev["lane"]] = True
         elif kind == EV_RESULT:
             first, count, mask = pending
             if count > 0:

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 from model.fp import (FPFormat, BINARY32, fadd, fsub, fmul, fdiv, flt, fle, feq, fmin, fmax)
-from tb.fp_vectors import corner_pairs, make, special_values
+from tb.fp_vectors import corner_pairs, special_values
 from tests.fp_exact import ExactFormat
 
 OPS = ("add", "sub", "mul", "div")

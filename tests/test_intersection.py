@@ -58,10 +58,10 @@ def test_unit_every_test_accepts_small_slots_fast_memory(kd_cache):
     """One-ray packets against a stack of quads listed far to near: every layer's hit replaces
     the previous best; two triangle slots and a 2-cycle memory; LaneResults back-pressured."""
     from tb.intersection import golden_stack, run_unit
-    from model.rtc import EV_INT
+    from model.events import EV_INT
     g = golden_stack(Config(kd_leaf_size=32), kd_cache, layers=6)
-    ints = g.events[g.events[:, 0] == EV_INT]
-    assert (ints[:, 4] & 2).sum() // 2 >= 6 * 8                     # >= 6 accepts per ray
+    ints = g.events[g.events["kind"] == EV_INT]
+    assert ((ints["flags"] & 2) != 0).sum() >= 6 * 8                    # >= 6 accepts per ray
     r = run_unit(g, seed=5, idle=0.0, stall=0.4, latency=2, tri_slots=2)
     assert r.counters["tris"] == len(ints) and r.int_ops == len(ints)      # one ray per packet
 

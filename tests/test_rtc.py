@@ -140,26 +140,27 @@ def test_reduced_precision_still_close_to_embree(kd_cache):
 
 def test_event_log_matches_counters_and_results(kd_cache):
     """The recorded unit streams add up to the counters and reproduce every ray's result."""
-    from model.rtc import EV_DONE, EV_INT, EV_NODE, EV_TRI, memory_trace
+    from model.events import EV_DONE, EV_INT, EV_NODE, EV_TRI, popcount
+    from model.rtc import memory_trace
     scene = load_scene(SCENES[0])
     prep = prepare(scene, CFG, cache_dir=kd_cache)
     rays = eye_rays(scene.camera, 24, 16, CFG)
     hits, ctr, ev = trace(prep.image, rays, CFG, record=True)
     hits2, ctr2 = trace(prep.image, rays, CFG)
     assert np.array_equal(ctr, ctr2) and np.array_equal(hits.t.view(np.uint32), hits2.t.view(np.uint32))
-    kind = ev[:, 0]
+    kind = ev["kind"]
     tot = ctr.sum(axis=0)
     assert (kind == EV_NODE).sum() == tot[C["trav_steps"]]
     assert (kind == EV_TRI).sum() == tot[C["list_ops"]]
     assert (kind == EV_INT).sum() == tot[C["int_ops"]]
     assert (kind == EV_DONE).sum() == rays.n_packets
-    popc = np.array([bin(int(m) & (2**64 - 1)).count("1") for m in ev[kind == EV_NODE, 4]])
-    assert popc.sum() == tot[C["trav_ops"]]
+    popc = [bin(int(m)).count("1") for m in ev["mask"][kind == EV_NODE]]
+    assert sum(popc) == tot[C["trav_ops"]] == popcount(ev["mask"][kind == EV_NODE]).sum()
     # the last accepted int-op of each ray is its result
-    ints = ev[(kind == EV_INT) & ((ev[:, 4] & 2) != 0)]
-    ray = rays.pk_start[ints[:, 1]] + ints[:, 2]
+    ints = ev[(kind == EV_INT) & ((ev["flags"] & 2) != 0)]
+    ray = rays.pk_start[ints["packet"]] + ints["lane"]
     last = {}
-    for r, tb in zip(ray, ints[:, 5]):
+    for r, tb in zip(ray, ints["t"]):
         last[r] = tb
     hit_rays = np.nonzero(hits.tri >= 0)[0]
     assert set(last) == set(hit_rays.tolist())

@@ -1,0 +1,26 @@
+"""Lane masks: a packet's active rays as a 64-bit mask (bit l = lane l)."""
+import numba
+import numpy as np
+
+# de Bruijn sequence: index of a mask's lowest set bit in three integer operations
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_IDX = np.zeros(64, np.int64)
+for _i in range(64):
+    _DEBRUIJN_IDX[(((1 << _i) * 0x03F79D71B4CB0A89) & (2**64 - 1)) >> 58] = _i
+
+
+@numba.njit(cache=True, inline="always")
+def lowest_lane(m):
+    """Index of the lowest set bit of a non-zero lane mask."""
+    return _DEBRUIJN_IDX[((m & (~m + np.uint64(1))) * _DEBRUIJN) >> np.uint64(58)]
+
+
+
+@numba.njit(cache=True, inline="always")
+def popcount(x):
+    """Set bits of a 64-bit mask (SWAR, constant time)."""
+    x = np.uint64(x)
+    x = x - ((x >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    x = (x & np.uint64(0x3333333333333333)) + ((x >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    x = (x + (x >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return np.int64((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
