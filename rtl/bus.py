@@ -23,11 +23,10 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
-from .memport import WORD_BITS, MemReadPort
+from .memport import WORD_BITS, MemReadPort, connect_tags
+from .common import COUNTER_BITS, OutputStage
 
 __all__ = ["RoundRobinBus"]
-
-COUNTER_BITS = 32
 
 
 class RoundRobinBus(wiring.Component):
@@ -78,21 +77,21 @@ class RoundRobinBus(wiring.Component):
                     for c in order[1:]:
                         with m.Elif(ins[c].req.valid):
                             m.d.comb += grant.eq(c)
+        m.submodules.req_out = stage = OutputStage(out.payload.shape())
+        wiring.connect(m, stage.o, wiring.flipped(out))
+        m.d.comb += [stage.i.valid.eq(any_req),
+                     stage.i.payload.addr.eq(Array(p.req.payload.addr for p in ins)[grant]),
+                     stage.i.payload.tag.eq(Cat(Array(p.req.payload.tag for p in ins)[grant],
+                                                grant))]
         load = Signal()
-        m.d.comb += load.eq(any_req & (~out.valid | out.ready))
+        m.d.comb += load.eq(stage.i.valid & stage.i.ready)
         for i in range(n):
             m.d.comb += ins[i].req.ready.eq(load & (grant == i))
             with m.If(load & (grant == i)):
                 m.d.sync += self.grants[i].eq(self.grants[i] + 1)
         with m.If(load):
-            m.d.sync += [out.valid.eq(1),
-                         out.payload.addr.eq(Array(p.req.payload.addr for p in ins)[grant]),
-                         out.payload.tag.eq(Cat(Array(p.req.payload.tag for p in ins)[grant],
-                                                grant)),
-                         prio.eq(Mux(grant == n - 1, 0, grant + 1) if self.policy ==
-                                 "round_robin" else 0)]
-        with m.Elif(out.ready):
-            m.d.sync += out.valid.eq(0)
+            m.d.sync += prio.eq(Mux(grant == n - 1, 0, grant + 1) if self.policy ==
+                                "round_robin" else 0)
         with m.If(out.valid & out.ready):
             m.d.sync += self.req_cycles.eq(self.req_cycles + 1)
 
@@ -161,15 +160,9 @@ class MemoryInterface(wiring.Component):
         for i, c in enumerate(self.caches):
             m.submodules[f"cache{i}"] = c
             wiring.connect(m, wiring.flipped(getattr(self, f"unit{i}")), c.port)
-            b, w = bus.inputs[i], len(c.mem.req.payload.tag)
+            connect_tags(m, c.mem, bus.inputs[i])
             m.d.comb += [
                 c.base.eq(self.bases[i]),
-                b.req.valid.eq(c.mem.req.valid), c.mem.req.ready.eq(b.req.ready),
-                b.req.payload.addr.eq(c.mem.req.payload.addr),
-                b.req.payload.tag.eq(c.mem.req.payload.tag),
-                c.mem.resp.valid.eq(b.resp.valid), b.resp.ready.eq(c.mem.resp.ready),
-                c.mem.resp.payload.data.eq(b.resp.payload.data),
-                c.mem.resp.payload.tag.eq(b.resp.payload.tag[:w]),
                 self.hits[i].eq(c.hits), self.misses[i].eq(c.misses),
                 self.grants[i].eq(bus.grants[i]),
             ]

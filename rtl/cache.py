@@ -38,10 +38,9 @@ from amaranth.utils import ceil_log2
 from model.cache import CacheGeometry
 
 from .memport import WORD_BITS, MemReadPort
+from .common import COUNTER_BITS
 
 __all__ = ["Cache"]
-
-COUNTER_BITS = 32
 
 
 class Cache(wiring.Component):

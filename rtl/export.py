@@ -27,10 +27,10 @@ from amaranth.lib.wiring import Out
 from model.cache import CacheGeometry, cache_geometry
 from model.config import Config, ConfigError
 from model.fp import FPFormat
+from .common import COUNTER_BITS
+from .memport import connect_tags
 
 __all__ = ["RTCTop", "TOPS", "build_top", "export", "word_cache_geometry", "main"]
-
-COUNTER_BITS = 32
 
 
 def word_cache_geometry(cfg: Config, kb: int) -> CacheGeometry:
@@ -99,23 +99,14 @@ class RTCTop(wiring.Component):
         m.submodules.bus = bus = self.bus
         wiring.connect(m, bus.mem, wiring.flipped(self.mem))
         for i, name in enumerate(self.ports):
-            port, b = getattr(rtc, name), bus.inputs[i]
+            port = getattr(rtc, name)
             if self.caches:
                 c = self.caches[i]
                 m.submodules[f"cache_{name.split('_')[0]}"] = c
                 wiring.connect(m, port, c.port)
                 m.d.comb += [c.base.eq(0), self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
                 port = c.mem
-            # the bus input's tag may be wider than this requester's: zero-extend, truncate back
-            w = len(port.req.payload.tag)
-            m.d.comb += [
-                b.req.valid.eq(port.req.valid), port.req.ready.eq(b.req.ready),
-                b.req.payload.addr.eq(port.req.payload.addr),
-                b.req.payload.tag.eq(port.req.payload.tag),
-                port.resp.valid.eq(b.resp.valid), b.resp.ready.eq(port.resp.ready),
-                port.resp.payload.data.eq(b.resp.payload.data),
-                port.resp.payload.tag.eq(b.resp.payload.tag[:w]),
-            ]
+            connect_tags(m, port, bus.inputs[i])
         wiring.connect(m, wiring.flipped(self.rays), rtc.rays)
         wiring.connect(m, rtc.results, wiring.flipped(self.results))
         for name in ("node_base", "list_base", "tri_base", "root"):

@@ -12,6 +12,8 @@ last triangle and reads out the final hits of a finished packet.
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 from amaranth.hdl import Array, C, Cat, Const, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
@@ -20,7 +22,9 @@ from amaranth.utils import ceil_log2
 
 from model.config import Config
 from model.fp import FPFormat
+from model.layout import TRI_WORDS, triangle_layout
 
+from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
 from .fp import FPAdd, FPDiv, FPMul
 from .fp.cmp import compare
 from .fp.common import unpack
@@ -28,29 +32,12 @@ from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, PacketDone, RayIn,
                           RayResult, TriRequest, lane_bits)
 
-__all__ = ["IntersectPipe", "IntersectionUnit", "RayWrite", "from_binary32",
-           "TRI_WORDS"]
-
-COUNTER_BITS = 32
-TRI_WORDS = 5
+__all__ = ["IntersectPipe", "IntersectionUnit", "RayWrite"]
 
 
 def RayWrite(cfg: Config) -> data.StructLayout:
     """A ray written into the unit's local store: the RTC's ``RayIn`` and the thread it runs in."""
     return data.StructLayout({"thread": cfg.thread_bits, "ray": RayIn(cfg)})
-
-
-def from_binary32(fmt: FPFormat, x: Value) -> Value:
-    """A format word from the binary32 pattern of a format value (as memory holds it): the sign,
-    the exponent re-biased (0 and all-ones kept) and the top M fraction bits."""
-    x = Value.cast(x)
-    E, M = fmt.exp_bits, fmt.frac_bits
-    if (E, M) == (8, 23):
-        return x
-    e32 = x[23:31]
-    emax = (1 << E) - 1
-    e = Mux(e32 == 0, 0, Mux(e32 == 0xFF, emax, (e32 - 127 + fmt.bias)[:E]))
-    return Cat(x[23 - M:23], e[:E], x[31])
 
 
 class _Schedule:
@@ -273,38 +260,50 @@ class IntersectionUnit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        cfg, fmt, w = self.cfg, self.fmt, self.fmt.width
-        n_slots, lanes = self.tri_slots, self.lanes
-        m.submodules.pipe = pipe = self.pipe
-        en = Signal()                      # the test pipeline advances
-        m.d.comb += en.eq(~self.lane_out.valid | self.lane_out.ready)
-
-        def addr(thread, lane):
-            return Cat(lane[:self.lane_bits], thread[:cfg.thread_bits])
-        depth = 1 << (cfg.thread_bits + self.lane_bits)
-
-        # ---- local ray store (read-only data) and best-hit store ---------------------------------
+        m.submodules.pipe = self.pipe
+        # the test pipeline advances unless a LaneResult waits in a full output register
+        m.submodules.lane_stage = self._lane_stage = OutputStage(LaneResult(self.cfg))
+        wiring.connect(m, self._lane_stage.o, wiring.flipped(self.lane_out))
+        en = self._lane_stage.i.ready
+        w = self.fmt.width
         ray_l = data.StructLayout({"org": data.ArrayLayout(w, 3), "k": data.ArrayLayout(2, 3),
                                    "s": data.ArrayLayout(w, 3)})
         best_l = data.StructLayout({"t": w, "u": w, "v": w, "tri": TRI_ID_BITS, "hit": 1})
+        depth = 1 << (self.cfg.thread_bits + self.lane_bits)
+        # local ray store (read-only data) and best-hit store, one word per (thread, lane)
         m.submodules.rays = rays = Memory(shape=ray_l, depth=depth, init=[])
         m.submodules.best = best = Memory(shape=best_l, depth=depth, init=[])
-        ray_w = rays.write_port()
-        best_w = best.write_port()
+        ray_w, best_w = rays.write_port(), best.write_port()
         ray_r = rays.read_port()
         best_r = best.read_port(transparent_for=(best_w,))
         out_r = best.read_port()
+        slots = self._fetch(m)
+        issued = self._issue(m, en, slots, ray_r)
+        self._best_hit(m, en, best_r, best_w, ray_w)
+        self._readout(m, out_r)
+        self._counters(m, en, slots, issued)
+        return m
 
-        # ---- triangle fetch: tri_slots slots, 5 words each, responses in any order --------------
-        slot_words = Array(Array(Signal(WORD_BITS, name=f"s{i}w{j}") for j in range(TRI_WORDS))
-                           for i in range(n_slots))
-        slot_got = Array(Signal(TRI_WORDS, name=f"s{i}_got") for i in range(n_slots))
-        slot_mask = Array(Signal(lanes, name=f"s{i}_mask") for i in range(n_slots))
-        slot_thread = Array(Signal(cfg.thread_bits, name=f"s{i}_thread") for i in range(n_slots))
-        slot_last = Signal(n_slots)
-        alloc = Signal(n_slots)
-        alloc_set, alloc_clr = Signal(n_slots), Signal(n_slots)
-        m.d.sync += alloc.eq((alloc | alloc_set) & ~alloc_clr)
+    def _addr(self, thread, lane):
+        """Address of (thread, lane) in the ray and best-hit stores."""
+        return Cat(lane[:self.lane_bits], thread[:self.cfg.thread_bits])
+
+    def _fetch(self, m: Module) -> SimpleNamespace:
+        """Triangle fetch: ``tri_slots`` slots of 5 words; a request is taken into the next
+        free slot in the cycle the previous one's last word request goes out; responses land
+        in any order (tag = slot * 8 + word)."""
+        n_slots, lanes = self.tri_slots, self.lanes
+        s = SimpleNamespace()
+        s.words = Array(Array(Signal(WORD_BITS, name=f"s{i}w{j}") for j in range(TRI_WORDS))
+                        for i in range(n_slots))
+        s.got = Array(Signal(TRI_WORDS, name=f"s{i}_got") for i in range(n_slots))
+        s.mask = Array(Signal(lanes, name=f"s{i}_mask") for i in range(n_slots))
+        s.thread = Array(Signal(self.cfg.thread_bits, name=f"s{i}_thread")
+                         for i in range(n_slots))
+        s.last = Signal(n_slots)
+        s.alloc = alloc = Signal(n_slots)
+        alloc_set, s.alloc_clr = Signal(n_slots), Signal(n_slots)
+        m.d.sync += alloc.eq((alloc | alloc_set) & ~s.alloc_clr)
 
         f_slot = Signal(self.slot_bits)    # slot being fetched into
         f_word = Signal(range(TRI_WORDS))
@@ -321,7 +320,6 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += f_word.eq(Mux(f_word == TRI_WORDS - 1, 0, f_word + 1))
         with m.If(issue_last):
             m.d.sync += [fetching.eq(0), f_slot.eq(f_slot + 1)]
-        # the next request is taken in the cycle the current one's last word goes out
         tri_in = self.tri_in
         nxt = Signal(self.slot_bits)
         m.d.comb += [nxt.eq(Mux(fetching, f_slot + 1, f_slot)),
@@ -332,58 +330,57 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += [
                 fetching.eq(1), f_word.eq(0), f_slot.eq(nxt),
                 f_addr.eq(self.tri_base + p.tri * TRI_WORDS),
-                slot_mask[nxt].eq(p.mask), slot_thread[nxt].eq(p.thread),
-                slot_last.bit_select(nxt, 1).eq(p.last),
-                slot_got[nxt].eq(0),
+                s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread),
+                s.last.bit_select(nxt, 1).eq(p.last),
+                s.got[nxt].eq(0),
             ]
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         r_slot = resp.payload.tag[3:]
         r_word = resp.payload.tag[:3]
         with m.If(resp.valid):
-            m.d.sync += slot_words[r_slot][r_word].eq(resp.payload.data)
-            m.d.sync += slot_got[r_slot].eq(slot_got[r_slot] | (1 << r_word))
+            m.d.sync += s.words[r_slot][r_word].eq(resp.payload.data)
+            m.d.sync += s.got[r_slot].eq(s.got[r_slot] | (1 << r_word))
+        return s
 
-        # ---- test issue: one lane per cycle, lanes of the mask in order --------------------------
+    def _issue(self, m: Module, en: Value, s: SimpleNamespace, ray_r) -> Value:
+        """Test issue: the lanes of the oldest slot's mask, lowest first, one per cycle, no gap
+        between triangles; stage 1 registers the triangle (format words) and the lane, while
+        the ray store is read. Returns the condition that a test issues this cycle."""
+        fmt, lanes, pipe = self.fmt, self.lanes, self.pipe
         t_slot = Signal(self.slot_bits)
         testing = Signal()                 # part of t_slot's mask is already issued
         rem = Signal(lanes)
-        ready_slot = alloc.bit_select(t_slot, 1) & (slot_got[t_slot] == (1 << TRI_WORDS) - 1)
+        ready_slot = (s.alloc.bit_select(t_slot, 1) &
+                      (s.got[t_slot] == (1 << TRI_WORDS) - 1))
         cur = Signal(lanes)
-        m.d.comb += cur.eq(Mux(testing, rem, slot_mask[t_slot]))
+        m.d.comb += cur.eq(Mux(testing, rem, s.mask[t_slot]))
         go = Signal()
         m.d.comb += go.eq(en & ready_slot)
-        lowest = Signal(lanes)
-        m.d.comb += lowest.eq(cur & -cur)
-        lane = Signal(self.lane_bits)
-        for i in range(lanes):
-            with m.If(lowest[i]):
-                m.d.comb += lane.eq(i)
+        _, lane = lowest(m, cur, "issue")
         rest = Signal(lanes)
         m.d.comb += rest.eq(cur & (cur - 1))
         with m.If(go):
             m.d.sync += rem.eq(rest)
             with m.If(rest == 0):
-                m.d.comb += alloc_clr.eq(1 << t_slot)
+                m.d.comb += s.alloc_clr.eq(1 << t_slot)
                 m.d.sync += [testing.eq(0), t_slot.eq(t_slot + 1)]
             with m.Else():
                 m.d.sync += testing.eq(1)
 
-        # stage 1: the triangle (format words) and the lane; the ray store read lands here too
-        words = slot_words[t_slot]
+        tri = data.View(triangle_layout(), Cat(*(s.words[t_slot][j] for j in range(TRI_WORDS))))
         s1_valid = Signal()
-        s1_tri = Signal(data.ArrayLayout(w, 9))
+        s1_tri = Signal(data.ArrayLayout(fmt.width, 9))
         s1_meta = Signal(self.pipe_meta)
-        halves = [words[j // 2][32 * (j % 2):32 * (j % 2) + 32] for j in range(9)]
-        thread = slot_thread[t_slot]
-        m.d.comb += [ray_r.addr.eq(addr(thread, lane)), ray_r.en.eq(en)]
+        thread = s.thread[t_slot]
+        m.d.comb += [ray_r.addr.eq(self._addr(thread, lane)), ray_r.en.eq(en)]
         with m.If(en):
             m.d.sync += [
                 s1_valid.eq(go & (cur != 0)),
-                s1_tri.eq(Cat(*(from_binary32(fmt, h) for h in halves))),
+                s1_tri.eq(Cat(*(from_binary32(fmt, tri.v[j]) for j in range(9)))),
                 s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
-                s1_meta.id.eq(words[4][32:]),
-                s1_meta.tri_last.eq(slot_last.bit_select(t_slot, 1)),
+                s1_meta.id.eq(tri.id),
+                s1_meta.tri_last.eq(s.last.bit_select(t_slot, 1)),
                 s1_meta.lane_last.eq(rest == 0),
             ]
         ray = ray_r.data
@@ -391,13 +388,16 @@ class IntersectionUnit(wiring.Component):
             pipe.tri.eq(s1_tri), pipe.org.eq(ray.org), pipe.k.eq(ray.k), pipe.s.eq(ray.s),
             pipe.tag.eq(s1_meta), pipe.i_valid.eq(s1_valid), pipe.en.eq(en),
         ]
+        return go & (cur != 0)
 
-        # ---- closest-hit update at the end of the pipeline ---------------------------------------
-        # the best-hit read is presented one stage before the datapath's output; the read port is
-        # transparent to the update's write, so back-to-back tests of one lane see each other
-        L = pipe.latency
+    def _best_hit(self, m: Module, en: Value, best_r, best_w, ray_w) -> None:
+        """Closest-hit update at the end of the pipeline (accept ``0 < t < best``), the ray
+        store's writes, and the ``LaneResult`` after a leaf's last triangle. The best-hit read
+        is presented one stage before the datapath's output; the read port is transparent to
+        the update's write, so back-to-back tests of one lane see each other."""
+        fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
         pre = data.View(self.pipe_meta, pipe.pre_tag)
-        m.d.comb += [best_r.addr.eq(addr(pre.thread, pre.lane)), best_r.en.eq(en)]
+        m.d.comb += [best_r.addr.eq(self._addr(pre.thread, pre.lane)), best_r.en.eq(en)]
         o_meta = data.View(self.pipe_meta, pipe.o_tag)
         old = best_r.data
         gt0 = Signal()
@@ -413,53 +413,47 @@ class IntersectionUnit(wiring.Component):
         m.d.comb += ray_in.ready.eq(~store)
         rp = ray_in.payload
         m.d.comb += [
-            ray_w.addr.eq(addr(rp.thread, rp.ray.lane)),
+            ray_w.addr.eq(self._addr(rp.thread, rp.ray.lane)),
             ray_w.data.org.eq(rp.ray.org), ray_w.data.k.eq(rp.ray.k), ray_w.data.s.eq(rp.ray.s),
             ray_w.en.eq(ray_in.valid & ray_in.ready),
         ]
         with m.If(store):
             m.d.comb += [
-                best_w.addr.eq(addr(o_meta.thread, o_meta.lane)), best_w.en.eq(1),
+                best_w.addr.eq(self._addr(o_meta.thread, o_meta.lane)), best_w.en.eq(1),
                 best_w.data.t.eq(pipe.t), best_w.data.u.eq(pipe.u), best_w.data.v.eq(pipe.v),
                 best_w.data.tri.eq(o_meta.id), best_w.data.hit.eq(1),
             ]
         with m.Else():
             m.d.comb += [
-                best_w.addr.eq(addr(rp.thread, rp.ray.lane)), best_w.en.eq(ray_in.valid),
+                best_w.addr.eq(self._addr(rp.thread, rp.ray.lane)), best_w.en.eq(ray_in.valid),
                 best_w.data.t.eq(rp.ray.tmax), best_w.data.hit.eq(0),
             ]
+        lo = self._lane_stage.i
+        m.d.comb += [
+            lo.valid.eq(pipe.o_valid & o_meta.tri_last),
+            lo.payload.thread.eq(o_meta.thread), lo.payload.lane.eq(o_meta.lane),
+            lo.payload.hit.eq(accept | old.hit),
+            lo.payload.t.eq(Mux(accept, pipe.t, old.t)),
+            lo.payload.last.eq(o_meta.lane_last),
+        ]
 
-        # ---- LaneResult after the leaf's last triangle ---------------------------------------------
-        lo = self.lane_out
-        with m.If(lo.ready):
-            m.d.sync += lo.valid.eq(0)
-        with m.If(en & pipe.o_valid & o_meta.tri_last):
-            m.d.sync += [
-                lo.valid.eq(1),
-                lo.payload.thread.eq(o_meta.thread), lo.payload.lane.eq(o_meta.lane),
-                lo.payload.hit.eq(accept | old.hit),
-                lo.payload.t.eq(Mux(accept, pipe.t, old.t)),
-                lo.payload.last.eq(o_meta.lane_last),
-            ]
-
-        # ---- final results of a finished packet ----------------------------------------------------
+    def _readout(self, m: Module, out_r) -> None:
+        """Final results of a finished packet: one ``RayResult`` per lane of the ``done``
+        mask, in lane order, read from the best-hit store (the read port is the output
+        register: it advances when the output is empty or taken)."""
+        fmt, w, lanes = self.fmt, self.fmt.width, self.lanes
         done, res = self.done, self.result
         d_active = Signal()
         d_rem = Signal(lanes)
-        d_thread = Signal(cfg.thread_bits)
+        d_thread = Signal(self.cfg.thread_bits)
         d_packet = Signal(PACKET_ID_BITS)
-        d_low = Signal(lanes)
-        d_lane = Signal(self.lane_bits)
-        m.d.comb += d_low.eq(d_rem & -d_rem)
-        for i in range(lanes):
-            with m.If(d_low[i]):
-                m.d.comb += d_lane.eq(i)
+        _, d_lane = lowest(m, d_rem, "readout")
         adv = Signal()
         m.d.comb += [adv.eq(~res.valid | res.ready), done.ready.eq(~d_active)]
         with m.If(done.valid & done.ready):
             m.d.sync += [d_active.eq(done.payload.mask != 0), d_rem.eq(done.payload.mask),
                          d_thread.eq(done.payload.thread), d_packet.eq(done.payload.packet)]
-        m.d.comb += [out_r.addr.eq(addr(d_thread, d_lane)), out_r.en.eq(adv)]
+        m.d.comb += [out_r.addr.eq(self._addr(d_thread, d_lane)), out_r.en.eq(adv)]
         r_lane = Signal(self.lane_bits)
         r_last = Signal()
         r_packet = Signal(PACKET_ID_BITS)
@@ -480,15 +474,15 @@ class IntersectionUnit(wiring.Component):
             res.payload.u.eq(Mux(hb.hit, hb.u, 0)), res.payload.v.eq(Mux(hb.hit, hb.v, 0)),
         ]
 
-        # ---- counters -----------------------------------------------------------------------------
-        with m.If(go & (cur != 0)):
+    def _counters(self, m: Module, en: Value, s: SimpleNamespace, issued: Value) -> None:
+        pipe = self.pipe
+        with m.If(issued):
             m.d.sync += self.int_ops.eq(self.int_ops + 1)
-        with m.If(tri_in.valid & tri_in.ready):
+        with m.If(self.tri_in.valid & self.tri_in.ready):
             m.d.sync += self.tris.eq(self.tris + 1)
-        with m.If(resp.valid):
+        with m.If(self.mem.resp.valid):
             m.d.sync += self.words.eq(self.words + 1)
-        inflight = Signal(range(L + 3))
-        m.d.sync += inflight.eq(inflight + (go & (cur != 0)) - (en & pipe.o_valid))
-        with m.If((alloc != 0) | (inflight != 0) | lo.valid):
+        inflight = Signal(range(pipe.latency + 3))
+        m.d.sync += inflight.eq(inflight + issued - (en & pipe.o_valid))
+        with m.If((s.alloc != 0) | (inflight != 0) | self.lane_out.valid):
             m.d.sync += self.busy.eq(self.busy + 1)
-        return m

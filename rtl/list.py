@@ -18,10 +18,9 @@ from model.config import Config
 
 from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import LeafRequest, TriRequest
+from .common import COUNTER_BITS
 
 __all__ = ["ListUnit"]
-
-COUNTER_BITS = 32
 
 
 class ListUnit(wiring.Component):

@@ -21,10 +21,9 @@ from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
 from .memport import WORD_BITS, MemReadPort
+from .common import COUNTER_BITS
 
 __all__ = ["IdealMemory", "SDRAMMemory", "chip_of", "image_memory"]
-
-COUNTER_BITS = 32
 
 
 def image_memory(image, addr_width: int) -> Memory:

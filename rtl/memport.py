@@ -19,10 +19,11 @@ Protocol (see ``docs/memory-interface.md`` for the timing diagram):
 """
 from __future__ import annotations
 
+from amaranth.hdl import Module
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-__all__ = ["MemRequest", "MemResponse", "MemReadPort", "WORD_BITS"]
+__all__ = ["MemRequest", "MemResponse", "MemReadPort", "WORD_BITS", "connect_tags"]
 
 WORD_BITS = 64  # one memory access: a 64-bit word
 
@@ -70,3 +71,21 @@ class MemReadPort(wiring.Signature):
     def __repr__(self):
         return (f"MemReadPort(addr_width={self.addr_width}, data_width={self.data_width}, "
                 f"tag_width={self.tag_width})")
+
+
+def connect_tags(m: Module, requester, server) -> None:
+    """Connect a requester's port to a server port whose tag is at least as wide (a bus input
+    shared by requesters with different tags): the tag is zero-extended on the way in and
+    truncated back on the way out. Address and data widths must match."""
+    w = len(requester.req.payload.tag)
+    if len(server.req.payload.tag) < w:
+        raise ValueError(f"connect_tags: the server's tag ({len(server.req.payload.tag)} bits) "
+                         f"is narrower than the requester's ({w} bits)")
+    m.d.comb += [
+        server.req.valid.eq(requester.req.valid), requester.req.ready.eq(server.req.ready),
+        server.req.payload.addr.eq(requester.req.payload.addr),
+        server.req.payload.tag.eq(requester.req.payload.tag),
+        requester.resp.valid.eq(server.resp.valid), server.resp.ready.eq(requester.resp.ready),
+        requester.resp.payload.data.eq(server.resp.payload.data),
+        requester.resp.payload.tag.eq(server.resp.payload.tag[:w]),
+    ]

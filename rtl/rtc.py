@@ -25,6 +25,7 @@ from .memory import IdealMemory
 from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import RayIn, RayResult
 from .traversal import NODE_BITS, Traversal
+from .common import COUNTER_BITS
 
 __all__ = ["RTC", "RTCSim", "COUNTERS", "HEADER", "drive_header", "attach_memories"]
 
@@ -46,7 +47,6 @@ def attach_memories(m: Module, rtc, mems: dict) -> None:
         m.submodules[f"{name}_mem"] = mem
         wiring.connect(m, getattr(rtc, f"{name}_mem"), mem.port)
 
-COUNTER_BITS = 32
 # counter port -> (unit, port of that unit)
 COUNTERS = {
     "trav_busy": ("trav", "busy"), "trav_ctl_busy": ("trav", "ctl_busy"),

@@ -43,62 +43,38 @@ node steps), ``node_reads``, ``leaf_reqs``, ``passes``, ``pushes``, ``packets_do
 from __future__ import annotations
 
 from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
-from amaranth.lib import data, stream, wiring
+from amaranth.lib import data, enum, stream, wiring
 from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
 from model.config import Config
-from model.fp import FPFormat
+from model.layout import LEAF, NODE_INDEX_BITS, node_layout
+from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, rr_pick
 from .fp import FPAdd, FPCompare, FPMinMax, FPMul
 from .fp.cmp import compare
-from .memport import WORD_BITS, MemReadPort
+from .memport import WORD_BITS, MemReadPort, MemRequest
 from .rtc_streams import LaneResult, LeafRequest, PacketDone, RayIn, lane_bits
 
-__all__ = ["Traversal", "TravSubunit", "from_binary32", "rr_pick", "lowest"]
+__all__ = ["Traversal", "TravSubunit", "ThreadState"]
 
-COUNTER_BITS = 32
-NODE_BITS = 30
-
-# thread states
-FREE, LOAD, NEXTPASS, FETCH, WAIT_MEM, HAVE_NODE, WAIT_LEAF, POP, DONE, DRAIN, STEP = range(11)
+NODE_BITS = NODE_INDEX_BITS
 
 
-def from_binary32(fmt: FPFormat, b: Value) -> Value:
-    """A binary32 bit pattern of a format value (memory holds those) as a format word."""
-    if (fmt.exp_bits, fmt.frac_bits) == (8, 23):
-        return b[:32]
-    E, M = fmt.exp_bits, fmt.frac_bits
-    e32 = b[23:31]
-    emax = (1 << E) - 1
-    e = Mux(e32 == 0, 0, Mux(e32 == 0xFF, emax, (e32 - 127 + fmt.bias)[:E]))
-    return Cat(b[23 - M:23], e[:E], b[31])
-
-
-def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:
-    """(any, index of the lowest set bit) of ``bits``: a priority encoder."""
-    bits = Value.cast(bits)
-    idx = Signal(range(max(2, len(bits))), name=f"{name}_idx")
-    for i in reversed(range(len(bits))):
-        with m.If(bits[i]):
-            m.d.comb += idx.eq(i)
-    anyb = Signal(name=f"{name}_any")
-    m.d.comb += anyb.eq(bits.any())
-    return anyb, idx
-
-
-def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signal]:
-    """Round-robin: (any, first set bit of ``req`` at or after ``ptr``); len(req) a power of 2."""
-    n = len(req)
-    if n == 1:
-        return lowest(m, req, name)
-    rot = Signal(n, name=f"{name}_rot")
-    m.d.comb += rot.eq((Cat(req, req) >> ptr)[:n])
-    anyb, off = lowest(m, rot, name)
-    idx = Signal(range(n), name=f"{name}_pick")
-    m.d.comb += idx.eq((ptr + off)[:ceil_log2(n)])
-    return anyb, idx
+class ThreadState(enum.Enum, shape=4):
+    """Where a thread (a packet in flight) is."""
+    FREE = 0          # no packet: the loader may take it
+    LOAD = 1          # the loader is writing its rays
+    NEXTPASS = 2      # start the next octant pass (or finish)
+    FETCH = 3         # its node is to be read
+    WAIT_MEM = 4      # node read in flight
+    HAVE_NODE = 5     # node word here, waiting for the control engine
+    WAIT_LEAF = 6     # leaf sent to the list unit, waiting for the leaf's results
+    POP = 7           # pop the stack
+    DONE = 8          # every pass ended: report the packet
+    DRAIN = 9         # reported: its results are being read out
+    STEP = 10         # an inner-node step is in the sub-units
 
 
 def step_layout(cfg: Config) -> data.StructLayout:
@@ -289,6 +265,35 @@ class TravSubunit(wiring.Component):
         return m
 
 
+class _Threads:
+    """The per-thread registers every engine of :class:`Traversal` reads and writes: one
+    register per thread for each field (threads are indexed by a thread id)."""
+
+    def __init__(self, cfg: Config, packet_bits: int):
+        T, L = cfg.threads, cfg.packet_size
+        db = max(1, ceil_log2(cfg.stack_depth))
+
+        def per_thread(shape, name, init=0):
+            return Array(Value.cast(Signal(shape, name=f"{name}{t}", init=init))
+                         for t in range(T))
+        self.T = T
+        self.state = per_thread(ThreadState, "state", ThreadState.FREE)
+        self.node = per_thread(NODE_BITS, "node")         # node to fetch / being worked on
+        self.word = per_thread(WORD_BITS, "word")         # its 64-bit word
+        self.mask = per_thread(L, "mask")                 # active lanes
+        self.term = per_thread(L, "term")                 # terminated lanes
+        self.sp = per_thread(db, "sp")                    # stack pointer
+        self.cur = per_thread(1, "cur")                   # intervals in N (0) or S[sp] (1)
+        self.octant = per_thread(3, "oct")                # the pass's octant
+        self.todo = per_thread(8, "todo")                 # octant passes still to run
+        self.packet = per_thread(packet_bits, "packet")
+        self.lanes = per_thread(L, "lanes")               # lanes the packet has (readout)
+
+    def in_state(self, s: ThreadState) -> Value:
+        """One bit per thread: the thread is in state ``s``."""
+        return Cat(*(self.state[t] == s for t in range(self.T)))
+
+
 class Traversal(wiring.Component):
     """The traversal unit: ``cfg.threads`` packets in flight, ``cfg.trav_subunits`` sub-units.
 
@@ -302,6 +307,9 @@ class Traversal(wiring.Component):
     (idle unit): 2 (pick, dispatch) + ``a`` + ``TravSubunit.STEP_LAT`` + 1 (decide); node
     fetch: memory latency + 2. Throughput: the sub-units issue steps of different threads back
     to back, one lane per cycle each; the control engine takes 2 cycles per step.
+
+    ``elaborate`` builds one engine per method (loader, fetcher, result, done, control with
+    dispatch, decide); they share the per-thread registers (:class:`_Threads`).
     """
 
     def __init__(self, cfg: Config, *, addr_width: int = 32):
@@ -335,52 +343,40 @@ class Traversal(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        cfg, fmt = self.cfg, self.cfg.fmt
-        T, L, k = cfg.threads, cfg.packet_size, cfg.trav_subunits
-        R = cfg.rays_per_subunit
-        tb = cfg.thread_bits
-        db = max(1, ceil_log2(cfg.stack_depth))
-        subs = self.subunits
-        for j, s in enumerate(subs):
+        for j, s in enumerate(self.subunits):
             m.submodules[f"sub{j}"] = s
+        th = _Threads(self.cfg, len(self.rays.payload.packet))
+        db = max(1, ceil_log2(self.cfg.stack_depth))
+        m.submodules.stack = stack = Memory(shape=NODE_BITS + self.cfg.packet_size,
+                                            depth=self.cfg.threads << db, init=[])
+        m.submodules.passmask = pmem = Memory(shape=8 * self.cfg.packet_size,
+                                              depth=self.cfg.threads, init=[])
+        pm_r = pmem.read_port()
+        self._loader(m, th, pmem.write_port())
+        self._fetcher(m, th)
+        self._result_engine(m, th)
+        self._done_engine(m, th)
+        self._control(m, th, stack.read_port(), stack.write_port(), pm_r)
+        return m
 
-        # ---- per-thread state (registers)
-        def per_thread(shape, name, init=0):
-            return Array(Signal(shape, name=f"{name}{t}", init=init) for t in range(T))
-        state = per_thread(4, "state", FREE)
-        node = per_thread(NODE_BITS, "node")
-        word = per_thread(WORD_BITS, "word")
-        mask = per_thread(L, "mask")
-        term = per_thread(L, "term")
-        sp = per_thread(db, "sp")
-        cur = per_thread(1, "cur")
-        octant = per_thread(3, "oct")
-        todo = per_thread(8, "todo")
-        packet = per_thread(len(self.rays.payload.packet), "packet")
-        lanes = per_thread(L, "lanes")              # lanes the packet has (for the readout)
-
-        m.submodules.stack = stack = Memory(shape=NODE_BITS + L, depth=T << db, init=[])
-        st_r, st_w = stack.read_port(), stack.write_port()
-        m.submodules.passmask = pmem = Memory(shape=8 * L, depth=T, init=[])
-        pm_r, pm_w = pmem.read_port(), pmem.write_port()
-
-        def in_state(s):
-            return Cat(*(state[t] == s for t in range(T)))
-
-        # ---- loader: RayIn lanes into a free thread
+    def _loader(self, m: Module, th: _Threads, pm_w) -> None:
+        """``RayIn`` lanes into a free thread, one per cycle; each lane's octant goes into the
+        thread's pass masks (live rays only) and the passes to run into ``todo``."""
+        cfg, L, k, subs = self.cfg, self.cfg.packet_size, self.cfg.trav_subunits, self.subunits
         ld_active = Signal()
-        ld_thread = Signal(tb)
+        ld_thread = Signal(cfg.thread_bits)
         acc = [Signal(L, name=f"acc{o}") for o in range(8)]
         acc_lanes = Signal(L)
-        free_any, free_idx = lowest(m, in_state(FREE), "free")
+        free_any, free_idx = lowest(m, th.in_state(ThreadState.FREE), "free")
         with m.If(~ld_active & free_any):
-            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx), state[free_idx].eq(LOAD)]
+            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx),
+                         th.state[free_idx].eq(ThreadState.LOAD)]
         p = self.rays.payload
         lane_sub, lane_loc = self._split_lane(m, p.lane, "ld")
         blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
         m.d.comb += [self.rays.ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
         take = self.rays.valid & self.rays.ready
-        live = compare(fmt, p.tnear, p.tfar).le
+        live = compare(cfg.fmt, p.tnear, p.tfar).le
         lane_bit, lane_one = Signal(L), Signal(L)
         m.d.comb += [lane_one.eq(Const(1, L) << p.lane), lane_bit.eq(Mux(live, lane_one, 0))]
         acc_new = [Signal(L, name=f"acc_new{o}") for o in range(8)]
@@ -392,42 +388,49 @@ class Traversal(wiring.Component):
                          s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
         m.d.comb += [pm_w.addr.eq(ld_thread), pm_w.data.eq(Cat(*acc_new))]
         with m.If(take):
-            m.d.sync += [packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one)]
+            m.d.sync += [th.packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one)]
             m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
             with m.If(p.last):
                 m.d.comb += pm_w.en.eq(1)
-                m.d.sync += [ld_active.eq(0), state[ld_thread].eq(NEXTPASS), acc_lanes.eq(0),
-                             lanes[ld_thread].eq(acc_lanes | lane_one),
-                             todo[ld_thread].eq(Cat(*(a.any() for a in acc_new))),
-                             term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
+                m.d.sync += [ld_active.eq(0), th.state[ld_thread].eq(ThreadState.NEXTPASS),
+                             acc_lanes.eq(0), th.lanes[ld_thread].eq(acc_lanes | lane_one),
+                             th.todo[ld_thread].eq(Cat(*(a.any() for a in acc_new))),
+                             th.term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
 
-        # ---- fetcher: node reads, round-robin over threads in FETCH
+    def _fetcher(self, m: Module, th: _Threads) -> None:
+        """One 64-bit node read per packet visit, round-robin over threads in ``FETCH``."""
         req = self.node.req
-        f_ptr = Signal(tb)
-        f_any, f_idx = rr_pick(m, in_state(FETCH), f_ptr, "fetch")
-        with m.If((~req.valid | req.ready) & f_any):
-            m.d.sync += [req.valid.eq(1), req.payload.tag.eq(f_idx),
-                         req.payload.addr.eq(self.node_base + node[f_idx]),
-                         state[f_idx].eq(WAIT_MEM), f_ptr.eq(f_idx + 1)]
-        with m.Elif(req.ready):
-            m.d.sync += req.valid.eq(0)
+        m.submodules.fetch_out = out = OutputStage(MemRequest(len(req.payload.addr),
+                                                              len(req.payload.tag)))
+        wiring.connect(m, out.o, wiring.flipped(req))
+        f_ptr = Signal(self.cfg.thread_bits)
+        f_any, f_idx = rr_pick(m, th.in_state(ThreadState.FETCH), f_ptr, "fetch")
+        m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
+                     out.i.payload.addr.eq(self.node_base + th.node[f_idx])]
+        with m.If(out.i.valid & out.i.ready):
+            m.d.sync += [th.state[f_idx].eq(ThreadState.WAIT_MEM), f_ptr.eq(f_idx + 1)]
         with m.If(req.valid & req.ready):
             m.d.sync += self.node_reads.eq(self.node_reads + 1)
         resp = self.node.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
-            m.d.sync += [word[resp.payload.tag].eq(resp.payload.data),
-                         state[resp.payload.tag].eq(HAVE_NODE)]
+            m.d.sync += [th.word[resp.payload.tag].eq(resp.payload.data),
+                         th.state[resp.payload.tag].eq(ThreadState.HAVE_NODE)]
 
-        # ---- result engine: terminate lanes after a leaf
+    def _result_engine(self, m: Module, th: _Threads) -> None:
+        """One ``LaneResult`` per cycle: the lane ends if it hit and is an any-hit ray or its
+        hit lies in the cell (``t <= tfar``, tfar read from its sub-unit); the leaf's ``last``
+        result makes the thread pop."""
+        cfg, fmt, k, subs = self.cfg, self.cfg.fmt, self.cfg.trav_subunits, self.subunits
         rs = self.result.payload
         m.d.comb += self.result.ready.eq(1)
         r_sub, r_loc = self._split_lane(m, rs.lane, "rq")
         for s in subs:
-            m.d.comb += [s.rq_thread.eq(rs.thread), s.rq_lane.eq(r_loc), s.rq_sp.eq(sp[rs.thread]),
-                         s.rq_cur.eq(cur[rs.thread])]
-        r_v, r_thread, r_lane, r_hit, r_t, r_last = (Signal(), Signal(tb), Signal(lane_bits(cfg)),
-                                                     Signal(), Signal(fmt.width), Signal())
+            m.d.comb += [s.rq_thread.eq(rs.thread), s.rq_lane.eq(r_loc),
+                         s.rq_sp.eq(th.sp[rs.thread]), s.rq_cur.eq(th.cur[rs.thread])]
+        r_v, r_thread, r_lane, r_hit, r_t, r_last = (Signal(), Signal(cfg.thread_bits),
+                                                     Signal(lane_bits(cfg)), Signal(),
+                                                     Signal(fmt.width), Signal())
         r_sub1 = Signal(range(max(2, k)))
         m.d.sync += [r_v.eq(self.result.valid), r_thread.eq(rs.thread), r_lane.eq(rs.lane),
                      r_hit.eq(rs.hit), r_t.eq(rs.t), r_last.eq(rs.last), r_sub1.eq(r_sub)]
@@ -436,39 +439,46 @@ class Traversal(wiring.Component):
         kill = r_hit & (anyhit | compare(fmt, r_t, tfar).le)
         with m.If(r_v):
             with m.If(kill):
-                m.d.sync += term[r_thread].eq(term[r_thread] | (Const(1, L) << r_lane))
+                m.d.sync += th.term[r_thread].eq(th.term[r_thread] |
+                                                 (Const(1, cfg.packet_size) << r_lane))
             with m.If(r_last):
-                m.d.sync += state[r_thread].eq(POP)
+                m.d.sync += th.state[r_thread].eq(ThreadState.POP)
 
-        # ---- done engine
-        d_any, d_idx = lowest(m, in_state(DONE), "done")
+    def _done_engine(self, m: Module, th: _Threads) -> None:
+        """``PacketDone`` for a thread whose passes all ended; ``release`` frees the thread."""
         dn = self.done
-        with m.If((~dn.valid | dn.ready) & d_any):
-            m.d.sync += [dn.valid.eq(1), dn.payload.thread.eq(d_idx),
-                         dn.payload.packet.eq(packet[d_idx]), dn.payload.mask.eq(lanes[d_idx]),
-                         state[d_idx].eq(DRAIN)]
-        with m.Elif(dn.ready):
-            m.d.sync += dn.valid.eq(0)
+        m.submodules.done_out = out = OutputStage(PacketDone(self.cfg))
+        wiring.connect(m, out.o, wiring.flipped(dn))
+        d_any, d_idx = lowest(m, th.in_state(ThreadState.DONE), "done")
+        m.d.comb += [out.i.valid.eq(d_any), out.i.payload.thread.eq(d_idx),
+                     out.i.payload.packet.eq(th.packet[d_idx]),
+                     out.i.payload.mask.eq(th.lanes[d_idx])]
+        with m.If(out.i.valid & out.i.ready):
+            m.d.sync += th.state[d_idx].eq(ThreadState.DRAIN)
         with m.If(dn.valid & dn.ready):
             m.d.sync += self.packets_done.eq(self.packets_done + 1)
         m.d.comb += self.release.ready.eq(1)
         with m.If(self.release.valid):
-            m.d.sync += state[self.release.payload].eq(FREE)
+            m.d.sync += th.state[self.release.payload].eq(ThreadState.FREE)
 
-        # ---- step engine
+    def _control(self, m: Module, th: _Threads, st_r, st_w, pm_r) -> None:
+        """The control engine (pick a thread, dispatch its step / leaf / pop / pass) and the
+        decide engine, which share the sub-units' step and verdict queues."""
+        cfg, fmt = self.cfg, self.cfg.fmt
+        T, L, R = cfg.threads, cfg.packet_size, cfg.rays_per_subunit
+        tb, db = cfg.thread_bits, max(1, ceil_log2(cfg.stack_depth))
+        subs = self.subunits
         e_ptr = Signal(tb)
-        e_any, e_idx = rr_pick(m, in_state(HAVE_NODE) | in_state(POP) | in_state(NEXTPASS),
+        e_any, e_idx = rr_pick(m, th.in_state(ThreadState.HAVE_NODE) |
+                               th.in_state(ThreadState.POP) | th.in_state(ThreadState.NEXTPASS),
                                e_ptr, "step")
         e_t = Signal(tb)
-        e_kind = Signal(4)
-        e_word = Signal(WORD_BITS)
+        e_kind = Signal(ThreadState)
+        e_word = Signal(node_layout())
         e_mask = Signal(L)
         e_sp = Signal(db)
         e_cur = Signal()
         e_oct = Signal(3)                            # the octant a new pass starts
-        axis = e_word[:2]
-        field = e_word[2:32]
-        hi = e_word[32:]
         # the step queue of every sub-unit gets the same steps in the same order; the threads
         # of outstanding steps wait in `order` (at most one step per thread is outstanding)
         m.submodules.order = order = SyncFIFO(width=tb, depth=T)
@@ -476,52 +486,30 @@ class Traversal(wiring.Component):
         m.d.comb += [order.w_data.eq(e_t), order.w_en.eq(disp)]
         for j, s in enumerate(subs):
             m.d.comb += [s.step.payload.mask.eq(e_mask[j * R:(j + 1) * R]),
-                         s.step.payload.thread.eq(e_t), s.step.payload.axis.eq(axis),
-                         s.step.payload.split.eq(from_binary32(fmt, hi)),
+                         s.step.payload.thread.eq(e_t), s.step.payload.axis.eq(e_word.axis),
+                         s.step.payload.split.eq(from_binary32(fmt, e_word.value)),
                          s.step.payload.sp.eq(e_sp), s.step.payload.cur.eq(e_cur),
                          s.step.valid.eq(disp)]
         room = Cat(*(s.step.ready for s in subs)).all()
         # synchronous sub-units start each step together; asynchronous ones start when free
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]
-        lo_oc_any, lo_oc = lowest(m, todo[e_t], "pass")
+        lo_oc_any, lo_oc = lowest(m, th.todo[e_t], "pass")
         st_mask = st_r.data[NODE_BITS:]
-        popped = st_mask & ~term[e_t]
-        lf = self.leaf
-
-        with m.If(lf.valid & lf.ready):
-            m.d.sync += [lf.valid.eq(0), self.leaf_reqs.eq(self.leaf_reqs + 1)]
+        popped = st_mask & ~th.term[e_t]
+        m.submodules.leaf_out = lf = OutputStage(LeafRequest(cfg))
+        wiring.connect(m, lf.o, wiring.flipped(self.leaf))
+        m.d.comb += [lf.i.payload.thread.eq(e_t), lf.i.payload.first.eq(e_word.value),
+                     lf.i.payload.count.eq(e_word.index), lf.i.payload.mask.eq(e_mask)]
+        with m.If(self.leaf.valid & self.leaf.ready):
+            m.d.sync += self.leaf_reqs.eq(self.leaf_reqs + 1)
         issued = sum(s.issue for s in subs)
         m.d.sync += self.trav_ops.eq(self.trav_ops + issued)
         for j, s in enumerate(subs):
             with m.If(~s.idle):
                 m.d.sync += self.sub_busy[j].eq(self.sub_busy[j] + 1)
 
-        # ---- decide engine: the oldest outstanding step, once every sub-unit's verdict is in
-        dt = order.r_data
-        dec = Signal()
-        m.d.comb += dec.eq(order.r_rdy & Cat(*(s.res.valid for s in subs)).all())
-        m.d.comb += [order.r_en.eq(dec)] + [s.res.ready.eq(dec) for s in subs]
-        mn = Cat(*(s.res.payload.near for s in subs))
-        mf = Cat(*(s.res.payload.far for s in subs))
-        d_word, d_sp = word[dt], sp[dt]
-        d_field = d_word[2:32]
-        neg = octant[dt].bit_select(d_word[:2], 1)
-        near_node = (d_field + neg)[:NODE_BITS]
-        far_node = (d_field + 1 - neg)[:NODE_BITS]
-        with m.If(dec):
-            with m.If(mn.any() & mf.any()):
-                m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
-                             st_w.en.eq(1)]
-                m.d.sync += [sp[dt].eq(d_sp + 1), node[dt].eq(near_node), mask[dt].eq(mn),
-                             cur[dt].eq(0), state[dt].eq(FETCH), self.pushes.eq(self.pushes + 1)]
-            with m.Elif(mn.any()):
-                m.d.sync += [node[dt].eq(near_node), mask[dt].eq(mn), cur[dt].eq(0),
-                             state[dt].eq(FETCH)]
-            with m.Else():
-                # far only; no child at all ends the pass, as in the model
-                m.d.sync += [node[dt].eq(far_node), mask[dt].eq(mf), cur[dt].eq(1),
-                             state[dt].eq(Mux(mf.any(), FETCH, NEXTPASS))]
+        dec = self._decide(m, th, order, st_w)
         ctl_busy = Signal()
         m.d.comb += ctl_busy.eq(1)
         with m.If(ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()):
@@ -533,31 +521,31 @@ class Traversal(wiring.Component):
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
                 with m.If(e_any):
-                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(state[e_idx]), e_word.eq(word[e_idx]),
-                                 e_mask.eq(mask[e_idx]), e_sp.eq(sp[e_idx]), e_cur.eq(cur[e_idx]),
+                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(th.state[e_idx]),
+                                 e_word.eq(th.word[e_idx]), e_mask.eq(th.mask[e_idx]),
+                                 e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
                                  e_ptr.eq(e_idx + 1)]
                     m.next = "DISPATCH"
             with m.State("DISPATCH"):
-                with m.If(e_kind == HAVE_NODE):
-                    with m.If(axis != 3):
+                with m.If(e_kind == ThreadState.HAVE_NODE):
+                    with m.If(e_word.axis != LEAF):
                         with m.If(room):
                             m.d.comb += disp.eq(1)
                             m.d.sync += [self.trav_steps.eq(self.trav_steps + 1),
-                                         state[e_t].eq(STEP)]
+                                         th.state[e_t].eq(ThreadState.STEP)]
                             m.next = "IDLE"
-                    with m.Elif(field != 0):
+                    with m.Elif(e_word.index != 0):
                         m.next = "LEAF"
                     with m.Else():
                         m.next = "POP"
-                with m.Elif(e_kind == POP):
+                with m.Elif(e_kind == ThreadState.POP):
                     m.next = "POP"
                 with m.Else():
                     m.next = "PASS"
             with m.State("LEAF"):
-                with m.If(~lf.valid | lf.ready):
-                    m.d.sync += [lf.valid.eq(1), lf.payload.thread.eq(e_t),
-                                 lf.payload.first.eq(hi), lf.payload.count.eq(field),
-                                 lf.payload.mask.eq(e_mask), state[e_t].eq(WAIT_LEAF)]
+                m.d.comb += lf.i.valid.eq(1)
+                with m.If(lf.i.ready):
+                    m.d.sync += th.state[e_t].eq(ThreadState.WAIT_LEAF)
                     m.next = "IDLE"
             with m.State("POP"):
                 with m.If(e_sp == 0):
@@ -568,24 +556,56 @@ class Traversal(wiring.Component):
                     m.next = "POP2"
             with m.State("POP2"):
                 with m.If(popped.any()):
-                    m.d.sync += [node[e_t].eq(st_r.data[:NODE_BITS]), mask[e_t].eq(popped),
-                                 sp[e_t].eq(e_sp), cur[e_t].eq(1), state[e_t].eq(FETCH)]
+                    m.d.sync += [th.node[e_t].eq(st_r.data[:NODE_BITS]), th.mask[e_t].eq(popped),
+                                 th.sp[e_t].eq(e_sp), th.cur[e_t].eq(1),
+                                 th.state[e_t].eq(ThreadState.FETCH)]
                     m.next = "IDLE"
                 with m.Else():
                     m.next = "POP"
             with m.State("PASS"):
                 with m.If(~lo_oc_any):
-                    m.d.sync += state[e_t].eq(DONE)
+                    m.d.sync += th.state[e_t].eq(ThreadState.DONE)
                     m.next = "IDLE"
                 with m.Else():
                     m.d.comb += pm_r.addr.eq(e_t)
                     m.d.sync += [e_oct.eq(lo_oc),
-                                 todo[e_t].eq(todo[e_t] & ~(Const(1, 8) << lo_oc))]
+                                 th.todo[e_t].eq(th.todo[e_t] & ~(Const(1, 8) << lo_oc))]
                     m.next = "PASS2"
             with m.State("PASS2"):
-                m.d.sync += [mask[e_t].eq(pm_r.data.word_select(e_oct, L)),
-                             node[e_t].eq(self.root), sp[e_t].eq(0), cur[e_t].eq(0),
-                             octant[e_t].eq(e_oct), state[e_t].eq(FETCH),
+                m.d.sync += [th.mask[e_t].eq(pm_r.data.word_select(e_oct, L)),
+                             th.node[e_t].eq(self.root), th.sp[e_t].eq(0), th.cur[e_t].eq(0),
+                             th.octant[e_t].eq(e_oct), th.state[e_t].eq(ThreadState.FETCH),
                              self.passes.eq(self.passes + 1)]
                 m.next = "IDLE"
-        return m
+
+    def _decide(self, m: Module, th: _Threads, order, st_w) -> Signal:
+        """The oldest outstanding step, once every sub-unit's verdict is in: both children ->
+        push the far one and go near; near only; far only; none ends the pass (as in
+        ``model.traversal.decide``). One cycle. Returns the signal that a step is decided."""
+        subs = self.subunits
+        dt = order.r_data
+        dec = Signal()
+        m.d.comb += dec.eq(order.r_rdy & Cat(*(s.res.valid for s in subs)).all())
+        m.d.comb += [order.r_en.eq(dec)] + [s.res.ready.eq(dec) for s in subs]
+        mn = Cat(*(s.res.payload.near for s in subs))
+        mf = Cat(*(s.res.payload.far for s in subs))
+        d_word = data.View(node_layout(), th.word[dt])
+        d_sp = th.sp[dt]
+        neg = th.octant[dt].bit_select(d_word.axis, 1)
+        near_node = (d_word.index + neg)[:NODE_BITS]
+        far_node = (d_word.index + 1 - neg)[:NODE_BITS]
+        with m.If(dec):
+            with m.If(mn.any() & mf.any()):
+                m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
+                             st_w.en.eq(1)]
+                m.d.sync += [th.sp[dt].eq(d_sp + 1), th.node[dt].eq(near_node),
+                             th.mask[dt].eq(mn), th.cur[dt].eq(0),
+                             th.state[dt].eq(ThreadState.FETCH), self.pushes.eq(self.pushes + 1)]
+            with m.Elif(mn.any()):
+                m.d.sync += [th.node[dt].eq(near_node), th.mask[dt].eq(mn), th.cur[dt].eq(0),
+                             th.state[dt].eq(ThreadState.FETCH)]
+            with m.Else():
+                m.d.sync += [th.node[dt].eq(far_node), th.mask[dt].eq(mf), th.cur[dt].eq(1),
+                             th.state[dt].eq(Mux(mf.any(), ThreadState.FETCH,
+                                                 ThreadState.NEXTPASS))]
+        return dec

@@ -1,0 +1,73 @@
+"""Pieces every unit uses, defined once: counter width, priority encoder, round-robin pick,
+the registered stream output, and the memory's binary32 words as format words."""
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module, Mux, Signal, Value
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from model.fp import FPFormat
+
+__all__ = ["COUNTER_BITS", "lowest", "rr_pick", "OutputStage", "from_binary32"]
+
+COUNTER_BITS = 32      # every statistics counter the hardware reports
+
+
+def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:
+    """(any, index of the lowest set bit) of ``bits``: a priority encoder."""
+    bits = Value.cast(bits)
+    idx = Signal(range(max(2, len(bits))), name=f"{name}_idx")
+    for i in reversed(range(len(bits))):
+        with m.If(bits[i]):
+            m.d.comb += idx.eq(i)
+    anyb = Signal(name=f"{name}_any")
+    m.d.comb += anyb.eq(bits.any())
+    return anyb, idx
+
+
+def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signal]:
+    """Round-robin: (any, first set bit of ``req`` at or after ``ptr``); len(req) a power of 2."""
+    n = len(req)
+    if n == 1:
+        return lowest(m, req, name)
+    rot = Signal(n, name=f"{name}_rot")
+    m.d.comb += rot.eq((Cat(req, req) >> ptr)[:n])
+    anyb, off = lowest(m, rot, name)
+    idx = Signal(range(n), name=f"{name}_pick")
+    m.d.comb += idx.eq((ptr + off)[:ceil_log2(n)])
+    return anyb, idx
+
+
+class OutputStage(wiring.Component):
+    """A registered stream output: ``o.valid`` and ``o.payload`` are flip-flops.
+
+    ``i.ready`` is combinational: the register is empty or its transfer happens this cycle, so a
+    producer can hand over one payload per cycle with no bubble. Latency 1, throughput 1.
+    """
+
+    def __init__(self, layout):
+        super().__init__({"i": In(stream.Signature(layout)), "o": Out(stream.Signature(layout))})
+
+    def elaborate(self, platform):
+        m = Module()
+        i, o = self.i, self.o
+        m.d.comb += i.ready.eq(~o.valid | o.ready)
+        with m.If(i.valid & i.ready):
+            m.d.sync += [o.valid.eq(1), o.payload.eq(i.payload)]
+        with m.Elif(o.ready):
+            m.d.sync += o.valid.eq(0)
+        return m
+
+
+def from_binary32(fmt: FPFormat, x: Value) -> Value:
+    """A format word from the binary32 pattern of a format value (as memory holds it): the sign,
+    the exponent re-biased (0 and all-ones kept) and the top M fraction bits."""
+    x = Value.cast(x)
+    E, M = fmt.exp_bits, fmt.frac_bits
+    if (E, M) == (8, 23):
+        return x[:32]
+    e32 = x[23:31]
+    emax = (1 << E) - 1
+    e = Mux(e32 == 0, 0, Mux(e32 == 0xFF, emax, (e32 - 127 + fmt.bias)[:E]))
+    return Cat(x[23 - M:23], e[:E], x[31])
