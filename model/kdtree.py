@@ -39,11 +39,11 @@ import numpy as np
 
 from .config import Config
 from .fp import round_exact
+from .layout import LEAF, image_size_words
 
 BUILDER_VERSION = 2
 """Bump whenever the builder's output for a given input changes (invalidates the disk cache)."""
 
-LEAF = 3
 """``axis`` value of a leaf node (0/1/2 = split axis of an inner node)."""
 
 
@@ -569,8 +569,6 @@ def kdtree_stats(tree: KdTree, n_tris: int | None = None) -> dict:
     """Node/leaf/list figures and the size of the memory image (without shading data).
 
     ``n_tris``: triangles in the scene (default: the largest listed index + 1)."""
-    from .layout import image_size_words
-
     leaf = tree.axis == LEAF
     counts = tree.count[leaf]
     if n_tris is None:

@@ -16,19 +16,23 @@ of values of the configured format (for M < 23 the low fraction bits are zero).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 from pathlib import Path
 
 import numpy as np
 
 from .config import Config
 from .fp import FPFormat
-from .kdtree import LEAF, KdTree
+
+if TYPE_CHECKING:
+    from .kdtree import KdTree
 
 MAGIC = int(np.frombuffer(b"SAARCOR1", "<u8")[0])
 SHADE_MAGIC = int(np.frombuffer(b"SHADING1", "<u8")[0])
 HEADER_WORDS = 8
 ALIGN = 8                     # every section starts at a multiple of 8 words
 TRI_WORDS = 5                 # 9 x binary32 (288 bits) + 32-bit id = 5 words
+LEAF = 3                      # node axis code of a leaf (0, 1, 2: split axis x, y, z)
 NODE_INDEX_BITS = 30          # left-child index / leaf triangle count
 LIST_INDEX_BITS = 32          # leaf's first list entry
 ADDR_BITS = 32                # word addresses in the header (32 GB of memory)

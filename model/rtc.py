@@ -16,9 +16,9 @@ import numpy as np
 from .events import EV_DONE, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI, decode, record
 from .intersection import fetch_triangle, test_triangle
 from .lanes import popcount
-from .layout import TRI_WORDS
+from .layout import LEAF, TRI_WORDS
 from .list import leaf_entries
-from .traversal import (LEAF, bits_to_f32, classify, decide, decode_node, pass_mask, pop,
+from .traversal import (bits_to_f32, classify, decide, decode_node, pass_mask, pop,
                         start_packet, terminate)
 
 # per-packet counters; the names are the keys of the statistics

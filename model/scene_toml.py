@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from . import scene_geometry as geo
-from .scene import (DEFAULT_BACKGROUND, Camera, Light, Material, Scene, SceneError, _auto_camera,
-                    _finish, _load_mesh_file)
+from .scene_data import (DEFAULT_BACKGROUND, Camera, Light, Material, Scene, SceneError,
+                         auto_camera, finish_pieces, grey_material, load_mesh_file)
 
 TOP_KEYS = ("name", "background", "camera", "light", "material", "object")
 CAMERA_KEYS = ("position", "look_at", "up", "fov")
@@ -286,9 +286,8 @@ class _Builder:
 
     def default_material(self) -> int:
         if "default" not in self.index:
-            from .scene import _grey_material
             self.index["default"] = len(self.materials)
-            self.materials.append(_grey_material())
+            self.materials.append(grey_material())
         return self.index["default"]
 
     def object(self, tbl, where: str, parent: np.ndarray, mat: int | None, depth: int) -> None:
@@ -314,7 +313,7 @@ class _Builder:
         kind = geoms[0]
         piece = None
         if kind == "mesh":
-            piece = _load_mesh_file(self.base / r.str("mesh"), where)
+            piece = load_mesh_file(self.base / r.str("mesh"), where)
         elif kind != "part":
             piece = _shape(kind, r.tbl[kind], where)
         else:
@@ -366,11 +365,11 @@ def load_toml(path: Path) -> Scene:
         b.object(o, f"{path}: object {i}", np.eye(4), None, 0)
     if not b.pieces:
         raise SceneError(f"{path}: the scene has no triangles; add objects")
-    tris, ids, n, mat, uv, normals, ndeg = _finish(b.pieces)
+    tris, ids, n, mat, uv, normals, ndeg = finish_pieces(b.pieces)
     if len(tris) == 0:
         raise SceneError(f"{path}: no triangles left after dropping {ndeg} degenerate ones "
                          "(zero area or repeated vertices); the scene is empty")
     if camera is None:
-        camera = _auto_camera(tris)
+        camera = auto_camera(tris)
     return Scene(name, tris, ids, n, mat, uv, normals, b.materials, lights, camera,
                  background, {"degenerate": ndeg, "nonfinite": 0}, str(path))

@@ -21,7 +21,6 @@ import numpy as np
 from .fp import fmax, fmin, fmul, fsub, sign_bit
 from .lanes import lowest_lane
 
-LEAF = 3
 
 @numba.njit(cache=True, inline="always")
 def decode_node(w):

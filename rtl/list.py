@@ -15,6 +15,7 @@ from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
 from model.config import Config
+from model.layout import list_word_layout
 
 from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import LeafRequest, TriRequest
@@ -129,14 +130,14 @@ class ListUnit(wiring.Component):
         h = data.View(meta, fifo.r_data)
         upper = Signal()                   # the head word's low entry is already out
         take_hi = Signal()
-        head = Signal(WORD_BITS)
+        head = Signal(list_word_layout())     # two 32-bit entries, low first
         m.d.comb += [
             head.eq(slot_data[rd_tag]),
             take_hi.eq(upper | ~h.lo),
             tri.valid.eq(fifo.r_rdy & slot_full.bit_select(rd_tag, 1)),
             tri.payload.thread.eq(h.thread),
             tri.payload.mask.eq(h.mask),
-            tri.payload.tri.eq(Mux(take_hi, head[32:], head[:32])),
+            tri.payload.tri.eq(Mux(take_hi, head[1], head[0])),
             tri.payload.last.eq(h.last & (take_hi | ~h.hi)),
         ]
         emit = tri.valid & tri.ready

@@ -57,7 +57,7 @@ from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
 from .rtc_streams import LaneResult, LeafRequest, PacketDone, RayIn, lane_bits
 
-__all__ = ["Traversal", "TravSubunit", "ThreadState"]
+__all__ = ["Traversal", "TravSubunit", "StepIssue", "ThreadState"]
 
 NODE_BITS = NODE_INDEX_BITS
 
@@ -87,6 +87,51 @@ def step_layout(cfg: Config) -> data.StructLayout:
 def step_result_layout(cfg: Config) -> data.StructLayout:
     """A sub-unit's verdict on a step: lanes that need the near / the far child."""
     return data.StructLayout({"near": cfg.rays_per_subunit, "far": cfg.rays_per_subunit})
+
+
+class StepIssue(wiring.Component):
+    """A sub-unit's step queue (``queue`` entries) and issue stage: the lanes of the current
+    step's mask, lowest first, one per cycle; a step with no lane of this sub-unit takes one
+    cycle. The next step is taken when ``go`` is 1 and the stage is free or frees in this cycle
+    (``can_start``), so steps issue back to back.
+
+    Outputs per cycle: ``active`` (a step is issuing), ``cur`` (that step), ``has_lane``,
+    ``lane`` (the lane issued now), ``last`` (the step's last cycle); ``queued`` (a step waits).
+    """
+
+    def __init__(self, cfg: Config, *, queue: int):
+        self.cfg, self.queue = cfg, queue
+        R = cfg.rays_per_subunit
+        super().__init__({
+            "step": In(stream.Signature(step_layout(cfg))),
+            "go": In(1, init=1), "can_start": Out(1), "queued": Out(1),
+            "active": Out(1), "cur": Out(step_layout(cfg)), "has_lane": Out(1),
+            "lane": Out(max(1, ceil_log2(R))), "last": Out(1),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        R, slay = self.cfg.rays_per_subunit, step_layout(self.cfg)
+        m.submodules.queue = q = SyncFIFO(width=slay.size, depth=self.queue)
+        m.d.comb += [q.w_data.eq(self.step.payload), q.w_en.eq(self.step.valid),
+                     self.step.ready.eq(q.w_rdy), self.queued.eq(q.r_rdy)]
+        head = slay(q.r_data)
+        act, d = self.active, self.cur
+        rem = Signal(R)                     # lanes of the current step not issued yet
+        has, lane0 = lowest(m, rem, "issue")
+        last = self.last
+        m.d.comb += [self.has_lane.eq(has), self.lane.eq(lane0),
+                     last.eq(~(rem & ~(Const(1, R) << lane0)).any())]
+        take = Signal()
+        m.d.comb += [self.can_start.eq(q.r_rdy & (~act | last)),
+                     take.eq(self.can_start & self.go), q.r_en.eq(take)]
+        with m.If(take):
+            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask)]
+        with m.Elif(act & last):
+            m.d.sync += act.eq(0)
+        with m.Elif(act):
+            m.d.sync += rem.eq(rem & ~(Const(1, R) << lane0))
+        return m
 
 
 class TravSubunit(wiring.Component):
@@ -159,28 +204,11 @@ class TravSubunit(wiring.Component):
         m.submodules.vmin = vmin = FPMinMax(fmt, latency=1)
         m.submodules.vmax = vmax = FPMinMax(fmt, latency=1)
 
-        # ---- step queue and issue stage: lanes of the step's mask, lowest first, one per cycle
-        slay = step_layout(cfg)
-        m.submodules.queue = q = SyncFIFO(width=slay.size, depth=self.queue)
-        m.d.comb += [q.w_data.eq(self.step.payload), q.w_en.eq(self.step.valid),
-                     self.step.ready.eq(q.w_rdy)]
-        head = slay(q.r_data)
-        act = Signal()                      # a step is issuing
-        d = Signal(slay)                    # ... this one
-        rem = Signal(R)                     # its lanes not issued yet
-        has, lane0 = lowest(m, rem, "issue")
-        last = Signal()
-        m.d.comb += last.eq(~(rem & ~(Const(1, R) << lane0)).any())
-        boundary = ~act | last
-        take = Signal()
-        m.d.comb += [self.can_start.eq(q.r_rdy & boundary), take.eq(self.can_start & self.go),
-                     q.r_en.eq(take)]
-        with m.If(take):
-            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask)]
-        with m.Elif(act & last):
-            m.d.sync += act.eq(0)
-        with m.Elif(act):
-            m.d.sync += rem.eq(rem & ~(Const(1, R) << lane0))
+        # ---- step queue and issue stage
+        m.submodules.issue = iss = StepIssue(cfg, queue=self.queue)
+        wiring.connect(m, wiring.flipped(self.step), iss.step)
+        m.d.comb += [iss.go.eq(self.go), self.can_start.eq(iss.can_start)]
+        act, has, last, lane0, d = iss.active, iss.has_lane, iss.last, iss.lane, iss.cur
 
         # ---- the pipeline: per stage a slot (e), a lane in it (v), its step's tag
         tag = data.StructLayout({"e": 1, "v": 1, "last": 1, "lane": rb, "thread": tb,
@@ -192,7 +220,7 @@ class TravSubunit(wiring.Component):
                      st[0].cur.eq(d.cur), self.issue.eq(act & has)]
         for k in range(1, K + 1):
             m.d.sync += st[k].eq(st[k - 1])
-        m.d.comb += self.idle.eq(~act & ~q.r_rdy & ~Cat(*(s.e for s in st[1:])).any())
+        m.d.comb += self.idle.eq(~act & ~iss.queued & ~Cat(*(s.e for s in st[1:])).any())
 
         # ---- k=0: ray read; k=1: register; k=2: split - org[axis]
         m.d.comb += ray_r.addr.eq(Cat(st[0].lane, st[0].thread))
