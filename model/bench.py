@@ -11,8 +11,8 @@ Writes ``<out>/model.json``:
 * ``kdtree_build``: build seconds for a >= 1M-triangle scene (``--build-copies`` copies of the
   mesh, offset in space; no cache).
 
-Default mesh: ``../shared/meshes/dragon.obj`` (the issue's reference); if absent, the
-procedural ``scenes/terrain.toml``.
+Default scene: ``--mesh`` (any mesh or TOML scene; the README's figures use the Stanford
+dragon, 100 k triangles); without it, the procedural ``scenes/terrain.toml``.
 """
 from __future__ import annotations
 
@@ -86,8 +86,7 @@ def main(argv=None) -> dict:
     res = tuple(int(x) for x in args.res.split("x"))
     mesh = args.mesh
     if mesh is None:
-        dragon = ROOT.parent / "shared" / "meshes" / "dragon.obj"
-        mesh = str(dragon if dragon.exists() else ROOT / "scenes" / "terrain.toml")
+        mesh = str(ROOT / "scenes" / "terrain.toml")
     scene = load_scene(mesh)
     try:
         import embreex  # noqa: F401  (test/bench dependency: is it installed?)

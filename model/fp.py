@@ -18,8 +18,9 @@ layout (sign, biased exponent, fraction; exponent all-ones is inf/NaN). The hard
 
 Values are carried in NumPy/numba as ``float32`` (every format with E <= 8, M <= 23 embeds
 exactly in binary32). An operation converts its operands exactly to float64, computes there and
-rounds **once** to (E, M); see ``shared/ARITHMETIC.md`` for why one rounding from float64 is
-exact for M <= 23. For binary32 a fast path uses the float32 result directly and falls back to
+rounds **once** to (E, M). One rounding from float64 is exact for M <= 23: float64 holds
+53 >= 2(M+1)+2 significant bits, so rounding the float64 result again cannot double-round
+(checked exhaustively for small formats and on adversarial operands in ``tests/test_fp_model.py``). For binary32 a fast path uses the float32 result directly and falls back to
 the exact rounding only when that result is at or below the smallest normal (the one band where
 IEEE gradual underflow and flush-after-rounding disagree).
 

@@ -3,7 +3,8 @@
 :class:`RTC` wires the three units with ``lib.stream`` interfaces (``wiring.connect``) and
 exposes their three memory read ports (node, list, triangle) for the caches and the bus.
 :class:`RTCSim` puts an :class:`~rtl.memory.IdealMemory` holding the memory image behind each
-port (simulation stand-in until the caches are connected).
+port (the unit-level simulation set-up; ``rtl.export.RTCTop`` puts caches and the bus in
+front of the ports instead).
 
 Packets: ``rays`` takes ``RayIn`` lanes; a free thread of the traversal unit takes the next
 packet (``rays.ready`` is low while every thread is busy). Each lane goes, in the same cycle,

@@ -151,7 +151,7 @@ def bits(fmt, *vals):
 
 @pytest.mark.parametrize("fmt", WIDE, ids=str)
 def test_band_cases(fmt):
-    """Named cases of shared/ARITHMETIC.md, generalized to M, each checked by the reference
+    """Named flush-after-rounding band cases, generalized to M, each checked by the reference
     (and the expected outcome class asserted so the reference itself is checked too)."""
     ex = ExactFormat(*fmt.em)
     M = fmt.frac_bits
@@ -197,7 +197,7 @@ def test_band_cases(fmt):
         assert got == want, f"{fmt} {op}({x!r}, {y!r}): model {got:#x}, exact {want:#x}"
         if kind is not None and kind in expect_value:
             assert want == int(bits(fmt, expect_value[kind])[0]), (op, x, y, kind, hex(want))
-    if fmt == BINARY32:        # the literal encodings named in ARITHMETIC.md
+    if fmt == BINARY32:        # the literal encodings of the band cases
         assert fmt.to_bits(fmt.mul(np.uint32(0x3F7FFFFF).view(np.float32),
                                    np.uint32(0x00800000).view(np.float32))) == 0
         assert fmt.to_bits(fmt.mul(np.uint32(0x3F7FFFFE).view(np.float32),
