@@ -168,7 +168,7 @@ def fetch_triangle(mem, tri_base, i, out):
     return np.int64(-1)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, rec, rec_n, pid):
     """The intersection unit on one triangle: test every lane of ``mask`` in lane order (the
     issue stage), and keep the closest hit (best-hit update): a hit is accepted when

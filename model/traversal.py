@@ -133,7 +133,7 @@ def pass_mask(oc, octant, live, n):
     return mask
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def decide(oc, axis, child, mnear, mfar, sp, dist, tnear, tfar, s_node, s_mask, s_near, s_far,
            n):
     """The decide engine, after every sub-unit classified its lanes at an inner node.
@@ -156,7 +156,7 @@ def decide(oc, axis, child, mnear, mfar, sp, dist, tnear, tfar, s_node, s_mask, 
     return far, mfar, sp, False
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def terminate(mask, terminated, b_tri, anyhit, r0, best, tfar):
     """The result engine, after a leaf's triangles: a lane of ``mask`` ends if it has a hit
     and either is an any-hit (shadow) ray or its closest hit lies in this cell
