@@ -257,3 +257,26 @@ def render64(ref: Reference, width: int, height: int, reflect_depth: int = 3,
         org, d = p0[want], r[want]
         pixel, weight = pixel[hit[want]], weight[hit[want]] * refl[want]
     return color.reshape(height, width, 3).astype(np.float32), eye_hits
+
+
+@numba.njit(cache=True, parallel=True)
+def crossings64(tris, org, dirn, tlim):
+    """Per ray, the number of triangles (9 float64 each) the float64 test hits with
+    0 < t <= tlim (every triangle tested; for a few rays)."""
+    out = np.zeros(org.shape[0], np.int64)
+    for r in numba.prange(org.shape[0]):
+        d = dirn[r]
+        kz = 0
+        for a in (1, 2):
+            if abs(d[a]) > abs(d[kz]):
+                kz = a
+        kx = (kz + 1) % 3
+        ky = (kx + 1) % 3
+        if d[kz] < 0:
+            kx, ky = ky, kx
+        sx, sy, sz = d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]
+        for i in range(tris.shape[0]):
+            hit, t, u, v = intersect64(tris[i], org[r], kx, ky, kz, sx, sy, sz)
+            if hit and t > 0 and t <= tlim[r]:
+                out[r] += 1
+    return out
