@@ -67,6 +67,7 @@ def plot(result: dict, out_dir: Path) -> list[Path]:
     ]
     for fname, xlabel, x_of, logx in axes_def:
         fig, ax = plt.subplots(figsize=(7.5, 5))
+        ax.set_prop_cycle(color=plt.cm.tab20.colors)
         for s in scenes:
             xs, ys, labels = points(result, s, x_of)
             if not len(xs):
@@ -90,6 +91,8 @@ def plot(result: dict, out_dir: Path) -> list[Path]:
         written.append(p)
     # eye-ray flips and t error against M
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for a in (a1, a2):
+        a.set_prop_cycle(color=plt.cm.tab20.colors)
     for s in scenes:
         ms, flips, t99 = [], [], []
         for fmt, row in result["scenes"][s]["formats"].items():
@@ -120,3 +123,41 @@ if __name__ == "__main__":
     for p in plot(json.loads(src.read_text()), Path(sys.argv[2] if len(sys.argv) > 2
                                                      else "build/bench/precision")):
         print(p)
+
+
+def tables(result: dict) -> str:
+    """Markdown tables of the study: per scene and format, and the FP-unit cost per format."""
+    def psnr(row):
+        v = row["image"]["psnr_db"]
+        return "∞" if v == "inf" else f"{v:.1f}"
+    lines = ["| scene | format | PSNR dB | worst | >1 level | eye flips | wrong tri | t rel p50 "
+             "| t rel p99 | t rel max | shadow flips | self hits | M rays/s |",
+             "|" + "---|" * 13]
+    for s, sr in result["scenes"].items():
+        for fmt, r in sr["formats"].items():
+            if "error" in r:
+                lines.append(f"| {s} | {fmt} | {r['error'][:60]} |" + " |" * 11)
+                continue
+            e, sh = r["eye"], r["shadow"]
+            lines.append(
+                f"| {s} | {fmt} | {psnr(r)} | {r['image']['worst_levels']} | "
+                f"{100 * r['image']['share_off_gt_1_level']:.2f} % | {e['flips']} | "
+                f"{e['wrong_triangle']} | {e['t_rel_median']:.1e} | {e['t_rel_p99']:.1e} | "
+                f"{e['t_rel_max']:.1e} | {sh.get('flips', 0)} | {sh.get('self_hits', 0)} | "
+                f"{r['rays_per_second'] / 1e6:.2f} |")
+    lines += ["", "| format | add LUT4/FF/DSP | mul LUT4/FF/DSP | div LUT4/FF/DSP (latency) |"
+              " sum LUT4 |", "|---|---|---|---|---|"]
+    for fmt, c in result.get("fp_units", {}).items():
+        cell = lambda u: f"{c[u]['LUT4']}/{c[u]['FF']}/{c[u]['DSP']}"  # noqa: E731
+        lines.append(f"| {fmt} | {cell('add')} | {cell('mul')} | {cell('div')} "
+                     f"({c['div']['latency']}) | {fp_luts(result, fmt):.0f} |")
+    lines += ["", "| closed mesh | " + " | ".join(result["formats"]) + " |",
+              "|" + "---|" * (len(result["formats"]) + 1)]
+    for name, rows in result.get("leaks", {}).items():
+        lines.append(f"| {name} | " + " | ".join(
+            f"{rows[f]['leaks']}/{rows[f]['grazing']}" for f in result["formats"]) + " |")
+    lines += ["", "| scene | smallest M (E8): PSNR ≥ 40 dB, no leaks, < 0.1 % eye flips |",
+              "|---|---|"]
+    for s, sr in result["scenes"].items():
+        lines.append(f"| {s} | {sr.get('smallest_m_psnr40_noleak_flips0.1pct')} |")
+    return "\n".join(lines) + "\n"
