@@ -140,8 +140,14 @@ def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat) -> RaySetup:
     tnear = np.zeros(len(d), np.float32)
     tfar = rays.tmax.astype(np.float32).copy()
     for a in range(3):
-        t0 = fmt.mul(fmt.sub(lo[a], o[:, a]), inv[:, a])
-        t1 = fmt.mul(fmt.sub(hi[a], o[:, a]), inv[:, a])
+        with np.errstate(invalid="ignore"):
+            t0 = fmt.mul(fmt.sub(lo[a], o[:, a]), inv[:, a])
+            t1 = fmt.mul(fmt.sub(hi[a], o[:, a]), inv[:, a])
+        # 0 * inf = NaN: d[a] = ±0 and the origin on a face plane of the box; the ray lies in
+        # that plane, inside the closed slab, so this axis does not clip it
+        flat = np.isnan(t0) | np.isnan(t1)
+        t0 = np.where(flat, np.float32(-np.inf), t0)
+        t1 = np.where(flat, np.float32(np.inf), t1)
         tnear = fmt.max(tnear, fmt.min(t0, t1))
         tfar = fmt.min(tfar, fmt.max(t0, t1))
     return RaySetup(inv, np.stack([kx, ky, kz], axis=1).astype(np.int64), s, tnear, tfar)

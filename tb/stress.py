@@ -14,6 +14,7 @@ import json
 import sys
 import time
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +25,7 @@ from model.layout import build_image
 from model.raygen import Rays, setup
 from model.rtc import counter_totals, trace
 
-from .exact import ExactHits, exact_closest
+from .exact import ExactHits, exact_closest, exact_pairs, moller_trumbore32
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -172,3 +173,231 @@ def tie_case(cfg: Config, n: int = 16, seed: int = 0, packet: int = 16) -> Case:
         raise RuntimeError(f"tie search found {len(org)} of {n} rays in format {fmt}")
     rays = make_rays(org, dirn, packet=packet)
     return Case("tie_t_eq_tfar", tris, image, rays, exact_closest(tris, org, dirn))
+
+
+# --- judging a tracer's hits against the exact oracle ------------------------------------------
+
+def judge(tris, org, dirn, tri, t, candidates, tmax=None, rel_tol: float = 2.0 ** -20) -> dict:
+    """Compare per-ray hits ``tri`` / ``t`` (any tracer) with the exact closest hit among each
+    ray's ``candidates`` (the tracer's own triangle is added to them).
+
+    * ``leaks``: the exact answer is a hit, the tracer reports none;
+    * ``ghosts``: the tracer reports a hit, exactly the ray hits none of the candidates;
+    * ``other_tri``: both hit, the tracer's triangle is not among the exactly closest ones
+      (a neighbour across an edge the ray passes within an ulp of, or a near tie);
+      ``other_tri_far``: of those, the ones whose plane the ray meets more than ``rel_tol``
+      (relative) away from the exact closest t (the tracer went through or stopped short);
+    * ``t_rel_max``: largest |t - t_exact| / t_exact where both agree on the triangle."""
+    tri = np.asarray(tri, np.int64)
+    cands = [np.unique(np.r_[np.asarray(c, np.int64), [tri[i]] if tri[i] >= 0 else []]).astype(
+        np.int64) for i, c in enumerate(candidates)]
+    ex = exact_closest(tris, org, dirn, cands, tmax)
+    got = tri >= 0
+    leaks = ex.hit & ~got
+    ghosts = ~ex.hit & got
+    both = np.flatnonzero(ex.hit & got)
+    other = [i for i in both if int(tri[i]) not in ex.ties[i]]
+    far = []
+    if other:
+        # the tracer's triangle, exactly: where its plane meets the ray (inside the triangle
+        # or, for a near-edge choice, just beside it)
+        _, num, den = exact_pairs(tris, org, dirn, np.array(other), tri[other], None)
+        for j, i in enumerate(other):
+            if den[j] == 0:
+                far.append(i)
+                continue
+            te = Fraction(int(num[j]), int(den[j]))
+            if abs(te - ex.t[i]) > ex.t[i] * Fraction(rel_tol):
+                far.append(i)
+    same = [i for i in both if int(tri[i]) in ex.ties[i]]
+    rel = [abs(Fraction(float(t[i])) - ex.t[i]) / ex.t[i] for i in same]
+    return {"rays": int(len(tri)), "exact_hits": int(ex.hit.sum()), "leaks": int(leaks.sum()),
+            "ghosts": int(ghosts.sum()), "other_tri": len(other), "other_tri_far": len(far),
+            "t_rel_max": float(max(rel)) if rel else 0.0,
+            "leak_rays": np.flatnonzero(leaks)[:8].tolist(),
+            "ghost_rays": np.flatnonzero(ghosts)[:8].tolist(), "far_rays": far[:8]}
+
+
+def model_judge(case: Case, cfg: Config, candidates=None) -> tuple[dict, dict]:
+    """Trace the case on the golden model and judge it (near ties within 8 ulps of the format);
+    returns (verdict, counter totals)."""
+    hits, ctrs = trace(case.image, case.rays, cfg)
+    n = len(case.rays)
+    cands = candidates if candidates is not None else case.info.get(
+        "candidates", [np.arange(len(case.tris))] * n)
+    v = judge(case.tris, case.rays.org, case.rays.dir, hits.tri, hits.t, cands, case.rays.tmax,
+              rel_tol=2.0 ** (3 - cfg.fmt.frac_bits))
+    return v, counter_totals(ctrs)
+
+
+# --- closed meshes and rays exactly through their edges and vertices ---------------------------
+
+def closed_meshes() -> dict:
+    """Closed procedural meshes (trimesh), vertices snapped to a 2^-6 grid."""
+    import trimesh
+    out = {}
+    for name, make in {
+        "icosphere": lambda: trimesh.creation.icosphere(subdivisions=3, radius=2.0),
+        "box": lambda: trimesh.creation.box(extents=(2.0, 3.0, 1.0)).subdivide().subdivide(),
+        "cylinder": lambda: trimesh.creation.cylinder(radius=1.0, height=3.0, sections=40),
+    }.items():
+        m = make()
+        m.vertices = np.round(m.vertices * 64) / 64
+        m.merge_vertices()
+        m.update_faces(m.nondegenerate_faces())
+        assert m.is_watertight, name
+        out[name] = m
+    return out
+
+
+def _stars(faces: np.ndarray, n_vertices: int) -> list:
+    """Faces around each vertex."""
+    star = [[] for _ in range(n_vertices)]
+    for f, tri in enumerate(faces):
+        for v in tri:
+            star[v].append(f)
+    return [np.array(s, np.int64) for s in star]
+
+
+def watertight_case(mesh, cfg: Config, n_max: int = 2000, seed: int = 0, scale: float = 1.0,
+                    offset: float = 0.0, packet: int = 64, name: str = "watertight",
+                    exact: bool = True) -> Case:
+    """Rays from outside through mesh vertices and exact edge midpoints, each entering the
+    surface there (against the normal of every face around its target), with directions on a
+    2^-5 grid so that, at scale 1 and offset 0, the ray passes *exactly* through its target at
+    t = 8. With ``scale``/``offset`` the mesh is moved (x' = x*scale + offset, then rounded to
+    the format); targets, origins and directions are rounded too, so rays pass within an ulp of
+    their targets. ``exact=False``: edge targets at random points of the edges and unit
+    directions, all rounded (the rays pass within an ulp of the edge, on either side: the case
+    that breaks a non-watertight test). ``info["candidates"]``: per ray the faces around its target's neighbourhood
+    (every face a ray through that point can enter by)."""
+    fmt = cfg.fmt
+    rng = np.random.default_rng(seed)
+    v = fmt.quantize(mesh.vertices * scale + offset)
+    faces = np.asarray(mesh.faces)
+    tris = fmt.quantize(v[faces]).astype(np.float32)
+    fn = np.cross(mesh.vertices[faces[:, 1]] - mesh.vertices[faces[:, 0]],
+                  mesh.vertices[faces[:, 2]] - mesh.vertices[faces[:, 0]])
+    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
+    star = _stars(faces, len(v))
+    edges = np.asarray(mesh.edges_unique)
+    # targets: vertices, then exact midpoints (in unscaled coordinates)
+    f = 0.5 if exact else rng.uniform(0.05, 0.95, (len(edges), 1))
+    pts0 = np.concatenate([mesh.vertices, (1 - f) * mesh.vertices[edges[:, 0]] +
+                           f * mesh.vertices[edges[:, 1]]])
+    around = star + [np.intersect1d(star[a], star[b]) for a, b in edges]
+    hood = [np.unique(np.concatenate([star[x] for x in faces[s].ravel()])) for s in around]
+    org, dirn, cands = [], [], []
+    for k in rng.permutation(len(pts0)):
+        nsum = fn[around[k]].sum(axis=0)
+        for _ in range(8):
+            w = nsum / np.linalg.norm(nsum) + 0.5 * rng.normal(size=3)
+            if exact:
+                w = np.round(w / np.abs(w).max() * 32) / 32      # a 2^-5 grid, |w|_inf = 1
+            if np.all(fn[around[k]] @ w > 0.05 * np.linalg.norm(w)):
+                break
+        else:
+            continue
+        target = pts0[k] * scale + offset
+        o = fmt.quantize(target + 8 * w * scale)
+        if exact and scale == 1.0 and offset == 0.0:
+            d = -w                                                 # exact: o + 8 d = target
+        else:
+            d = fmt.quantize(fmt.quantize(target) - o)
+        org.append(o)
+        dirn.append(d)
+        cands.append(hood[k])
+        if len(org) == n_max:
+            break
+    org = fmt.quantize(np.array(org))
+    dirn = fmt.quantize(np.array(dirn))
+    _, image = image_of(tris, cfg)
+    rays = make_rays(org, dirn, packet=packet)
+    return Case(name, tris, image, rays, info={"candidates": cands})
+
+
+def mt_leaks(case: Case) -> dict:
+    """The plain float32 Möller–Trumbore baseline on a watertight case's rays: a leak is a ray
+    that hits none of the faces around its target (it slips between them)."""
+    cands = case.info["candidates"]
+    ray = np.concatenate([np.full(len(c), i) for i, c in enumerate(cands)])
+    cand = np.concatenate(cands)
+    hit, _ = moller_trumbore32(case.tris, case.rays.org, case.rays.dir, ray, cand)
+    any_hit = np.bincount(ray[hit], minlength=len(cands)) > 0
+    return {"rays": len(cands), "leaks": int((~any_hit).sum())}
+
+
+# --- special rays on an axis-aligned box -----------------------------------------------------
+
+def _signed_zero(rng, n):
+    return np.where(rng.random(n) < 0.5, -0.0, 0.0)
+
+
+def special_rays_case(cfg: Config, n_each: int = 64, seed: int = 0, packet: int = 64) -> Case:
+    """The box [-1, 1]^3 (each face 4x4 quads, vertices on a 0.5 grid) and four groups of rays
+    (``info["groups"]`` names each ray's group):
+
+    * ``axis``: directions along an axis, the other components +0 or -0 at random (infinite
+      reciprocals of both signs), aimed at 0.25-grid points: many pass exactly through edges
+      and vertices;
+    * ``split_plane``: origins in a split plane of the builder's kd-tree, direction component
+      along that axis +0 or -0 (the ray lies in the plane: both children are needed);
+    * ``grazing``: origins in the plane of a box face, direction inside that plane (det = 0 for
+      that face's triangles; the ray meets the side faces exactly on their edge);
+    * ``on_surface``: origins exactly on the surface (faces, edges, vertices), half pointing
+      out (exactly: no hit, t = 0 is not a hit), half pointing in (the opposite side)."""
+    import trimesh
+    fmt = cfg.fmt
+    rng = np.random.default_rng(seed)
+    m = trimesh.creation.box(extents=(2.0, 2.0, 2.0)).subdivide().subdivide()
+    tris = fmt.quantize(m.vertices[m.faces]).astype(np.float32)
+    _, image = image_of(tris, cfg)
+    from model.kdtree import build_kdtree as _bk
+    tree = _bk(tris, cfg, cache_dir=None)
+    grid = lambda k, step, lim: np.round(rng.uniform(-lim, lim, k) / step) * step  # noqa: E731
+    org, dirn, group = [], [], []
+    # axis-parallel
+    for _ in range(n_each):
+        a = rng.integers(3)
+        sgn = rng.choice([-1.0, 1.0])
+        o = grid(3, 0.25, 1.25)
+        o[a] = -3 * sgn
+        d = _signed_zero(rng, 3)
+        d[a] = sgn * rng.choice([1.0, 0.5, 3.0])
+        org.append(o), dirn.append(d), group.append("axis")
+    # in a split plane
+    inner = np.flatnonzero(tree.axis != LEAF)
+    for _ in range(n_each):
+        nd = rng.choice(inner) if inner.size else 0
+        a, sv = int(tree.axis[nd]) % 3, float(tree.split[nd])
+        o = grid(3, 0.125, 1.5)
+        o[a] = sv
+        d = grid(3, 0.125, 1.0)
+        d[a] = _signed_zero(rng, 1)[0]
+        if not d.any():
+            d[(a + 1) % 3] = 1.0
+        org.append(o), dirn.append(d), group.append("split_plane")
+    # grazing along a face's plane
+    for _ in range(n_each):
+        a = rng.integers(3)
+        o = grid(3, 0.25, 2.5)
+        o[a] = rng.choice([-1.0, 1.0])
+        d = grid(3, 0.125, 1.0)
+        d[a] = _signed_zero(rng, 1)[0]
+        if not d.any():
+            d[(a + 1) % 3] = -1.0
+        org.append(o), dirn.append(d), group.append("grazing")
+    # starting on the surface
+    for i in range(n_each):
+        a = rng.integers(3)
+        o = grid(3, 0.25, 1.0)
+        side = rng.choice([-1.0, 1.0])
+        o[a] = side
+        d = grid(3, 0.125, 1.0)
+        d[a] = side * (0.5 + rng.integers(4) / 4) * (1 if i % 2 else -1)
+        org.append(o), dirn.append(d), group.append("on_surface")
+    org = fmt.quantize(np.array(org))
+    dirn = fmt.quantize(np.array(dirn))
+    rays = make_rays(org, dirn, packet=packet)
+    return Case("special_rays", tris, image, rays,
+                info={"groups": np.array(group), "tree_depth": tree.depth})
