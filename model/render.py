@@ -73,8 +73,19 @@ class RenderResult:
     stats: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True)
+class Skip:
+    """Work the renderer leaves out (each on by default; off only to measure what it saves):
+    ``anyhit``: a shadow ray ends at its first hit; ``lights_behind``: no shadow ray toward a
+    light behind the surface; ``nonreflective``: no reflection ray off a material with
+    ``reflect == 0``."""
+    anyhit: bool = True
+    lights_behind: bool = True
+    nonreflective: bool = True
+
+
 def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
-           prepared: Prepared | None = None) -> RenderResult:
+           prepared: Prepared | None = None, skip: Skip = Skip()) -> RenderResult:
     t0 = time.perf_counter()
     prep = prepared or prepare(scene, cfg)
     t_build = time.perf_counter() - t0
@@ -120,7 +131,10 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         d = rays.dir[hit]
         p0 = shader.offset(p, ng, d)
         for light in scene.lights:
-            srays, keep = shader.shadow_rays(rays, hit, p0, ng, light)
+            srays, keep = shader.shadow_rays(rays, hit, p0, ng, light,
+                                             cull_behind=skip.lights_behind)
+            if not skip.anyhit:
+                srays.anyhit = np.zeros(len(srays), bool)
             lit = np.zeros(hit.size, np.float32)
             if cfg.shadows and len(srays):
                 sh = run(srays)
@@ -133,7 +147,8 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         np.add.at(color, rays.pixel[hit], local * weight[hit, None])
         if depth == cfg.reflect_depth:
             break
-        rays, keep = shader.reflection_rays(rays, hit, p0, ns, mat)
+        rays, keep = shader.reflection_rays(rays, hit, p0, ns, mat,
+                                            cull_matte=skip.nonreflective)
         weight = weight[hit[keep]] * refl[keep]
     if bar is not None:
         bar.close()

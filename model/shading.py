@@ -100,7 +100,8 @@ class Shader:
         return np.stack([fmt.sub(fmt.add(p[:, a], fmt.mul(self.eps, ng[:, a])),
                                  fmt.mul(self.eps, w[:, a])) for a in range(3)], axis=1)
 
-    def shadow_rays(self, src: Rays, sel, p0, ng, light) -> tuple[Rays, np.ndarray]:
+    def shadow_rays(self, src: Rays, sel, p0, ng, light,
+                    cull_behind: bool = True) -> tuple[Rays, np.ndarray]:
         """One shadow ray per lit-side hit; packets follow the source packets.
         Returns the rays and, per ray, the index into ``sel`` it came from."""
         fmt = self.fmt
@@ -113,15 +114,18 @@ class Shader:
                                 p0.shape).astype(np.float32)
             tmax = np.full(len(d), np.inf, np.float32)
         facing = dot3(fmt, ng, d) > 0
+        if not cull_behind:
+            facing = np.ones(len(d), bool)
         return _packetize(src, sel, facing, p0, d, tmax, SHADOW)
 
-    def reflection_rays(self, src: Rays, sel, p0, ns, mat) -> tuple[Rays, np.ndarray]:
+    def reflection_rays(self, src: Rays, sel, p0, ns, mat,
+                        cull_matte: bool = True) -> tuple[Rays, np.ndarray]:
         fmt = self.fmt
         d = src.dir[sel]
         ns = fmt.quantize(ns)
         two_dn = fmt.mul(np.float32(2.0), dot3(fmt, d, ns))
         r = np.stack([fmt.sub(d[:, a], fmt.mul(two_dn, ns[:, a])) for a in range(3)], axis=1)
-        want = self.reflect[mat] > 0
+        want = self.reflect[mat] > 0 if cull_matte else np.ones(len(r), bool)
         return _packetize(src, sel, want, p0, r, np.full(len(r), np.inf, np.float32), REFLECTION)
 
     def phong(self, d, ns, albedo, mat, light, lit, p):

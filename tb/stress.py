@@ -401,3 +401,220 @@ def special_rays_case(cfg: Config, n_each: int = 64, seed: int = 0, packet: int 
     rays = make_rays(org, dirn, packet=packet)
     return Case("special_rays", tris, image, rays,
                 info={"groups": np.array(group), "tree_depth": tree.depth})
+
+
+# --- slivers, degenerate, coincident and overlapping triangles ---------------------------------
+
+DEGENERATE_GROUPS = ("sliver", "near_degenerate", "zero_area", "repeated_vertex", "duplicate",
+                     "rotated", "reversed", "overlap")
+
+
+def degenerate_case(cfg: Config, n_each: int = 48, seed: int = 0, packet: int = 64) -> Case:
+    """One group of triangles per kind, 4 apart in x (``info["tri_group"]``), rays from above
+    aimed at random points of each group's bounding box, slightly tilted:
+
+    sliver (aspect ratio 1e6), near_degenerate (apex 2^-30 off the base), zero_area (collinear
+    vertices), repeated_vertex (A == B), duplicate (the same triangle twice, bit for bit),
+    rotated (the same triangle with its vertices rotated), reversed (opposite winding),
+    overlap (two coplanar triangles overlapping in part)."""
+    fmt = cfg.fmt
+    rng = np.random.default_rng(seed)
+    base = np.array([[0.0, 0.0, 0.0], [2.0, 0.25, 0.0], [0.5, 2.0, 0.0]])
+    groups = {
+        "sliver": [[[0, 0, 0], [2, 0, 0], [1, 2e-6, 0]]],
+        "near_degenerate": [[[0, 0, 0], [2, 0, 0], [1, 2.0 ** -30, 0]]],
+        "zero_area": [[[0, 0, 0], [1, 0.5, 0], [2, 1, 0]]],
+        "repeated_vertex": [[[0, 0, 0], [0, 0, 0], [1, 2, 0]]],
+        "duplicate": [base, base],
+        "rotated": [base, base[[1, 2, 0]]],
+        "reversed": [base, base[[0, 2, 1]]],
+        "overlap": [base, base * 0.75 + [0.5, 0.25, 0]],
+    }
+    tris, tri_group, org, dirn, ray_group = [], [], [], [], []
+    for g, name in enumerate(DEGENERATE_GROUPS):
+        shift = np.array([4.0 * g, 0.0, 0.3 * g])        # the planes differ in height too
+        ts = np.asarray(groups[name], np.float64) + shift
+        tris += list(ts)
+        tri_group += [name] * len(ts)
+        lo, hi = ts.min(axis=(0, 1)), ts.max(axis=(0, 1))
+        if name in ("sliver", "near_degenerate"):        # aim at the sliver itself
+            f = rng.random((n_each, 1))
+            p = ts[0, 0] * (1 - f) + ts[0, 1] * f + [0, 1e-6, 0] * rng.random((n_each, 1))
+        else:
+            p = lo + (hi - lo) * rng.random((n_each, 3))
+        d = np.c_[rng.normal(0, 0.05, (n_each, 2)), -np.ones(n_each)]
+        org += list(p - 3 * d)
+        dirn += list(d)
+        ray_group += [name] * n_each
+    tris = fmt.quantize(np.array(tris)).astype(np.float32)
+    _, image = image_of(tris, cfg)
+    rays = make_rays(fmt.quantize(np.array(org)), fmt.quantize(np.array(dirn)), packet=packet)
+    return Case("degenerate", tris, image, rays,
+                info={"tri_group": np.array(tri_group), "groups": np.array(ray_group)})
+
+
+# --- secondary rays off a convex mesh ----------------------------------------------------------
+
+def self_intersection(mesh, cfg: Config, n: int = 4000, seed: int = 0, scale: float = 1.0,
+                      offset: float = 0.0, eps_rel: float = 0.0) -> dict:
+    """Eye rays onto a convex closed mesh, then from each hit point ``p = o + t*d`` (format
+    arithmetic) a shadow ray toward a light on the lit side of the hit triangle and a mirror
+    reflection. On a convex mesh both must miss: every hit is false (self-intersection).
+    ``eps_rel``: the origin is moved off the surface by eps_rel x the box diagonal along the
+    normal (0: the raw hit point)."""
+    fmt = cfg.fmt
+    rng = np.random.default_rng(seed)
+    v = fmt.quantize(mesh.vertices * scale + offset)
+    tris = fmt.quantize(v[np.asarray(mesh.faces)]).astype(np.float32)
+    _, image = image_of(tris, cfg)
+    c = tris.reshape(-1, 3).mean(axis=0)
+    r = np.ptp(tris.reshape(-1, 3), axis=0).max()
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    org = fmt.quantize(c + 3 * r * u)
+    aim = c + 0.45 * r * rng.uniform(-1, 1, (n, 3))
+    dirn = fmt.quantize(aim - org)
+    hits, _ = trace(image, make_rays(org, dirn), cfg)
+    h = np.flatnonzero(hits.tri >= 0)
+    t = hits.t[h]
+    p = np.stack([fmt.add(org[h, a], fmt.mul(t, dirn[h, a])) for a in range(3)], axis=1)
+    tri = tris[hits.tri[h]].astype(np.float64)
+    nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    nrm = np.where((np.sum(nrm * dirn[h], axis=1) > 0)[:, None], -nrm, nrm)
+    if eps_rel:
+        p = fmt.quantize(p + eps_rel * np.sqrt(3) * r * nrm)
+    # light: beyond the surface along the normal, tilted (always on the lit side)
+    lp = fmt.quantize(p + 2 * r * (nrm + 0.5 * rng.normal(size=nrm.shape) / 3))
+    ld = np.stack([fmt.sub(lp[:, a], p[:, a]) for a in range(3)], axis=1)
+    lit = np.sum(ld * nrm, axis=1) > 0
+    sh, _ = trace(image, make_rays(p[lit], ld[lit], tmax=np.ones(lit.sum()), kind=1), cfg)
+    dn = np.sum(dirn[h] * nrm, axis=1, keepdims=True)
+    rd = fmt.quantize(dirn[h] - 2 * dn * nrm)
+    rf, _ = trace(image, make_rays(p, rd, kind=2), cfg)
+    own = rf.tri == hits.tri[h]
+    return {"hit_points": int(len(h)), "shadow_rays": int(lit.sum()),
+            "false_shadow_hits": int((sh.tri >= 0).sum()), "reflection_rays": int(len(h)),
+            "reflection_hits": int((rf.tri >= 0).sum()), "reflection_own_triangle": int(own.sum())}
+
+
+# --- bench ---------------------------------------------------------------------------------------
+
+FORMATS = ((8, 23), (8, 16), (8, 12))
+
+
+def bench(n_max: int, formats, meshes: dict, log=sys.stderr) -> dict:
+    from model.fp import FPFormat
+    out: dict = {"formats": [f"E{e}M{m}" for e, m in formats]}
+    t0 = time.perf_counter()
+    wt = {"rays": 0, "leaks": 0, "mt_leaks": 0, "other_tri_far": 0, "cases": []}
+    for e, m in formats:
+        cfg = Config(fmt=FPFormat(e, m))
+        for name, mesh in meshes.items():
+            for exact in (True, False):
+                case = watertight_case(mesh, cfg, n_max=n_max, exact=exact)
+                v, _ = model_judge(case, cfg)
+                mt = mt_leaks(case)
+                row = {"mesh": name, "format": f"E{e}M{m}", "exact_targets": exact,
+                       "rays": v["rays"], "leaks": v["leaks"], "ghosts": v["ghosts"],
+                       "other_tri": v["other_tri"], "other_tri_far": v["other_tri_far"],
+                       "t_rel_max": v["t_rel_max"], "mt_leaks": mt["leaks"]}
+                wt["cases"].append(row)
+                for k, k2 in (("rays", "rays"), ("leaks", "leaks"), ("mt_leaks", "mt_leaks"),
+                              ("other_tri_far", "other_tri_far")):
+                    wt[k] += row[k2]
+                print(f"watertight {name} E{e}M{m} exact={exact}: {row}", file=log)
+    out["watertight"] = wt
+    out["special_rays"], out["degenerate"], out["tie_t_eq_tfar"] = {}, {}, {}
+    for e, m in formats:
+        cfg = Config(fmt=FPFormat(e, m))
+        key = f"E{e}M{m}"
+        case = special_rays_case(cfg, n_each=256)
+        out["special_rays"][key] = model_judge(case, cfg)[0]
+        case = degenerate_case(cfg, n_each=256)
+        v, _ = model_judge(case, cfg)
+        g = case.info["groups"]
+        hits, _ = trace(case.image, case.rays, cfg)
+        per = {}
+        for name in DEGENERATE_GROUPS:
+            s = np.flatnonzero(g == name)
+            per[name] = judge(case.tris, case.rays.org[s], case.rays.dir[s], hits.tri[s],
+                              hits.t[s], [np.arange(len(case.tris))] * len(s))
+        out["degenerate"][key] = per
+        case = tie_case(cfg, n=64, packet=64)
+        v, ctr = model_judge(case, cfg)
+        out["tie_t_eq_tfar"][key] = {**v, "leaf_visits": ctr["leaf_visits"],
+                                     "passes": ctr["passes"]}
+        print(f"special/degenerate/tie {key} done", file=log)
+    # translated and scaled scenes
+    ico = meshes.get("icosphere", next(iter(meshes.values())))
+    tr = []
+    for e, m in formats:
+        cfg = Config(fmt=FPFormat(e, m))
+        for kind, values in (("offset", (0.0, 1e5, 1e6, 1e7)),
+                             ("scale", (1e-6, 1e-3, 1e3, 1e6))):
+            for val in values:
+                kw = {"offset": val} if kind == "offset" else {"scale": val}
+                case = watertight_case(ico, cfg, n_max=min(n_max, 2000), exact=False, **kw)
+                v, _ = model_judge(case, cfg)
+                tq = case.tris.astype(np.float64)
+                area2 = np.linalg.norm(np.cross(tq[:, 1] - tq[:, 0], tq[:, 2] - tq[:, 0]), axis=1)
+                row = {"format": f"E{e}M{m}", kind: val, "rays": v["rays"],
+                       "leaks": v["leaks"], "ghosts": v["ghosts"], "other_tri": v["other_tri"],
+                       "other_tri_far": v["other_tri_far"], "t_rel_max": v["t_rel_max"],
+                       "zero_area_tris": int((area2 == 0).sum()), "tris": len(tq),
+                       "mt_leaks": mt_leaks(case)["leaks"],
+                       "self_raw": self_intersection(ico, cfg, n=1000, **kw),
+                       "self_eps1e-4": self_intersection(ico, cfg, n=1000, eps_rel=1e-4, **kw)}
+                tr.append(row)
+                print(f"transform {row}", file=log)
+    out["transform"] = tr
+    out["seconds"] = time.perf_counter() - t0
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="python -m tb.stress",
+        description="Numerical stress bench of the golden model against the exact oracle "
+                    "(tb/exact.py): rays through shared edges and vertices of closed meshes "
+                    "(leaks, and the leaks of a float32 Möller–Trumbore baseline on the same "
+                    "rays), axis-parallel / split-plane / grazing / on-surface rays, slivers and "
+                    "degenerate / coincident triangles, the t == tfar tie, translated and scaled "
+                    "scenes and secondary-ray self-intersection, per FP format. Writes "
+                    "OUT/stability.json (one entry per case).")
+    ap.add_argument("--out", default="build/bench", help="output directory (default build/bench)")
+    ap.add_argument("--rays", type=int, default=20000,
+                    help="at most this many rays per closed mesh and format (default 20000)")
+    ap.add_argument("--formats", default=",".join(f"{e}:{m}" for e, m in FORMATS),
+                    help="FP formats as E:M, comma-separated (default 8:23,8:16,8:12)")
+    ap.add_argument("--mesh", action="append", default=[], metavar="PATH",
+                    help="an extra closed mesh file (OBJ/PLY/STL; repeatable) for the "
+                         "watertightness cases; it must be watertight")
+    args = ap.parse_args(argv)
+    try:
+        formats = [tuple(int(x) for x in f.split(":")) for f in args.formats.split(",")]
+    except ValueError:
+        ap.error(f"--formats {args.formats!r}: expected E:M pairs like 8:23,8:12")
+    if args.rays < 1:
+        ap.error("--rays must be >= 1")
+    meshes = closed_meshes()
+    for path in args.mesh:
+        import trimesh
+        m = trimesh.load(path, force="mesh", process=True)
+        if not m.is_watertight:
+            ap.error(f"--mesh {path}: the mesh is not watertight (closed); leaks would mean "
+                     "nothing on it")
+        meshes[Path(path).stem] = m
+    res = bench(args.rays, formats, meshes)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stability.json").write_text(json.dumps(res, indent=1, default=float))
+    w = res["watertight"]
+    print(f"watertight: {w['rays']} rays, {w['leaks']} leaks (float32 Möller–Trumbore: "
+          f"{w['mt_leaks']}); {out / 'stability.json'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
