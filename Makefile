@@ -32,6 +32,7 @@ bench: setup
 	    --out build/bench --name threads_standard.json
 	$(PY) -m model.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
 	    --mode async --out build/bench --name threads_standard_async.json
+	$(PY) -m tb.stress --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:
