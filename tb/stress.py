@@ -20,7 +20,8 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config
-from model.kdtree import LEAF, KdTree, build_kdtree
+from model.kdtree import KdTree, build_kdtree
+from model.layout import LEAF
 from model.layout import build_image
 from model.raygen import Rays, setup
 from model.rtc import counter_totals, trace
