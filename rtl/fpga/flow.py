@@ -31,6 +31,7 @@ from amaranth.back import verilog
 
 from model.config import Config, ConfigError
 from rtl.export import TOPS, add_config_args, build_top, config_from_args
+from rtl import tools
 from rtl.fp.synth import cell_counts
 from .wrapper import PinWrapper, overhead
 
@@ -44,12 +45,11 @@ CELL_KEYS = {"LUT4": "lut4", "TRELLIS_FF": "ff", "MULT18X18D": "dsp", "DP16KD": 
 
 
 def tool(name: str) -> str:
-    exe = shutil.which(name) or str(Path(sys.executable).with_name(name))
-    if not Path(exe).exists():
-        extra = "fpga" if "nextpnr" in name else "dev"
-        raise SystemExit(f"rtl.fpga: {name} not found; install it: .venv/bin/pip install -e "
-                         f"'.[{extra}]'")
-    return exe
+    """:func:`rtl.tools.tool`, as a command-line error when the tool is missing."""
+    try:
+        return tools.tool(name)
+    except tools.ToolMissing as e:
+        raise SystemExit(f"rtl.fpga: {e}")
 
 
 def parse_stat(text: str) -> dict[str, int]:
