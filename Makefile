@@ -26,11 +26,11 @@ BENCH_SCENE ?= scenes/office.toml
 bench: setup
 	mkdir -p build/bench
 	$(PY) -m model.bench --out build/bench
-	$(PY) -m model.bench_memory --scene $(BENCH_SCENE) --out build/bench
-	$(PY) -m model.bench_threads --out build/bench
-	$(PY) -m model.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
+	$(PY) -m tb.bench_memory --scene $(BENCH_SCENE) --out build/bench
+	$(PY) -m tb.bench_threads --out build/bench
+	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
 	    --out build/bench --name threads_standard.json
-	$(PY) -m model.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
+	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
 	    --mode async --out build/bench --name threads_standard_async.json
 	$(PY) -m tb.stress --out build/bench
 	$(PY) -m pytest -q -m slow

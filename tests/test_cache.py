@@ -189,7 +189,7 @@ def test_cache_synthesizes_without_latches():
 
 
 def test_bench_memory_writes_hit_rates(tmp_path):
-    from model.bench_memory import main
+    from tb.bench_memory import main
     tr = tmp_path / "trav.npy"
     np.save(tr, np.arange(100_000) % 5000)          # 5000 nodes fit the 64 KB trav cache
     res = main(["--out", str(tmp_path), "--packets", "200", "--depth", "12", "--no-bandwidth",

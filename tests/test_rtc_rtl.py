@@ -68,9 +68,9 @@ def test_rtc_synthesizes_without_latches():
 
 @pytest.mark.slow
 def test_threads_sweep_writes_bench():
-    """``make bench``: the threads sweep (``model.bench_threads``) -> build/bench/threads.json;
+    """``make bench``: the threads sweep (``tb.bench_threads``) -> build/bench/threads.json;
     every run is checked against the model, and more threads must not be slower."""
-    from model.bench_threads import main
+    from tb.bench_threads import main
     res = main(["--out", str(ROOT / "build" / "bench")])
     cycles = [r["cycles"] for r in res["runs"]]
     assert all(b <= a for a, b in zip(cycles, cycles[1:])), cycles

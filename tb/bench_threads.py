@@ -1,7 +1,7 @@
 """Threads sweep: cycles of one RTC (Amaranth RTL, ideal memories) for 1, 2, 4, 8, 16 packets in
 flight, and the speedup over one thread next to the paper's (8 -> 7.5x, 16 -> 12.2x).
 
-Run: ``.venv/bin/python -m model.bench_threads [--scene scenes/cornell.toml] [--res 64x64]
+Run: ``.venv/bin/python -m tb.bench_threads [--scene scenes/cornell.toml] [--res 64x64]
 [--tile 4x4] [--subunits 2] [--mode sync|async] [--latency 20] [--threads 1,2,4,8,16]
 [--sim verilator|amaranth] [--out build/bench] [--name threads.json]``. Every run is checked
 against the golden model (ray results and counters; a mismatch is an error). ``--sim
@@ -18,15 +18,15 @@ import sys
 import time
 from pathlib import Path
 
-from .config import Config
+from model.config import Config
 
 PAPER = {8: 7.5, 16: 12.2}
 
 
 def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], latency: int,
           cache_dir="default", log=sys.stderr, sim: str = "amaranth") -> dict:
-    from tb.rtc import run_rtc_free
-    from tb.traversal import small_case
+    from .rtc import run_rtc_free
+    from .traversal import small_case
     if sim not in ("amaranth", "verilator"):
         raise ValueError(f"sim={sim!r}: choose 'amaranth' or 'verilator'")
     runs = []
@@ -35,7 +35,7 @@ def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], 
         image, rays = small_case(scene, width, height, c, cache_dir)
         t0 = time.perf_counter()
         if sim == "verilator":
-            from tb.verilator import run_frame
+            from .verilator import run_frame
             r = run_frame(image, rays, c, mem_latency=latency, progress=False, log=log)
         else:
             r = run_rtc_free(image, rays, c, mem_latency=latency)

@@ -1,6 +1,6 @@
 """Memory-system bench: cache hit rates per associativity, SDRAM bandwidth per chip count.
 
-    python -m model.bench_memory --out build/bench [--packets N] [--trace trav=t.npy ...]
+    python -m tb.bench_memory --out build/bench [--packets N] [--trace trav=t.npy ...]
 
 Writes ``<out>/memory.json`` with
 
@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .cache import UNITS, CacheModel, cache_geometry, synthetic_traces
-from .config import Config
+from model.cache import UNITS, CacheModel, cache_geometry, synthetic_traces
+from model.config import Config
 
 
 def hit_rates(cfg: Config, traces: dict[str, np.ndarray]) -> dict:
@@ -51,7 +51,7 @@ def hit_rates(cfg: Config, traces: dict[str, np.ndarray]) -> dict:
 
 
 def bandwidth(cfg: Config, words_per_chip: int) -> list[dict]:
-    from tb.memory import sdram_bandwidth
+    from .memory import sdram_bandwidth
     rows = []
     for chips in (1, 2, 4):
         for pattern in ("spread", "random", "hot"):
@@ -97,10 +97,10 @@ def main(argv=None) -> dict:
 
     traces, source = {}, {}
     if args.scene:
-        from .raygen import eye_rays
-        from .render import prepare
-        from .rtc import item_trace, trace
-        from .scene import load_scene
+        from model.raygen import eye_rays
+        from model.render import prepare
+        from model.rtc import item_trace, trace
+        from model.scene import load_scene
         scene = load_scene(args.scene)
         w, h = (int(x) for x in args.res.split("x"))
         prep = prepare(scene, cfg)
