@@ -10,6 +10,8 @@ from model.fp import FPFormat
 from model.kdtree import KdTreeError, build_kdtree, kdtree_stats
 from model.layout import build_image
 
+from .conftest import SHARED_MESHES, needs_shared_meshes
+
 LEAF = 3
 
 
@@ -394,10 +396,11 @@ def test_cache_env(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
+@needs_shared_meshes
 def test_build_1m_triangles():
     """10 copies of the dragon (~1M triangles) offset in space: build time after compilation."""
     import trimesh
-    m = trimesh.load("/work/shared/meshes/dragon.obj", force="mesh")
+    m = trimesh.load(SHARED_MESHES / "dragon.obj", force="mesh")
     base = m.vertices[m.faces]
     ext = base.max(axis=(0, 1)) - base.min(axis=(0, 1))
     copies = [base + np.array([1.1 * ext[0] * (k % 5), 1.1 * ext[1] * (k // 5), 0.0])

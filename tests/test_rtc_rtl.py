@@ -15,10 +15,11 @@ from .conftest import ROOT
 TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2)
 
 
-def check(r):
+def check(r, rays):
+    assert r.rays == len(rays)
     assert r.mismatches == []
     assert r.counter_mismatches() == {}
-    assert r.counters["packets_done"] * 16 >= r.rays
+    assert r.counters["packets_done"] == rays.n_packets
     assert r.counters["int_ops"] > 0
 
 
@@ -30,7 +31,7 @@ def test_rtc_matches_model(scene, res, seed, kd_cache):
     image, rays = small_case(ROOT / f"scenes/{scene}.toml", *res, TINY, kd_cache)
     assert rays.n_packets == res[0] * res[1] // 16
     r = run_rtc_free(image, rays, TINY, mem_latency=4, idle=0.25, stall=0.3, seed=seed)
-    check(r)
+    check(r, rays)
 
 
 def test_rtc_matches_model_with_deep_fp_pipelines_and_async_subunits(kd_cache):
@@ -39,7 +40,7 @@ def test_rtc_matches_model_with_deep_fp_pipelines_and_async_subunits(kd_cache):
     cfg = TINY.replace(fp_add_latency=6, fp_mul_latency=5, fp_div_latency=20, trav_sync=False)
     image, rays = small_case(ROOT / "scenes/office.toml", 4, 4, cfg, kd_cache)
     r = run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=4)
-    check(r)
+    check(r, rays)
 
 
 @pytest.mark.slow
@@ -47,7 +48,7 @@ def test_rtc_python_testbench_standard(kd_cache):
     """Standard configuration, 2 packets of 64 rays, Python-driven random bubbles and stalls."""
     cfg = Config()
     image, rays = small_case(ROOT / "scenes/conference.toml", 16, 8, cfg, kd_cache)
-    check(run_rtc(image, rays, cfg, mem_latency=20, idle=0.2, stall=0.3))
+    check(run_rtc(image, rays, cfg, mem_latency=20, idle=0.2, stall=0.3), rays)
 
 
 @pytest.mark.slow
@@ -57,7 +58,7 @@ def test_rtc_matches_model_standard(scene, kd_cache):
     (Terrain's 1.9 M-word image takes minutes to load into the simulator's memories.)"""
     cfg = Config()
     image, rays = small_case(ROOT / f"scenes/{scene}.toml", 64, 48, cfg, kd_cache)
-    check(run_rtc_free(image, rays, cfg, mem_latency=20, stall=0.25))
+    check(run_rtc_free(image, rays, cfg, mem_latency=20, stall=0.25), rays)
 
 
 @pytest.mark.slow

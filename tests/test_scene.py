@@ -10,11 +10,11 @@ from PIL import Image
 
 from model.scene import Camera, Light, Material, Scene, SceneError, load_scene
 
+from .conftest import SHARED_MESHES, needs_shared_meshes
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
-TEAPOT = ROOT.parent / "shared" / "meshes" / "teapot.obj"
-if not TEAPOT.exists():
-    TEAPOT = Path("/work/shared/meshes/teapot.obj")
+TEAPOT = SHARED_MESHES / "teapot.obj"
 
 # (file, min triangles, max triangles, number of lights, light kinds)
 SHIPPED = [
@@ -144,7 +144,7 @@ def test_obj_with_missing_material_library_uv_and_normals(tmp_path):
     assert np.allclose(s.normals[0], [[0, 1, 0]] * 3)         # the file's normals, not the face's
 
 
-@pytest.mark.skipif(not TEAPOT.exists(), reason="shared/meshes/teapot.obj not present")
+@needs_shared_meshes
 def test_teapot():
     s = load_scene(TEAPOT)
     check_invariants(s)
