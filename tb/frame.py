@@ -41,6 +41,8 @@ from rtl.memory import IdealMemory
 from rtl.rtc import COUNTERS, RTC, attach_memories, drive_header
 from rtl.rtc_streams import RayIn, RayResult
 
+from .lfsr import LFSR, feed_from_memory, lfsr_seeds, passes, sink_to
+
 __all__ = ["RTCFrame", "VerilogMemory", "CONSTS", "SEL_IMAGE", "SEL_RAYS", "SEL_CONST", "counter_names",
            "lfsr_seeds", "ray_chunks", "result_bits"]
 
@@ -55,11 +57,6 @@ def counter_names(cfg: Config) -> list[str]:
     """Order of the 32-bit fields of ``RTCFrame.counters`` (low bits first)."""
     return (list(COUNTERS) + [f"sub_busy{j}" for j in range(cfg.trav_subunits)] +
             [f"{m}_mem_reads" for m in MEMS])
-
-
-def lfsr_seeds(seed: int) -> tuple[int, int]:
-    """The two LFSR seeds (never 0) :class:`tb.rtc.RTCSelfTest` uses for ``seed``."""
-    return tuple((seed * 40503 + j * 21011) % 65535 + 1 for j in range(2))
 
 
 def ray_chunks(cfg: Config) -> int:
@@ -131,22 +128,14 @@ class _Run(Elaboratable):
         drive_header(m, rtc, c)
 
         # feeder: ray slot i -> rays, LFSR bubbles (as RTCSelfTest)
-        rd = t.ray_rd
-        i = Signal(32)
-        go, hold = Signal(), Signal()
-        n = c["rays"]
-        m.d.comb += go.eq(hold | (t.lfsr[0][:4] >= c["idle_q"]))
-        m.d.comb += [rd.addr.eq(i), rtc.rays.payload.eq(rd.data[:RayIn(cfg).size]),
-                     rtc.rays.valid.eq((i < n) & go)]
-        m.d.sync += hold.eq(rtc.rays.valid & ~rtc.rays.ready)     # once valid, stay valid
-        with m.If(rtc.rays.valid & rtc.rays.ready):
-            m.d.sync += i.eq(i + 1)
+        bubbles, backpressure = (lfsr.value for lfsr in t.lfsr)
+        feed_from_memory(m, rtc.rays, t.ray_rd, c["rays"], passes(bubbles, c["idle_q"]))
 
         # sink: LFSR back-pressure, every transfer on res_valid / res_data
         res = rtc.results
-        m.d.comb += [res.ready.eq(t.lfsr[1][:4] >= c["stall_q"]),
-                     t.res_valid.eq(res.valid & res.ready), t.res_data.eq(res.payload)]
-        with m.If(res.valid & res.ready):
+        take = sink_to(m, res, passes(backpressure, c["stall_q"]))
+        m.d.comb += [t.res_valid.eq(take), t.res_data.eq(res.payload)]
+        with m.If(take):
             m.d.sync += t.results.eq(t.results + 1)
         return m
 
@@ -199,7 +188,7 @@ class RTCFrame(wiring.Component):
         })
         # loaded constants: registers that reset does not touch
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True) for name in CONSTS}
-        self.lfsr = [Signal(16, name=f"lfsr{j}", reset_less=True) for j in range(2)]
+        self.lfsr = [LFSR(loadable=True) for _ in range(2)]      # bubbles, back-pressure
 
     def elaborate(self, platform):
         m = Module()
@@ -218,15 +207,13 @@ class RTCFrame(wiring.Component):
             with m.If(self.ld_valid & (sel == SEL_CONST) & (addr == k)):
                 m.d.sync += self.const[name].eq(data)
 
-        # start: leave reset; the LFSRs (taps 16, 14, 13, 11) hold their seeds until then
+        # start: leave reset; the LFSRs hold their seeds until then
         run = Signal()
         with m.If(self.start):
             m.d.sync += run.eq(1)
-        for j, r in enumerate(self.lfsr):
-            with m.If(run):
-                m.d.sync += r.eq(Cat(r[1:], r[0] ^ r[2] ^ r[3] ^ r[5]))
-            with m.Else():
-                m.d.sync += r.eq(self.const[f"seed{j}"])
+        for j, lfsr in enumerate(self.lfsr):
+            m.submodules[f"lfsr{j}"] = lfsr
+            m.d.comb += [lfsr.en.eq(run), lfsr.seed.eq(self.const[f"seed{j}"])]
         m.submodules.run = ResetInserter({"sync": ~run})(_Run(self))
 
         rtc = self.rtc

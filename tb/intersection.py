@@ -13,7 +13,7 @@ from __future__ import annotations
 import random
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numba
 import numpy as np
@@ -170,6 +170,8 @@ class PipeRun:
     cycles: int
     seconds: float
     latency: int
+    outputs: int = 0                   # outputs seen (o_valid while enabled)
+    mismatches: list = field(default_factory=list)    # each output that differs, in words
 
     @property
     def cycles_per_s(self) -> float:
@@ -178,7 +180,8 @@ class PipeRun:
 
 def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float = 0.2,
              p_stall: float = 0.2, latencies: dict | None = None) -> PipeRun:
-    """Drive ``tests`` through the datapath and check every output at its exact cycle."""
+    """Drive ``tests`` through the datapath and compare every output at its exact cycle
+    (latency ``L`` enabled cycles after its input) with the model; returns the mismatches."""
     n = len(tests)
     dut = IntersectPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
     L = dut.latency
@@ -188,7 +191,8 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
     tb, ub, vb = (fmt.to_bits(x).astype(np.int64).tolist() for x in (tests.t, tests.u, tests.v))
     rnd = random.Random(seed)
     w = fmt.width
-    stats = {}
+    stats = {"outputs": 0}
+    mismatches: list = []
 
     async def bench(ctx):
         pipe = deque([None] * L)
@@ -208,14 +212,15 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
             head = pipe[-1]
             o_valid = ctx.get(dut.o_valid)
             if o_valid != (head is not None):
-                raise AssertionError(f"IntersectPipe: cycle {cycle}: o_valid={o_valid}, expected "
-                                     f"{int(head is not None)}")
+                mismatches.append(f"IntersectPipe: cycle {cycle}: o_valid={o_valid}, expected "
+                                  f"{int(head is not None)}")
             if head is not None:
+                stats["outputs"] += int(en)
                 got = (ctx.get(dut.o_tag), ctx.get(dut.hit), ctx.get(dut.t), ctx.get(dut.u),
                        ctx.get(dut.v))
                 want = (head, hit[head], tb[head], ub[head], vb[head])
                 if got != want:
-                    raise AssertionError(
+                    mismatches.append(
                         f"IntersectPipe: cycle {cycle}, test #{head}: (tag, hit, t, u, v) = "
                         f"{tuple(hex(x) for x in got)}, model {tuple(hex(x) for x in want)}; "
                         f"tri={tests.tri[head].tolist()} org={tests.org[head].tolist()} "
@@ -231,7 +236,8 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
 
     t0 = time.perf_counter()
     run(dut, bench)
-    return PipeRun(n, stats["cycles"], time.perf_counter() - t0, L)
+    return PipeRun(n, stats["cycles"], time.perf_counter() - t0, L, stats["outputs"],
+                   mismatches)
 
 
 # ---- the whole unit ---------------------------------------------------------------------------
@@ -356,6 +362,7 @@ class UnitRun:
     cycles: int
     seconds: float
     counters: dict
+    mismatches: list = field(default_factory=list)    # every difference from the model, in words
 
     @property
     def cycles_per_s(self) -> float:
@@ -366,7 +373,8 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
              stall: float = 0.3, latency: int = 20, tri_slots: int = 4) -> UnitRun:
     """Load the packets' rays, feed the golden TriRequests with random bubbles, drain the
     LaneResults with random back-pressure, then read out every packet's final hits; check the
-    datapath outputs (``EV_INT``), the LaneResults, the RayResults and the counters."""
+    datapath outputs (``EV_INT``), the LaneResults, the RayResults and the counters against the
+    model; returns every difference in ``mismatches``."""
     s = unit_streams(g, max_leaves)
     dut = IntBench(g.cfg, g.image, latency=latency, tri_slots=tri_slots)
     rng = random.Random(seed)
@@ -397,26 +405,32 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
     run(dut, source, sink, readout, background=[monitor])
     seconds = time.perf_counter() - t0
     meta = dut.unit.pipe_meta
+    bad: list = []
     for i, (row, want) in enumerate(zip(ints, s.ints)):
         cycle, tag, *out = row
         tag = meta.from_bits(tag)
         got = (int(tag.thread), int(tag.lane), *out)
         if got != want:
-            raise AssertionError(f"datapath output #{i} at cycle {cycle}: (thread, lane, hit, "
-                                 f"t, u, v) = {got}, model (EV_INT) {want}")
-    assert len(ints) == len(s.ints), (len(ints), len(s.ints))
-    for name, got, want in (("LaneResult", lanes, s.lanes), ("RayResult", results, s.results)):
+            bad.append(f"datapath output #{i} at cycle {cycle}: (thread, lane, hit, t, u, v) = "
+                       f"{got}, model (EV_INT) {want}")
+    streams = (("datapath output", ints, s.ints), ("LaneResult", lanes, s.lanes),
+               ("RayResult", results, s.results))
+    for name, got, want in streams[1:]:
         for i, ((cycle, p), w) in enumerate(zip(got, want)):
             if p != w:
-                raise AssertionError(f"{name} #{i} at cycle {cycle}: {p}, model {w}")
-        assert len(got) == len(want)
-    assert info["int_ops"] == s.int_ops, (info, s.int_ops)
-    assert info["tris"] == len(s.tris), (info, len(s.tris))
-    assert info["words"] == 5 * len(s.tris), info
-    if max_leaves is None:
+                bad.append(f"{name} #{i} at cycle {cycle}: {p}, model {w}")
+    for name, got, want in streams:
+        if len(got) != len(want):
+            bad.append(f"{name}s: {len(got)}, model {len(want)}")
+    want_ctr = [("int_ops", s.int_ops), ("tris", len(s.tris)), ("words", 5 * len(s.tris))]
+    if max_leaves is None:          # the whole image: the model's own counters too
         tot = g.counters.sum(axis=0)
-        assert info["int_ops"] == tot[C["int_ops"]] and info["words"] == tot[C["int_reads"]]
-    return UnitRun(s.int_ops, info["cycles"], seconds, info)
+        want_ctr += [("int_ops", int(tot[C["int_ops"]])), ("words", int(tot[C["int_reads"]]))]
+    for k, w in want_ctr:
+        if info[k] != w:
+            bad.append(f"counter {k}: {info[k]}, model {w}")
+    return UnitRun(s.int_ops, info["cycles"], seconds, info, bad)
+
 
 
 if __name__ == "__main__":          # speed figures: python -m tb.intersection [width height]

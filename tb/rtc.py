@@ -1,15 +1,24 @@
-"""RTC testbench: rays through the whole core (``rtl.rtc.RTCSim``) against ``model.rtc.trace``.
+"""RTC testbench: rays through the whole core against ``model.rtc.trace``.
 
-Feeds every packet's ``RayIn`` lanes (random bubbles), drains the ``RayResult`` s (random
-back-pressure) and compares every ray's result (triangle id, t, u, v bits) with the model's
-``Hits``, and the RTC's counters with the model's counters. Returns the mismatches, the cycles
-and the simulation speed.
+Two runners, one comparison (``tb/compare.py``): every ray's result (triangle id, t, u, v bits)
+against the model's ``Hits`` by ray id, and the RTC's counters against the model's counters.
+
+* :func:`run_rtc`: a Python testbench feeds every packet's ``RayIn`` lanes with random bubbles
+  and drains the ``RayResult`` s with random back-pressure (``tb.common.drive`` / ``drain``).
+* :func:`run_rtc_free`: :class:`RTCSelfTest`, a self-stimulating top (LFSR bubbles and
+  back-pressure, ``tb/lfsr.py``) with no Python in the per-cycle loop; ``tb/frame.py`` is the
+  same for Verilator, so both give the same cycle count for the same seed.
+
+Both take the device under test from a factory ``device(cfg, image, mem_latency)`` (default
+:func:`rtc_sim`: an RTC on ideal memories) that returns a component with ``rays`` and
+``results`` streams and the RTC as ``.rtc``.
 """
 from __future__ import annotations
 
 import random
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
@@ -18,17 +27,21 @@ from model.raygen import setup
 from model.rtc import counter_totals, trace
 from rtl.rtc import RTCSim
 
-from .common import run
+from . import compare
+from .common import drain, drive, run
+from .compare import COMPARED, expected
+from .lfsr import LFSR, feed_from_memory, lfsr_seeds, passes, sink_to, sixteenths
 from .traversal import ray_payloads
 
-__all__ = ["RTCRun", "run_rtc", "COMPARED"]
+__all__ = ["RTCRun", "run_rtc", "run_rtc_free", "RTCSelfTest", "rtc_sim", "read_counters",
+           "finish", "COMPARED", "expected"]
 
-# RTC counter -> model counter (must be equal)
-COMPARED = {"trav_ops": "trav_ops", "trav_steps": "trav_steps", "node_reads": "node_reads",
-            "leaf_reqs": "leaf_visits", "passes": "passes", "pushes": "pushes",
-            "list_ops": "list_ops", "list_reads": "list_reads", "int_ops": "int_ops",
-            "int_tris": "int_steps", "int_reads": "int_reads"}
-MISS = (1 << 32) - 1
+BUSY = ("trav_busy", "list_busy", "int_busy", "packets_done")
+
+
+def rtc_sim(cfg: Config, image, mem_latency: int) -> RTCSim:
+    """The default device: an RTC with an ideal memory of ``mem_latency`` cycles per port."""
+    return RTCSim(cfg, image, mem_latency=mem_latency)
 
 
 @dataclass
@@ -45,96 +58,71 @@ class RTCRun:
         return self.cycles / self.seconds if self.seconds else 0.0
 
     def counter_mismatches(self) -> dict:
-        return {k: (self.counters[k], self.model[v]) for k, v in COMPARED.items()
-                if self.counters[k] != self.model[v]}
+        return compare.counter_mismatches(self.counters, self.model)
 
 
-def expected(hits, cfg: Config) -> tuple[np.ndarray, ...]:
-    """The model's hits as the RTC reports them: (tri with miss = all ones, t, u, v bits)."""
-    fmt = cfg.fmt
-    tri = hits.tri.astype(np.int64)
-    tri = np.where(tri < 0, MISS, tri)
-    return (tri, *(fmt.to_bits(getattr(hits, f)).astype(np.int64) for f in ("t", "u", "v")))
+def read_counters(ctx, rtc) -> dict:
+    """The RTC's counters (:data:`COMPARED`, busy cycles, ``sub_busy`` list) in simulation."""
+    c = {name: ctx.get(getattr(rtc, name)) for name in COMPARED}
+    c["sub_busy"] = [ctx.get(x) for x in rtc.sub_busy]
+    c.update({name: ctx.get(getattr(rtc, name)) for name in BUSY})
+    return c
+
+
+def finish(run_cls, image, rays, cfg: Config, records, *, cycles: int, seconds: float,
+           counters: dict, **extra) -> RTCRun:
+    """Compare result ``records`` (:func:`tb.compare.results_by_ray`) with the model; a
+    ``run_cls`` (:class:`RTCRun` or a subclass) with the counters and every mismatch."""
+    hits, ctrs = trace(image, rays, cfg)
+    got = compare.results_by_ray(records, rays)
+    return run_cls(cycles, seconds, len(rays), counters, counter_totals(ctrs),
+                   compare.result_mismatches(got, expected(hits, cfg)), **extra)
 
 
 def run_rtc(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int = 20,
-            idle: float = 0.1, stall: float = 0.2, max_quiet: int = 50_000) -> RTCRun:
-    """Simulate ``rays`` through an RTC on ideal memories and compare with the model."""
-    hits, ctrs = trace(image, rays, cfg)
-    want = expected(hits, cfg)
+            idle: float = 0.1, stall: float = 0.2, max_quiet: int = 50_000,
+            device: Callable = rtc_sim) -> RTCRun:
+    """Simulate ``rays`` through ``device(cfg, image, mem_latency)`` with a Python testbench
+    (random bubbles ``idle``, back-pressure ``stall``) and compare with the model."""
     rs = setup(rays, image.bounds, cfg.fmt)
-    packets = ray_payloads(rays, rs, cfg)
-    dut = RTCSim(cfg, image, mem_latency=mem_latency)
-    rtc = dut.rtc
+    lanes = [lane for pk in ray_payloads(rays, rs, cfg) for lane in pk]
+    dut = device(cfg, image, mem_latency)
     rng = random.Random(seed)
-    n = len(rays)
-    got: dict[int, tuple] = {}
-    mismatches: list = []
+    got: list = []
     info: dict = {}
 
     async def feeder(ctx):
         info["t0"] = time.process_time()
-        for pk in packets:
-            for lane in pk:
-                while idle and rng.random() < idle:
-                    ctx.set(dut.rays.valid, 0)
-                    await ctx.tick()
-                ctx.set(dut.rays.payload, lane)
-                ctx.set(dut.rays.valid, 1)
-                while True:
-                    _, _, ready = await ctx.tick().sample(dut.rays.ready)
-                    if ready:
-                        break
-        ctx.set(dut.rays.valid, 0)
+        await drive(ctx, dut.rays, lanes, rng=rng, idle=idle)
 
     async def drainer(ctx):
-        cycle = quiet = 0
-        while len(got) < n:
-            ready = not (stall and rng.random() < stall)
-            ctx.set(dut.results.ready, ready)
-            _, _, valid, p = await ctx.tick().sample(dut.results.valid, dut.results.payload)
-            cycle += 1
-            quiet += 1
-            if quiet > max_quiet:
-                raise AssertionError(f"RTC: {len(got)} of {n} results after {cycle} cycles, "
-                                     f"then none for {max_quiet} cycles (deadlock?)")
-            if valid and ready:
-                quiet = 0
-                r = int(rays.pk_start[int(p.packet)]) + int(p.lane)
-                if r in got:
-                    raise AssertionError(f"ray {r} (packet {int(p.packet)}, lane {int(p.lane)}) "
-                                         "reported twice")
-                got[r] = (int(p.tri), int(p.t), int(p.u), int(p.v))
+        await drain(ctx, dut.results, len(rays), rng=rng, stall=stall, out=got,
+                    timeout=max_quiet)
         info["seconds"] = time.process_time() - info["t0"]
-        info["cycles"] = ctx.get(rtc.cycles)
-        info["counters"] = {name: ctx.get(getattr(rtc, name)) for name in COMPARED}
-        info["counters"]["sub_busy"] = [ctx.get(x) for x in rtc.sub_busy]
-        for name in ("trav_busy", "list_busy", "int_busy", "packets_done"):
-            info["counters"][name] = ctx.get(getattr(rtc, name))
+        info["cycles"] = ctx.get(dut.rtc.cycles)
+        info["counters"] = read_counters(ctx, dut.rtc)
 
     run(dut, feeder, drainer)
-    for r in range(n):
-        for i, name in enumerate(("tri", "t", "u", "v")):
-            if got[r][i] != int(want[i][r]):
-                mismatches.append((r, name, got[r][i], int(want[i][r])))
-    return RTCRun(info["cycles"], info["seconds"], n, info["counters"], counter_totals(ctrs),
-                  mismatches)
+    records = {k: np.array([p[k] for _, p in got], np.int64)
+               for k in ("packet", "lane", *compare.FIELDS)}
+    return finish(RTCRun, image, rays, cfg, records, cycles=info["cycles"],
+                  seconds=info["seconds"], counters=info["counters"])
 
 
 class RTCSelfTest:
     """A self-stimulating RTC (no Python in the per-cycle loop, so it also exports to Verilog
     for Verilator): a ray ROM feeds every lane, a sink takes the results and stores each at
     ``packet * lanes + lane``; ``finished`` rises after the last result. With ``idle`` /
-    ``stall`` (multiples of 1/16) an LFSR makes random input bubbles / result back-pressure.
-    ``build()`` returns the Amaranth module."""
+    ``stall`` (multiples of 1/16) LFSRs (``tb/lfsr.py``) make random input bubbles / result
+    back-pressure. ``build()`` returns the Amaranth module."""
 
     def __init__(self, image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
-                 stall: float = 0.0, seed: int = 1):
-        self.idle_q, self.stall_q = round(idle * 16), round(stall * 16)
+                 stall: float = 0.0, seed: int = 1, device: Callable = rtc_sim):
+        self.idle_q, self.stall_q = sixteenths(idle, "idle"), sixteenths(stall, "stall")
         self.seed = seed
         from rtl.rtc_streams import RayIn, RayResult
         self.cfg, self.rays = cfg, rays
-        self.sim = RTCSim(cfg, image, mem_latency=mem_latency)
+        self.sim = device(cfg, image, mem_latency)
         rs = setup(rays, image.bounds, cfg.fmt)
         lay = RayIn(cfg)
         self.words = [lay.const(lane).as_value().value
@@ -143,7 +131,7 @@ class RTCSelfTest:
         self.n = len(self.words)
 
     def build(self):
-        from amaranth.hdl import Cat, Module, Signal
+        from amaranth.hdl import Module, Signal
         from amaranth.lib.memory import Memory
         from rtl.rtc_streams import RayIn
         m = Module()
@@ -155,43 +143,33 @@ class RTCSelfTest:
         m.submodules.out = out = Memory(shape=self.res_layout.size,
                                         depth=max(2, self.rays.n_packets * lanes), init=[])
         self.out = out
-        rd = rom.read_port(domain="comb")
         wr = out.write_port()
-        i = Signal(range(self.n + 1))
         got = Signal(range(self.n + 1))
         self.finished = Signal()
-        # 16-bit Fibonacci LFSRs (taps 16, 14, 13, 11): one for bubbles, one for back-pressure
-        lfsr = []
-        for j in range(2):
-            r = Signal(16, init=(self.seed * 40503 + j * 21011) % 65535 + 1, name=f"lfsr{j}")
-            m.d.sync += r.eq(Cat(r[1:], r[0] ^ r[2] ^ r[3] ^ r[5]))
-            lfsr.append(r)
-        go, hold = Signal(), Signal()
-        m.d.comb += go.eq(hold | (lfsr[0][:4] >= self.idle_q))
-        m.d.comb += [rd.addr.eq(i), dut.rays.payload.eq(rd.data),
-                     dut.rays.valid.eq((i < self.n) & go)]
-        m.d.sync += hold.eq(dut.rays.valid & ~dut.rays.ready)     # once valid, stay valid
-        with m.If(dut.rays.valid & dut.rays.ready):
-            m.d.sync += i.eq(i + 1)
+        s0, s1 = lfsr_seeds(self.seed)
+        m.submodules.bubbles = bubbles = LFSR(s0)
+        m.submodules.backpressure = backpressure = LFSR(s1)
+        feed_from_memory(m, dut.rays, rom.read_port(domain="comb"), self.n,
+                         passes(bubbles.value, self.idle_q))
         res = dut.results
-        m.d.comb += [res.ready.eq(lfsr[1][:4] >= self.stall_q), wr.addr.eq(res.payload.packet * lanes + res.payload.lane),
-                     wr.data.eq(res.payload), wr.en.eq(res.valid & res.ready)]
-        with m.If(res.valid & res.ready):
+        take = sink_to(m, res, passes(backpressure.value, self.stall_q))
+        m.d.comb += [wr.addr.eq(res.payload.packet * lanes + res.payload.lane),
+                     wr.data.eq(res.payload), wr.en.eq(take)]
+        with m.If(take):
             m.d.sync += got.eq(got + 1)
         m.d.comb += self.finished.eq(got == self.n)
         return m
 
 
 def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
-                 stall: float = 0.0, seed: int = 1, max_cycles: int = 10_000_000) -> RTCRun:
+                 stall: float = 0.0, seed: int = 1, max_cycles: int = 10_000_000,
+                 device: Callable = rtc_sim) -> RTCRun:
     """Run :class:`RTCSelfTest` in Amaranth's simulator until every result is out; compare
     with the model like :func:`run_rtc`."""
     from amaranth.lib import data
     from amaranth.sim import Simulator
-    hits, ctrs = trace(image, rays, cfg)
-    want = expected(hits, cfg)
     st = RTCSelfTest(image, rays, cfg, mem_latency=mem_latency, idle=idle, stall=stall,
-                     seed=seed)
+                     seed=seed, device=device)
     top = st.build()
     rtc = st.sim.rtc
     sim = Simulator(top)
@@ -206,10 +184,7 @@ def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float
             return
         info["seconds"] = time.process_time() - t0
         info["cycles"] = ctx.get(rtc.cycles)
-        info["counters"] = {name: ctx.get(getattr(rtc, name)) for name in COMPARED}
-        info["counters"]["sub_busy"] = [ctx.get(x) for x in rtc.sub_busy]
-        for name in ("trav_busy", "list_busy", "int_busy", "packets_done"):
-            info["counters"][name] = ctx.get(getattr(rtc, name))
+        info["counters"] = read_counters(ctx, rtc)
         lanes = cfg.packet_size
         info["out"] = [ctx.get(st.out.data[p * lanes + l])
                        for p in range(rays.n_packets)
@@ -219,14 +194,11 @@ def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float
     sim.run()
     if "out" not in info:
         raise AssertionError(f"RTC self-test: not finished after {max_cycles} cycles")
-    mismatches = []
-    for r, v in enumerate(info["out"]):
-        v = data.Const(st.res_layout, v) if isinstance(v, int) else v
-        for j, name in enumerate(("tri", "t", "u", "v")):
-            if int(v[name]) != int(want[j][r]):
-                mismatches.append((r, name, int(v[name]), int(want[j][r])))
-    return RTCRun(info["cycles"], info["seconds"], len(rays), info["counters"],
-                  counter_totals(ctrs), mismatches)
+    out = [data.Const(st.res_layout, v) if isinstance(v, int) else v for v in info["out"]]
+    records = {k: np.array([int(v[k]) for v in out], np.int64)
+               for k in ("packet", "lane", *compare.FIELDS)}
+    return finish(RTCRun, image, rays, cfg, records, cycles=info["cycles"],
+                  seconds=info["seconds"], counters=info["counters"])
 
 
 def synth_stat(component, name: str) -> str:

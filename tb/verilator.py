@@ -11,7 +11,8 @@ rays, seed and bubble rate (they are loaded, not compiled in).
 :func:`run_frame` writes the input file (memory image, ``RayIn`` bits of every lane as
 ``tb.rtc.RTCSelfTest`` makes them, constants), runs the binary with a progress bar, and returns
 a :class:`VerilatorRun` (an :class:`tb.rtc.RTCRun`): every ray's triangle, t, u, v bits and
-the counters of ``tb.rtc.COMPARED`` checked against ``model.rtc.trace``.
+the counters of ``tb.compare.COMPARED`` checked against ``model.rtc.trace`` (``tb/compare.py``,
+as for the Amaranth-simulator runs).
 
 CLI: ``.venv/bin/python -m tb.verilator --scene scenes/office.toml --res 64x48 [options]``
 (``--help``).
@@ -34,12 +35,12 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config, ConfigError
-from model.rtc import counter_totals, trace
 from rtl.tools import ToolMissing, tool
 
-from .frame import (CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, lfsr_seeds,
-                    ray_chunks)
-from .rtc import RTCRun, expected
+from . import compare
+from .frame import CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, ray_chunks
+from .lfsr import lfsr_seeds, sixteenths
+from .rtc import RTCRun, finish
 
 __all__ = ["VerilatorMissing", "FrameError", "FrameBuild", "VerilatorRun", "verilator_exe",
            "build", "write_input", "read_output", "run_frame", "main"]
@@ -79,7 +80,7 @@ def _pow2(n: int, least: int) -> int:
 def _sources() -> list[Path]:
     return (sorted((ROOT / "rtl").rglob("*.py")) +
             [ROOT / "model" / n for n in ("config.py", "fp.py", "cache.py")] +
-            [Path(__file__).with_name("frame.py"), MAIN_CPP, MEM_V])
+            [Path(__file__).with_name(n) for n in ("frame.py", "lfsr.py")] + [MAIN_CPP, MEM_V])
 
 
 def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
@@ -198,10 +199,7 @@ def ray_words(image, rays, cfg: Config) -> np.ndarray:
 def write_input(path: Path | str, image, rays, cfg: Config, *, idle: float = 0.0,
                 stall: float = 0.0, seed: int = 1) -> None:
     """Write the load records for ``Vframe`` (format: ``tb/verilator_main.cpp``)."""
-    idle_q, stall_q = round(idle * 16), round(stall * 16)
-    if not (0 <= idle_q <= 15 and 0 <= stall_q <= 15):
-        raise ValueError(f"idle={idle}, stall={stall}: each must be in [0, 15/16] (the LFSR "
-                         "compares 4 bits)")
+    idle_q, stall_q = sixteenths(idle, "idle"), sixteenths(stall, "stall")
     if len(rays) == 0:
         raise ValueError("no rays to trace")
     s0, s1 = lfsr_seeds(seed)
@@ -297,8 +295,6 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
                          f"ray slots (ray_slots={rsl}): pass ray_slots >= {n} (or leave it out)")
     b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
               trace=_trace_kind(trace_file), root=build_root, log=log)
-    hits, ctrs = trace(image, rays, cfg)
-    want = expected(hits, cfg)
     with tempfile.TemporaryDirectory(prefix="rtcframe") as tmp:
         fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
         write_input(fin, image, rays, cfg, idle=idle, stall=stall, seed=seed)
@@ -327,31 +323,15 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
                          "--max-cycles)")
 
     lay = RayResult(cfg)
-    f = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
-    ray = rays.pk_start[np.minimum(f["packet"], rays.n_packets - 1)] + f["lane"]
-    bad = (f["packet"] >= rays.n_packets) | (ray >= rays.pk_start[np.minimum(
-        f["packet"] + 1, rays.n_packets)])
-    if bad.any():
-        j = int(np.flatnonzero(bad)[0])
-        raise FrameError(f"result {j}: packet {f['packet'][j]} lane {f['lane'][j]} is not a ray "
-                         f"of the input ({rays.n_packets} packets)")
-    seen = np.bincount(ray, minlength=n)
-    if (seen != 1).any():
-        r = int(np.flatnonzero(seen != 1)[0])
-        raise FrameError(f"ray {r} reported {seen[r]} times ({(seen == 0).sum()} rays missing, "
-                         f"{(seen > 1).sum()} reported twice)")
-    got = {name: np.empty(n, np.int64) for name in ("tri", "t", "u", "v")}
-    for name in got:
-        got[name][ray] = f[name]
-    mismatches = []
-    for r in np.flatnonzero(np.any([got[k] != want[i] for i, k in enumerate(got)], axis=0)):
-        for i, name in enumerate(got):
-            if got[name][r] != want[i][r]:
-                mismatches.append((int(r), name, int(got[name][r]), int(want[i][r])))
+    records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
     c = dict(out.counters)
     c["sub_busy"] = [c.pop(f"sub_busy{j}") for j in range(cfg.trav_subunits)]
-    return VerilatorRun(out.cycles, out.seconds, n, c, counter_totals(ctrs), mismatches,
-                        build=b, load_cycles=out.load_cycles, load_seconds=out.load_seconds)
+    try:
+        return finish(VerilatorRun, image, rays, cfg, records, cycles=out.cycles,
+                      seconds=out.seconds, counters=c, build=b, load_cycles=out.load_cycles,
+                      load_seconds=out.load_seconds)
+    except compare.ResultError as e:
+        raise FrameError(str(e)) from None
 
 
 # --- CLI ------------------------------------------------------------------------------------
@@ -427,8 +407,7 @@ def main(argv=None) -> int:
           f"{len(r.mismatches)} ray mismatches, counters "
           f"{'equal' if not cm else 'DIFFER: %s' % cm}")
     if r.mismatches or cm:
-        for m in r.mismatches[:10]:
-            print(f"  ray {m[0]}: {m[1]} RTL {m[2]:#x}, model {m[3]:#x}")
+        print(compare.describe(r.mismatches, cm))
         print("tb.verilator: the RTL differs from the golden model", file=sys.stderr)
         return 1
     return 0

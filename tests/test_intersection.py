@@ -7,7 +7,10 @@ import pytest
 
 from model.config import Config
 from model.fp import FPFormat
+from model.rtc import C
 from tb.intersection import random_tests, run_pipe
+
+from .conftest import TIMING, timing_changed
 
 FMT = FPFormat()
 
@@ -22,12 +25,16 @@ def test_random_tests_cover_the_corner_cases():
 
 def test_pipe_random_binary32_exact_cycle():
     r = run_pipe(random_tests(240, FMT, seed=1), FMT, seed=1, p_bubble=0.2, p_stall=0.2)
+    assert r.mismatches == [] and r.outputs == r.tests == 240
     assert r.latency == 33 and r.cycles >= 240 + 33
+    assert r.cycles == TIMING["intersection/pipe_240"], timing_changed("intersection/pipe_240",
+                                                                       r.cycles)
 
 
 @pytest.mark.slow
 def test_pipe_random_binary32_thousands():
     r = run_pipe(random_tests(3000, FMT, seed=2), FMT, seed=2, p_bubble=0.1, p_stall=0.1)
+    assert r.mismatches[:5] == [] and r.outputs == r.tests == 3000
     print(f"IntersectPipe: {r.cycles} cycles in {r.seconds:.1f} s = {r.cycles_per_s:.0f} cycles/s")
 
 
@@ -43,13 +50,18 @@ def test_unit_matches_model_first_leaves(cornell):
     every LaneResult against the model's best hit after the leaf, every lane's final hit."""
     from tb.intersection import run_unit
     r = run_unit(cornell, max_leaves=8, seed=1, idle=0.3, stall=0.3, latency=20)
+    assert r.mismatches[:5] == []
     assert r.int_ops > 100 and r.counters["busy"] > 0
+    name = "intersection/unit_first_leaves"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
 @pytest.mark.slow
 def test_unit_matches_model_whole_image(cornell):
     from tb.intersection import run_unit
     r = run_unit(cornell, seed=2, idle=0.2, stall=0.2, latency=20)
+    assert r.mismatches[:5] == []
+    assert r.counters["int_ops"] == cornell.counters.sum(axis=0)[C["int_ops"]]
     print(f"IntersectionUnit: {r.cycles} cycles in {r.seconds:.1f} s = "
           f"{r.cycles_per_s:.0f} cycles/s")
 
@@ -63,6 +75,7 @@ def test_unit_every_test_accepts_small_slots_fast_memory(kd_cache):
     ints = g.events[g.events["kind"] == EV_INT]
     assert ((ints["flags"] & 2) != 0).sum() >= 6 * 8                    # >= 6 accepts per ray
     r = run_unit(g, seed=5, idle=0.0, stall=0.4, latency=2, tri_slots=2)
+    assert r.mismatches[:5] == []
     assert r.counters["tris"] == len(ints) and r.int_ops == len(ints)      # one ray per packet
 
 
@@ -73,13 +86,13 @@ def test_unit_synthesizes_small_config():
     from rtl.intersection import IntersectionUnit
     from tb.common import synth_check
     stat = synth_check(IntersectionUnit(Config(threads=2, tile_w=2, tile_h=2)), "intersection")
-    print(stat)
+    assert "cells" in stat          # synth_check raises on a latch or a failed `check`
 
 
 @pytest.mark.parametrize("fmt", [FPFormat(8, 16), FPFormat(6, 10)], ids=str)
 def test_pipe_reduced_formats_exact_cycle(fmt):
     r = run_pipe(random_tests(60, fmt, seed=4), fmt, seed=4)
-    assert r.tests == 60
+    assert r.mismatches == [] and r.outputs == r.tests == 60
 
 
 @pytest.mark.slow
@@ -89,4 +102,5 @@ def test_unit_reduced_format(kd_cache):
     from tb.intersection import run_unit
     from .conftest import ROOT
     g = golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(fmt=FPFormat(8, 16)), kd_cache)
-    run_unit(g, max_leaves=20, seed=1)
+    r = run_unit(g, max_leaves=20, seed=1)
+    assert r.mismatches[:5] == [] and r.int_ops > 0

@@ -10,7 +10,7 @@ from tb.common import synth_check
 from tb.list import golden, leaf_stream, run_list
 from rtl.list import ListUnit
 
-from .conftest import ROOT
+from .conftest import ROOT, TIMING, timing_changed
 
 CFG = Config()
 
@@ -28,6 +28,8 @@ def test_golden_stream_is_not_trivial(cornell):
 
 def test_list_unit_matches_model_with_bubbles_and_backpressure(cornell):
     r = run_list(cornell, seed=1, idle=0.3, stall=0.3)
+    assert r.cycles == TIMING["list/cornell_bubbles"], timing_changed("list/cornell_bubbles",
+                                                                      r.cycles)
     assert r.entries == cornell.counters[:, 5].sum()
     assert 0 < r.busy <= r.cycles
 
@@ -43,6 +45,8 @@ def test_list_unit_throughput(cornell):
     """No bubbles, no back-pressure: one entry per cycle once memory latency is hidden."""
     r = run_list(cornell, seed=3, idle=0.0, stall=0.0, latency=20, outstanding=16)
     assert r.cycles < 1.25 * r.entries + 40, (r.cycles, r.entries)
+    name = "list/cornell_throughput"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
 def test_list_unit_every_alignment():

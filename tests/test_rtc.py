@@ -115,10 +115,16 @@ def test_counters_are_consistent(kd_cache):
     scene = load_scene(SCENES[0])
     prep = prepare(scene, CFG, cache_dir=kd_cache)
     rays = eye_rays(scene.camera, 64, 48, CFG)
-    hits, ctr = trace(prep.image, rays, CFG)
+    hits, ctr, ev = trace(prep.image, rays, CFG, record=True)
     tot = ctr.sum(axis=0)
-    assert tot[C["int_reads"]] == 5 * tot[C["int_steps"]]
-    assert tot[C["list_ops"]] == tot[C["int_steps"]]
+    # int_steps and int_reads against counts of the event log (not the counters' own formula):
+    # one triangle fetch of 5 consecutive words per triangle request of the list unit
+    from model.events import EV_TRI
+    from model.rtc import memory_trace
+    assert (ev["kind"] == EV_TRI).sum() == tot[C["int_steps"]] == tot[C["list_ops"]]
+    words = np.asarray(memory_trace(ev, prep.image)["int"])
+    assert len(words) == tot[C["int_reads"]] == 5 * (ev["kind"] == EV_TRI).sum()
+    assert (np.diff(words.reshape(-1, 5), axis=1) == 1).all()
     assert tot[C["trav_ops"]] <= 64 * tot[C["trav_steps"]]
     assert tot[C["int_ops"]] <= 64 * tot[C["int_steps"]]
     assert tot[C["node_reads"]] >= tot[C["trav_steps"]] + tot[C["leaf_visits"]]

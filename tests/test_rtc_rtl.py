@@ -8,7 +8,7 @@ from tb.common import synth_check
 from tb.rtc import run_rtc, run_rtc_free
 from tb.traversal import small_case
 
-from .conftest import ROOT
+from .conftest import ROOT, TIMING, timing_changed
 
 # CI size: the whole RTC runs at a few hundred cycles/s in pysim, so packets of 4x4 rays,
 # 2 packets per scene, through 2 threads and 2 traversal sub-units
@@ -32,6 +32,8 @@ def test_rtc_matches_model(scene, res, seed, kd_cache):
     assert rays.n_packets == res[0] * res[1] // 16
     r = run_rtc_free(image, rays, TINY, mem_latency=4, idle=0.25, stall=0.3, seed=seed)
     check(r, rays)
+    if scene == "cornell":
+        assert r.cycles == TIMING["rtc/cornell_12x4"], timing_changed("rtc/cornell_12x4", r.cycles)
 
 
 def test_rtc_matches_model_with_deep_fp_pipelines_and_async_subunits(kd_cache):

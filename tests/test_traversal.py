@@ -8,7 +8,7 @@ from rtl.traversal import Traversal, TravSubunit
 from tb.common import run, synth_check
 from tb.traversal import COMPARED, run_traversal, small_case
 
-from .conftest import ROOT
+from .conftest import ROOT, TIMING, timing_changed
 
 
 def check(r):
@@ -26,6 +26,8 @@ def test_traversal_replays_model_cornell(kd_cache):
     image, rays = small_case(ROOT / "scenes/cornell.toml", 16, 8, cfg, kd_cache)
     r = run_traversal(image, rays, cfg, seed=3)
     check(r)
+    assert r.cycles == TIMING["traversal/cornell_16x8"], timing_changed("traversal/cornell_16x8",
+                                                                        r.cycles)
     assert sorted(r.packets_done) == [0, 1]
     # the sub-units share the lanes statically: each did some of the work
     assert all(b > 0 for b in r.counters["sub_busy"])
@@ -38,6 +40,8 @@ def test_traversal_reuses_threads(kd_cache):
     assert rays.n_packets == 4
     r = run_traversal(image, rays, cfg, seed=5, mem_latency=6)
     check(r)
+    name = "traversal/office_8x8_reuse"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
     assert sorted(r.packets_done) == list(range(4))
 
 

@@ -18,7 +18,7 @@ from rtl.memory import IdealMemory
 from tb.common import drain, drive, run
 from tb.traversal import small_case
 
-from .conftest import ROOT
+from .conftest import ROOT, TIMING, timing_changed
 
 import tb.verilator as vl           # verilator missing: the tests fail saying `make setup`
 
@@ -49,6 +49,8 @@ def test_cornell_frame_matches_model(kd_cache):
     image, rays = case("cornell", 16, 16, kd_cache)
     r = frame(image, rays, idle=0.25, stall=0.3, seed=1)
     check(r, rays)
+    name = "verilator/cornell_16x16_tiny"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
     assert r.counters["node_mem_reads"] == r.model["node_reads"]
     assert r.counters["tri_mem_reads"] == r.model["int_reads"]
     assert r.load_cycles >= len(image.data) + 8 * len(rays)
@@ -67,6 +69,10 @@ def test_same_cycles_as_pysim(kd_cache):
     assert {k: r.counters[k] for k in p.counters} == p.counters
     assert "trav_busy" in p.counters and "sub_busy" in p.counters
     assert r.cycles == p.cycles - 1
+    name = "verilator/cornell_4x4_seed7"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+    assert p.cycles == TIMING["rtc/cornell_4x4_seed7"], timing_changed("rtc/cornell_4x4_seed7",
+                                                                       p.cycles)
 
 
 def test_second_scene_reuses_the_binary(kd_cache):

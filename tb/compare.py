@@ -1,0 +1,100 @@
+"""RTC results and counters against the golden model, whatever simulated the RTC.
+
+The Amaranth-simulator testbenches (``tb/rtc.py``), the Verilator frame (``tb/verilator.py``)
+and any other simulation of an RTC hand their ``RayResult`` s here as arrays (packet, lane, tri,
+t, u, v per result, in any order) and their counters as a dict:
+
+* :func:`expected`: the model's :class:`model.rtc.Hits` as the RTC reports them (triangle id with
+  a miss as all ones; t, u, v as bit patterns of the configured FP format).
+* :func:`results_by_ray`: result records -> one value per ray, by ray id
+  (``rays.pk_start[packet] + lane``); a result that is not a ray of the input, a ray reported
+  twice and a ray never reported raise :class:`ResultError`.
+* :func:`result_mismatches`: every (ray, field, rtl, model) that differs, bit for bit.
+* :func:`counter_mismatches`: the RTC counters of :data:`COMPARED` against the model's totals.
+* :func:`describe`: the first mismatches in words, for an assertion message.
+"""
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from model.config import Config
+
+__all__ = ["FIELDS", "MISS", "COMPARED", "ResultError", "expected", "results_by_ray",
+           "result_mismatches", "counter_mismatches", "describe"]
+
+FIELDS = ("tri", "t", "u", "v")
+MISS = (1 << 32) - 1            # the RTC's triangle id of a ray that hit nothing
+
+# RTC counter -> model counter (must be equal)
+COMPARED = {"trav_ops": "trav_ops", "trav_steps": "trav_steps", "node_reads": "node_reads",
+            "leaf_reqs": "leaf_visits", "passes": "passes", "pushes": "pushes",
+            "list_ops": "list_ops", "list_reads": "list_reads", "int_ops": "int_ops",
+            "int_tris": "int_steps", "int_reads": "int_reads"}
+
+
+class ResultError(AssertionError):
+    """The RTC reported a result for no ray of the input, a ray twice, or not every ray."""
+
+
+def expected(hits, cfg: Config) -> dict[str, np.ndarray]:
+    """The model's hits as the RTC reports them: ``{field: int64 array per ray}``."""
+    tri = hits.tri.astype(np.int64)
+    want = {"tri": np.where(tri < 0, MISS, tri)}
+    for f in FIELDS[1:]:
+        want[f] = cfg.fmt.to_bits(getattr(hits, f)).astype(np.int64)
+    return want
+
+
+def results_by_ray(records: Mapping[str, np.ndarray], rays) -> dict[str, np.ndarray]:
+    """Order result records by ray id. ``records`` holds equal-length integer arrays
+    ``packet``, ``lane`` and each of :data:`FIELDS`; returns ``{field: array over rays}``."""
+    n = len(rays)
+    packet = np.asarray(records["packet"], np.int64)
+    lane = np.asarray(records["lane"], np.int64)
+    pk = np.asarray(rays.pk_start, np.int64)
+    valid_pk = (packet >= 0) & (packet < rays.n_packets)
+    p = np.where(valid_pk, packet, 0)
+    ray = pk[p] + lane
+    bad = ~valid_pk | (lane < 0) | (ray >= pk[p + 1])
+    if bad.any():
+        j = int(np.flatnonzero(bad)[0])
+        raise ResultError(f"result {j}: packet {packet[j]} lane {lane[j]} is not a ray of the "
+                          f"input ({rays.n_packets} packets)")
+    seen = np.bincount(ray, minlength=n)
+    if (seen != 1).any():
+        r = int(np.flatnonzero(seen != 1)[0])
+        raise ResultError(f"ray {r} reported {seen[r]} times ({(seen == 0).sum()} rays missing, "
+                          f"{(seen > 1).sum()} reported more than once)")
+    got = {}
+    for f in FIELDS:
+        got[f] = np.empty(n, np.int64)
+        got[f][ray] = np.asarray(records[f], np.int64)
+    return got
+
+
+def result_mismatches(got: Mapping[str, np.ndarray],
+                      want: Mapping[str, np.ndarray]) -> list[tuple[int, str, int, int]]:
+    """``(ray, field, rtl, model)`` for every field of every ray whose bits differ, by ray."""
+    out = []
+    differ = np.any([np.asarray(got[f]) != np.asarray(want[f]) for f in FIELDS], axis=0)
+    for r in np.flatnonzero(differ):
+        for f in FIELDS:
+            if got[f][r] != want[f][r]:
+                out.append((int(r), f, int(got[f][r]), int(want[f][r])))
+    return out
+
+
+def counter_mismatches(counters: Mapping[str, int], model: Mapping[str, int]) -> dict:
+    """``{rtc counter: (rtc, model)}`` for every counter of :data:`COMPARED` that differs."""
+    return {k: (counters[k], model[v]) for k, v in COMPARED.items() if counters[k] != model[v]}
+
+
+def describe(mismatches: list, counters: dict | None = None, first: int = 10) -> str:
+    """The first ``first`` result mismatches (and any counter mismatch) as text."""
+    lines = [f"{len(mismatches)} result mismatches"]
+    lines += [f"  ray {r}: {f} RTL {a:#x}, model {b:#x}" for r, f, a, b in mismatches[:first]]
+    if counters:
+        lines.append(f"counters differ (rtc, model): {counters}")
+    return "\n".join(lines)
