@@ -13,7 +13,7 @@ import sys
 import sysconfig
 from pathlib import Path
 
-__all__ = ["ToolMissing", "tool", "INSTALL", "NO_LATCH"]
+__all__ = ["ToolMissing", "tool", "bin_dirs", "INSTALL", "NO_LATCH"]
 
 # how to install each tool (dev tools: `make setup`; the FPGA back end: the fpga extra)
 INSTALL = {
@@ -34,7 +34,8 @@ class ToolMissing(FileNotFoundError):
     """An external tool is not installed; the message names it and how to install it."""
 
 
-def _bin_dirs() -> list[str]:
+def bin_dirs() -> list[str]:
+    """Where :func:`tool` looks before ``PATH`` (for a child that looks tools up itself)."""
     dirs = [str(Path(sys.executable).parent), sysconfig.get_path("scripts")]
     return [d for d in dict.fromkeys(dirs) if d]
 
@@ -42,13 +43,13 @@ def _bin_dirs() -> list[str]:
 def tool(name: str) -> str:
     """Path of executable ``name``: beside ``sys.executable`` (the venv), else on ``PATH``.
     Raises :class:`ToolMissing` naming the tool and how to install it."""
-    for d in _bin_dirs():
+    for d in bin_dirs():
         p = Path(d) / name
         if p.exists():
             return str(p)
     found = shutil.which(name)
     if found is None:
         how = INSTALL.get(name, "install it or put it on PATH")
-        raise ToolMissing(f"{name} not found (looked in {', '.join(_bin_dirs())} and on PATH): "
+        raise ToolMissing(f"{name} not found (looked in {', '.join(bin_dirs())} and on PATH): "
                           f"{how}")
     return found

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from amaranth.back import rtlil
 
-from rtl.tools import ToolMissing, tool
+from rtl.tools import ToolMissing, bin_dirs, tool
 
 __all__ = ["SmtbmcResult", "FormalToolMissing", "tool_path", "run_smtbmc"]
 
@@ -82,7 +82,7 @@ def run_smtbmc(top, *, ports=(), mode: str = "bmc", depth: int = 20, name: str =
         if p.returncode:
             raise RuntimeError(f"Yosys could not build the SMT2 model of {name}:\n"
                                f"{p.stdout[-3000:]}{p.stderr[-3000:]}")
-        env = dict(os.environ, PATH=os.pathsep.join(_bin_dirs() + [os.environ.get("PATH", "")]))
+        env = dict(os.environ, PATH=os.pathsep.join(bin_dirs() + [os.environ.get("PATH", "")]))
         # a proof is the base case (BMC to depth k) and the induction step (k-induction)
         runs = {"bmc": [[]], "prove": [[], ["-i"]], "cover": [["-c"]]}[mode]
         log = ""
