@@ -13,9 +13,11 @@ setup: $(STAMP)
 $(STAMP): pyproject.toml scripts/setup.sh
 	scripts/setup.sh
 
-## make test: the whole test suite (what CI runs)
+## make test: the whole test suite (what CI runs), on every core (pytest-xdist; Verilator
+##   builds are shared between workers through a file lock)
+TEST_JOBS ?= auto
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_JOBS)
 
 ## make sim: render the default scene (golden model until the RTL chip exists)
 sim: setup
@@ -23,9 +25,12 @@ sim: setup
 
 ## make bench: long sweeps and speed measurements, written to build/bench/
 BENCH_SCENE ?= scenes/office.toml
+# the golden model's speed against Embree: a real mesh if one is at hand (the README's figures
+# use the Stanford dragon), else the procedural terrain
+BENCH_MESH  ?= $(firstword $(wildcard $(SAARCOR_MESHES)/dragon.obj ../shared/meshes/dragon.obj))
 bench: setup
 	mkdir -p build/bench
-	$(PY) -m model.bench --out build/bench
+	$(PY) -m model.bench --out build/bench $(if $(BENCH_MESH),--mesh $(BENCH_MESH))
 	$(PY) -m tb.bench_memory --scene $(BENCH_SCENE) --out build/bench
 	$(PY) -m tb.bench_threads --out build/bench
 	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \

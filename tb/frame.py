@@ -37,6 +37,7 @@ from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
 from model.config import Config
+from rtl.common import COUNTER_BITS
 from rtl.memory import IdealMemory
 from rtl.rtc import COUNTERS, RTC, attach_memories, drive_header
 from rtl.rtc_streams import RayIn, RayResult
@@ -49,7 +50,6 @@ __all__ = ["RTCFrame", "VerilogMemory", "CONSTS", "SEL_IMAGE", "SEL_RAYS", "SEL_
 SEL_IMAGE, SEL_RAYS, SEL_CONST = 0, 1, 2
 CONSTS = ("node_base", "list_base", "tri_base", "root", "rays", "idle_q", "stall_q",
           "seed0", "seed1")
-COUNTER_BITS = 32
 MEMS = ("node", "list", "tri")
 
 
@@ -120,7 +120,6 @@ class _Run(Elaboratable):
 
     def elaborate(self, platform):
         t = self.top
-        cfg = t.cfg
         m = Module()
         m.submodules.rtc = rtc = t.rtc
         attach_memories(m, rtc, t.mems)
