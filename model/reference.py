@@ -19,19 +19,11 @@ import numba
 import numpy as np
 
 from .config import Config
-from .fp import BINARY32
+from .fp import BINARY32, fmax, fmin
+from .intersection import pick
 from .raygen import eye_rays
 from .render import prepare
 from .shading import AMBIENT, Shader
-
-
-@numba.njit(cache=True, inline="always")
-def _pick(a0, a1, a2, k):
-    if k == 0:
-        return a0
-    if k == 1:
-        return a1
-    return a2
 
 
 @numba.njit(cache=True)
@@ -40,13 +32,13 @@ def intersect64(tri, o, kx, ky, kz, sx, sy, sz):
     a0, a1, a2 = tri[0] - o[0], tri[1] - o[1], tri[2] - o[2]
     b0, b1, b2 = tri[3] - o[0], tri[4] - o[1], tri[5] - o[2]
     c0, c1, c2 = tri[6] - o[0], tri[7] - o[1], tri[8] - o[2]
-    az, bz, cz = _pick(a0, a1, a2, kz), _pick(b0, b1, b2, kz), _pick(c0, c1, c2, kz)
-    ax = _pick(a0, a1, a2, kx) - sx * az
-    ay = _pick(a0, a1, a2, ky) - sy * az
-    bx = _pick(b0, b1, b2, kx) - sx * bz
-    by = _pick(b0, b1, b2, ky) - sy * bz
-    cx = _pick(c0, c1, c2, kx) - sx * cz
-    cy = _pick(c0, c1, c2, ky) - sy * cz
+    az, bz, cz = pick(a0, a1, a2, kz), pick(b0, b1, b2, kz), pick(c0, c1, c2, kz)
+    ax = pick(a0, a1, a2, kx) - sx * az
+    ay = pick(a0, a1, a2, ky) - sy * az
+    bx = pick(b0, b1, b2, kx) - sx * bz
+    by = pick(b0, b1, b2, ky) - sy * bz
+    cx = pick(c0, c1, c2, kx) - sx * cz
+    cy = pick(c0, c1, c2, ky) - sy * cz
     eu = cx * by - cy * bx
     ev = ax * cy - ay * cx
     ew = bx * ay - by * ax
@@ -61,13 +53,18 @@ def intersect64(tri, o, kx, ky, kz, sx, sy, sz):
 
 
 @numba.njit(cache=True, inline="always")
-def _fmin(a, b):
-    return b if (b < a or a != a) else a
-
-
-@numba.njit(cache=True, inline="always")
-def _fmax(a, b):
-    return b if (b > a or a != a) else a
+def shear_axes(d):
+    """The watertight test's axes and shear constants of direction ``d`` (float64):
+    kz = the dominant axis, kx/ky the others (swapped when d[kz] < 0)."""
+    kz = 0
+    for a in (1, 2):
+        if abs(d[a]) > abs(d[kz]):
+            kz = a
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    if d[kz] < 0:
+        kx, ky = ky, kx
+    return kx, ky, kz, d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]
 
 
 @numba.njit(cache=True)
@@ -78,21 +75,13 @@ def _trace_one(axis, split, child, first, count, tri_list, tris, ids, lo, hi, o,
     for a in range(3):
         inv[a] = 1.0 / d[a] if d[a] != 0 else (np.inf if np.copysign(1.0, d[a]) > 0 else -np.inf)
         neg[a] = 1 if np.copysign(1.0, d[a]) < 0 else 0
-    kz = 0
-    for a in (1, 2):
-        if abs(d[a]) > abs(d[kz]):
-            kz = a
-    kx = (kz + 1) % 3
-    ky = (kx + 1) % 3
-    if d[kz] < 0:
-        kx, ky = ky, kx
-    sx, sy, sz = d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]
+    kx, ky, kz, sx, sy, sz = shear_axes(d)
     tnear, tfar = 0.0, tmax
     for a in range(3):
         t0 = (lo[a] - o[a]) * inv[a]
         t1 = (hi[a] - o[a]) * inv[a]
-        tnear = _fmax(tnear, _fmin(t0, t1) - pad)
-        tfar = _fmin(tfar, _fmax(t0, t1) + pad)
+        tnear = fmax(tnear, fmin(t0, t1) - pad)
+        tfar = fmin(tfar, fmax(t0, t1) + pad)
     best, btri, bu, bv = tmax, -1, 0.0, 0.0
     if not (tnear <= tfar):
         return btri, np.inf, bu, bv
@@ -107,16 +96,16 @@ def _trace_one(axis, split, child, first, count, tri_list, tris, ids, lo, hi, o,
             need_far = not (dist - pad > tfar)
             if need_near and need_far:
                 stack_node[sp] = far
-                stack_near[sp] = _fmax(tnear, dist - pad)
+                stack_near[sp] = fmax(tnear, dist - pad)
                 stack_far[sp] = tfar
                 sp += 1
-                tfar = _fmin(tfar, dist + pad)
+                tfar = fmin(tfar, dist + pad)
                 node = near
             elif need_near:
-                tfar = _fmin(tfar, dist + pad)
+                tfar = fmin(tfar, dist + pad)
                 node = near
             else:
-                tnear = _fmax(tnear, dist - pad)
+                tnear = fmax(tnear, dist - pad)
                 node = far
             continue
         for j in range(count[node]):
@@ -266,15 +255,7 @@ def crossings64(tris, org, dirn, tlim):
     out = np.zeros(org.shape[0], np.int64)
     for r in numba.prange(org.shape[0]):
         d = dirn[r]
-        kz = 0
-        for a in (1, 2):
-            if abs(d[a]) > abs(d[kz]):
-                kz = a
-        kx = (kz + 1) % 3
-        ky = (kx + 1) % 3
-        if d[kz] < 0:
-            kx, ky = ky, kx
-        sx, sy, sz = d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]
+        kx, ky, kz, sx, sy, sz = shear_axes(d)
         for i in range(tris.shape[0]):
             hit, t, u, v = intersect64(tris[i], org[r], kx, ky, kz, sx, sy, sz)
             if hit and t > 0 and t <= tlim[r]:
