@@ -19,7 +19,7 @@ Counters: ``grants[i]`` per requester, ``req_cycles`` (cycles a request went to 
 from __future__ import annotations
 
 from amaranth.hdl import Array, Cat, Module, Mux, Signal
-from amaranth.lib import wiring
+from amaranth.lib import data, wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
@@ -97,22 +97,21 @@ class RoundRobinBus(wiring.Component):
 
         # --- responses: labeled broadcast -------------------------------------------------
         src = self.mem.resp
-        b_valid, b_data = Signal(), Signal.like(src.payload.data)
-        b_tag, b_id = Signal(tag_width), Signal(self.id_bits)
-        taken = Signal()
-        m.d.comb += taken.eq(Array(p.resp.ready for p in ins)[b_id] if n > 1 else ins[0].resp.ready)
-        m.d.comb += src.ready.eq(~b_valid | taken)
-        with m.If(src.valid & src.ready):
-            m.d.sync += [b_valid.eq(1), b_data.eq(src.payload.data),
-                         b_tag.eq(src.payload.tag[:tag_width]),
-                         b_id.eq(src.payload.tag[tag_width:])]
-        with m.Elif(taken):
-            m.d.sync += b_valid.eq(0)
+        m.submodules.resp_out = bc = OutputStage(data.StructLayout({
+            "data": len(src.payload.data), "tag": tag_width, "id": self.id_bits}))
+        b_valid, b_data = bc.o.valid, bc.o.payload.data
+        b_tag, b_id = bc.o.payload.tag, bc.o.payload.id
+        m.d.comb += [bc.i.valid.eq(src.valid), src.ready.eq(bc.i.ready),
+                     bc.i.payload.data.eq(src.payload.data),
+                     bc.i.payload.tag.eq(src.payload.tag[:tag_width]),
+                     bc.i.payload.id.eq(src.payload.tag[tag_width:]),
+                     bc.o.ready.eq(Array(p.resp.ready for p in ins)[b_id] if n > 1
+                                   else ins[0].resp.ready)]
         for i in range(n):
             m.d.comb += [ins[i].resp.valid.eq(b_valid & (b_id == i)),
                          ins[i].resp.payload.data.eq(b_data),
                          ins[i].resp.payload.tag.eq(b_tag)]
-        with m.If(b_valid & taken):
+        with m.If(b_valid & bc.o.ready):
             m.d.sync += self.resp_cycles.eq(self.resp_cycles + 1)
         return m
 
