@@ -41,24 +41,27 @@ def test_image_error_known_values():
     e = image_error(img, ref)
     assert e["worst_levels"] == 10
     assert e["share_off_gt_1_level"] == 1.0
-    assert e["psnr_db"] == pytest.approx(20 * np.log10(255 / 10), abs=1e-9)
+    # every channel off by exactly 10 levels: MSE = 100 exactly, so the PSNR is exact too
+    assert e["psnr_db"] == 10 * np.log10(255.0 ** 2 / 100.0)
     one = ref.copy()
     one[2, 3, 1] = 1.0                                 # one channel of one pixel at 255
     e = image_error(one, ref)
-    assert e["worst_levels"] == 255 and e["share_off_gt_1_level"] == pytest.approx(1 / 20)
-    assert e["psnr_db"] == pytest.approx(10 * np.log10(60.0), abs=1e-9)
+    assert e["worst_levels"] == 255 and e["share_off_gt_1_level"] == 1 / 20
+    # one of 60 channels off by 255: MSE = 255^2 / 60 = 1083.75 and 255^2 / MSE = 60, exactly
+    assert e["psnr_db"] == 10 * np.log10(60.0)
 
 
 def test_ray_error_counts():
     ref_tri = np.array([0, 1, 2, -1, -1, 5, 6, 7])
     ref_t = np.arange(1.0, 9.0)
     tri = np.array([0, 1, -1, 4, -1, 9, 6, 7])        # 1 false miss, 1 false hit, 1 wrong
-    t = ref_t * np.array([1, 1 + 1e-3, 1, 1, 1, 1, 1 + 2e-3, 1 - 4e-3])
+    # relative errors that are powers of two: every product and quotient below is exact
+    t = ref_t * np.array([1, 1 + 2**-10, 1, 1, 1, 1, 1 + 2**-9, 1 - 2**-8])
     e = ray_error(tri, t, ref_tri, ref_t)
     assert (e["flips"], e["false_hits"], e["false_misses"], e["wrong_triangle"]) == (2, 1, 1, 1)
-    assert e["flip_share"] == pytest.approx(2 / 8)
-    assert e["t_rel_max"] == pytest.approx(4e-3)
-    assert e["t_rel_median"] == pytest.approx(1.5e-3)  # of 0, 1e-3, 2e-3, 4e-3 (same-tri hits)
+    assert e["flip_share"] == 2 / 8
+    assert e["t_rel_max"] == 2**-8
+    assert e["t_rel_median"] == 1.5 * 2**-10   # of 0, 2^-10, 2^-9, 2^-8 (same-triangle hits)
 
 
 def test_reference_traces_like_the_binary32_model(cornell, ref):
