@@ -26,7 +26,6 @@ import numba
 import numpy as np
 
 EV_NODE, EV_LEAF, EV_TRI, EV_INT, EV_RESULT, EV_DONE = range(6)
-EVENTS = ("node", "leaf", "tri", "int", "result", "done")
 RAW_COLUMNS = 8
 
 _MASKS = ("mask", "near", "far", "terminated", "live")
@@ -79,13 +78,3 @@ def decode(raw: np.ndarray) -> np.ndarray:
             out[name][sel] = raw[sel, col].astype(EVENT_DTYPE[name], casting="unsafe")
     return out
 
-
-def popcount(masks: np.ndarray) -> np.ndarray:
-    """Set bits of each 64-bit mask."""
-    return np.unpackbits(np.asarray(masks, np.uint64).view(np.uint8)).reshape(
-        -1, 64).sum(axis=1).astype(np.int64) if len(masks) else np.zeros(0, np.int64)
-
-
-def bits_to_f32(bits: np.ndarray) -> np.ndarray:
-    """binary32 bit patterns (the ``t``/``u``/``v`` fields) as float32."""
-    return np.asarray(bits, np.uint32).view(np.float32)

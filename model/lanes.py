@@ -15,7 +15,6 @@ def lowest_lane(m):
     return _DEBRUIJN_IDX[((m & (~m + np.uint64(1))) * _DEBRUIJN) >> np.uint64(58)]
 
 
-
 @numba.njit(cache=True, inline="always")
 def popcount(x):
     """Set bits of a 64-bit mask (SWAR, constant time)."""

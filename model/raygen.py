@@ -46,6 +46,24 @@ class Rays:
         return self.pk_start.shape[0] - 1
 
     @staticmethod
+    def from_arrays(org, dirn, tmax=None, *, packet: int = 64, kind: int = 0,
+                    anyhit=None) -> "Rays":
+        """Rays from (N, 3) origins and directions, in packets of ``packet`` consecutive rays
+        (pixel = ray index; tmax default inf; any-hit default: shadow rays)."""
+        org = np.ascontiguousarray(org, np.float32)
+        dirn = np.ascontiguousarray(dirn, np.float32)
+        n = len(dirn)
+        if org.shape != (n, 3) or dirn.shape != (n, 3):
+            raise ValueError(f"origins {org.shape} and directions {dirn.shape} must both be "
+                             "(N, 3)")
+        if not 1 <= packet <= 64:
+            raise ValueError(f"packet={packet}: a packet holds 1 to 64 rays")
+        tmax = np.full(n, np.inf, np.float32) if tmax is None else np.asarray(tmax, np.float32)
+        pk = np.unique(np.r_[np.arange(0, n, packet), n]).astype(np.int64)
+        return Rays(org, dirn, tmax, np.full(n, kind, np.uint8), np.arange(n, dtype=np.int32),
+                    pk, None if anyhit is None else np.asarray(anyhit, bool))
+
+    @staticmethod
     def concat(parts: list["Rays"]) -> "Rays":
         parts = [p for p in parts if len(p)]
         if not parts:

@@ -23,7 +23,7 @@ from .fp import BINARY32, fmax, fmin
 from .intersection import pick
 from .raygen import eye_rays
 from .render import prepare
-from .shading import AMBIENT, Shader
+from .shading import AMBIENT, Shader, surface_offset
 
 
 @numba.njit(cache=True)
@@ -150,7 +150,6 @@ class Reference:
         self.ids = np.asarray(scene.tri_id, np.int64)
         self.bounds = tree.bounds.astype(np.float64)
         self.scale = float(np.abs(self.bounds).max())
-        self.diag = float(np.linalg.norm(self.bounds[1] - self.bounds[0]))
 
     def trace(self, org, dirn, tmax=None, anyhit=None, pad_rel: float = 1e-9):
         """Closest (or, where ``anyhit``, any) hit per ray in float64: (tri id or -1, t, u, v)."""
@@ -186,8 +185,8 @@ def render64(ref: Reference, width: int, height: int, reflect_depth: int = 3,
     sx, sy = pixel % width + 0.5, pixel // width + 0.5
     d = (corner[None] + sx[:, None] * dx[None]) + sy[:, None] * dy[None]
     org = np.broadcast_to(pos, d.shape).copy()
-    shader = Shader(scene, BINARY32, eps=1e-4 * max(ref.diag, 1e-6))
-    eps = 1e-4 * max(ref.diag, 1e-6)
+    eps = surface_offset(ref.bounds)
+    shader = Shader(scene, BINARY32, eps=eps)
     tri64 = ref.tris.reshape(-1, 3, 3)
     fn = np.cross(tri64[:, 1] - tri64[:, 0], tri64[:, 2] - tri64[:, 0])
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)

@@ -18,7 +18,7 @@ from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays
 from .rtc import COUNTERS, Hits, counter_totals, trace
-from .shading import AMBIENT, Shader
+from .shading import AMBIENT, Shader, surface_offset
 
 KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
 CHUNK_PACKETS = 4096
@@ -90,8 +90,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     prep = prepared or prepare(scene, cfg)
     t_build = time.perf_counter() - t0
     image = prep.image
-    diag = float(np.linalg.norm(image.bounds[1].astype(np.float64) - image.bounds[0]))
-    shader = Shader(scene, cfg.fmt, eps=1e-4 * max(diag, 1e-6))
+    shader = Shader(scene, cfg.fmt, eps=surface_offset(image.bounds))
     bar = None
     if progress:
         from tqdm import tqdm

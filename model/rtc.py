@@ -218,27 +218,40 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False):
         cap = int(rec_n[0])
 
 
-def memory_trace(events: np.ndarray, image) -> dict:
-    """64-bit word addresses each unit reads, in event order: ``{"trav", "list", "int"}``."""
-    items = item_trace(events)
-    leaf = events[(events["kind"] == EV_LEAF) & (events["count"] > 0)]
-    w0, w1 = leaf["first"] >> 1, (leaf["first"] + leaf["count"] - 1) >> 1
-    lst = (image.list_base + np.concatenate([np.arange(a, b + 1) for a, b in zip(w0, w1)])
-           if len(leaf) else np.zeros(0, np.int64))
-    inter = (image.tri_base + TRI_WORDS * items["int"][:, None] + np.arange(TRI_WORDS)).ravel()
-    return {"trav": image.node_base + items["trav"], "list": lst.astype(np.int64),
-            "int": inter.astype(np.int64)}
+def _ranges(start: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """``arange(start[i], start[i] + length[i])`` for every i, concatenated (vectorized)."""
+    start, length = np.asarray(start, np.int64), np.asarray(length, np.int64)
+    total = int(length.sum())
+    offset = np.repeat(np.cumsum(length) - length, length)
+    return np.repeat(start, length) + np.arange(total, dtype=np.int64) - offset
+
+
+def _leaves(events: np.ndarray) -> np.ndarray:
+    """The non-empty leaves' events (the list unit's input)."""
+    return events[(events["kind"] == EV_LEAF) & (events["count"] > 0)]
 
 
 def item_trace(events: np.ndarray) -> dict:
     """Item addresses each unit asks its cache for, in event order: node indices (trav),
     list-entry indices (list), triangle indices (int)."""
     kind = events["kind"]
-    leaf = events[(kind == EV_LEAF) & (events["count"] > 0)]
-    lst = (np.concatenate([np.arange(f, f + c) for f, c in zip(leaf["first"], leaf["count"])])
-           if len(leaf) else np.zeros(0, np.int64))
+    leaf = _leaves(events)
     return {"trav": events["node"][(kind == EV_NODE) | (kind == EV_LEAF)].astype(np.int64),
-            "list": lst.astype(np.int64), "int": events["tri"][kind == EV_TRI].astype(np.int64)}
+            "list": _ranges(leaf["first"], leaf["count"]),
+            "int": events["tri"][kind == EV_TRI].astype(np.int64)}
+
+
+def memory_trace(events: np.ndarray, image) -> dict:
+    """64-bit word addresses each unit reads, in event order: ``{"trav", "list", "int"}``
+    (a leaf reads every list word its entries touch once: two entries per word)."""
+    kind = events["kind"]
+    leaf = _leaves(events)
+    w0 = leaf["first"] >> 1
+    w1 = (leaf["first"] + leaf["count"] - 1) >> 1
+    tri = events["tri"][kind == EV_TRI].astype(np.int64)
+    return {"trav": image.node_base + events["node"][(kind == EV_NODE) | (kind == EV_LEAF)],
+            "list": image.list_base + _ranges(w0, w1 - w0 + 1),
+            "int": (image.tri_base + TRI_WORDS * tri[:, None] + np.arange(TRI_WORDS)).ravel()}
 
 
 def counter_totals(ctrs: np.ndarray) -> dict:

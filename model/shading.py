@@ -47,6 +47,13 @@ def bilinear(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
             + (at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx) * fy)
 
 
+def surface_offset(bounds) -> float:
+    """``eps`` of the secondary-ray origin: 1e-4 x the diagonal of the scene box ``bounds``
+    ((2, 3): low and high corner; floored at 1e-10)."""
+    b = np.asarray(bounds, np.float64)
+    return 1e-4 * max(float(np.linalg.norm(b[1] - b[0])), 1e-6)
+
+
 class Shader:
     """Surface data of a scene, indexed by the scene-order triangle id the RTC returns."""
 

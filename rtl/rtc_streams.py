@@ -3,7 +3,7 @@
 Every value field is a format word of ``fmt.width = 1 + E + M`` bits, encoded as
 ``model.fp.FPFormat.to_bits`` encodes it. ``lanes`` is the packet size (<= 64), ``threads``
 the packets in flight. The golden model's event log (``model.rtc.trace(..., record=True)``,
-``EVENTS``) records exactly these streams, so a unit testbench replays them:
+``model/events.py``) records exactly these streams, so a unit testbench replays them:
 
 ========================  ==================  =========================================
 stream                    producer -> consumer  model event

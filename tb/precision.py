@@ -41,7 +41,7 @@ from model.reference import Reference, crossings64, render64
 from model.render import prepare, render, to_srgb8
 from model.rtc import trace
 from model.scene import load_scene
-from model.shading import Shader
+from model.shading import Shader, surface_offset
 
 from .fp_cost import fp_cost, parse_fmt
 
@@ -91,16 +91,6 @@ def ray_error(tri, t, ref_tri, ref_t) -> dict:
             "t_rel_max": float(rel.max()) if rel.size else 0.0}
 
 
-def rays_in_packets(org, dirn, tmax=None, anyhit=None, packet: int = 64) -> Rays:
-    """Rays in packets of ``packet`` consecutive rays."""
-    n = len(dirn)
-    tmax = np.full(n, np.inf, np.float32) if tmax is None else np.asarray(tmax, np.float32)
-    pk = np.unique(np.r_[np.arange(0, n, packet), n]).astype(np.int64)
-    return Rays(np.ascontiguousarray(org, np.float32), np.ascontiguousarray(dirn, np.float32),
-                tmax, np.zeros(n, np.uint8), np.arange(n, dtype=np.int32), pk,
-                None if anyhit is None else np.asarray(anyhit, bool))
-
-
 # ------------------------------------------------------------------------------------------
 # secondary rays and self-shadowing
 # ------------------------------------------------------------------------------------------
@@ -109,8 +99,7 @@ def shadow_error(scene, prep, cfg: Config, rays: Rays, hits, ref: Reference) -> 
     """Shadow rays from the eye hits (every light), made at ``cfg.fmt`` as ``model.render``
     makes them, traced as closest-hit rays by the model and in float64."""
     fmt = cfg.fmt
-    diag = float(np.linalg.norm(prep.image.bounds[1].astype(np.float64) - prep.image.bounds[0]))
-    shader = Shader(scene, fmt, eps=1e-4 * max(diag, 1e-6))
+    shader = Shader(scene, fmt, eps=surface_offset(prep.image.bounds))
     sel = np.nonzero(hits.tri >= 0)[0]
     if sel.size == 0 or not scene.lights:
         return {"rays": 0}
@@ -123,7 +112,7 @@ def shadow_error(scene, prep, cfg: Config, rays: Rays, hits, ref: Reference) -> 
         org.append(s.org), dirn.append(s.dir), tmax.append(s.tmax)
         parent.append(hits.tri[sel[keep]])
     org, dirn, tmax, parent = (np.concatenate(x) for x in (org, dirn, tmax, parent))
-    srays = rays_in_packets(org, dirn, tmax, np.zeros(len(org), bool))
+    srays = Rays.from_arrays(org, dirn, tmax, anyhit=np.zeros(len(org), bool))
     h, _ = trace(prep.image, srays, cfg)
     r_tri, r_t, _, _ = ref.trace(org, dirn, tmax)
     out = ray_error(h.tri, h.t, r_tri, r_t)
@@ -214,7 +203,7 @@ def leaks(mesh, fmt: FPFormat, n_max: int = 20000, tris=None) -> dict:
     tris = closed if tris is None else fmt.quantize(tris).astype(np.float32)
     image = build_image(tris, build_kdtree(tris, cfg, cache_dir=None), cfg)
     org, dirn = leak_rays(mesh, fmt, n_max)
-    h, _ = trace(image, rays_in_packets(org, dirn), cfg)
+    h, _ = trace(image, Rays.from_arrays(org, dirn), cfg)
     tlim = 1 + 2.0 ** (6 - fmt.frac_bits)
     through = np.nonzero((h.tri < 0) | (h.t > tlim))[0]
     # the same rays and the closed mesh's triangles in float64: an odd number of crossings up to the target

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config
-from model.raygen import SHADOW, eye_rays, setup
+from model.raygen import SHADOW, Rays, eye_rays, setup
 from model.render import Skip, prepare, render
 from model.scene import load_scene
 
@@ -60,16 +60,16 @@ def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = F
     if rtl:
         import tb.verilator as vl
         tiny = cfg.replace(threads=2, tile_w=4, tile_h=4, trav_subunits=2, reflect_depth=0)
-        small = render(scene, tiny, 32, 24, prepared=prepare(scene, tiny))
+        small_prep = prepare(scene, tiny)
+        small = render(scene, tiny, 32, 24, prepared=small_prep)
         sh = small.rays
         sel = np.flatnonzero(sh.kind == SHADOW)
-        from tb.stress import make_rays
         # shadow rays of the small frame, re-packetized in 16s, with and without any-hit
         cyc = {}
         for anyhit in (True, False):
-            r = make_rays(sh.org[sel], sh.dir[sel], tmax=sh.tmax[sel], packet=16, kind=SHADOW,
-                          anyhit=np.full(len(sel), anyhit))
-            run = vl.run_frame(small_prep_image(scene, tiny), r, tiny, mem_latency=4,
+            r = Rays.from_arrays(sh.org[sel], sh.dir[sel], tmax=sh.tmax[sel], packet=16,
+                                 kind=SHADOW, anyhit=np.full(len(sel), anyhit))
+            run = vl.run_frame(small_prep.image, r, tiny, mem_latency=4,
                                progress=False)
             if run.mismatches or run.counter_mismatches():
                 raise AssertionError("RTC and model disagree on the shadow rays")
@@ -77,10 +77,6 @@ def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = F
                                                           "int_ops": run.model["int_ops"]}
         out["rtl_shadow_rays_32x24"] = {"rays": int(len(sel)), **cyc}
     return out
-
-
-def small_prep_image(scene, cfg):
-    return prepare(scene, cfg).image
 
 
 def main(argv=None) -> int:

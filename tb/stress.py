@@ -33,21 +33,6 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # --- building blocks ----------------------------------------------------------------------------
 
-def make_rays(org, dirn, tmax=None, packet: int = 64, anyhit=None, kind: int = 0) -> Rays:
-    """Rays in packets of ``packet`` consecutive rays."""
-    org = np.ascontiguousarray(org, np.float32)
-    dirn = np.ascontiguousarray(dirn, np.float32)
-    n = len(dirn)
-    if org.shape != (n, 3) or dirn.shape != (n, 3):
-        raise ValueError(f"origins {org.shape} and directions {dirn.shape} must both be (N, 3)")
-    tmax = np.full(n, np.inf, np.float32) if tmax is None else np.asarray(tmax, np.float32)
-    pk = np.unique(np.r_[np.arange(0, n, packet), n]).astype(np.int64)
-    r = Rays(org, dirn, tmax, np.full(n, kind, np.uint8), np.arange(n, dtype=np.int32), pk)
-    if anyhit is not None:
-        r.anyhit = np.asarray(anyhit, bool)
-    return r
-
-
 def tree_from_leaves(tris: np.ndarray, nodes: list) -> KdTree:
     """A kd-tree given node by node: ``("split", axis, value, left_child)`` or
     ``("leaf", [triangle indices])``, node 0 the root, children adjacent (right = left + 1).
@@ -103,7 +88,7 @@ def single_t(tri, org, dirn, cfg: Config) -> np.ndarray:
     """The model's t for each ray against one triangle alone (inf: no hit)."""
     _, img = image_of(np.asarray(tri)[None], cfg, tree_from_leaves(
         cfg.fmt.quantize(np.asarray(tri, np.float64)[None]).astype(np.float32), [("leaf", [0])]))
-    hits, _ = trace(img, make_rays(org, dirn), cfg)
+    hits, _ = trace(img, Rays.from_arrays(org, dirn), cfg)
     return hits.t
 
 
@@ -159,7 +144,7 @@ def tie_case(cfg: Config, n: int = 16, seed: int = 0, packet: int = 16) -> Case:
         m = 20000
         org = fmt.quantize(np.c_[rng.uniform(-1.5, 1.5, (m, 2)), np.full(m, 4.0)])
         dirn = fmt.quantize(np.c_[rng.uniform(-0.3, 0.3, (m, 2)), -rng.uniform(0.5, 2.0, m)])
-        rays = make_rays(org, dirn)
+        rays = Rays.from_arrays(org, dirn)
         rs = setup(rays, image.bounds, fmt)
         dist = fmt.mul(fmt.sub(np.float32(TIE_SPLIT_Z), org[:, 2]), rs.inv[:, 2])
         tp = single_t(tris[0], org, dirn, cfg)
@@ -172,7 +157,7 @@ def tie_case(cfg: Config, n: int = 16, seed: int = 0, packet: int = 16) -> Case:
     org, dirn = np.concatenate(got_o)[:n], np.concatenate(got_d)[:n]
     if len(org) < n:
         raise RuntimeError(f"tie search found {len(org)} of {n} rays in format {fmt}")
-    rays = make_rays(org, dirn, packet=packet)
+    rays = Rays.from_arrays(org, dirn, packet=packet)
     return Case("tie_t_eq_tfar", tris, image, rays, exact_closest(tris, org, dirn))
 
 
@@ -313,7 +298,7 @@ def watertight_case(mesh, cfg: Config, n_max: int = 2000, seed: int = 0, scale: 
     org = fmt.quantize(np.array(org))
     dirn = fmt.quantize(np.array(dirn))
     _, image = image_of(tris, cfg)
-    rays = make_rays(org, dirn, packet=packet)
+    rays = Rays.from_arrays(org, dirn, packet=packet)
     return Case(name, tris, image, rays, info={"candidates": cands})
 
 
@@ -399,7 +384,7 @@ def special_rays_case(cfg: Config, n_each: int = 64, seed: int = 0, packet: int 
         org.append(o), dirn.append(d), group.append("on_surface")
     org = fmt.quantize(np.array(org))
     dirn = fmt.quantize(np.array(dirn))
-    rays = make_rays(org, dirn, packet=packet)
+    rays = Rays.from_arrays(org, dirn, packet=packet)
     return Case("special_rays", tris, image, rays,
                 info={"groups": np.array(group), "tree_depth": tree.depth})
 
@@ -449,7 +434,7 @@ def degenerate_case(cfg: Config, n_each: int = 48, seed: int = 0, packet: int = 
         ray_group += [name] * n_each
     tris = fmt.quantize(np.array(tris)).astype(np.float32)
     _, image = image_of(tris, cfg)
-    rays = make_rays(fmt.quantize(np.array(org)), fmt.quantize(np.array(dirn)), packet=packet)
+    rays = Rays.from_arrays(fmt.quantize(np.array(org)), fmt.quantize(np.array(dirn)), packet=packet)
     return Case("degenerate", tris, image, rays,
                 info={"tri_group": np.array(tri_group), "groups": np.array(ray_group)})
 
@@ -475,7 +460,7 @@ def self_intersection(mesh, cfg: Config, n: int = 4000, seed: int = 0, scale: fl
     org = fmt.quantize(c + 3 * r * u)
     aim = c + 0.45 * r * rng.uniform(-1, 1, (n, 3))
     dirn = fmt.quantize(aim - org)
-    hits, _ = trace(image, make_rays(org, dirn), cfg)
+    hits, _ = trace(image, Rays.from_arrays(org, dirn), cfg)
     h = np.flatnonzero(hits.tri >= 0)
     t = hits.t[h]
     p = np.stack([fmt.add(org[h, a], fmt.mul(t, dirn[h, a])) for a in range(3)], axis=1)
@@ -489,10 +474,10 @@ def self_intersection(mesh, cfg: Config, n: int = 4000, seed: int = 0, scale: fl
     lp = fmt.quantize(p + 2 * r * (nrm + 0.5 * rng.normal(size=nrm.shape) / 3))
     ld = np.stack([fmt.sub(lp[:, a], p[:, a]) for a in range(3)], axis=1)
     lit = np.sum(ld * nrm, axis=1) > 0
-    sh, _ = trace(image, make_rays(p[lit], ld[lit], tmax=np.ones(lit.sum()), kind=1), cfg)
+    sh, _ = trace(image, Rays.from_arrays(p[lit], ld[lit], tmax=np.ones(lit.sum()), kind=1), cfg)
     dn = np.sum(dirn[h] * nrm, axis=1, keepdims=True)
     rd = fmt.quantize(dirn[h] - 2 * dn * nrm)
-    rf, _ = trace(image, make_rays(p, rd, kind=2), cfg)
+    rf, _ = trace(image, Rays.from_arrays(p, rd, kind=2), cfg)
     own = rf.tri == hits.tri[h]
     return {"hit_points": int(len(h)), "shadow_rays": int(lit.sum()),
             "false_shadow_hits": int((sh.tri >= 0).sum()), "reflection_rays": int(len(h)),

@@ -146,7 +146,7 @@ def test_reduced_precision_still_close_to_embree(kd_cache):
 
 def test_event_log_matches_counters_and_results(kd_cache):
     """The recorded unit streams add up to the counters and reproduce every ray's result."""
-    from model.events import EV_DONE, EV_INT, EV_NODE, EV_TRI, popcount
+    from model.events import EV_DONE, EV_INT, EV_NODE, EV_TRI
     from model.rtc import memory_trace
     scene = load_scene(SCENES[0])
     prep = prepare(scene, CFG, cache_dir=kd_cache)
@@ -161,7 +161,7 @@ def test_event_log_matches_counters_and_results(kd_cache):
     assert (kind == EV_INT).sum() == tot[C["int_ops"]]
     assert (kind == EV_DONE).sum() == rays.n_packets
     popc = [bin(int(m)).count("1") for m in ev["mask"][kind == EV_NODE]]
-    assert sum(popc) == tot[C["trav_ops"]] == popcount(ev["mask"][kind == EV_NODE]).sum()
+    assert sum(popc) == tot[C["trav_ops"]] == np.bitwise_count(ev["mask"][kind == EV_NODE]).sum()
     # the last accepted int-op of each ray is its result
     ints = ev[(kind == EV_INT) & ((ev["flags"] & 2) != 0)]
     ray = rays.pk_start[ints["packet"]] + ints["lane"]

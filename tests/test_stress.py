@@ -11,8 +11,9 @@ import pytest
 
 from model.config import Config
 from model.fp import FPFormat
+from model.raygen import Rays
 from tb import stress
-from tb.exact import exact_closest, exact_pairs, moller_trumbore32
+from tb.exact import exact_closest, exact_pairs
 
 import tb.verilator as vl           # verilator missing: the tests fail saying `make setup`
 
@@ -139,7 +140,7 @@ def test_ray_in_box_face_plane_is_not_clipped_away():
                      [[-1, -1, 1], [1, 1, 1], [1, -1, 1]]], np.float32)
     case_tris, image = stress.image_of(tris, CFG)
     for dx in (0.0, -0.0):
-        rays = stress.make_rays([[1.0, 0.25, -5.0]], [[dx, 0.0, 1.0]])
+        rays = Rays.from_arrays([[1.0, 0.25, -5.0]], [[dx, 0.0, 1.0]])
         rs = setup(rays, image.bounds, CFG.fmt)
         assert rs.tnear[0] == 4.0 and rs.tfar[0] == 6.0
         from model.rtc import trace
@@ -238,7 +239,7 @@ def test_fuzz_grid_scenes_match_exact(scene):
     from model.rtc import trace
     tris, org, dirn = scene
     _, image = stress.image_of(tris, CFG)
-    rays = stress.make_rays(org, dirn, packet=16)
+    rays = Rays.from_arrays(org, dirn, packet=16)
     hits, _ = trace(image, rays, CFG)
     v = stress.judge(tris, org, dirn, hits.tri, hits.t, [np.arange(len(tris))] * len(org))
     assert v["leaks"] == 0 and v["ghosts"] == 0 and v["other_tri_far"] == 0, v
@@ -261,7 +262,7 @@ def _incoherent_rays(n, seed=3, packet=64):
     for p in range(0, n, packet):
         c[p:p + 8] = np.array(np.meshgrid([-9, 9], [-9, 9], [-9, 9])).reshape(3, 8).T
     d = -2 * c + rng.normal(0, 2, (n, 3))
-    return stress.make_rays(CFG.fmt.quantize(c), CFG.fmt.quantize(d), packet=packet)
+    return Rays.from_arrays(CFG.fmt.quantize(c), CFG.fmt.quantize(d), packet=packet)
 
 
 @pytest.mark.parametrize("depth,leaf", [(6, 4), (1, 4)], ids=["depth_limit", "huge_leaves"])
