@@ -356,7 +356,8 @@ class IntersectionUnit(wiring.Component):
         cur = Signal(lanes)
         m.d.comb += cur.eq(Mux(testing, rem, s.mask[t_slot]))
         go = Signal()
-        m.d.comb += go.eq(en & ready_slot)
+        issue = Signal()                   # a lane's test issues this cycle
+        m.d.comb += [go.eq(en & ready_slot), issue.eq(go & (cur != 0))]
         _, lane = lowest(m, cur, "issue")
         rest = Signal(lanes)
         m.d.comb += rest.eq(cur & (cur - 1))
@@ -376,7 +377,7 @@ class IntersectionUnit(wiring.Component):
         m.d.comb += [ray_r.addr.eq(self._addr(thread, lane)), ray_r.en.eq(en)]
         with m.If(en):
             m.d.sync += [
-                s1_valid.eq(go & (cur != 0)),
+                s1_valid.eq(issue),
                 s1_tri.eq(Cat(*(from_binary32(fmt, tri.v[j]) for j in range(9)))),
                 s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
                 s1_meta.id.eq(tri.id),
@@ -388,7 +389,7 @@ class IntersectionUnit(wiring.Component):
             pipe.tri.eq(s1_tri), pipe.org.eq(ray.org), pipe.k.eq(ray.k), pipe.s.eq(ray.s),
             pipe.tag.eq(s1_meta), pipe.i_valid.eq(s1_valid), pipe.en.eq(en),
         ]
-        return go & (cur != 0)
+        return issue
 
     def _best_hit(self, m: Module, en: Value, best_r, best_w, ray_w) -> None:
         """Closest-hit update at the end of the pipeline (accept ``0 < t < best``), the ray

