@@ -104,9 +104,9 @@ class Config:
         if self.cache_queue < 1 or self.mem_chip_queue < 1:
             raise ConfigError(f"cache_queue={self.cache_queue} and mem_chip_queue="
                               f"{self.mem_chip_queue} must be >= 1")
-        if not (0 < self.int_item_bits <= 320):
-            raise ConfigError(f"int_item_bits={self.int_item_bits} must be in 1..320 "
-                              "(a triangle spans 5 words = 320 bits)")
+        if self.int_item_bits not in (288, 320):
+            raise ConfigError(f"int_item_bits={self.int_item_bits} must be 288 (the 9 vertex "
+                              "floats) or 320 (the whole 5-word triangle, id included)")
         if self.mem_chips & (self.mem_chips - 1):
             raise ConfigError(f"mem_chips={self.mem_chips} must be a power of two (1, 2, 4, 8): "
                               "the controller hashes addresses over chips by XOR-folding")

@@ -173,7 +173,9 @@ def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, r
     """The intersection unit on one triangle: test every lane of ``mask`` in lane order (the
     issue stage), and keep the closest hit (best-hit update): a hit is accepted when
     ``0 < t < best``. ``lo``/``lk``/``ls`` are the packet's ray store (origin, shear axes and
-    constants), ``best``/``b_tri``/``b_u``/``b_v`` its best-hit store. Returns the int-ops done."""
+    constants), ``best``/``b_tri``/``b_u``/``b_v`` its best-hit store (the triangle's index
+    in memory, as the hardware knows it; ``sid``, the scene-order id, is only recorded).
+    Returns the int-ops done."""
     ops = 0
     m = mask
     while m:
@@ -192,7 +194,7 @@ def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, r
                    _bits(t), _bits(u), _bits(v))
         if accept:
             best[l] = t
-            b_tri[l] = sid
+            b_tri[l] = ti
             b_u[l] = u
             b_v[l] = v
     return ops

@@ -158,6 +158,32 @@ class MemoryImage:
         u = w.astype("<u8").view("<u4").reshape(self.n_tris, 2 * TRI_WORDS)
         return u[:, :9].copy().view("<f4").reshape(-1, 3, 3), u[:, 9].copy()
 
+    def scene_ids(self, index: np.ndarray) -> np.ndarray:
+        """Scene-order ids (int32) of triangles given by their index in the image (-1 stays -1:
+        a miss)."""
+        ids = self._ids()[0]
+        index = np.asarray(index)
+        return np.where(index >= 0, ids[np.maximum(index, 0)], -1).astype(np.int32)
+
+    def tri_index(self, scene_id: np.ndarray) -> np.ndarray:
+        """The inverse of :meth:`scene_ids`: image indices (int64) of scene-order ids (-1 stays
+        -1; an id of no triangle in the image raises ``KeyError``)."""
+        ids, inv = self._ids()
+        scene_id = np.asarray(scene_id, np.int64)
+        hit = scene_id >= 0
+        if hit.any() and (scene_id.max() >= len(inv) or (inv[scene_id[hit]] < 0).any()):
+            raise KeyError("a triangle id that no triangle of the memory image has")
+        return np.where(hit, inv[np.where(hit, scene_id, 0)], -1)
+
+    def _ids(self):
+        if getattr(self, "_id_cache", None) is None:
+            w = self.data[self.tri_base + 4:self.tri_base + TRI_WORDS * self.n_tris:TRI_WORDS]
+            ids = (w >> np.uint64(32)).astype(np.int64)
+            inv = np.full(int(ids.max()) + 1 if len(ids) else 0, -1, np.int64)
+            inv[ids] = np.arange(len(ids))
+            self._id_cache = (ids, inv)
+        return self._id_cache
+
     def shading_header(self) -> dict:
         h = [int(w) for w in self.data[self.shade_base:self.shade_base + SHADE_HEADER_WORDS]]
         lo, hi = (lambda w: w & 0xFFFFFFFF), (lambda w: w >> 32)

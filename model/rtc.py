@@ -172,7 +172,11 @@ def trace_recorded(mem, node_base, list_base, tri_base, root, depth,
 
 @dataclass
 class Hits:
-    """Per-ray results: ``tri`` is the scene-order triangle id or -1; t = inf on a miss."""
+    """Per-ray results: ``tri`` is the scene-order triangle id or -1; t = inf on a miss.
+
+    The hardware reports a hit triangle by its index in the memory image (the int-cache keeps
+    only its 9 vertex words); :func:`trace` maps it to the scene-order id stored in the
+    triangle's fifth word (``MemoryImage.scene_ids``; ``MemoryImage.tri_index`` maps back)."""
     tri: np.ndarray      # (N,) int32
     t: np.ndarray        # (N,) float32
     u: np.ndarray        # (N,) float32
@@ -205,7 +209,7 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False):
     if not record:
         if n:
             trace_all(*args)
-        return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs
+        return Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs
     cap = max(1024, 64 * n)
     while True:
         rec = np.zeros((cap, 8), np.int64)
@@ -214,7 +218,8 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False):
         if n:
             trace_recorded(*args, rec, rec_n)
         if rec_n[0] <= cap:
-            return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs, decode(rec[:rec_n[0]])
+            return (Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs,
+                    decode(rec[:rec_n[0]]))
         cap = int(rec_n[0])
 
 

@@ -5,8 +5,8 @@ Run: ``.venv/bin/python -m rtl.export --top <top> [configuration options] [--out
 :class:`model.config.Config` is an option (``--threads 2 --trav-subunits 1 --trav-cache-kb 4``),
 ``--fmt E8M16`` sets the FP format, ``--latency N`` the pipeline latency of an ``fp_*`` top.
 
-The ``rtc`` top (:class:`RTCTop`) is the synthesizable one-RTC chip: the RTC's three word read
-ports (node, list, triangle), each through a word cache, share one :class:`RoundRobinBus` to a
+The ``rtc`` top (:class:`RTCTop`) is the synthesizable one-RTC chip: the RTC's three read
+ports (node, list, triangle) through its RTC-MI's caches share one :class:`RoundRobinBus` to a
 single memory read port ``mem`` (``docs/memory-interface.md``, ``docs/fpga.md``) that an FPGA
 memory controller serves. ``rtc_core`` is the bare RTC (three memory ports).
 ``rtl/memory.py``'s memories are simulation models and are not exported.
@@ -22,70 +22,52 @@ from typing import Callable
 from amaranth.back import verilog
 from amaranth.hdl import Module
 from amaranth.lib import wiring
-from amaranth.lib.wiring import Out
+from amaranth.lib.wiring import In, Out
 
-from model.cache import CacheGeometry, cache_geometry
+from model.cache import cache_geometry
 from model.config import Config, ConfigError
 from model.fp import FPFormat
 from .common import COUNTER_BITS
 from .memport import connect_tags
 
-__all__ = ["RTCTop", "TOPS", "build_top", "export", "word_cache_geometry", "main"]
-
-
-def word_cache_geometry(cfg: Config, kb: int) -> CacheGeometry:
-    """A cache of 64-bit memory words (item = word, item address = word address) of ``kb`` KB
-    rounded down to a power of two (the default 144 KB int cache becomes 128 KB), with the
-    configuration's ways, line length, outstanding misses and queue."""
-    size = 1 << ((kb * 1024).bit_length() - 1) if kb >= 1 else 0
-    return CacheGeometry(size_bytes=size, line_items=cfg.cache_line_words, item_bits=64,
-                         item_span=64, ways=cfg.cache_ways, outstanding=cfg.cache_outstanding,
-                         queue=cfg.cache_queue)
+__all__ = ["RTCTop", "TOPS", "build_top", "export", "main"]
 
 
 class RTCTop(wiring.Component):
     """One RTC with a single memory read port: the synthesizable top for an FPGA.
 
-    The RTC's node, list and triangle ports (64-bit words) each go through a word cache
-    (:func:`word_cache_geometry` of ``trav_cache_kb``, ``list_cache_kb``, ``int_cache_kb``,
-    each rounded down to a power of two;
-    ``caches=False`` leaves them out) onto a :class:`~rtl.bus.RoundRobinBus`, whose port is
-    ``mem``: ``MemReadPort`` requester, 32-bit word addresses, 64-bit data, tag =
+    The RTC's node, list and triangle ports go through its RTC-MI (``rtl/rtcmi.py``: trav and
+    list caches of 64-bit words, the int cache of whole triangles; ``caches=False`` leaves the
+    caches out: the triangle port is then served by an :class:`~rtl.memport.ItemReader`, 5
+    words a triangle) onto a :class:`~rtl.bus.RoundRobinBus`, whose port is ``mem``:
+    ``MemReadPort`` requester, 32-bit word addresses, 64-bit data, tag =
     ``{requester tag, requester id (2 bits: 0 node, 1 list, 2 triangle)}``.
 
     Ports: ``rays``, ``results``, ``node_base``, ``list_base``, ``tri_base``, ``root`` and the
     counters as :class:`~rtl.rtc.RTC`; ``mem``; ``hits[3]``, ``misses[3]`` (caches) and
     ``mem_reads`` (words read from memory). Latency: the RTC's plus, per memory access, the
     cache's (hit 3 cycles) and one bus register each way; one memory request per cycle.
-    The caches use the RTC's word addresses as item addresses (not the item caches of
-    ``model/cache.py``'s ``cache_geometry``: the RTC's units read words).
     """
 
     def __init__(self, cfg: Config, *, caches: bool = True):
         from .bus import RoundRobinBus
-        from .cache import Cache
-        from .rtc import COUNTERS, RTC
+        from .rtc import COUNTERS, RTC, tri_reader
+        from .rtcmi import CACHES, RTCMI
 
         self.cfg, self.with_caches = cfg, caches
         self.rtc = rtc = RTC(cfg)
-        self.ports = ("node_mem", "list_mem", "tri_mem")
-        tag_widths = [len(getattr(rtc, p).req.payload.tag) for p in self.ports]
         if caches:
-            kbs = (cfg.trav_cache_kb, cfg.list_cache_kb, cfg.int_cache_kb)
-            try:
-                geoms = [word_cache_geometry(cfg, kb) for kb in kbs]
-            except ValueError as e:
-                raise ConfigError(f"RTCTop word caches of {kbs} KB: {e} (pick power-of-two "
-                                  "sizes with --trav-cache-kb/--list-cache-kb/--int-cache-kb)")
-            self.caches = [Cache(g, tag_width=w) for g, w in zip(geoms, tag_widths)]
-            bus_tags = [len(c.mem.req.payload.tag) for c in self.caches]
+            self.rtcmi = RTCMI(cfg, rtc)
+            ports = [self.rtcmi.mem(name) for name in CACHES]
         else:
-            self.caches = []
-            bus_tags = tag_widths
-        self.bus = RoundRobinBus(3, addr_width=32, tag_width=max(bus_tags))
+            self.reader = tri_reader(cfg, rtc)
+            ports = [rtc.node_mem, rtc.list_mem, self.reader.mem]
+        self.bus = RoundRobinBus(3, addr_width=32,
+                                 tag_width=max(len(p.req.payload.tag) for p in ports))
         members = {name: m for name, m in rtc.signature.members.items()
-                   if name not in self.ports}
+                   if not name.endswith("_mem")}
         members.update({
+            "tri_base": In(32),
             "mem": Out(self.bus.mem.signature),
             "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
             "mem_reads": Out(COUNTER_BITS),
@@ -94,22 +76,29 @@ class RTCTop(wiring.Component):
         super().__init__(members)
 
     def elaborate(self, platform):
+        from .rtcmi import CACHES
         m = Module()
         m.submodules.rtc = rtc = self.rtc
         m.submodules.bus = bus = self.bus
         wiring.connect(m, bus.mem, wiring.flipped(self.mem))
-        for i, name in enumerate(self.ports):
-            port = getattr(rtc, name)
-            if self.caches:
-                c = self.caches[i]
-                m.submodules[f"cache_{name.split('_')[0]}"] = c
-                wiring.connect(m, port, c.port)
-                m.d.comb += [c.base.eq(0), self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
-                port = c.mem
-            connect_tags(m, port, bus.inputs[i])
+        if self.with_caches:
+            m.submodules.rtcmi = mi = self.rtcmi
+            wiring.connect(m, rtc.node_mem, mi.node)
+            wiring.connect(m, rtc.list_mem, mi.list)
+            wiring.connect(m, rtc.tri_mem, mi.tri)
+            m.d.comb += mi.tri_base.eq(self.tri_base)
+            for i, name in enumerate(CACHES):
+                connect_tags(m, mi.mem(name), bus.inputs[i])
+                m.d.comb += [self.hits[i].eq(mi.hits[i]), self.misses[i].eq(mi.misses[i])]
+        else:
+            m.submodules.tri_reader = r = self.reader
+            wiring.connect(m, rtc.tri_mem, r.port)
+            m.d.comb += r.base.eq(self.tri_base)
+            for i, port in enumerate((rtc.node_mem, rtc.list_mem, r.mem)):
+                connect_tags(m, port, bus.inputs[i])
         wiring.connect(m, wiring.flipped(self.rays), rtc.rays)
         wiring.connect(m, rtc.results, wiring.flipped(self.results))
-        for name in ("node_base", "list_base", "tri_base", "root"):
+        for name in ("node_base", "list_base", "root"):
             m.d.comb += getattr(rtc, name).eq(getattr(self, name))
         for name in self._counters:
             m.d.comb += getattr(self, name).eq(getattr(rtc, name))
@@ -177,7 +166,7 @@ TOPS: dict[str, tuple[Callable, str]] = {
     "intersection": (_unit(".intersection", "IntersectionUnit"),
                      "intersection unit (rtl/intersection.py)"),
     "rtc_core": (_unit(".rtc", "RTC"), "the RTC, three memory ports (rtl/rtc.py)"),
-    "rtc": (lambda cfg, latency: RTCTop(cfg), "one RTC + word caches + bus, one memory port"),
+    "rtc": (lambda cfg, latency: RTCTop(cfg), "one RTC + RTC-MI (3 caches) + bus, one memory port"),
     "rtc_nocache": (lambda cfg, latency: RTCTop(cfg, caches=False),
                     "one RTC + bus (no caches), one memory port"),
 }

@@ -5,8 +5,9 @@
 balancing the paths, one test per enabled cycle at a fixed latency.
 
 :class:`IntersectionUnit` wraps it: it keeps the read-only ray data and the best hit per
-(thread, lane) in local memories, fetches each requested triangle (5 words through its memory
-port, up to ``tri_slots`` triangles ahead of the one being tested), tests every lane of the
+(thread, lane) in local memories, fetches each requested triangle (one read of the whole
+triangle through its memory port, the int-cache's, up to ``tri_slots`` triangles ahead of the
+one being tested), tests every lane of the
 request's mask, keeps the closest hit, reports each lane of a leaf to traversal after the leaf's
 last triangle and reads out the final hits of a finished packet.
 """
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 from types import SimpleNamespace
 
-from amaranth.hdl import Array, C, Cat, Const, Module, Mux, Signal, Value
+from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
@@ -22,13 +23,12 @@ from amaranth.utils import ceil_log2
 
 from model.config import Config
 from model.fp import FPFormat
-from model.layout import TRI_WORDS, triangle_layout
 
 from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
 from .fp import FPAdd, FPDiv, FPMul
 from .fp.cmp import compare
 from .fp.common import unpack
-from .memport import WORD_BITS, MemReadPort
+from .memport import MemReadPort
 from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, PacketDone, RayIn,
                           RayResult, TriRequest, lane_bits)
 
@@ -207,21 +207,21 @@ class IntersectionUnit(wiring.Component):
         to (t = tmax, none). ``ready`` is low only in a cycle where a hit is being stored.
     ``tri_in`` (In stream, ``TriRequest``): a triangle for the lanes in ``mask`` (nonzero);
         ``last`` marks the leaf's final triangle.
-    ``mem`` (``MemReadPort`` requester, 64-bit words, tag = slot * 8 + word): 5 reads per
-        triangle from ``tri_base + 5 * tri`` (``tri_base``: In, from the image header).
+    ``mem`` (``MemReadPort`` requester, tag = slot): one read per triangle, address = the
+        triangle's index, answered with its 9 binary32 vertex words (``cfg.int_item_bits``
+        bits, vertex 0's x in the low bits: an int-cache item, ``rtl/cache.py``).
     ``lane_out`` (Out stream, ``LaneResult``): for a leaf's last triangle, one result per lane
         of the mask in lane order (``last`` on the highest lane): has-hit and best t.
     ``done`` (In stream, ``PacketDone``) / ``result`` (Out stream, ``RayResult``): read out
         the final hit of every lane of ``mask`` in lane order, labelled with ``packet``
         (tri = all ones and t = +inf on a miss). Send ``done`` only after the packet's last
         ``LaneResult`` was taken.
-    Counters (Out, 32 bits): ``int_ops`` (rays tested), ``tris`` (triangles fetched), ``words``
-    (memory words read), ``busy`` (cycles with a triangle held or a test in flight).
+    Counters (Out, 32 bits): ``int_ops`` (rays tested), ``tris`` (triangles fetched),
+    ``busy`` (cycles with a triangle held or a test in flight).
 
-    Timing: up to ``tri_slots`` triangles are fetched ahead (one request per cycle, 5 per
-    triangle, a new triangle every 5 cycles) of the one being tested; tests issue one lane per
-    cycle with no gap between
-    triangles. A test's result is stored 2 + ``IntersectPipe.latency`` cycles after its issue
+    Timing: up to ``tri_slots`` triangles are fetched ahead of the one being tested (a request
+    leaves one cycle after its ``TriRequest`` was taken, one triangle a cycle); tests issue one
+    lane per cycle with no gap between triangles. A test's result is stored 2 + ``IntersectPipe.latency`` cycles after its issue
     (34 for binary32); the LaneResult leaves one cycle later. The whole pipeline stalls only while
     ``lane_out`` is full and not taken.
     """
@@ -236,7 +236,7 @@ class IntersectionUnit(wiring.Component):
                              ">= 2 (one triangle tested while the next is fetched)")
         self.cfg, self.fmt, self.tri_slots = cfg, cfg.fmt, tri_slots
         self.slot_bits = ceil_log2(tri_slots)
-        self.tag_width = self.slot_bits + 3
+        self.tag_width = self.slot_bits
         self.lanes = cfg.packet_size
         self.lane_bits = lane_bits(cfg)
         self.pipe_meta = data.StructLayout({
@@ -248,14 +248,13 @@ class IntersectionUnit(wiring.Component):
         super().__init__({
             "ray_in": In(stream.Signature(RayWrite(cfg))),
             "tri_in": In(stream.Signature(TriRequest(cfg))),
-            "mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+            "mem": Out(MemReadPort(addr_width=addr_width, data_width=cfg.int_item_bits,
                                    tag_width=self.tag_width)),
-            "tri_base": In(addr_width),
             "lane_out": Out(stream.Signature(LaneResult(cfg))),
             "done": In(stream.Signature(PacketDone(cfg))),
             "result": Out(stream.Signature(RayResult(cfg))),
             "int_ops": Out(COUNTER_BITS), "tris": Out(COUNTER_BITS),
-            "words": Out(COUNTER_BITS), "busy": Out(COUNTER_BITS),
+            "busy": Out(COUNTER_BITS),
         })
 
     def elaborate(self, platform):
@@ -289,58 +288,43 @@ class IntersectionUnit(wiring.Component):
         return Cat(lane[:self.lane_bits], thread[:self.cfg.thread_bits])
 
     def _fetch(self, m: Module) -> SimpleNamespace:
-        """Triangle fetch: ``tri_slots`` slots of 5 words; a request is taken into the next
-        free slot in the cycle the previous one's last word request goes out; responses land
-        in any order (tag = slot * 8 + word)."""
+        """Triangle fetch: a request is taken into the next free of ``tri_slots`` slots and
+        its read (triangle index, tag = slot) leaves from a register in the next cycle, one per
+        cycle; each response is the whole triangle and lands in its slot, in any order."""
         n_slots, lanes = self.tri_slots, self.lanes
         s = SimpleNamespace()
-        s.words = Array(Array(Signal(WORD_BITS, name=f"s{i}w{j}") for j in range(TRI_WORDS))
-                        for i in range(n_slots))
-        s.got = Array(Signal(TRI_WORDS, name=f"s{i}_got") for i in range(n_slots))
+        s.item = Array(Signal(self.cfg.int_item_bits, name=f"s{i}_tri") for i in range(n_slots))
+        s.got = Signal(n_slots)
         s.mask = Array(Signal(lanes, name=f"s{i}_mask") for i in range(n_slots))
         s.thread = Array(Signal(self.cfg.thread_bits, name=f"s{i}_thread")
                          for i in range(n_slots))
+        s.index = Array(Signal(TRI_ID_BITS, name=f"s{i}_index") for i in range(n_slots))
         s.last = Signal(n_slots)
         s.alloc = alloc = Signal(n_slots)
         alloc_set, s.alloc_clr = Signal(n_slots), Signal(n_slots)
         m.d.sync += alloc.eq((alloc | alloc_set) & ~s.alloc_clr)
 
-        f_slot = Signal(self.slot_bits)    # slot being fetched into
-        f_word = Signal(range(TRI_WORDS))
-        f_addr = Signal(len(self.mem.req.payload.addr))
-        fetching = Signal()
-        req = self.mem.req
-        m.d.comb += [
-            req.valid.eq(fetching),
-            req.payload.addr.eq(f_addr + f_word),
-            req.payload.tag.eq(Cat(f_word, C(0, 3 - len(f_word)), f_slot)),
-        ]
-        issue_last = req.valid & req.ready & (f_word == TRI_WORDS - 1)
+        nxt = Signal(self.slot_bits)       # the slot the next request goes to
+        req, tri_in = self.mem.req, self.tri_in
+        m.d.comb += tri_in.ready.eq((~req.valid | req.ready) & ~alloc.bit_select(nxt, 1))
         with m.If(req.valid & req.ready):
-            m.d.sync += f_word.eq(Mux(f_word == TRI_WORDS - 1, 0, f_word + 1))
-        with m.If(issue_last):
-            m.d.sync += [fetching.eq(0), f_slot.eq(f_slot + 1)]
-        tri_in = self.tri_in
-        nxt = Signal(self.slot_bits)
-        m.d.comb += [nxt.eq(Mux(fetching, f_slot + 1, f_slot)),
-                     tri_in.ready.eq((~fetching | issue_last) & ~alloc.bit_select(nxt, 1))]
+            m.d.sync += req.valid.eq(0)
+        got_set, got_clr = Signal(n_slots), Signal(n_slots)
         with m.If(tri_in.valid & tri_in.ready):
             p = tri_in.payload
-            m.d.comb += alloc_set.eq(1 << nxt)
+            m.d.comb += [alloc_set.eq(1 << nxt), got_clr.eq(1 << nxt)]
             m.d.sync += [
-                fetching.eq(1), f_word.eq(0), f_slot.eq(nxt),
-                f_addr.eq(self.tri_base + p.tri * TRI_WORDS),
-                s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread),
+                req.valid.eq(1), req.payload.addr.eq(p.tri), req.payload.tag.eq(nxt),
+                nxt.eq(nxt + 1),
+                s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread), s.index[nxt].eq(p.tri),
                 s.last.bit_select(nxt, 1).eq(p.last),
-                s.got[nxt].eq(0),
             ]
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
-        r_slot = resp.payload.tag[3:]
-        r_word = resp.payload.tag[:3]
         with m.If(resp.valid):
-            m.d.sync += s.words[r_slot][r_word].eq(resp.payload.data)
-            m.d.sync += s.got[r_slot].eq(s.got[r_slot] | (1 << r_word))
+            m.d.comb += got_set.eq(1 << resp.payload.tag[:self.slot_bits])
+            m.d.sync += s.item[resp.payload.tag[:self.slot_bits]].eq(resp.payload.data)
+        m.d.sync += s.got.eq((s.got | got_set) & ~got_clr)
         return s
 
     def _issue(self, m: Module, en: Value, s: SimpleNamespace, ray_r) -> Value:
@@ -351,8 +335,7 @@ class IntersectionUnit(wiring.Component):
         t_slot = Signal(self.slot_bits)
         testing = Signal()                 # part of t_slot's mask is already issued
         rem = Signal(lanes)
-        ready_slot = (s.alloc.bit_select(t_slot, 1) &
-                      (s.got[t_slot] == (1 << TRI_WORDS) - 1))
+        ready_slot = s.alloc.bit_select(t_slot, 1) & s.got.bit_select(t_slot, 1)
         cur = Signal(lanes)
         m.d.comb += cur.eq(Mux(testing, rem, s.mask[t_slot]))
         go = Signal()
@@ -369,7 +352,7 @@ class IntersectionUnit(wiring.Component):
             with m.Else():
                 m.d.sync += testing.eq(1)
 
-        tri = data.View(triangle_layout(), Cat(*(s.words[t_slot][j] for j in range(TRI_WORDS))))
+        tri = data.View(data.ArrayLayout(32, 9), s.item[t_slot][:9 * 32])
         s1_valid = Signal()
         s1_tri = Signal(data.ArrayLayout(fmt.width, 9))
         s1_meta = Signal(self.pipe_meta)
@@ -378,9 +361,9 @@ class IntersectionUnit(wiring.Component):
         with m.If(en):
             m.d.sync += [
                 s1_valid.eq(issue),
-                s1_tri.eq(Cat(*(from_binary32(fmt, tri.v[j]) for j in range(9)))),
+                s1_tri.eq(Cat(*(from_binary32(fmt, tri[j]) for j in range(9)))),
                 s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
-                s1_meta.id.eq(tri.id),
+                s1_meta.id.eq(s.index[t_slot]),
                 s1_meta.tri_last.eq(s.last.bit_select(t_slot, 1)),
                 s1_meta.lane_last.eq(rest == 0),
             ]
@@ -481,8 +464,6 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += self.int_ops.eq(self.int_ops + 1)
         with m.If(self.tri_in.valid & self.tri_in.ready):
             m.d.sync += self.tris.eq(self.tris + 1)
-        with m.If(self.mem.resp.valid):
-            m.d.sync += self.words.eq(self.words + 1)
         inflight = Signal(range(pipe.latency + 3))
         m.d.sync += inflight.eq(inflight + issued - (en & pipe.o_valid))
         with m.If((s.alloc != 0) | (inflight != 0) | self.lane_out.valid):

@@ -23,7 +23,7 @@ from amaranth.hdl import Module
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
-__all__ = ["MemRequest", "MemResponse", "MemReadPort", "WORD_BITS", "connect_tags"]
+__all__ = ["MemRequest", "MemResponse", "MemReadPort", "WORD_BITS", "connect_tags", "ItemReader"]
 
 WORD_BITS = 64  # one memory access: a 64-bit word
 
@@ -92,3 +92,95 @@ def connect_tags(m: Module, requester, server) -> None:
         requester.resp.payload.data.eq(server.resp.payload.data),
         requester.resp.payload.tag.eq(server.resp.payload.tag[:w]),
     ]
+
+
+class ItemReader(wiring.Component):
+    """Serves a port of wide items (a triangle) from a port of 64-bit memory words.
+
+    Item ``i`` is the ``item_words`` words from ``base + i * item_words``; the response holds
+    their low ``item_bits`` bits (first word in the low bits). Up to ``slots`` items are in
+    flight; the words of one item are requested on consecutive cycles (one word request per
+    cycle), responses may come back in any order (tag = ``{word, slot}``), and items are answered
+    in request order as soon as their last word is in.
+
+    Latency: a request accepted in cycle t sends its first word request in t+1; the item is
+    offered one cycle after its last word arrived. Throughput: one item per ``item_words``
+    cycles (the word port's rate). Counter: ``words`` (words received).
+
+    Ports: ``port`` (``MemReadPort`` server: item index, ``item_bits`` data, ``tag_width``),
+    ``mem`` (``MemReadPort`` requester of 64-bit words), ``base`` (word address of item 0).
+    """
+
+    def __init__(self, *, item_bits: int, item_words: int, addr_width: int, tag_width: int,
+                 slots: int = 4):
+        if not 0 < item_bits <= item_words * WORD_BITS:
+            raise ValueError(f"ItemReader: item_bits={item_bits} must be in 1..{item_words * 64}")
+        if slots < 1 or slots & (slots - 1):
+            raise ValueError(f"ItemReader: slots={slots} must be a power of two")
+        self.item_bits, self.item_words, self.slots = item_bits, item_words, slots
+        self.slot_bits = max(1, (slots - 1).bit_length())
+        self.word_bits = max(1, (item_words - 1).bit_length())
+        super().__init__({
+            "port": In(MemReadPort(addr_width=addr_width, data_width=item_bits,
+                                   tag_width=tag_width)),
+            "mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+                                   tag_width=self.slot_bits + self.word_bits)),
+            "base": In(addr_width),
+            "words": Out(32),
+        })
+
+    def elaborate(self, platform):
+        from amaranth.hdl import Array, Cat, Mux, Signal
+        m = Module()
+        n, k = self.slots, self.item_words
+        req, resp, mreq, mresp = self.port.req, self.port.resp, self.mem.req, self.mem.resp
+        tag_w = len(req.payload.tag)
+        buf = Array(Signal(k * WORD_BITS, name=f"slot{i}_data") for i in range(n))
+        got = Array(Signal(k, name=f"slot{i}_got") for i in range(n))
+        tag = Array(Signal(tag_w, name=f"slot{i}_tag") for i in range(n))
+        used = Signal(n)
+        used_set, used_clr = Signal(n), Signal(n)
+        m.d.sync += used.eq((used | used_set) & ~used_clr)
+
+        # -- requests: the item's words, one a cycle, from the slot being issued --------------
+        head, tail = Signal(self.slot_bits), Signal(self.slot_bits)    # answer / allocate
+        issuing = Signal()
+        word = Signal(range(k))
+        addr = Signal(len(mreq.payload.addr))
+        i_slot = Signal(self.slot_bits)
+        m.d.comb += [mreq.valid.eq(issuing), mreq.payload.addr.eq(addr + word),
+                     mreq.payload.tag.eq(Cat(word[:self.word_bits], i_slot))]
+        last_word = mreq.valid & mreq.ready & (word == k - 1)
+        with m.If(mreq.valid & mreq.ready):
+            m.d.sync += word.eq(Mux(word == k - 1, 0, word + 1))
+        with m.If(last_word):
+            m.d.sync += issuing.eq(0)
+        m.d.comb += req.ready.eq((~issuing | last_word) & ~used.bit_select(tail, 1))
+        with m.If(req.valid & req.ready):
+            m.d.comb += used_set.eq(1 << tail)
+            m.d.sync += [issuing.eq(1), word.eq(0), i_slot.eq(tail), tail.eq(Mux(tail == n - 1, 0, tail + 1)),
+                         addr.eq(self.base + req.payload.addr * k),
+                         tag[tail].eq(req.payload.tag), got[tail].eq(0)]
+
+        # -- word responses fill their slot ---------------------------------------------------
+        r_slot = mresp.payload.tag[self.word_bits:]
+        r_word = mresp.payload.tag[:self.word_bits]
+        m.d.comb += mresp.ready.eq(1)
+        with m.If(mresp.valid):
+            m.d.sync += [buf[r_slot].word_select(r_word, WORD_BITS).eq(mresp.payload.data),
+                         got[r_slot].eq(got[r_slot] | (1 << r_word)),
+                         self.words.eq(self.words + 1)]
+
+        # -- answers, in request order, from a registered output -----------------------------
+        full = Signal()
+        m.d.comb += full.eq(used.bit_select(head, 1) & (got[head] == (1 << k) - 1))
+        take = Signal()
+        m.d.comb += take.eq(full & (~resp.valid | resp.ready))
+        with m.If(take):
+            m.d.comb += used_clr.eq(1 << head)
+            m.d.sync += [resp.valid.eq(1), resp.payload.data.eq(buf[head][:self.item_bits]),
+                         resp.payload.tag.eq(tag[head]),
+                         head.eq(Mux(head == n - 1, 0, head + 1))]
+        with m.Elif(resp.ready):
+            m.d.sync += resp.valid.eq(0)
+        return m

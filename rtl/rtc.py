@@ -1,10 +1,11 @@
 """The ray tracing core (RTC): traversal -> list -> intersection -> traversal.
 
 :class:`RTC` wires the three units with ``lib.stream`` interfaces (``wiring.connect``) and
-exposes their three memory read ports (node, list, triangle) for the caches and the bus.
-:class:`RTCSim` puts an :class:`~rtl.memory.IdealMemory` holding the memory image behind each
-port (the unit-level simulation set-up; ``rtl.export.RTCTop`` puts caches and the bus in
-front of the ports instead).
+exposes their three memory read ports (node and list: 64-bit words; triangle: whole
+triangles by index) for the RTC-MI's caches (``rtl/rtcmi.py``). :class:`RTCSim` puts an
+:class:`~rtl.memory.IdealMemory` holding the memory image behind each port (the unit-level
+simulation set-up; the triangle port through an :class:`~rtl.memport.ItemReader`, 5 words a
+triangle).
 
 Packets: ``rays`` takes ``RayIn`` lanes; a free thread of the traversal unit takes the next
 packet (``rays.ready`` is low while every thread is busy). Each lane goes, in the same cycle,
@@ -20,33 +21,53 @@ from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.config import Config
+from model.layout import TRI_WORDS
 from .intersection import IntersectionUnit
 from .list import ListUnit
 from .memory import IdealMemory
-from .memport import WORD_BITS, MemReadPort
+from .memport import WORD_BITS, ItemReader, MemReadPort
 from .rtc_streams import RayIn, RayResult
 from .traversal import NODE_BITS, Traversal
 from .common import COUNTER_BITS
 
-__all__ = ["RTC", "RTCSim", "COUNTERS", "HEADER", "drive_header", "attach_memories"]
+__all__ = ["RTC", "RTCSim", "COUNTERS", "HEADER", "drive_header", "attach_memories",
+           "tri_reader"]
 
 # the memory image's header constants an RTC top takes as inputs
 HEADER = ("node_base", "list_base", "tri_base", "root")
 
 
 def drive_header(m: Module, top, values) -> None:
-    """Drive ``top``'s header inputs (``HEADER``) from ``values``: an object with those
-    attributes (a memory image) or a dict (e.g. of loaded constant registers)."""
+    """Drive ``top``'s header inputs (those of ``HEADER`` it has) from ``values``: an object
+    with those attributes (a memory image) or a dict (e.g. of loaded constant registers)."""
     for k in HEADER:
-        m.d.comb += getattr(top, k).eq(values[k] if isinstance(values, dict) else getattr(values, k))
+        if hasattr(top, k):
+            m.d.comb += getattr(top, k).eq(values[k] if isinstance(values, dict)
+                                           else getattr(values, k))
 
 
-def attach_memories(m: Module, rtc, mems: dict) -> None:
-    """Add each memory of ``mems`` (``{"node" | "list" | "tri": memory}``) as a submodule and
-    connect it to the RTC's port of that name."""
+def tri_reader(cfg: Config, rtc: "RTC") -> ItemReader:
+    """The :class:`ItemReader` that serves the RTC's triangle port from 64-bit words (5 a
+    triangle, ``cfg.int_tri_slots`` in flight) where no int-cache does."""
+    port = rtc.tri_mem
+    return ItemReader(item_bits=cfg.int_item_bits, item_words=TRI_WORDS,
+                      addr_width=len(port.req.payload.addr), tag_width=len(port.req.payload.tag),
+                      slots=cfg.int_tri_slots)
+
+
+def attach_memories(m: Module, rtc, mems: dict, tri_base, reader: ItemReader) -> None:
+    """Add each memory of ``mems`` (``{"node" | "list" | "tri": memory}`` of 64-bit words) as
+    a submodule and connect it to the RTC's port of that name (the triangle port through
+    ``reader``, a :func:`tri_reader`, whose ``base`` is ``tri_base``)."""
+    m.submodules.tri_reader = reader
+    m.d.comb += reader.base.eq(tri_base)
     for name, mem in mems.items():
         m.submodules[f"{name}_mem"] = mem
-        wiring.connect(m, getattr(rtc, f"{name}_mem"), mem.port)
+        port = getattr(rtc, f"{name}_mem")
+        if name == "tri":
+            wiring.connect(m, port, reader.port)
+            port = reader.mem
+        wiring.connect(m, port, mem.port)
 
 # counter port -> (unit, port of that unit)
 COUNTERS = {
@@ -58,7 +79,6 @@ COUNTERS = {
     "list_busy": ("list", "busy"), "list_ops": ("list", "list_ops"),
     "list_reads": ("list", "words"),
     "int_busy": ("int", "busy"), "int_ops": ("int", "int_ops"), "int_tris": ("int", "tris"),
-    "int_reads": ("int", "words"),
 }
 
 
@@ -66,8 +86,9 @@ class RTC(wiring.Component):
     """One ray tracing core.
 
     Ports: ``rays`` (In stream ``RayIn``), ``results`` (Out stream ``RayResult``), memory
-    read ports ``node_mem``, ``list_mem``, ``tri_mem`` (64-bit words; tags: the units'),
-    memory image constants ``node_base``, ``list_base``, ``tri_base``, ``root`` (In, held).
+    read ports ``node_mem``, ``list_mem`` (64-bit words at word addresses), ``tri_mem``
+    (triangle index -> its ``cfg.int_item_bits`` vertex bits; tags: the units'), memory image
+    constants ``node_base``, ``list_base``, ``root`` (In, held).
     Counters (Out, 32 bits): see ``COUNTERS``, ``sub_busy[k]`` (traversal sub-units) and
     ``cycles`` (since reset).
 
@@ -87,10 +108,9 @@ class RTC(wiring.Component):
                                         tag_width=cfg.thread_bits)),
             "list_mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
                                         tag_width=self.list.tag_width)),
-            "tri_mem": Out(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
+            "tri_mem": Out(MemReadPort(addr_width=addr_width, data_width=cfg.int_item_bits,
                                        tag_width=self.int.tag_width)),
-            "node_base": In(addr_width), "list_base": In(addr_width),
-            "tri_base": In(addr_width), "root": In(NODE_BITS),
+            "node_base": In(addr_width), "list_base": In(addr_width), "root": In(NODE_BITS),
             "sub_busy": Out(COUNTER_BITS).array(cfg.trav_subunits),
             "cycles": Out(COUNTER_BITS),
         }
@@ -112,7 +132,7 @@ class RTC(wiring.Component):
         wiring.connect(m, lst.mem, wiring.flipped(self.list_mem))
         wiring.connect(m, inter.mem, wiring.flipped(self.tri_mem))
         m.d.comb += [trav.node_base.eq(self.node_base), trav.root.eq(self.root),
-                     lst.list_base.eq(self.list_base), inter.tri_base.eq(self.tri_base)]
+                     lst.list_base.eq(self.list_base)]
 
         # a ray lane goes to traversal and (with its thread) to intersection in the same cycle
         rays, ri = self.rays, inter.ray_in
@@ -152,12 +172,14 @@ class RTCSim(wiring.Component):
         self.cfg, self.image = cfg, image
         self.rtc = RTC(cfg)
         q = queue if queue is not None else mem_latency + 8
+        self.tri_reader = tri_reader(cfg, self.rtc)
         self.mems = {
             "node": IdealMemory(image.data, addr_width=32, tag_width=cfg.thread_bits,
                                 latency=mem_latency, queue=max(q, cfg.threads)),
             "list": IdealMemory(image.data, addr_width=32, tag_width=self.rtc.list.tag_width,
                                 latency=mem_latency, queue=q),
-            "tri": IdealMemory(image.data, addr_width=32, tag_width=self.rtc.int.tag_width,
+            "tri": IdealMemory(image.data, addr_width=32,
+                               tag_width=len(self.tri_reader.mem.req.payload.tag),
                                latency=mem_latency, queue=q),
         }
         super().__init__({
@@ -168,7 +190,7 @@ class RTCSim(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         m.submodules.rtc = rtc = self.rtc
-        attach_memories(m, rtc, self.mems)
+        attach_memories(m, rtc, self.mems, self.image.tri_base, self.tri_reader)
         drive_header(m, rtc, self.image)
         wiring.connect(m, wiring.flipped(self.rays), rtc.rays)
         wiring.connect(m, rtc.results, wiring.flipped(self.results))

@@ -4,8 +4,9 @@ The Amaranth-simulator testbenches (``tb/rtc.py``), the Verilator frame (``tb/ve
 and any other simulation of an RTC hand their ``RayResult`` s here as arrays (packet, lane, tri,
 t, u, v per result, in any order) and their counters as a dict:
 
-* :func:`expected`: the model's :class:`model.rtc.Hits` as the RTC reports them (triangle id with
-  a miss as all ones; t, u, v as bit patterns of the configured FP format).
+* :func:`expected`: the model's :class:`model.rtc.Hits` as the RTC reports them (the triangle's
+  index in the memory image, a miss as all ones; t, u, v as bit patterns of the configured FP
+  format).
 * :func:`results_by_ray`: result records -> one value per ray, by ray id
   (``rays.pk_start[packet] + lane``); a result that is not a ray of the input, a ray reported
   twice and a ray never reported raise :class:`ResultError`.
@@ -31,16 +32,17 @@ MISS = (1 << 32) - 1            # the RTC's triangle id of a ray that hit nothin
 COMPARED = {"trav_ops": "trav_ops", "trav_steps": "trav_steps", "node_reads": "node_reads",
             "leaf_reqs": "leaf_visits", "passes": "passes", "pushes": "pushes",
             "list_ops": "list_ops", "list_reads": "list_reads", "int_ops": "int_ops",
-            "int_tris": "int_steps", "int_reads": "int_reads"}
+            "int_tris": "int_steps"}
 
 
 class ResultError(AssertionError):
     """The RTC reported a result for no ray of the input, a ray twice, or not every ray."""
 
 
-def expected(hits, cfg: Config) -> dict[str, np.ndarray]:
-    """The model's hits as the RTC reports them: ``{field: int64 array per ray}``."""
-    tri = hits.tri.astype(np.int64)
+def expected(hits, cfg: Config, image) -> dict[str, np.ndarray]:
+    """The model's hits as the RTC reports them: ``{field: int64 array per ray}`` (the hit
+    triangle by its index in ``image``)."""
+    tri = image.tri_index(hits.tri)
     want = {"tri": np.where(tri < 0, MISS, tri)}
     for f in FIELDS[1:]:
         want[f] = cfg.fmt.to_bits(getattr(hits, f)).astype(np.int64)

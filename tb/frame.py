@@ -39,7 +39,7 @@ from amaranth.utils import ceil_log2
 from model.config import Config
 from rtl.common import COUNTER_BITS
 from rtl.memory import IdealMemory
-from rtl.rtc import COUNTERS, RTC, attach_memories, drive_header
+from rtl.rtc import COUNTERS, RTC, attach_memories, drive_header, tri_reader
 from rtl.rtc_streams import RayIn, RayResult
 
 from .lfsr import LFSR, feed_from_memory, lfsr_seeds, passes, sink_to
@@ -122,8 +122,8 @@ class _Run(Elaboratable):
         t = self.top
         m = Module()
         m.submodules.rtc = rtc = t.rtc
-        attach_memories(m, rtc, t.mems)
         c = t.const
+        attach_memories(m, rtc, t.mems, c["tri_base"], t.tri_reader)
         drive_header(m, rtc, c)
 
         # feeder: ray slot i -> rays, LFSR bubbles (as RTCSelfTest)
@@ -159,7 +159,9 @@ class RTCFrame(wiring.Component):
         self.cfg = cfg
         self.rtc = rtc = RTC(cfg)
         q = queue if queue is not None else mem_latency + 8
-        tags = {"node": cfg.thread_bits, "list": rtc.list.tag_width, "tri": rtc.int.tag_width}
+        self.tri_reader = tri_reader(cfg, rtc)
+        tags = {"node": cfg.thread_bits, "list": rtc.list.tag_width,
+                "tri": len(self.tri_reader.mem.req.payload.tag)}
         self.mem_words = 1 << max(1, ceil_log2(max(1, mem_words)))
         # pysim cannot run the Verilog memories: Amaranth Memory for small runs there
         store = ((lambda w, d: VerilogMemory(width=w, depth=d)) if verilog_memories else

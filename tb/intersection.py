@@ -20,6 +20,7 @@ import numpy as np
 
 from amaranth.hdl import Module
 from amaranth.lib import wiring
+from amaranth.lib.wiring import Out
 
 from model.fp import FPFormat
 from model.intersection import intersect
@@ -29,6 +30,7 @@ from model.layout import TRI_WORDS
 from model.rtc import C
 from rtl.intersection import IntersectionUnit, IntersectPipe
 from rtl.memory import IdealMemory
+from rtl.memport import ItemReader
 
 from .common import drain, drive, run, watch
 
@@ -246,28 +248,36 @@ MASK64 = (1 << 64) - 1
 
 
 class IntBench(wiring.Component):
-    """The intersection unit with an ``IdealMemory`` on its port; its streams passed through."""
+    """The intersection unit with an ``IdealMemory`` behind an ``ItemReader`` (5 words a
+    triangle) on its port; its streams passed through, ``words`` = words read."""
 
     def __init__(self, cfg, image, *, latency: int = 20, tri_slots: int = 4):
         addr_width = max(8, int(len(image.data) - 1).bit_length())
         self.unit = IntersectionUnit(cfg, addr_width=addr_width, tri_slots=tri_slots)
+        self.reader = ItemReader(item_bits=cfg.int_item_bits, item_words=TRI_WORDS,
+                                 addr_width=addr_width, tag_width=self.unit.tag_width,
+                                 slots=tri_slots)
         self.memory = IdealMemory(image.data, addr_width=addr_width,
-                                  tag_width=self.unit.tag_width, latency=latency)
+                                  tag_width=len(self.reader.mem.req.payload.tag), latency=latency)
         self.tri_base = image.tri_base
         sig = self.unit.signature.members
-        super().__init__({k: sig[k] for k in ("ray_in", "tri_in", "lane_out", "done", "result",
-                                              "int_ops", "tris", "words", "busy")})
+        members = {k: sig[k] for k in ("ray_in", "tri_in", "lane_out", "done", "result",
+                                       "int_ops", "tris", "busy")}
+        members["words"] = Out(32)
+        super().__init__(members)
 
     def elaborate(self, platform):
         m = Module()
         m.submodules.unit, m.submodules.memory = u, mem = self.unit, self.memory
-        wiring.connect(m, u.mem, mem.port)
+        m.submodules.reader = r = self.reader
+        wiring.connect(m, u.mem, r.port)
+        wiring.connect(m, r.mem, mem.port)
         for name in ("ray_in", "tri_in", "done"):
             wiring.connect(m, wiring.flipped(getattr(self, name)), getattr(u, name))
         for name in ("lane_out", "result"):
             wiring.connect(m, getattr(u, name), wiring.flipped(getattr(self, name)))
-        m.d.comb += u.tri_base.eq(self.tri_base)
-        for name in ("int_ops", "tris", "words", "busy"):
+        m.d.comb += [r.base.eq(self.tri_base), self.words.eq(r.words)]
+        for name in ("int_ops", "tris", "busy"):
             m.d.comb += getattr(self, name).eq(getattr(u, name))
         return m
 
@@ -322,7 +332,7 @@ def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
             remaining, mask = int(row["count"]), int(row["mask"])
         elif kind == EV_TRI:
             remaining -= 1
-            sid = int(row["id"])
+            sid = int(row["tri"])          # the unit reports the triangle's index
             tris.append({"thread": pid % T, "tri": int(row["tri"]), "mask": mask,
                          "last": int(remaining == 0)})
         elif kind == EV_INT:
@@ -350,7 +360,8 @@ def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
                             "t": t if h else inf, "u": u if h else 0, "v": v if h else 0})
     if max_leaves is None:       # the replay must agree with the model's own final hits
         hits = g.hits
-        want = [{"tri": int(hits.tri[r]) & 0xFFFFFFFF, "t": bits(hits.t[r]),
+        index = g.image.tri_index(hits.tri)
+        want = [{"tri": int(index[r]) & 0xFFFFFFFF, "t": bits(hits.t[r]),
                  "u": bits(hits.u[r]), "v": bits(hits.v[r])} for r in range(len(hits.t))]
         assert [{k: x[k] for k in ("tri", "t", "u", "v")} for x in results] == want
     return UnitStreams(rays, tris, ints, lanes, done, results, int_ops, leaves)

@@ -76,7 +76,7 @@ def finish(run_cls, image, rays, cfg: Config, records, *, cycles: int, seconds: 
     hits, ctrs = trace(image, rays, cfg)
     got = compare.results_by_ray(records, rays)
     return run_cls(cycles, seconds, len(rays), counters, counter_totals(ctrs),
-                   compare.result_mismatches(got, expected(hits, cfg)), **extra)
+                   compare.result_mismatches(got, expected(hits, cfg, image)), **extra)
 
 
 def run_rtc(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int = 20,

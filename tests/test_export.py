@@ -90,9 +90,13 @@ def test_rtc_top_has_one_memory_port():
     sig = mem.signature
     assert (sig.addr_width, sig.data_width) == (32, 64)
     # tag = {widest cache memory tag, 2-bit requester id}
-    widest = max(len(c.mem.req.payload.tag) for c in top.caches)
+    caches = list(top.rtcmi.caches.values())
+    widest = max(len(c.mem.req.payload.tag) for c in caches)
     assert sig.tag_width == widest + 2
-    assert [c.geom.size_bytes for c in top.caches] == [1024, 1024, 8192]   # 9 KB -> 8 KB
+    # trav, list: 64-bit words; int: 9 KB = 256 triangles of 288 bits (36 bytes)
+    assert [c.geom.size_bytes for c in caches] == [1024, 1024, 9216]
+    assert [c.geom.item_bits for c in caches] == [64, 64, 288]
+    assert top.rtc.tri_mem.resp.payload.data.shape().width == 288
 
 
 def test_cli_errors_say_what_to_do(tmp_path, capsys):

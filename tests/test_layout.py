@@ -212,3 +212,20 @@ def test_no_shading_header_only():
 def test_amaranth_layouts_match_word_sizes():
     assert node_layout().size == 64
     assert triangle_layout().size == 5 * 64
+
+
+def test_scene_ids_and_tri_index_are_inverse(tmp_path):
+    """The hardware names a hit triangle by its index in the image; the image's fifth triangle
+    word maps it to the scene-order id (ids with gaps: dropped triangles) and back."""
+    cfg = Config()
+    tris = soup(40, 7)
+    ids = np.sort(np.random.default_rng(2).choice(1000, 40, replace=False)).astype(np.uint32)
+    image = build_image(tris, build_kdtree(tris, cfg, cache_dir=tmp_path), cfg, tri_id=ids)
+    index = np.array([0, 5, -1, 39, 12])
+    sid = image.scene_ids(index)
+    assert sid.tolist() == [int(ids[0]), int(ids[5]), -1, int(ids[39]), int(ids[12])]
+    assert image.tri_index(sid).tolist() == index.tolist()
+    assert image.tri_index(ids).tolist() == list(range(40))
+    missing = next(i for i in range(1000) if i not in set(ids.tolist()))
+    with pytest.raises(KeyError):
+        image.tri_index([missing])

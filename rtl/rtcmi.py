@@ -1,0 +1,111 @@
+"""The RTC memory interface (RTC-MI): the three caches in front of one RTC's memory ports.
+
+* trav cache: 64-bit kd-node words, addressed by word (``trav_cache_kb``);
+* list cache: 64-bit words of the triangle list (two 32-bit entries each), by word
+  (``list_cache_kb``);
+* int cache: whole triangles (``int_item_bits`` = 288 bits: the 9 vertex floats) by triangle
+  index, so the intersection unit gets a triangle in one response (``int_cache_kb``).
+
+Sizes are rounded down to what the geometry allows (a power-of-two number of sets): the
+standard 64 / 64 / 144 KB are exact (144 KB = 4 096 triangles of 36 bytes). Each cache's
+memory side is a 64-bit word port (``mem_trav``, ``mem_list``, ``mem_int``) for the chip's bus.
+The hit/miss sequence of each cache for a given request sequence is
+``model.cache.CacheModel``'s (``rtcmi_geometries`` gives the geometries; the request
+addresses are ``model.rtc.rtcmi_trace``'s).
+
+Latency and throughput: the cache's (``rtl/cache.py``: a hit answers 3 cycles after the
+request, one lookup a cycle).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Module
+from amaranth.lib import wiring
+from amaranth.lib.wiring import In, Out
+
+from model.cache import CacheGeometry, cache_geometry
+from model.config import Config, ConfigError
+
+from .cache import Cache
+from .common import COUNTER_BITS
+from .memport import MemReadPort
+
+__all__ = ["RTCMI", "CACHES", "word_cache_geometry", "rtcmi_geometries"]
+
+CACHES = ("trav", "list", "int")
+PORTS = {"trav": "node_mem", "list": "list_mem", "int": "tri_mem"}   # the RTC's port of each
+
+
+def word_cache_geometry(cfg: Config, kb: int) -> CacheGeometry:
+    """A cache of 64-bit memory words (item = word, item address = word address) of ``kb`` KB
+    rounded down to a power of two, with the configuration's ways, line length, outstanding
+    misses and queue."""
+    if kb < 1:
+        raise ConfigError(f"cache of {kb} KB: caches need at least 1 KB")
+    size = 1 << ((kb * 1024).bit_length() - 1)
+    return CacheGeometry(size_bytes=size, line_items=cfg.cache_line_words, item_bits=64,
+                         item_span=64, ways=cfg.cache_ways, outstanding=cfg.cache_outstanding,
+                         queue=cfg.cache_queue)
+
+
+def _int_geometry(cfg: Config) -> CacheGeometry:
+    """Triangle cache of at most ``int_cache_kb`` KB with a power-of-two number of sets."""
+    per_set = cfg.cache_ways * cfg.cache_line_words * cfg.int_item_bits      # bits
+    sets = (cfg.int_cache_kb * 1024 * 8) // per_set
+    if sets < 1:
+        raise ConfigError(f"int_cache_kb={cfg.int_cache_kb}: too small for one set of "
+                          f"{cfg.cache_ways} way(s) x {cfg.cache_line_words} triangle(s)")
+    sets = 1 << (sets.bit_length() - 1)
+    return cache_geometry(cfg, "int", size_bytes=sets * per_set // 8)
+
+
+def rtcmi_geometries(cfg: Config) -> dict[str, CacheGeometry]:
+    """``{"trav", "list", "int"}`` geometries of one RTC-MI's caches."""
+    return {"trav": word_cache_geometry(cfg, cfg.trav_cache_kb),
+            "list": word_cache_geometry(cfg, cfg.list_cache_kb),
+            "int": _int_geometry(cfg)}
+
+
+class RTCMI(wiring.Component):
+    """The three caches of one RTC (see the module docstring).
+
+    Ports: ``node``, ``list``, ``tri`` (servers for the RTC's ``node_mem``, ``list_mem``,
+    ``tri_mem``: connect with ``wiring.connect(m, rtc.node_mem, rtcmi.node)``), ``mem_trav``,
+    ``mem_list``, ``mem_int`` (each cache's 64-bit word port, tags the cache's; ``mem(name)``), ``tri_base`` (word address of
+    triangle 0); counters ``hits[3]``, ``misses[3]``.
+    """
+
+    def __init__(self, cfg: Config, rtc):
+        self.cfg = cfg
+        self.geoms = rtcmi_geometries(cfg)
+        self.caches = {}
+        for name in CACHES:
+            port = getattr(rtc, PORTS[name])
+            self.caches[name] = Cache(self.geoms[name], tag_width=len(port.req.payload.tag))
+        def server(name):
+            g, port = self.geoms[name], getattr(rtc, PORTS[name])
+            return In(MemReadPort(addr_width=g.addr_width, data_width=g.item_bits,
+                                  tag_width=len(port.req.payload.tag)))
+        members = {
+            "node": server("trav"), "list": server("list"), "tri": server("int"),
+            "tri_base": In(32),
+            "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
+        }
+        for name in CACHES:
+            members[f"mem_{name}"] = Out(self.caches[name].mem.signature)
+        super().__init__(members)
+
+    def mem(self, name: str):
+        return getattr(self, f"mem_{name}")
+
+    def elaborate(self, platform):
+        m = Module()
+        unit_side = {"trav": self.node, "list": self.list, "int": self.tri}
+        for i, name in enumerate(CACHES):
+            c = self.caches[name]
+            m.submodules[f"cache_{name}"] = c
+            wiring.connect(m, wiring.flipped(unit_side[name]), c.port)
+            wiring.connect(m, c.mem, wiring.flipped(self.mem(name)))
+            m.d.comb += [self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
+        m.d.comb += [self.caches["trav"].base.eq(0), self.caches["list"].base.eq(0),
+                     self.caches["int"].base.eq(self.tri_base)]
+        return m
