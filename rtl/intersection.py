@@ -25,9 +25,9 @@ from model.config import Config
 from model.fp import FPFormat
 
 from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
-from .fp import FPAdd, FPDiv, FPMul
 from .fp.cmp import compare
 from .fp.common import unpack
+from .fp.schedule import Schedule as _Schedule
 from .memport import MemReadPort
 from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, PacketDone, RayIn,
                           RayResult, TriRequest, lane_bits)
@@ -38,49 +38,6 @@ __all__ = ["IntersectPipe", "IntersectionUnit", "RayWrite"]
 def RayWrite(cfg: Config) -> data.StructLayout:
     """A ray written into the unit's local store: the RTC's ``RayIn`` and the thread it runs in."""
     return data.StructLayout({"thread": cfg.thread_bits, "ray": RayIn(cfg)})
-
-
-class _Schedule:
-    """Builds a fixed-latency datapath: each value carries the cycle it is ready in; an
-    operation waits for its latest operand, the others go through (shared) delay registers."""
-
-    UNITS = {"add": FPAdd, "sub": FPAdd, "mul": FPMul, "div": FPDiv}
-
-    def __init__(self, m: Module, en: Value, fmt: FPFormat, latencies: dict, dry: bool = False):
-        self.m, self.en, self.fmt, self.lat, self.dry = m, en, fmt, latencies, dry
-        self.taps: dict[int, list[Signal]] = {}
-        self.n = 0
-
-    def at(self, value, t0: int, t: int) -> Value:
-        """``value`` (ready at cycle ``t0``) as seen at cycle ``t >= t0``."""
-        value = Value.cast(value)
-        if isinstance(value, Const) or t == t0:
-            return value
-        chain = self.taps.setdefault(id(value), [value])     # chain[0] keeps id() unique
-        while len(chain) <= t - t0:
-            prev = chain[-1]
-            reg = Signal.like(prev, name=f"dly{self.n}", reset_less=True)
-            self.n += 1
-            with self.m.If(self.en):
-                self.m.d.sync += reg.eq(prev)
-            chain.append(reg)
-        return chain[t - t0]
-
-    def op(self, kind: str, a: tuple, b: tuple, name: str) -> tuple:
-        """``(value, ready cycle)`` of ``a kind b``; operands are ``(value, ready cycle)``."""
-        t = max(a[1], b[1])
-        out = Signal(self.fmt.width, name=name)
-        if self.dry:
-            return out, t + self.lat[kind]
-        unit = self.UNITS[kind](self.fmt, latency=self.lat[kind])
-        assert unit.latency == self.lat[kind]
-        self.m.submodules[name] = unit
-        self.m.d.comb += [unit.a.eq(self.at(a[0], a[1], t)), unit.b.eq(self.at(b[0], b[1], t)),
-                          unit.en.eq(self.en)]
-        if kind in ("add", "sub"):
-            self.m.d.comb += unit.op.eq(kind == "sub")
-        self.m.d.comb += out.eq(unit.o)
-        return out, t + unit.latency
 
 
 def _pick(v, k):
