@@ -170,6 +170,8 @@ TOPS: dict[str, tuple[Callable, str]] = {
                 "RGS slave eye rays + ray setup, packet requests in (rtl/rgs.py EyeRays)"),
     "rtc_core": (_unit(".rtc", "RTC"), "the RTC, three memory ports (rtl/rtc.py)"),
     "rtc": (lambda cfg, latency: RTCTop(cfg), "one RTC + RTC-MI (3 caches) + bus, one memory port"),
+    "chip": (_unit(".chip", "Chip"), "the chip: RGS + cfg.rtcs RTCs with RTC-MIs + bus, one "
+             "memory port (rtl/chip.py)"),
     "rtc_nocache": (lambda cfg, latency: RTCTop(cfg, caches=False),
                     "one RTC + bus (no caches), one memory port"),
 }

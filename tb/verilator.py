@@ -42,7 +42,8 @@ from .frame import CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, ray_ch
 from .lfsr import lfsr_seeds, sixteenths
 from .rtc import RTCRun, finish
 
-__all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "read_output", "run_frame", "main"]
+__all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "write_blocks",
+           "read_output", "run_binary", "run_frame", "main"]
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_ROOT = ROOT / "build" / "verilator"
@@ -73,11 +74,24 @@ def _pow2(n: int, least: int) -> int:
 def _sources() -> list[Path]:
     return (sorted((ROOT / "rtl").rglob("*.py")) +
             [ROOT / "model" / n for n in ("config.py", "fp.py", "cache.py")] +
-            [Path(__file__).with_name(n) for n in ("frame.py", "lfsr.py")] + [MAIN_CPP, MEM_V])
+            [Path(__file__).with_name(n) for n in ("frame.py", "lfsr.py", "chip.py")] +
+            [MAIN_CPP, MEM_V])
+
+
+def _frame_top(top: str, cfg: Config, mem_words: int, ray_slots: int, mem_latency: int):
+    """The simulation top ``top`` ('rtc': :class:`tb.frame.RTCFrame`, one RTC on ideal
+    memories; 'chip': :class:`tb.chip.ChipFrame`, the whole chip on the SDRAM model)."""
+    if top == "rtc":
+        from .frame import RTCFrame
+        return RTCFrame(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency)
+    if top == "chip":
+        from .chip import ChipFrame
+        return ChipFrame(cfg, mem_words=mem_words)
+    raise ValueError(f"frame top {top!r}: 'rtc' or 'chip'")
 
 
 def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
-              trace: bool = False) -> str:
+              trace: bool = False, top: str = "rtc") -> str:
     """Hash of everything the binary depends on (configuration, sizes, flags, sources)."""
     import amaranth
     try:
@@ -86,7 +100,8 @@ def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
     except Exception:
         vl = "unknown"
     h = hashlib.sha256()
-    h.update(json.dumps({"cfg": cfg.to_dict(), "mem_words": mem_words, "ray_slots": ray_slots,
+    h.update(json.dumps({"top": top, "cfg": cfg.to_dict(), "mem_words": mem_words,
+                         "ray_slots": ray_slots,
                          "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
                          "amaranth": amaranth.__version__, "verilator": vl},
                         sort_keys=True).encode())
@@ -108,8 +123,9 @@ class FrameBuild:
 
 def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_RAY_SLOTS,
           mem_latency: int = 20, trace: bool | str = False, root: Path | str = BUILD_ROOT,
-          log=sys.stderr) -> FrameBuild:
-    """Export ``RTCFrame`` and compile it with Verilator, or reuse the cached binary.
+          log=sys.stderr, top: str = "rtc") -> FrameBuild:
+    """Export ``RTCFrame`` (``top="chip"``: ``tb.chip.ChipFrame``) and compile it with
+    Verilator, or reuse the cached binary.
 
     ``mem_words`` / ``ray_slots`` are rounded up to powers of two (at least 2^17 words and
     2^16 rays, so small scenes and frames up to 256x256 share one binary). Safe against
@@ -122,7 +138,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         raise ConfigError(f"memory latency {mem_latency}: must be >= 2 cycles (IdealMemory)")
     exe = tool("verilator")
     key = build_key(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency,
-                    trace=trace)
+                    trace=trace, top=top)
     root = Path(root)
     d = root / key
     binary = d / "obj_dir" / "Vframe"
@@ -138,12 +154,12 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         t0 = time.perf_counter()
         from amaranth.back import verilog
 
-        from .frame import RTCFrame
-        print(f"tb.verilator: exporting RTCFrame ({cfg.threads} threads, {cfg.trav_subunits} "
-              f"sub-units, {cfg.tile_w}x{cfg.tile_h} packets, {mem_words} words, {ray_slots} "
-              f"ray slots) -> {d}", file=log, flush=True)
-        top = RTCFrame(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency)
-        (d / f"{TOP}.v").write_text(verilog.convert(top, name=TOP))
+        what = f"{cfg.rtcs} RTCs" if top == "chip" else f"{ray_slots} ray slots"
+        print(f"tb.verilator: exporting the {top} frame ({cfg.threads} threads, "
+              f"{cfg.trav_subunits} sub-units, {cfg.tile_w}x{cfg.tile_h} packets, {mem_words} "
+              f"words, {what}) -> {d}", file=log, flush=True)
+        design = _frame_top(top, cfg, mem_words, ray_slots, mem_latency)
+        (d / f"{TOP}.v").write_text(verilog.convert(design, name=TOP))
         shutil.copy(MAIN_CPP, d / MAIN_CPP.name)
         shutil.copy(MEM_V, d / MEM_V.name)
         t1 = time.perf_counter()
@@ -161,7 +177,8 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
             raise RuntimeError(f"Verilator build failed (exit {p.returncode}) in {d}; "
                                f"command: {' '.join(cmd)}\n{(p.stdout + p.stderr)[-4000:]}")
         secs = time.perf_counter() - t0
-        stamp.write_text(json.dumps({"export_s": round(t1 - t0, 1), "build_s": round(secs, 1),
+        stamp.write_text(json.dumps({"top": top, "export_s": round(t1 - t0, 1),
+                                     "build_s": round(secs, 1),
                                      "config": cfg.to_dict(), "mem_words": mem_words,
                                      "ray_slots": ray_slots, "mem_latency": mem_latency,
                                      "trace": trace}, indent=1))
@@ -202,9 +219,13 @@ def write_input(path: Path | str, image, rays, cfg: Config, *, idle: float = 0.0
     rw = ray_words(image, rays, cfg)
     slots = np.zeros((len(rays), 8), np.uint64)       # ray r, chunk c at load address 8r + c
     slots[:, :rw.shape[1]] = rw
-    blocks = [(SEL_IMAGE, 0, np.asarray(image.data, np.uint64)),
-              (SEL_RAYS, 0, slots.ravel()),
-              (SEL_CONST, 0, np.array([consts[n] for n in CONSTS], np.uint64))]
+    write_blocks(path, [(SEL_IMAGE, 0, np.asarray(image.data, np.uint64)),
+                        (SEL_RAYS, 0, slots.ravel()),
+                        (SEL_CONST, 0, np.array([consts[n] for n in CONSTS], np.uint64))])
+
+
+def write_blocks(path: Path | str, blocks) -> None:
+    """Write ``(sel, addr, uint64 words)`` load blocks as the binary's input file."""
     with open(path, "wb") as f:
         f.write(IN_MAGIC + struct.pack("<Q", len(blocks)))
         for sel, addr, words in blocks:
@@ -223,7 +244,8 @@ class FrameOutput:
     load_seconds: float
 
 
-def read_output(path: Path | str, cfg: Config) -> FrameOutput:
+def read_output(path: Path | str, cfg: Config, names: list[str] | None = None) -> FrameOutput:
+    """Parse the binary's output file; ``names``: the counters (default the RTC frame's)."""
     raw = Path(path).read_bytes()
     if raw[:8] != OUT_MAGIC or len(raw) < 64:
         raise FrameError(f"{path}: not an RTCFrame output file")
@@ -235,7 +257,7 @@ def read_output(path: Path | str, cfg: Config) -> FrameOutput:
         raise FrameError(f"{path}: {body.size} words after the header, expected "
                          f"{n} x {res_words} + {ctr_words}")
     res = body[:n * res_words].reshape(n, res_words)
-    names = counter_names(cfg)
+    names = counter_names(cfg) if names is None else names
     if ctr_words * 32 < 32 * len(names):
         raise FrameError(f"{path}: {ctr_words} counter words, the configuration has "
                          f"{len(names)} counters (binary built for another configuration?)")
@@ -257,6 +279,41 @@ def _trace_kind(path) -> bool | str:
     return "vcd" if str(path).endswith(".vcd") else "fst"
 
 
+def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
+               trace_file=None, progress: bool = True, log=sys.stderr, desc: str = "frame",
+               names: list[str] | None = None) -> FrameOutput:
+    """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
+    ``n`` results; return its parsed output (``names``: its counters). A run that hits
+    ``max_cycles`` raises :class:`FrameError`."""
+    from tqdm import tqdm
+    with tempfile.TemporaryDirectory(prefix="frame") as tmp:
+        fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
+        write(fin)
+        cmd = [str(b.binary), str(fin), str(fout), "--max-cycles", str(max_cycles),
+               "--progress", "20000"]
+        if trace_file is not None:
+            cmd += ["--trace", str(Path(trace_file).resolve())]
+        other = []
+        with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
+                tqdm(total=n, unit="ray", desc=desc, disable=not progress, file=log) as bar:
+            for line in p.stderr:
+                parts = line.split()
+                if len(parts) == 3 and parts[0] == "progress":
+                    bar.update(int(parts[2]) - bar.n)
+                    bar.set_postfix(cycles=int(parts[1]), refresh=False)
+                else:
+                    other.append(line.rstrip())
+            rc = p.wait()
+        if rc == 1 or not fout.exists():
+            raise FrameError(f"{b.binary} failed (exit {rc}): " + " / ".join(other[-5:]))
+        out = read_output(fout, cfg, names)
+    if out.status == 2:
+        raise FrameError(f"{desc}: {len(out.results)} of {n} results after the cycle limit "
+                         f"max_cycles={max_cycles} (deadlock? else raise max_cycles / "
+                         "--max-cycles)")
+    return out
+
+
 @dataclass
 class VerilatorRun(RTCRun):
     build: FrameBuild | None = None
@@ -272,7 +329,6 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
     """Trace ``rays`` through ``image`` on one RTC in Verilator and compare every ray with the
     golden model (``model.rtc.trace``), as :func:`tb.rtc.run_rtc_free` does in pysim (same
     bubbles and back-pressure for the same ``seed``, so the same cycle count)."""
-    from tqdm import tqdm
 
     from rtl.rtc_streams import RayResult
     n = len(rays)
@@ -288,32 +344,10 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
                          f"ray slots (ray_slots={rsl}): pass ray_slots >= {n} (or leave it out)")
     b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
               trace=_trace_kind(trace_file), root=build_root, log=log)
-    with tempfile.TemporaryDirectory(prefix="rtcframe") as tmp:
-        fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
-        write_input(fin, image, rays, cfg, idle=idle, stall=stall, seed=seed)
-        cmd = [str(b.binary), str(fin), str(fout), "--max-cycles", str(max_cycles),
-               "--progress", "20000"]
-        if trace_file is not None:
-            cmd += ["--trace", str(Path(trace_file).resolve())]
-        other = []
-        with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
-                tqdm(total=n, unit="ray", desc="RTC (Verilator)", disable=not progress,
-                     file=log) as bar:
-            for line in p.stderr:
-                parts = line.split()
-                if len(parts) == 3 and parts[0] == "progress":
-                    bar.update(int(parts[2]) - bar.n)
-                    bar.set_postfix(cycles=int(parts[1]), refresh=False)
-                else:
-                    other.append(line.rstrip())
-            rc = p.wait()
-        if rc == 1 or not fout.exists():
-            raise FrameError(f"{b.binary} failed (exit {rc}): " + " / ".join(other[-5:]))
-        out = read_output(fout, cfg)
-    if out.status == 2:
-        raise FrameError(f"RTC frame: {len(out.results)} of {n} results after the cycle limit "
-                         f"max_cycles={max_cycles} (deadlock? else raise max_cycles / "
-                         "--max-cycles)")
+    out = run_binary(b, lambda f: write_input(f, image, rays, cfg, idle=idle, stall=stall,
+                                              seed=seed),
+                     cfg, n, max_cycles=max_cycles, trace_file=trace_file, progress=progress,
+                     log=log, desc="RTC (Verilator)")
 
     lay = RayResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}

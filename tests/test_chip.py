@@ -1,0 +1,112 @@
+"""The whole chip (rtl/chip.py): RGS master and slaves, RTCs behind their RTC-MIs, one bus to
+the SDRAM model; every eye ray bit-exact with the golden model in both simulators."""
+import numpy as np
+import pytest
+
+from model.cache import CacheModel
+from model.config import Config
+from model.events import EV_LEAF, EV_NODE, EV_TRI
+from model.raygen import eye_rays
+from model.render import prepare
+from model.rtc import trace
+from model.scene import load_scene
+from rtl.rtcmi import rtcmi_geometries
+from tb.compare import COMPARED
+
+from .conftest import ROOT, TIMING, timing_changed
+
+# small caches so that a tiny frame both hits and misses; SDRAM as configured (4 chips, 4:1)
+TINY = Config(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1,
+              int_cache_kb=9, mem_latency=8)
+
+
+@pytest.fixture(scope="module")
+def cornell(kd_cache):
+    scene = load_scene(ROOT / "scenes/cornell.toml")
+    return scene, prepare(scene, TINY, cache_dir=kd_cache).image
+
+
+def check_frame(r, cfg, image, rays):
+    """Every ray bit-exact; every ray in and out once; the RTCs' counters add up to the
+    model's; the caches' and the memory's counters agree with each other."""
+    c = r.counters
+    assert r.mismatches == []
+    assert c["rays_in"] == c["results_out"] == len(rays)
+    assert sum(c["packets"]) == rays.n_packets
+    assert sum(x["packets_done"] for x in c["rtc"]) == rays.n_packets
+    for rtc_name, model_name in COMPARED.items():
+        assert sum(x[rtc_name] for x in c["rtc"]) == r.model[model_name], rtc_name
+    for x, h, mi, g in zip(c["rtc"], c["hits"], c["misses"], c["grants"]):
+        assert h["trav"] + mi["trav"] == x["node_reads"]
+        assert h["list"] + mi["list"] == x["list_reads"]
+        assert h["int"] + mi["int"] == x["int_tris"]
+        assert (g["trav"], g["list"], g["int"]) == (mi["trav"], mi["list"], 5 * mi["int"])
+    assert sum(c["mem_words"]) == c["mem_reads"] == sum(sum(g.values()) for g in c["grants"])
+
+
+@pytest.mark.parametrize("rtcs", [1, 2])
+def test_chip_frame_in_amaranth_sim(rtcs, cornell):
+    """An 8x4 Cornell frame (2 packets): eye rays made by the RGS slaves in FP hardware,
+    traced by 1 or 2 RTCs through their caches and the SDRAM model, under result
+    back-pressure; with 2 RTCs the master gives each a packet."""
+    from tb.chip import run_chip
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=rtcs)
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    r = run_chip(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3)
+    check_frame(r, cfg, image, rays)
+    if rtcs == 2:
+        assert r.counters["packets"] == [1, 1]
+    name = f"chip/cornell_8x4_rtcs{rtcs}"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+
+
+def test_cache_hits_are_the_cache_models(cornell):
+    """One RTC of one thread traces packet after packet in the model's event order, so each
+    cache sees the model's request sequence: ``model.cache.CacheModel`` predicts its hits."""
+    from tb.chip import run_chip
+    scene, image = cornell
+    cfg = TINY.replace(threads=1)
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    r = run_chip(cfg, image, scene.camera, 8, 4)
+    check_frame(r, cfg, image, rays)
+    _, _, ev = trace(image, rays, cfg, record=True)
+    kind = ev["kind"]
+    leaf = ev[(kind == EV_LEAF) & (ev["count"] > 0)]
+    words = [np.arange(f >> 1, ((f + n - 1) >> 1) + 1) for f, n in zip(leaf["first"],
+                                                                         leaf["count"])]
+    streams = {"trav": image.node_base + ev["node"][(kind == EV_NODE) | (kind == EV_LEAF)],
+               "list": image.list_base + np.concatenate(words),
+               "int": ev["tri"][kind == EV_TRI]}
+    geoms = rtcmi_geometries(cfg)
+    for name, addrs in streams.items():
+        model = CacheModel(geoms[name])
+        model.access(addrs.astype(np.int64))
+        assert (r.counters["hits"][0][name], r.counters["misses"][0][name]) == \
+            (model.hits, model.misses), name
+        assert model.hits > 0 and model.misses > 0, name
+
+
+def test_chip_verilator_same_cycles_as_amaranth_sim(cornell):
+    """The same frame, stall pattern and seed in Verilator: the same results, counters and
+    cycle count as in Amaranth's simulator (the timing contract)."""
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    r = run_chip_frame(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3, progress=False)
+    check_frame(r, cfg, image, rays)
+    assert r.cycles == TIMING["chip/cornell_8x4_rtcs2"], timing_changed(
+        "chip/cornell_8x4_rtcs2", r.cycles)
+
+
+def test_chip_verilator_cornell_16x16(cornell):
+    """A 16x16 Cornell frame (16 packets) on 2 RTCs in Verilator: every ray bit-exact, the
+    packets spread over both RTCs by the master."""
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(scene.camera, 16, 16, cfg)
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, seed=5, progress=False)
+    check_frame(r, cfg, image, rays)
+    assert min(r.counters["packets"]) >= 4
