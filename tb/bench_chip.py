@@ -7,7 +7,10 @@ cycle on every sub-unit and intersection unit, so 100 % means the busiest kind o
 waited. Both op counts are the chip's own counters (equal to the golden model's).
 
 Run: ``.venv/bin/python -m tb.bench_chip [--scene S] [--res WxH] [config options] [--out DIR]``
-(``--help``); writes ``DIR/chip_<scene>_<W>x<H>.json``.
+(``--help``); writes ``DIR/chip_<scene>_<W>x<H>.json``. With ``--seeds N`` it runs the frame
+N times instead, each with another random result back-pressure (seed i, stall i mod 16 / 16)
+on one Verilator binary, and checks that no ray is lost or duplicated and no run deadlocks
+(``DIR/chip_stalls_<scene>_<W>x<H>.json``).
 """
 from __future__ import annotations
 
@@ -50,6 +53,8 @@ def main(argv=None) -> int:
     ap.add_argument("--res", default="256x192", help="image WxH (default 256x192)")
     ap.add_argument("--stall", type=float, default=0.0,
                     help="fraction of cycles the results are back-pressured (default 0)")
+    ap.add_argument("--seeds", type=int, default=0,
+                    help="run N back-pressure seeds instead (stall bench); default 0")
     ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
     ap.add_argument("--kd-cache", default="default", help="kd-tree cache directory")
     add_config_args(ap)
@@ -63,6 +68,9 @@ def main(argv=None) -> int:
         raise SystemExit(f"tb.bench_chip: --res {args.res!r}: write WxH, e.g. 256x192")
     scene = load_scene(args.scene)
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
+    if args.seeds:
+        return stall_bench(cfg, prep.image, scene.camera, w, h, args.seeds,
+                           Path(args.out) / f"chip_stalls_{Path(args.scene).stem}_{w}x{h}.json")
     t0 = time.perf_counter()
     try:
         r = run_chip_frame(cfg, prep.image, scene.camera, w, h, stall=args.stall)
@@ -91,6 +99,38 @@ def main(argv=None) -> int:
           f"{perf['fps_ideal']:.1f} ({perf['bound']}-bound): relative performance "
           f"{100 * perf['relative_performance']:.1f} %; -> {path}")
     return 1 if r.mismatches else 0
+
+
+def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path) -> int:
+    """Run the frame with ``seeds`` result back-pressure patterns; every run must deliver
+    every ray exactly once, bit-exact, before the cycle limit."""
+    from tqdm import tqdm
+
+    from tb.compare import ResultError
+
+    from .chip import run_chip_frame
+    from .verilator import FrameError
+    runs, failures = [], []
+    for seed in tqdm(range(1, seeds + 1), desc="stall seeds", unit="run"):
+        stall = (seed % 16) / 16
+        try:
+            r = run_chip_frame(cfg, image, camera, w, h, stall=stall, seed=seed,
+                               progress=False, max_cycles=2_000_000)
+            runs.append({"seed": seed, "stall": stall, "cycles": r.cycles,
+                         "mismatches": len(r.mismatches)})
+            if r.mismatches:
+                failures.append({"seed": seed, "stall": stall, "what": "mismatch"})
+        except (FrameError, ResultError) as e:     # deadlock (cycle limit), lost or duplicated
+            failures.append({"seed": seed, "stall": stall, "what": str(e)})
+    cyc = [x["cycles"] for x in runs]
+    out = {"runs": len(runs), "failures": failures, "cycles_min": min(cyc, default=0),
+           "cycles_max": max(cyc, default=0), "config": cfg.to_dict(), "res": [w, h],
+           "per_run": runs}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(out, indent=1))
+    print(f"{seeds} seeds: {len(failures)} failures (lost, duplicated, wrong or deadlocked), "
+          f"cycles {out['cycles_min']}..{out['cycles_max']}; -> {path}")
+    return 1 if failures else 0
 
 
 if __name__ == "__main__":
