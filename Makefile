@@ -38,10 +38,6 @@ bench: setup
 	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
 	    --mode async --out build/bench --name threads_standard_async.json
 	$(PY) -m tb.stress --out build/bench
-	$(PY) -m tb.bench_chip --scene scenes/office.toml --res 256x192 --out build/bench
-	$(PY) -m tb.bench_chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 --rtcs 2 \
-	    --threads 2 --tile-w 4 --tile-h 4 --trav-subunits 2 --trav-cache-kb 1 \
-	    --list-cache-kb 1 --int-cache-kb 9 --mem-latency 8 --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:

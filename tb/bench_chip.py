@@ -53,6 +53,9 @@ def main(argv=None) -> int:
     ap.add_argument("--res", default="256x192", help="image WxH (default 256x192)")
     ap.add_argument("--stall", type=float, default=0.0,
                     help="fraction of cycles the results are back-pressured (default 0)")
+    ap.add_argument("--max-cycles", type=int, default=20_000_000,
+                    help="give up after this many cycles, naming the packets and RTCs that did "
+                         "not finish (default 20000000)")
     ap.add_argument("--seeds", type=int, default=0,
                     help="run N back-pressure seeds instead (stall bench); default 0")
     ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
@@ -73,7 +76,8 @@ def main(argv=None) -> int:
                            Path(args.out) / f"chip_stalls_{Path(args.scene).stem}_{w}x{h}.json")
     t0 = time.perf_counter()
     try:
-        r = run_chip_frame(cfg, prep.image, scene.camera, w, h, stall=args.stall)
+        r = run_chip_frame(cfg, prep.image, scene.camera, w, h, stall=args.stall,
+                           max_cycles=args.max_cycles)
     except FrameError as e:
         raise SystemExit(f"tb.bench_chip: {e}")
     wall = time.perf_counter() - t0

@@ -110,3 +110,18 @@ def test_chip_verilator_cornell_16x16(cornell):
     r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, seed=5, progress=False)
     check_frame(r, cfg, image, rays)
     assert min(r.counters["packets"]) >= 4
+
+
+def test_a_stuck_frame_names_its_packets_and_rtcs():
+    """When a frame hits the cycle limit, the message names the packets whose results are
+    missing and, per RTC, packets given against packets finished."""
+    from tb.chip import stuck
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(load_scene(ROOT / "scenes/cornell.toml").camera, 8, 8, cfg)   # 4 packets
+    records = {"packet": np.array([0] * 16 + [1] * 16 + [3] * 10)}
+    c = {"packets0": 2, "packets1": 2, "rtc0_packets_done": 2, "rtc1_packets_done": 0,
+         "rays_in": 64}
+    text = stuck(cfg, rays, records, c, 1000)
+    assert "packets never finished: [2, 3]" in text
+    assert "RTC 0: 2 packets in, 2 done" in text and "RTC 1: 2 packets in, 0 done" in text
+    assert "42 of 64 results" in text
