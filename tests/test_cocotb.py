@@ -1,0 +1,112 @@
+"""cocotb benches (``tb/cocotb/``) on the exported Verilog of every pipeline (``rtl.export``).
+
+CI (``make test``) runs them under Icarus Verilog: no C++ build, so each bench costs its
+simulator start-up (~2-3 s) plus the run; the same benches under Verilator (a 15-60 s C++ build
+per top) are marked slow (``make bench``). ``docs/cocotb.md`` has the figures. Deliberately
+broken exports (a flipped rounding rule, a dropped ``last`` flag) must make the benches fail.
+"""
+from __future__ import annotations
+
+import re
+import zlib
+
+import pytest
+
+from model.config import Config
+from tb.cocotb.runner import BenchFailed
+
+from .conftest import ROOT
+
+CI_SIM = "icarus"
+SIMS = [CI_SIM, pytest.param("verilator", marks=pytest.mark.slow)]
+# the RTC units in a small configuration (2 threads, 4x4 packets, 2 traversal sub-units) with
+# small caches: small Verilog, misses in every cache
+TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1,
+              int_cache_kb=9)
+
+
+@pytest.fixture(scope="module")
+def cornell(kd_cache):
+    """Cornell box, 16x16 eye rays in the standard configuration, with the event log."""
+    from tb.list import golden
+    return golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(), kd_cache)
+
+
+@pytest.fixture(scope="module")
+def cornell_tiny(kd_cache):
+    from tb.list import golden
+    return golden(ROOT / "scenes" / "cornell.toml", 12, 4, TINY, kd_cache)
+
+
+# ---- FP units: every result at its exact cycle ------------------------------------------------
+
+@pytest.mark.parametrize("sim", SIMS)
+@pytest.mark.parametrize("kind", ["add", "mul", "div", "cmp", "min", "conv"])
+def test_fp_unit(kind, sim, tmp_path):
+    from tb.cocotb.fp import run_fp
+    r = run_fp(kind, sim, tmp_path, n=300, seed=zlib.crc32(kind.encode()))
+    v = r.values
+    assert v["ops"] > 300 and v["cycles"] > v["ops"]       # bubbles and stalls happened
+
+
+def round_half_up(verilog: str) -> str:
+    """Break the RNE rounding: the increment becomes the guard bit alone (ties round away
+    from zero instead of to even), as a one-word slip in the Verilog would."""
+    return re.sub(r"assign rnd_inc = (\S+ \[\d+\]) &[^;]*;", r"assign rnd_inc = \1;", verilog)
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_fp_bench_fails_on_broken_rounding(sim, tmp_path):
+    """The multiplier's Verilog with ties rounded away from zero: the bench names the first
+    operation whose result differs (a tie), its cycle and both results."""
+    from tb.cocotb.fp import run_fp
+    with pytest.raises(BenchFailed, match=r"fp_mul: cycle \d+, operation #\d+ \(a=0x[0-9a-f]+, "
+                                          r"b=0x[0-9a-f]+\): o=0x[0-9a-f]+, model 0x[0-9a-f]+"):
+        run_fp("mul", sim, tmp_path, n=300, seed=1, patch=round_half_up)
+
+
+# ---- the RTC's units, the cache and the bus: the golden model's streams -----------------------
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_list_unit(cornell, sim, tmp_path):
+    from tb.cocotb.list import run_list
+    r = run_list(cornell, sim, tmp_path, seed=3)
+    assert r.values["entries"] > 500
+
+
+def drop_last_flag(verilog: str) -> str:
+    """Break the list unit's output: ``last`` (the TriRequest's top bit) stuck at 0."""
+    return re.sub(r"assign tri__payload\[100\] = [^;]+;", "assign tri__payload[100] = 1'h0;",
+                  verilog)
+
+
+def test_list_bench_fails_on_broken_output(cornell, tmp_path):
+    from tb.cocotb.list import run_list
+    with pytest.raises(BenchFailed, match=r"tri #\d+ at cycle \d+: 0x[0-9a-f]+: "
+                                          r"last 0x0 \(model 0x1\)"):
+        run_list(cornell, CI_SIM, tmp_path, seed=3, patch=drop_last_flag)
+
+
+@pytest.mark.parametrize("sim", SIMS)
+@pytest.mark.parametrize("unit", ["trav", "list", "int"])
+def test_cache(unit, sim, cornell_tiny, tmp_path):
+    from tb.cocotb.cache import run_cache
+    _, cr = run_cache(unit, cornell_tiny, sim, tmp_path, n=300, seed=len(unit))
+    assert cr.hits > 0 and cr.misses > 0
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_bus(cornell, sim, tmp_path):
+    from tb.cocotb.bus import run_bus
+    r = run_bus(cornell, sim, tmp_path, n=200, seed=2)
+    assert r.values["counters"]["req_cycles"] == 600
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_traversal(sim, kd_cache, tmp_path):
+    """3 packets through 2 threads (a thread is released and reused)."""
+    from tb.cocotb.traversal import run_traversal
+    from tb.traversal import small_case
+    image, rays = small_case(ROOT / "scenes" / "cornell.toml", 12, 4, TINY, kd_cache)
+    r = run_traversal(image, rays, TINY, sim, tmp_path, seed=1)
+    assert r.values["leaf_requests"] > 10
