@@ -166,6 +166,19 @@ def _pack(fmt: FPFormat, x: np.ndarray) -> list[int]:
     return [int(v) for v in out]
 
 
+def pipe_ports(tests: PipeTests, fmt: FPFormat, tag_width: int) -> tuple[dict, dict]:
+    """The datapath's port values per test (ints; arrays packed as the ports carry them,
+    element 0 in the low bits): inputs ``tri``, ``org``, ``k``, ``s``, ``tag`` (the test's index
+    modulo ``2**tag_width``) and the model's outputs ``o_tag``, ``hit``, ``t``, ``u``, ``v``."""
+    tri, org, s = _pack(fmt, tests.tri), _pack(fmt, tests.org), _pack(fmt, tests.s)
+    k = [int(a) | int(b) << 2 | int(c) << 4 for a, b, c in tests.k]
+    tag = [i % (1 << tag_width) for i in range(len(tests))]
+    hit = tests.hit.astype(int).tolist()
+    t, u, v = (fmt.to_bits(x).astype(np.int64).tolist() for x in (tests.t, tests.u, tests.v))
+    return ({"tri": tri, "org": org, "k": k, "s": s, "tag": tag},
+            {"o_tag": tag, "hit": hit, "t": t, "u": u, "v": v})
+
+
 @dataclass
 class PipeRun:
     tests: int
@@ -187,10 +200,9 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
     n = len(tests)
     dut = IntersectPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
     L = dut.latency
-    tri, org, s = _pack(fmt, tests.tri), _pack(fmt, tests.org), _pack(fmt, tests.s)
-    k = [int(a) | int(b) << 2 | int(c) << 4 for a, b, c in tests.k]
-    hit = tests.hit.astype(int).tolist()
-    tb, ub, vb = (fmt.to_bits(x).astype(np.int64).tolist() for x in (tests.t, tests.u, tests.v))
+    ins, outs = pipe_ports(tests, fmt, dut.tag_width)
+    tri, org, k, s, tag = (ins[x] for x in ("tri", "org", "k", "s", "tag"))
+    hit, tb, ub, vb = (outs[x] for x in ("hit", "t", "u", "v"))
     rnd = random.Random(seed)
     w = fmt.width
     stats = {"outputs": 0}
@@ -203,7 +215,7 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
             en = rnd.random() >= p_stall
             valid = i < n and rnd.random() >= p_bubble
             if valid:
-                vals = (tri[i], org[i], k[i], s[i], i)
+                vals = (tri[i], org[i], k[i], s[i], tag[i])
             else:
                 vals = (rnd.getrandbits(9 * w), rnd.getrandbits(3 * w), rnd.getrandbits(6),
                         rnd.getrandbits(3 * w), 0)
@@ -220,7 +232,7 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
                 stats["outputs"] += int(en)
                 got = (ctx.get(dut.o_tag), ctx.get(dut.hit), ctx.get(dut.t), ctx.get(dut.u),
                        ctx.get(dut.v))
-                want = (head, hit[head], tb[head], ub[head], vb[head])
+                want = (tag[head], hit[head], tb[head], ub[head], vb[head])
                 if got != want:
                     mismatches.append(
                         f"IntersectPipe: cycle {cycle}, test #{head}: (tag, hit, t, u, v) = "

@@ -110,3 +110,14 @@ def test_traversal(sim, kd_cache, tmp_path):
     image, rays = small_case(ROOT / "scenes" / "cornell.toml", 12, 4, TINY, kd_cache)
     r = run_traversal(image, rays, TINY, sim, tmp_path, seed=1)
     assert r.values["leaf_requests"] > 10
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_intersect_pipe(sim, tmp_path):
+    """The 42-FP-unit datapath on corner-case ray/triangle tests, every output at its exact
+    cycle (Icarus runs it at well under 100 cycles/s: CI keeps it short)."""
+    from model.fp import BINARY32
+    from tb.cocotb.intersection import run_pipe
+    from tb.intersection import random_tests
+    r = run_pipe(random_tests(150, BINARY32, seed=4), sim, tmp_path, seed=4)
+    assert r.values["ops"] == 150

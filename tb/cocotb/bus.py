@@ -28,7 +28,7 @@ UNITS = ("trav", "list", "int")
 
 
 def run_bus(g, sim: str, run_dir, *, n: int = 200, seed: int = 0, idle: float = 0.3,
-            stall: float = 0.3, mem_stall: float = 0.2, max_delay: int = 20, patch=None):
+            stall: float = 0.3, mem_stall: float = 0.2, max_delay: int = 20, **build_kw):
     """The first ``n`` word reads of each unit of traced scene ``g`` (a ``tb.list.Golden``)
     through the exported bus; returns the runner's Result."""
     from model.rtc import memory_trace
@@ -47,7 +47,7 @@ def run_bus(g, sim: str, run_dir, *, n: int = 200, seed: int = 0, idle: float = 
               "max_delay": max_delay, "addr_bits": len(bus.mem.req.payload.addr),
               "data_bits": 64, "in_addr_bits": len(bus.inputs[0].req.payload.addr),
               "resp_bits": port_layout(bus, "inputs__0__resp").size}
-    r = run_bench("bus", build("bus", g.cfg, sim, patch=patch), run_dir, params=params,
+    r = run_bench("bus", build("bus", g.cfg, sim, **build_kw), run_dir, params=params,
                   arrays=arrays)
     check_bus(r, bus, arrays)
     return r

@@ -26,7 +26,7 @@ BASES = {"trav": "node_base", "list": "list_base", "int": "tri_base"}
 
 
 def run_cache(unit: str, g, sim: str, run_dir, *, n: int | None = None, seed: int = 0,
-              idle: float = 0.2, stall: float = 0.3, max_delay: int = 20, patch=None):
+              idle: float = 0.2, stall: float = 0.3, max_delay: int = 20, **build_kw):
     """The first ``n`` item requests of unit ``unit`` ('trav', 'list', 'int') in traced scene
     ``g`` (a ``tb.list.Golden``) through the exported ``cache_<unit>`` of ``g.cfg``; every
     check of ``tb.cache.check_cache_run``. Returns the runner's Result and the ``CacheRun``."""
@@ -52,7 +52,7 @@ def run_cache(unit: str, g, sim: str, run_dir, *, n: int | None = None, seed: in
               "data_bits": 64}
     arrays = {"reqs": pack(port_layout(cache, "port__req"), reqs), "resps": pack(resp, want),
               "image": image}
-    r = run_bench("cache", build(top, g.cfg, sim, patch=patch), run_dir, params=params,
+    r = run_bench("cache", build(top, g.cfg, sim, **build_kw), run_dir, params=params,
                   arrays=arrays)
     a, c = r.arrays, r.values["counters"]
     got = unpack(resp, a["resps"])

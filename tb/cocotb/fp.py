@@ -19,7 +19,7 @@ import numpy as np
 
 import cocotb
 
-from .streams import FixedLatency, Pattern, load, run, save, start
+from .streams import FixedLatency, Pattern, from_ints, load, run, save, start
 
 # tb.fp unit kind -> exported top (add: add and sub by the op bit; min: min and max)
 TOPS = {"add": "fp_add", "mul": "fp_mul", "div": "fp_div", "cmp": "fp_cmp", "min": "fp_minmax",
@@ -28,7 +28,7 @@ TOPS = {"add": "fp_add", "mul": "fp_mul", "div": "fp_div", "cmp": "fp_cmp", "min
 
 def run_fp(kind: str, sim: str, run_dir, *, fmt=None, n: int = 300, seed: int = 0,
            p_bubble: float = 0.25, p_stall: float = 0.25, latency: int | None = None,
-           patch=None):
+           **build_kw):
     """About ``n`` operations of unit ``kind`` (a key of :data:`TOPS`) through its exported
     Verilog in ``sim``; returns the :class:`tb.cocotb.runner.Result` (``values``: cycles, ops,
     seconds). Raises :class:`tb.cocotb.runner.BenchFailed` on any mismatch."""
@@ -39,7 +39,7 @@ def run_fp(kind: str, sim: str, run_dir, *, fmt=None, n: int = 300, seed: int = 
     from .runner import build
     fmt = fmt or BINARY32
     unit, ins, exp = random_case(kind, fmt, n, seed=seed, latency=latency)
-    b = build(TOPS[kind], Config(fmt=fmt), sim, latency=latency, patch=patch)
+    b = build(TOPS[kind], Config(fmt=fmt), sim, latency=latency, **build_kw)
     return run_fixed_latency(b, run_dir, ins, {"o": exp}, unit.latency, seed=seed,
                              p_bubble=p_bubble, p_stall=p_stall)
 
@@ -56,9 +56,11 @@ def run_fixed_latency(b, run_dir, inputs: dict, expect: dict, latency: int, *, s
 
 
 def _words(v) -> np.ndarray:
+    """One value per operation -> ``(n, words)`` uint64 (Python ints of any width too)."""
+    if isinstance(v, list):
+        return from_ints(v, max([1] + [int(x).bit_length() for x in v]))
     v = np.asarray(v)
-    return v.astype(np.uint64).reshape(len(v), -1) if v.dtype != np.uint64 else \
-        v.reshape(len(v), -1)
+    return v.astype(np.uint64).reshape(len(v), -1)
 
 
 @cocotb.test()

@@ -24,7 +24,7 @@ COUNTERS = ("list_ops", "words", "busy")
 
 
 def run_list(g, sim: str, run_dir, *, seed: int = 0, idle: float = 0.3, stall: float = 0.3,
-             max_delay: int = 20, max_leaves: int | None = None, patch=None):
+             max_delay: int = 20, max_leaves: int | None = None, **build_kw):
     """Drive the leaves of ``g`` (a ``tb.list.Golden``) through the exported list unit in
     ``sim`` and check every output and the counters; returns the runner's Result."""
     from rtl.export import build_top
@@ -41,7 +41,7 @@ def run_list(g, sim: str, run_dir, *, seed: int = 0, idle: float = 0.3, stall: f
               "addr_bits": len(unit.mem.req.payload.addr), "data_bits": 64}
     arrays = {"leaves": pack(port_layout(unit, "leaf"), leaves), "tris": pack(tri, want),
               "image": np.asarray(g.image.data, np.uint64)}
-    r = run_bench("list", build("list", g.cfg, sim, patch=patch), run_dir, params=params,
+    r = run_bench("list", build("list", g.cfg, sim, **build_kw), run_dir, params=params,
                   arrays=arrays)
     check_counters(r.values["counters"], g, leaves, want,
                    whole=len(leaves) == len(every))

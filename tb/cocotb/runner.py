@@ -20,6 +20,7 @@ import fcntl
 import hashlib
 import json
 import os
+import re
 import shutil
 import time
 import xml.etree.ElementTree as ET
@@ -72,9 +73,17 @@ def _runner(sim: str):
 
 
 def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
-          patch: Callable[[str], str] | None = None, root: Path | str = BUILD_ROOT) -> Build:
-    """Export ``top`` (a key of ``rtl.export.TOPS``) with ``cfg`` and compile it for ``sim``."""
+          patch: Callable[[str], str] | None = None, public: str = "ports",
+          root: Path | str = BUILD_ROOT) -> Build:
+    """Export ``top`` (a key of ``rtl.export.TOPS``) with ``cfg`` and compile it for ``sim``.
+
+    ``public`` (Verilator): ``"ports"`` makes only the top's ports visible to cocotb (what the
+    benches read and write: ``--no-public-flat-rw`` and a ``.vlt`` naming each port),
+    ``"all"`` every signal (cocotb's default ``--public-flat-rw``: any internal signal can be
+    probed, at a cost in speed, ``docs/cocotb.md``)."""
     import cocotb
+    if public not in ("ports", "all"):
+        raise ValueError(f"public={public!r}: 'ports' or 'all'")
     t0 = time.perf_counter()
     text = exported(top, cfg, latency, root=root).read_text()
     if patch is not None:
@@ -82,8 +91,13 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
         if patched == text:
             raise ValueError("build: patch left the Verilog unchanged")
         text = patched
+    args = list(BUILD_ARGS[sim])
+    vlt = None
+    if sim == "verilator" and public == "ports":
+        args.append("--no-public-flat-rw")
+        vlt = public_ports_vlt(text, top)
     h = hashlib.sha256()
-    for part in (text, sim, json.dumps(BUILD_ARGS[sim]), cocotb.__version__):
+    for part in (text, sim, json.dumps(args), vlt or "", cocotb.__version__):
         h.update(part.encode())
     d = Path(root) / sim / f"{top}-{h.hexdigest()[:16]}"
     with _lock(d.with_suffix(".lock")):
@@ -93,9 +107,13 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
             shutil.rmtree(d, ignore_errors=True)
             d.mkdir(parents=True)
             (d / f"{top}.v").write_text(text)
+            sources = [d / f"{top}.v"]
+            if vlt is not None:
+                (d / "public.vlt").write_text(vlt)
+                sources.insert(0, d / "public.vlt")
             try:
-                _runner(sim).build(sources=[d / f"{top}.v"], hdl_toplevel=top, build_dir=d,
-                                   timescale=TIMESCALE, build_args=BUILD_ARGS[sim],
+                _runner(sim).build(sources=sources, hdl_toplevel=top, build_dir=d,
+                                   timescale=TIMESCALE, build_args=args,
                                    log_file=d / "build.log")
             except RuntimeError as e:
                 log = (d / "build.log").read_text()[-3000:]
@@ -122,6 +140,19 @@ def exported(top: str, cfg: Config, latency: int | None = None, *,
         if not v.exists():
             export(top, cfg, d / "tmp", latency, name=top).replace(v)
     return v
+
+
+def public_ports_vlt(verilog: str, top: str) -> str:
+    """A Verilator control file that makes the ports of module ``top`` public (readable and
+    writable through VPI, so cocotb can drive them) and nothing else."""
+    m = re.search(rf"^module {re.escape(top)}\((.*?)\);", verilog, re.M | re.S)
+    if m is None:
+        raise ValueError(f"module {top} not found in the Verilog")
+    ports = [p.strip() for p in m.group(1).split(",") if p.strip()]
+    lines = ["`verilator_config", "// the ports cocotb drives and reads; internal signals stay "
+             "private (faster)"]
+    lines += [f'public_flat_rw -module "{top}" -var "{p}"' for p in ports]
+    return "\n".join(lines) + "\n"
 
 
 class _lock:

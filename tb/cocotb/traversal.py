@@ -29,7 +29,7 @@ COUNTERS = ("busy", "trav_ops", "trav_steps", "node_reads", "leaf_reqs", "passes
 
 
 def run_traversal(image, rays, cfg, sim: str, run_dir, *, seed: int = 1, idle: float = 0.2,
-                  stall: float = 0.25, delay: int = 20, max_delay: int = 12, patch=None):
+                  stall: float = 0.25, delay: int = 20, max_delay: int = 12, **build_kw):
     """``rays`` through ``image`` in the exported traversal unit of ``cfg``, against the
     model's event log; returns the runner's Result (``values["counters"]``)."""
     from model.raygen import setup
@@ -63,7 +63,7 @@ def run_traversal(image, rays, cfg, sim: str, run_dir, *, seed: int = 1, idle: f
               "leaves": np.array(leaf_rows, np.uint64).reshape(-1, 4),
               "results": np.array(res_rows, np.uint64).reshape(-1, 4),
               "image": np.asarray(image.data, np.uint64)}
-    r = run_bench("traversal", build("traversal", cfg, sim, patch=patch), run_dir,
+    r = run_bench("traversal", build("traversal", cfg, sim, **build_kw), run_dir,
                   params=params, arrays=arrays)
     got, model = r.values["counters"], counter_totals(ctrs)
     bad = {k: (got[k], model[v]) for k, v in COMPARED.items() if got[k] != model[v]}
