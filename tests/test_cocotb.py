@@ -121,3 +121,16 @@ def test_intersect_pipe(sim, tmp_path):
     from tb.intersection import random_tests
     r = run_pipe(random_tests(150, BINARY32, seed=4), sim, tmp_path, seed=4)
     assert r.values["ops"] == 150
+
+
+@pytest.mark.parametrize("sim", SIMS)
+@pytest.mark.parametrize("top", ["rtc_core", "rtc"])
+def test_rtc(top, sim, kd_cache, tmp_path):
+    """One 4x4 packet of Cornell eye rays through the whole RTC (``rtc``: with its word caches
+    and bus, one memory port): every ray's result and every counter against the model."""
+    from tb.cocotb.rtc import run_rtc
+    from tb.traversal import small_case
+    image, rays = small_case(ROOT / "scenes" / "cornell.toml", 4, 4, TINY, kd_cache)
+    run, r = run_rtc(image, rays, TINY, sim, tmp_path, top=top, seed=2)
+    assert run.mismatches == [] and run.counter_mismatches() == {}
+    assert run.rays == 16 and run.counters["int_ops"] > 0
