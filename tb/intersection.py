@@ -379,6 +379,16 @@ def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
     return UnitStreams(rays, tris, ints, lanes, done, results, int_ops, leaves)
 
 
+def unit_counters(s: UnitStreams, g, whole: bool) -> list[tuple[str, int]]:
+    """``(counter, expected value)`` of the unit after the streams ``s``: ``int_ops`` (one per
+    ``EV_INT``), ``tris`` (one triangle fetched per ``TriRequest``) and, for ``whole`` (every
+    leaf of ``g``), the model's own ``int_ops``."""
+    want = [("int_ops", s.int_ops), ("tris", len(s.tris))]
+    if whole:
+        want.append(("int_ops", int(g.counters.sum(axis=0)[C["int_ops"]])))
+    return want
+
+
 @dataclass
 class UnitRun:
     int_ops: int
@@ -445,10 +455,9 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
     for name, got, want in streams:
         if len(got) != len(want):
             bad.append(f"{name}s: {len(got)}, model {len(want)}")
-    want_ctr = [("int_ops", s.int_ops), ("tris", len(s.tris)), ("words", 5 * len(s.tris))]
-    if max_leaves is None:          # the whole image: the model's own counters too
-        tot = g.counters.sum(axis=0)
-        want_ctr += [("int_ops", int(tot[C["int_ops"]])), ("words", int(tot[C["int_reads"]]))]
+    want_ctr = unit_counters(s, g, whole=max_leaves is None) + [("words", 5 * len(s.tris))]
+    if max_leaves is None:          # the whole image: the model's own word count too
+        want_ctr.append(("words", int(g.counters.sum(axis=0)[C["int_reads"]])))
     for k, w in want_ctr:
         if info[k] != w:
             bad.append(f"counter {k}: {info[k]}, model {w}")

@@ -134,3 +134,13 @@ def test_rtc(top, sim, kd_cache, tmp_path):
     run, r = run_rtc(image, rays, TINY, sim, tmp_path, top=top, seed=2)
     assert run.mismatches == [] and run.counter_mismatches() == {}
     assert run.rays == 16 and run.counters["int_ops"] > 0
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_intersection_unit(sim, kd_cache, tmp_path):
+    """Every leaf of two 4x4 Cornell packets; the triangle port answers whole triangles."""
+    from tb.cocotb.intersection import run_unit
+    from tb.list import golden
+    g = golden(ROOT / "scenes" / "cornell.toml", 8, 4, TINY, kd_cache)
+    r = run_unit(g, sim, tmp_path, seed=1)
+    assert r.values["counters"]["int_ops"] > 50

@@ -2,7 +2,8 @@
 ``rtc`` (the synthesizable one-RTC top: word caches and a bus in front of one memory port).
 
 Pytest side, :func:`run_rtc`: every packet's ``RayIn`` lanes (``tb.traversal.ray_payloads``),
-the scene's memory image behind the memory port(s); the results and counters are compared with
+the scene's memory image behind the memory port(s) (``rtc_core``'s triangle port answers a
+triangle index with the whole triangle, :func:`triangles`); the results and counters are compared with
 ``model.rtc.trace`` by ``tb.rtc.finish`` / ``tb.compare``, as for the Amaranth and Verilator
 frame runs: every ray's triangle, t, u, v bit for bit, every counter of ``tb.compare.COMPARED``.
 
@@ -23,7 +24,6 @@ from .streams import (Memory, Pattern, Sink, Source, from_ints, load, read_ports
 
 # the memory read ports of each top, and the constant inputs
 PORTS = {"rtc_core": ("node_mem", "list_mem", "tri_mem"), "rtc": ("mem",)}
-CONSTS = ("node_base", "list_base", "tri_base", "root")
 BUSY = ("trav_busy", "list_busy", "int_busy", "packets_done", "cycles")
 
 
@@ -39,6 +39,8 @@ def run_rtc(image, rays, cfg, sim: str, run_dir, *, top: str = "rtc_core", seed:
     from tb.rtc import RTCRun, finish
     from tb.traversal import ray_payloads
 
+    from rtl.rtc import HEADER
+
     from .runner import build, pack, port_layout, run as run_bench, unpack
     if top not in PORTS:
         raise ValueError(f"top {top!r}: one of {', '.join(PORTS)}")
@@ -51,7 +53,7 @@ def run_rtc(image, rays, cfg, sim: str, run_dir, *, top: str = "rtc_core", seed:
         port = getattr(dut, name)
         mems[name] = {"addr_bits": len(port.req.payload.addr),
                       "data_bits": len(port.resp.payload.data)}
-    consts = {k: int(getattr(image, k)) for k in CONSTS}
+    consts = {k: int(getattr(image, k)) for k in HEADER if hasattr(dut, k)}
     counters = list(COMPARED) + list(BUSY) + [f"sub_busy__{j}" for j in range(cfg.trav_subunits)]
     if top == "rtc":
         counters += ["mem_reads"] + [f"{k}__{i}" for k in ("hits", "misses") for i in range(3)]
@@ -60,6 +62,8 @@ def run_rtc(image, rays, cfg, sim: str, run_dir, *, top: str = "rtc_core", seed:
               "result_bits": result.size}
     arrays = {"rays": pack(port_layout(dut, "rays"), lanes),
               "image": np.asarray(image.data, np.uint64)}
+    if "tri_mem" in mems:          # triangle index -> the triangle (rtl/rtc.py)
+        arrays["tri_items"] = triangles(image, cfg)
     r = run_bench("rtc", build(top, cfg, sim, **build_kw), run_dir, params=params,
                   arrays=arrays)
     got = unpack(result, r.arrays["results"])
@@ -73,6 +77,16 @@ def run_rtc(image, rays, cfg, sim: str, run_dir, *, top: str = "rtc_core", seed:
     return run, r
 
 
+def triangles(image, cfg) -> np.ndarray:
+    """Every triangle of ``image`` as the triangle port answers it (``rtl/rtc.py``'s
+    ``tri_mem``: the low ``cfg.int_item_bits`` bits of its words, ``model.cache.item_values``
+    with the int-cache's item geometry), ``(n_tris, words)`` flat vectors."""
+    from model.cache import cache_geometry, item_values
+    geom = cache_geometry(cfg, "int")
+    return from_ints(item_values(image.data, geom, np.arange(image.n_tris), image.tri_base),
+                     geom.item_bits)
+
+
 @cocotb.test()
 async def rtc(dut):
     """Every ray in, every result out; memory from the scene's image."""
@@ -81,7 +95,10 @@ async def rtc(dut):
     image = a["image"]
     rays = Source(dut, "rays", to_ints(a["rays"]), hold=Pattern(p["idle"], seed))
     results = Sink(dut, "results", hold=Pattern(p["stall"], seed + 1), count=len(rays.payloads))
-    mems = {name: Memory(dut, name, lambda addr: int(image[addr]), addr_bits=m["addr_bits"],
+    tris = to_ints(a["tri_items"]) if "tri_items" in a else None
+    read = {name: (tris.__getitem__ if name == "tri_mem" else lambda addr: int(image[addr]))
+            for name in p["mems"]}
+    mems = {name: Memory(dut, name, read[name], addr_bits=m["addr_bits"],
                          data_bits=m["data_bits"], rng=np.random.default_rng(seed + 10 + i),
                          max_delay=p["max_delay"], hold=Pattern(p["mem_stall"], seed + 20 + i))
             for i, (name, m) in enumerate(p["mems"].items())}
