@@ -14,7 +14,10 @@ from model.config import Config
 
 from .runner import SIMULATORS
 
-UNITS = ("fp_mul", "list", "traversal", "intersect_pipe")
+UNITS = ("fp_mul", "list", "traversal", "intersect_pipe", "rtc")
+# the RTC's units as tests/test_cocotb.py configures them: 2 threads, 4x4 packets, small caches
+TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1,
+              int_cache_kb=9)
 
 
 def bench(unit: str, sim: str, run_dir: Path, public: str):
@@ -31,16 +34,23 @@ def bench(unit: str, sim: str, run_dir: Path, public: str):
     if unit == "traversal":
         from tb.traversal import small_case
         from .traversal import run_traversal
-        cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2)
-        image, rays = small_case(root / "scenes" / "cornell.toml", 12, 4, cfg,
+        image, rays = small_case(root / "scenes" / "cornell.toml", 12, 4, TINY,
                                  tempfile.mkdtemp())
-        return run_traversal(image, rays, cfg, sim, run_dir, seed=1, public=public)
+        return run_traversal(image, rays, TINY, sim, run_dir, seed=1, public=public)
     if unit == "intersect_pipe":
         from model.fp import BINARY32
         from tb.intersection import random_tests
         from .intersection import run_pipe
         return run_pipe(random_tests(240, BINARY32, seed=1), sim, run_dir, seed=1,
                         public=public)
+    if unit == "rtc":
+        from tb.traversal import small_case
+        from .rtc import run_rtc
+        image, rays = small_case(root / "scenes" / "cornell.toml", 4, 4, TINY,
+                                 tempfile.mkdtemp())
+        run, r = run_rtc(image, rays, TINY, sim, run_dir, top="rtc", seed=2, public=public)
+        assert run.mismatches == [] and run.counter_mismatches() == {}
+        return r
     raise SystemExit(f"--unit {unit!r}: choose one of {', '.join(UNITS)}")
 
 
