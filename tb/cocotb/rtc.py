@@ -1,11 +1,13 @@
 """cocotb bench of the RTC's exported Verilog: ``rtc_core`` (the RTC, three memory ports) or
-``rtc`` (the synthesizable one-RTC top: word caches and a bus in front of one memory port).
+``rtc`` (the synthesizable one-RTC top: the RTC-MI's caches and a bus in front of one memory
+port).
 
 Pytest side, :func:`run_rtc`: every packet's ``RayIn`` lanes (``tb.traversal.ray_payloads``),
 the scene's memory image behind the memory port(s) (``rtc_core``'s triangle port answers a
-triangle index with the whole triangle, :func:`triangles`); the results and counters are compared with
-``model.rtc.trace`` by ``tb.rtc.finish`` / ``tb.compare``, as for the Amaranth and Verilator
-frame runs: every ray's triangle, t, u, v bit for bit, every counter of ``tb.compare.COMPARED``.
+triangle index with the whole triangle, :func:`triangles`); the results and counters are
+compared with ``model.rtc.trace`` by ``tb.rtc.finish`` / ``tb.compare``, as for the Amaranth and
+Verilator frame runs: every ray's triangle, t, u, v bit for bit, every counter of
+``tb.compare.COMPARED``.
 
 Simulator side, :func:`rtc`: rays in with random bubbles, results out with random
 back-pressure (recorded: the RTC reports rays in any order); every memory port answered from

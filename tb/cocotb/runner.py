@@ -10,7 +10,7 @@ builds safe). :func:`run` writes the bench's inputs (``params.json``, ``in.npz``
 directory, runs the bench's cocotb tests there and returns what the bench saved
 (``out.json``, ``out.npz``); a failing cocotb test raises :class:`BenchFailed` with its message.
 
-Payload helpers for the pytest side: :func:`pack` turns the dicts the Amaranth testbenches use
+Payloads on the pytest side: :func:`pack` turns the dicts the Amaranth testbenches use
 into the flat vectors of the Verilog ports (through the port's ``lib.data`` layout, so the bit
 order is the layout's); :func:`fields` names a layout's fields for mismatch messages.
 """

@@ -1,4 +1,4 @@
-"""Stream helpers for the cocotb testbenches: they run inside the simulator, on exported Verilog.
+"""Stream agents of the cocotb testbenches: they run inside the simulator, on exported Verilog.
 
 The pytest side (:mod:`tb.cocotb.runner`) exports a top with ``rtl.export``, writes the golden
 model's streams as NumPy arrays into a run directory and starts Icarus or Verilator; a bench
@@ -41,8 +41,8 @@ from cocotb.clock import Clock
 from cocotb.triggers import FallingEdge, RisingEdge
 
 __all__ = ["RUN_DIR_ENV", "Mismatch", "StreamTimeout", "Fields", "Pattern", "to_ints",
-           "from_ints", "load", "save", "start", "run", "read", "read_ports", "Source", "Sink", "Memory",
-           "Watch", "FixedLatency"]
+           "from_ints", "load", "save", "start", "run", "read", "read_ports", "Source", "Sink",
+           "Memory", "Watch", "FixedLatency"]
 
 RUN_DIR_ENV = "SAARCOR_COCOTB_DIR"      # the run directory, set by tb.cocotb.runner
 
