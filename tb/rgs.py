@@ -31,8 +31,8 @@ from rtl.rtc_streams import RayIn
 from .common import drain, drive, run
 from .traversal import ray_payloads
 
-__all__ = ["RGSRun", "run_eye_rays", "run_ray_setup", "edge_rays", "fields", "tile_grid",
-           "axis_camera", "oblique_camera", "AXIS_BOX"]
+__all__ = ["RGSRun", "run_eye_rays", "eye_ray_streams", "run_ray_setup", "ray_setup_streams",
+           "edge_rays", "fields", "tile_grid", "axis_camera", "oblique_camera", "AXIS_BOX"]
 
 # a box whose lo.x face plane holds the axis camera's position
 AXIS_BOX = np.array([[0.5, -8.0, -2.0], [1.0, 8.0, 0.5]])
@@ -107,14 +107,12 @@ def _words(fmt: FPFormat, v) -> list[int]:
     return [int(x) for x in fmt.to_bits(np.asarray(v, np.float32))]
 
 
-def run_eye_rays(camera, width: int, height: int, cfg: Config, bounds, *, tiles=None,
-                 packet_ids=None, seed: int = 1, idle: float = 0.0, stall: float = 0.0,
-                 latencies: dict | None = None) -> RGSRun:
-    """Request ``tiles`` (tile numbers of the frame's row-major tile order, default every tile
-    in order; labelled ``packet_ids``, default 100 + position) from ``EyeRays`` with the camera
-    registers of :func:`model.raygen.camera_registers` and the box ``bounds`` (2 x 3, format
-    values); compare every ray with ``eye_rays`` + ``setup``. ``idle``: request bubbles,
-    ``stall``: output back-pressure (probabilities per cycle)."""
+def eye_ray_streams(camera, width: int, height: int, cfg: Config, bounds, *, tiles=None,
+                    packet_ids=None) -> tuple[dict, list, list]:
+    """``EyeRays``' register values (format words: ``pos``, ``corner``, ``dx``, ``dy``,
+    ``box_lo``, ``box_hi``), packet requests and expected ``EyeRay`` outputs for ``tiles``
+    (as :func:`run_eye_rays` takes them): ``eye_rays`` + ``setup``, packed as every RTC bench
+    packs rays, with each ray's pixel."""
     fmt = cfg.fmt
     rays = eye_rays(camera, width, height, cfg)
     bounds = np.asarray(bounds, np.float32)
@@ -127,18 +125,32 @@ def run_eye_rays(camera, width: int, height: int, cfg: Config, bounds, *, tiles=
         for lane in per_packet[t]:
             r = int(rays.pk_start[t]) + lane["lane"]
             want.append({"ray": {**lane, "packet": pid}, "pixel": int(rays.pixel[r])})
-    dut = EyeRays(cfg, latencies)
     pos, corner, dx, dy = camera_registers(camera, width, height, cfg)
-    regs = {"pos": pos, "corner": corner, "dx": dx, "dy": dy,
-            "box_lo": bounds[0], "box_hi": bounds[1]}
+    regs = {k: _words(fmt, v) for k, v in (("pos", pos), ("corner", corner), ("dx", dx),
+                                            ("dy", dy), ("box_lo", bounds[0]),
+                                            ("box_hi", bounds[1]))}
     reqs = [{"tile_x": t % tiles_x, "tile_y": t // tiles_x, "packet": pid}
             for t, pid in zip(tiles, ids)]
+    return regs, reqs, want
+
+
+def run_eye_rays(camera, width: int, height: int, cfg: Config, bounds, *, tiles=None,
+                 packet_ids=None, seed: int = 1, idle: float = 0.0, stall: float = 0.0,
+                 latencies: dict | None = None) -> RGSRun:
+    """Request ``tiles`` (tile numbers of the frame's row-major tile order, default every tile
+    in order; labelled ``packet_ids``, default 100 + position) from ``EyeRays`` with the camera
+    registers of :func:`model.raygen.camera_registers` and the box ``bounds`` (2 x 3, format
+    values); compare every ray with ``eye_rays`` + ``setup``. ``idle``: request bubbles,
+    ``stall``: output back-pressure (probabilities per cycle)."""
+    regs, reqs, want = eye_ray_streams(camera, width, height, cfg, bounds, tiles=tiles,
+                                       packet_ids=packet_ids)
+    dut = EyeRays(cfg, latencies)
     rng = random.Random(seed)
     sent, got = [], []
 
     async def feeder(ctx):
         for name, v in regs.items():
-            ctx.set(getattr(dut, name), _words(fmt, v))
+            ctx.set(getattr(dut, name), v)
         ctx.set(dut.width, width)
         ctx.set(dut.height, height)
         sent.extend(await drive(ctx, dut.req, reqs, rng=rng, idle=idle))
@@ -163,13 +175,21 @@ def setup_inputs(rays: Rays, cfg: Config) -> list[dict]:
     return out
 
 
+def ray_setup_streams(rays: Rays, bounds, cfg: Config) -> tuple[list, list]:
+    """``RaySetup``'s inputs (:func:`setup_inputs`) and expected ``RayIn`` outputs
+    (``model.raygen.setup`` against the box ``bounds``, packed by ``ray_payloads``)."""
+    bounds = np.asarray(bounds, np.float32)
+    want = [lane for pk in ray_payloads(rays, setup(rays, bounds, cfg.fmt), cfg) for lane in pk]
+    return setup_inputs(rays, cfg), want
+
+
 def run_ray_setup(rays: Rays, bounds, cfg: Config, *, seed: int = 1, idle: float = 0.0,
                   stall: float = 0.0, latencies: dict | None = None) -> RGSRun:
     """``rays`` through ``RaySetup`` against the box ``bounds``; every ``RayIn`` compared with
     ``model.raygen.setup``'s (packed by ``tb.traversal.ray_payloads``)."""
     fmt = cfg.fmt
     bounds = np.asarray(bounds, np.float32)
-    want = [lane for pk in ray_payloads(rays, setup(rays, bounds, fmt), cfg) for lane in pk]
+    inputs, want = ray_setup_streams(rays, bounds, cfg)
     dut = RaySetup(cfg, latencies)
     rng = random.Random(seed)
     sent, got = [], []
@@ -177,7 +197,7 @@ def run_ray_setup(rays: Rays, bounds, cfg: Config, *, seed: int = 1, idle: float
     async def feeder(ctx):
         ctx.set(dut.box_lo, _words(fmt, bounds[0]))
         ctx.set(dut.box_hi, _words(fmt, bounds[1]))
-        sent.extend(await drive(ctx, dut.i, setup_inputs(rays, cfg), rng=rng, idle=idle))
+        sent.extend(await drive(ctx, dut.i, inputs, rng=rng, idle=idle))
 
     run(dut, feeder, lambda ctx: drain(ctx, dut.o, len(want), rng=rng, stall=stall, out=got,
                                        timeout=1000))

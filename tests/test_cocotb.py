@@ -146,3 +146,28 @@ def test_intersection_unit(sim, kd_cache, tmp_path):
     g = golden(ROOT / "scenes" / "cornell.toml", 8, 4, TINY, kd_cache)
     r = run_unit(g, sim, tmp_path, seed=1)
     assert r.values["counters"]["int_ops"] > 50
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_ray_setup(sim, tmp_path):
+    """The edge cases of ray setup (zero and signed-zero components, |d| ties, origins on the
+    box's faces, infinities, tiny and huge values) and random rays."""
+    from model.fp import BINARY32
+    from tb.cocotb.rgs import run_ray_setup
+    from tb.rgs import AXIS_BOX, edge_rays
+    bounds = BINARY32.quantize(AXIS_BOX)
+    rays = edge_rays(BINARY32, bounds, n_random=40, seed=3)
+    r = run_ray_setup(rays, bounds, Config(), sim, tmp_path, seed=3)
+    assert r.values["outputs"] == len(rays)
+
+
+@pytest.mark.parametrize("sim", SIMS)
+def test_eye_rays(sim, tmp_path):
+    """Two 8x8 tiles of a 15x12 frame requested out of order with arbitrary ids: the last
+    (7x4 pixels, partial) and the first (8x8)."""
+    from model.fp import BINARY32
+    from tb.cocotb.rgs import run_eye_rays
+    from tb.rgs import AXIS_BOX, axis_camera
+    r = run_eye_rays(axis_camera(), 15, 12, Config(), BINARY32.quantize(AXIS_BOX), sim,
+                     tmp_path, tiles=[3, 0], packet_ids=[7, 0xFFFFFFFF], seed=2)
+    assert r.values["outputs"] == 7 * 4 + 8 * 8
