@@ -32,10 +32,9 @@ def run_bus(g, sim: str, run_dir, *, n: int = 200, seed: int = 0, idle: float = 
     """The first ``n`` word reads of each unit of traced scene ``g`` (a ``tb.list.Golden``)
     through the exported bus; returns the runner's Result."""
     from model.rtc import memory_trace
-    from rtl.export import build_top
 
-    from .runner import build, pack, port_layout, run as run_bench
-    bus = build_top("bus", g.cfg)
+    from .runner import build, interface, pack, port_layout, run as run_bench
+    bus = interface("bus", g.cfg)
     tags = 1 << len(bus.inputs[0].req.payload.tag)
     trace = memory_trace(g.events, g.image)
     arrays = {"image": np.asarray(g.image.data, np.uint64)}

@@ -32,16 +32,15 @@ def run_cache(unit: str, g, sim: str, run_dir, *, n: int | None = None, seed: in
     check of ``tb.cache.check_cache_run``. Returns the runner's Result and the ``CacheRun``."""
     from model.cache import cache_geometry, item_values
     from model.rtc import item_trace
-    from rtl.export import build_top
     from tb.cache import CacheRun, check_cache_run
 
-    from .runner import build, fields, pack, port_layout, run as run_bench, unpack
+    from .runner import build, fields, interface, pack, port_layout, run as run_bench, unpack
     top = f"cache_{unit}"
     geom = cache_geometry(g.cfg, unit)
     addrs = item_trace(g.events)[unit][:n]
     base = int(getattr(g.image, BASES[unit]))
     image = np.asarray(g.image.data, np.uint64)
-    cache = build_top(top, g.cfg)
+    cache = interface(top, g.cfg)
     tags = 1 << len(cache.port.req.payload.tag)
     reqs = [{"addr": int(x), "tag": i % tags} for i, x in enumerate(addrs)]
     want = [{"data": d, "tag": q["tag"]}

@@ -36,9 +36,10 @@ def run_fp(kind: str, sim: str, run_dir, *, fmt=None, n: int = 300, seed: int = 
     from model.fp import BINARY32
     from tb.fp import random_case
 
-    from .runner import build
+    from .runner import build, elaborated_elsewhere
     fmt = fmt or BINARY32
     unit, ins, exp = random_case(kind, fmt, n, seed=seed, latency=latency)
+    elaborated_elsewhere(unit)
     b = build(TOPS[kind], Config(fmt=fmt), sim, latency=latency, **build_kw)
     return run_fixed_latency(b, run_dir, ins, {"o": exp}, unit.latency, seed=seed,
                              p_bubble=p_bubble, p_stall=p_stall)

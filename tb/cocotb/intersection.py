@@ -31,13 +31,12 @@ def run_pipe(tests, sim: str, run_dir, *, fmt=None, seed: int = 0, p_bubble: flo
     """``tests`` (a ``tb.intersection.PipeTests``) through the exported ``intersect_pipe``."""
     from model.config import Config
     from model.fp import BINARY32
-    from rtl.export import build_top
     from tb.intersection import pipe_ports
 
     from .fp import run_fixed_latency
-    from .runner import build
+    from .runner import build, interface
     cfg = Config(fmt=fmt or BINARY32)
-    pipe = build_top("intersect_pipe", cfg)
+    pipe = interface("intersect_pipe", cfg)
     ins, outs = pipe_ports(tests, cfg.fmt, pipe.tag_width)
     b = build("intersect_pipe", cfg, sim, **build_kw)
     return run_fixed_latency(b, run_dir, ins, outs, pipe.latency, seed=seed,
@@ -49,13 +48,12 @@ def run_unit(g, sim: str, run_dir, *, max_leaves: int | None = None, seed: int =
     """The first ``max_leaves`` leaves (all: the whole image, then the model's own counters
     too) of traced scene ``g`` (a ``tb.list.Golden``; at most ``threads`` packets) through the
     exported intersection unit of ``g.cfg``; returns the runner's Result."""
-    from rtl.export import build_top
     from tb.intersection import unit_counters, unit_streams
 
     from .rtc import triangles
-    from .runner import build, fields, pack, port_layout, run as run_bench
+    from .runner import build, fields, interface, pack, port_layout, run as run_bench
     s = unit_streams(g, max_leaves)
-    unit = build_top("intersection", g.cfg)
+    unit = interface("intersection", g.cfg)
     lay = {k: port_layout(unit, k) for k in ("ray_in", "tri_in", "lane_out", "done", "result")}
     params = {"seed": seed, "idle": idle, "stall": stall, "max_delay": max_delay,
               "lane_fields": fields(lay["lane_out"]), "result_fields": fields(lay["result"]),

@@ -27,14 +27,13 @@ def run_list(g, sim: str, run_dir, *, seed: int = 0, idle: float = 0.3, stall: f
              max_delay: int = 20, max_leaves: int | None = None, **build_kw):
     """Drive the leaves of ``g`` (a ``tb.list.Golden``) through the exported list unit in
     ``sim`` and check every output and the counters; returns the runner's Result."""
-    from rtl.export import build_top
     from tb.list import check_counters, first_leaves, leaf_stream
 
-    from .runner import build, fields, pack, port_layout, run as run_bench
+    from .runner import build, fields, interface, pack, port_layout, run as run_bench
     every, _ = leaves, want = leaf_stream(g)
     if max_leaves is not None:
         leaves, want = first_leaves(leaves, want, max_leaves)
-    unit = build_top("list", g.cfg)
+    unit = interface("list", g.cfg)
     tri = port_layout(unit, "tri")
     params = {"seed": seed, "idle": idle, "stall": stall, "max_delay": max_delay,
               "list_base": int(g.image.list_base), "tri_fields": fields(tri),

@@ -23,10 +23,9 @@ def _vector(words, width: int) -> int:
 
 def _run(top: str, cfg, sim: str, run_dir, consts: dict, inputs: list, want: list, *,
          in_port: str, out_port: str, seed: int, idle: float, stall: float, **build_kw):
-    from rtl.export import build_top
 
-    from .runner import build, fields, pack, port_layout, run as run_bench
-    dut = build_top(top, cfg)
+    from .runner import build, fields, interface, pack, port_layout, run as run_bench
+    dut = interface(top, cfg)
     out = port_layout(dut, out_port)
     params = {"seed": seed, "idle": idle, "stall": stall, "consts": consts,
               "in_port": in_port, "out_port": out_port, "out_fields": fields(out)}

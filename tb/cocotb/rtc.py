@@ -36,19 +36,18 @@ def run_rtc(image, rays, cfg, sim: str, run_dir, *, top: str = "rtc_core", seed:
     ``(tb.rtc.RTCRun, runner Result)``. The run's ``mismatches`` and ``counter_mismatches()``
     are what the caller checks (empty when the Verilog agrees with the model)."""
     from model.raygen import setup
-    from rtl.export import build_top
     from tb.compare import COMPARED, FIELDS
     from tb.rtc import RTCRun, finish
     from tb.traversal import ray_payloads
 
     from rtl.rtc import HEADER
 
-    from .runner import build, pack, port_layout, run as run_bench, unpack
+    from .runner import build, interface, pack, port_layout, run as run_bench, unpack
     if top not in PORTS:
         raise ValueError(f"top {top!r}: one of {', '.join(PORTS)}")
     rs = setup(rays, image.bounds, cfg.fmt)
     lanes = [lane for pk in ray_payloads(rays, rs, cfg) for lane in pk]
-    dut = build_top(top, cfg)
+    dut = interface(top, cfg)
     result = port_layout(dut, "results")
     mems = {}
     for name in PORTS[top]:

@@ -35,7 +35,7 @@ from model.config import Config
 from .streams import RUN_DIR_ENV, from_ints
 
 __all__ = ["SIMULATORS", "BUILD_ROOT", "BenchFailed", "Build", "Result", "build", "exported", "run",
-           "pack", "unpack", "fields", "port_layout"]
+           "pack", "unpack", "fields", "interface", "elaborated_elsewhere", "port_layout"]
 
 ROOT = Path(__file__).resolve().parents[2]
 BUILD_ROOT = ROOT / "build" / "cocotb"
@@ -241,6 +241,33 @@ def _check_results(d: Path, bench: str, b: Build) -> None:
 
 
 # ---- payloads ----------------------------------------------------------------------------------
+
+def interface(top: str, cfg: Config):
+    """The component of ``top`` (``rtl.export.build_top``), for its ports' layouts and widths
+    (:func:`elaborated_elsewhere`: the export elaborates its own)."""
+    from rtl.export import build_top
+    return elaborated_elsewhere(build_top(top, cfg))
+
+
+def elaborated_elsewhere(component):
+    """Mark ``component`` and the units it holds as used, so Amaranth does not warn that they
+    were never elaborated (a bench reads their ports; the exported Verilog is what runs)."""
+    from amaranth.hdl import Elaboratable
+    stack, seen = [component], set()
+    while stack:
+        obj = stack.pop()
+        if id(obj) in seen:
+            continue
+        seen.add(id(obj))
+        if isinstance(obj, Elaboratable):
+            setattr(obj, "_MustUse__used", True)
+            stack.extend(vars(obj).values())
+        elif isinstance(obj, (list, tuple)):
+            stack.extend(obj)
+        elif isinstance(obj, dict):
+            stack.extend(obj.values())
+    return component
+
 
 def port_layout(component, path: str):
     """The ``lib.data`` layout of a stream's payload, ``path`` as in the Verilog port name

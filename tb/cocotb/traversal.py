@@ -34,10 +34,9 @@ def run_traversal(image, rays, cfg, sim: str, run_dir, *, seed: int = 1, idle: f
     model's event log; returns the runner's Result (``values["counters"]``)."""
     from model.raygen import setup
     from model.rtc import counter_totals, trace
-    from rtl.export import build_top
     from tb.traversal import COMPARED, leaf_results, ray_payloads
 
-    from .runner import build, fields, pack, port_layout, run as run_bench
+    from .runner import build, fields, interface, pack, port_layout, run as run_bench
     hits, ctrs, events = trace(image, rays, cfg, record=True)
     rs = setup(rays, image.bounds, cfg.fmt)
     lanes = [lane for pk in ray_payloads(rays, rs, cfg) for lane in pk]
@@ -48,7 +47,7 @@ def run_traversal(image, rays, cfg, sim: str, run_dir, *, seed: int = 1, idle: f
             for lane, hit, t in results:
                 res_rows.append((len(leaf_rows), lane, hit, t))
             leaf_rows.append((p, first, count, mask))
-    unit = build_top("traversal", cfg)
+    unit = interface("traversal", cfg)
     params = {"seed": seed, "idle": idle, "stall": stall, "delay": delay,
               "max_delay": max_delay, "node_base": int(image.node_base),
               "root": int(image.root), "n_packets": int(rays.n_packets),
