@@ -57,7 +57,7 @@ def test_chip_frame_in_amaranth_sim(rtcs, cornell):
     check_frame(r, cfg, image, rays)
     if rtcs == 2:
         assert r.counters["packets"] == [1, 1]
-    name = f"chip/cornell_8x4_rtcs{rtcs}"
+    name = {1: "chip/cornell_8x4_rtcs1", 2: "chip/cornell_8x4_rtcs2"}[rtcs]
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
