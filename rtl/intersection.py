@@ -172,7 +172,11 @@ class IntersectionUnit(wiring.Component):
     ``done`` (In stream, ``PacketDone``) / ``result`` (Out stream, ``RayResult``): read out
         the final hit of every lane of ``mask`` in lane order, labelled with ``packet``
         (tri = all ones and t = +inf on a miss). Send ``done`` only after the packet's last
-        ``LaneResult`` was taken.
+        ``LaneResult`` was taken. ``done`` is taken as soon as the previous packet's last
+        result is in the output register, so the next packet's readout follows without a gap.
+    ``release`` (Out stream, thread id): the thread of a packet whose last ``RayResult`` was
+        taken in this cycle (valid for that one cycle: the consumer must always be ready); its
+        rays and best hits may be overwritten from the next cycle on.
     Counters (Out, 32 bits): ``int_ops`` (rays tested), ``tris`` (triangles fetched),
     ``busy`` (cycles with a triangle held or a test in flight).
 
@@ -210,6 +214,7 @@ class IntersectionUnit(wiring.Component):
             "lane_out": Out(stream.Signature(LaneResult(cfg))),
             "done": In(stream.Signature(PacketDone(cfg))),
             "result": Out(stream.Signature(RayResult(cfg))),
+            "release": Out(stream.Signature(cfg.thread_bits)),
             "int_ops": Out(COUNTER_BITS), "tris": Out(COUNTER_BITS),
             "busy": Out(COUNTER_BITS),
         })
@@ -398,13 +403,17 @@ class IntersectionUnit(wiring.Component):
         r_lane = Signal(self.lane_bits)
         r_last = Signal()
         r_packet = Signal(PACKET_ID_BITS)
+        r_thread = Signal(self.cfg.thread_bits)
         with m.If(adv):
             m.d.sync += [res.valid.eq(d_active), r_lane.eq(d_lane), r_packet.eq(d_packet),
-                         r_last.eq((d_rem & (d_rem - 1)) == 0)]
+                         r_thread.eq(d_thread), r_last.eq((d_rem & (d_rem - 1)) == 0)]
             with m.If(d_active):
                 m.d.sync += d_rem.eq(d_rem & (d_rem - 1))
                 with m.If((d_rem & (d_rem - 1)) == 0):
                     m.d.sync += d_active.eq(0)
+        # the thread goes with its last result: by then `done` may hold the next packet
+        m.d.comb += [self.release.valid.eq(res.valid & res.ready & r_last),
+                     self.release.payload.eq(r_thread)]
         hb = out_r.data
         inf = Const(((1 << fmt.exp_bits) - 1) << fmt.frac_bits, w)
         m.d.comb += [

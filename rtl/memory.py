@@ -90,6 +90,10 @@ class IdealMemory(wiring.Component):
     ``queue`` (requests in flight, default ``latency + 1``).
     Counters: ``reads`` (words delivered).
 
+    ``hold`` (input, default 0): while high the memory answers nothing (the head response
+    waits), so a testbench driving it from an LFSR turns the fixed latency into a random one,
+    order kept; requests back up into the queue and then stall at the port.
+
     With ``load=True`` the memory also has a write port for filling it before use (one word per
     cycle: ``ld_en``, ``ld_addr``, ``ld_data``; word written at the clock edge, not affected by
     reset); ``image`` may then be ``None`` with ``depth`` words (rounded up to a power of two,
@@ -117,6 +121,7 @@ class IdealMemory(wiring.Component):
             "port": In(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
                                    tag_width=tag_width)),
             "reads": Out(COUNTER_BITS),
+            "hold": In(1),
         }
         if load:
             ports.update({"ld_en": In(1), "ld_addr": In(addr_width), "ld_data": In(WORD_BITS)})
@@ -154,10 +159,10 @@ class IdealMemory(wiring.Component):
         m.d.comb += [
             fifo.w_en.eq(rd_valid),
             fifo.w_data.eq(Cat(rd.data, rd_tag)),
-            resp.valid.eq(fifo.r_rdy),
+            resp.valid.eq(fifo.r_rdy & ~self.hold),
             resp.payload.data.eq(fifo.r_data[:WORD_BITS]),
             resp.payload.tag.eq(fifo.r_data[WORD_BITS:]),
-            fifo.r_en.eq(resp.ready),
+            fifo.r_en.eq(resp.ready & ~self.hold),
         ]
         with m.If(deliver):
             m.d.sync += self.reads.eq(self.reads + 1)

@@ -14,13 +14,15 @@ Load port (one 64-bit word per cycle while ``ld_valid``; ``ld_sel`` picks the ta
 1 (RAYS)   the ray memory: ray slot ``ld_addr >> 3``, 64-bit chunk ``ld_addr & 7`` of the
            ``RayIn`` bits (low chunk first); slot ``r`` feeds the ``r``-th lane transfer
 2 (CONST)  constant ``ld_addr`` of :data:`CONSTS` (node_base, list_base, tri_base, root,
-           rays, idle and stall in 1/16, the two LFSR seeds)
+           rays, idle and stall in 1/16, the two LFSR seeds, mem_stall in 1/16 and the
+           seeds of the node, list and tri memories' hold LFSRs)
 =========  ============================================================================
 
 After ``start`` (one cycle) the RTC and its memories leave reset (they are held in reset until
 then, so the run is cycle for cycle :class:`tb.rtc.RTCSelfTest`'s from reset): the ray memory
 feeds ``rays`` lanes in slot order, an LFSR makes input bubbles (``idle``/16 of the cycles
-before a transfer) and another result back-pressure (``stall``/16). Every result transfer
+before a transfer) and another result back-pressure (``stall``/16); one LFSR per memory holds
+its responses in ``mem_stall``/16 of the cycles (a random, in-order latency). Every result transfer
 shows on ``res_valid`` / ``res_data`` (``RayResult`` bits, zero-padded to a multiple of 32);
 ``finished`` rises in the cycle after the last of ``rays`` results, ``cycles`` counts the
 RTC's cycles since start, ``counters`` is the concatenation of :data:`counter_names` (32 bits
@@ -49,7 +51,7 @@ __all__ = ["RTCFrame", "VerilogMemory", "CONSTS", "SEL_IMAGE", "SEL_RAYS", "SEL_
 
 SEL_IMAGE, SEL_RAYS, SEL_CONST = 0, 1, 2
 CONSTS = ("node_base", "list_base", "tri_base", "root", "rays", "idle_q", "stall_q",
-          "seed0", "seed1")
+          "seed0", "seed1", "mem_stall_q", "seed2", "seed3", "seed4")
 MEMS = ("node", "list", "tri")
 
 
@@ -127,7 +129,9 @@ class _Run(Elaboratable):
         drive_header(m, rtc, c)
 
         # feeder: ray slot i -> rays, LFSR bubbles (as RTCSelfTest)
-        bubbles, backpressure = (lfsr.value for lfsr in t.lfsr)
+        bubbles, backpressure, *holds = (lfsr.value for lfsr in t.lfsr)
+        for mem, hold in zip(t.mems.values(), holds):
+            m.d.comb += mem.hold.eq(~passes(hold, c["mem_stall_q"]))
         feed_from_memory(m, rtc.rays, t.ray_rd, c["rays"], passes(bubbles, c["idle_q"]))
 
         # sink: LFSR back-pressure, every transfer on res_valid / res_data
@@ -189,7 +193,8 @@ class RTCFrame(wiring.Component):
         })
         # loaded constants: registers that reset does not touch
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True) for name in CONSTS}
-        self.lfsr = [LFSR(loadable=True) for _ in range(2)]      # bubbles, back-pressure
+        # bubbles, back-pressure, then the holds of the node, list and tri memories
+        self.lfsr = [LFSR(loadable=True) for _ in range(2 + len(MEMS))]
 
     def elaborate(self, platform):
         m = Module()

@@ -274,7 +274,7 @@ class IntBench(wiring.Component):
         self.tri_base = image.tri_base
         sig = self.unit.signature.members
         members = {k: sig[k] for k in ("ray_in", "tri_in", "lane_out", "done", "result",
-                                       "int_ops", "tris", "busy")}
+                                       "release", "int_ops", "tris", "busy")}
         members["words"] = Out(32)
         super().__init__(members)
 
@@ -286,7 +286,7 @@ class IntBench(wiring.Component):
         wiring.connect(m, r.mem, mem.port)
         for name in ("ray_in", "tri_in", "done"):
             wiring.connect(m, wiring.flipped(getattr(self, name)), getattr(u, name))
-        for name in ("lane_out", "result"):
+        for name in ("lane_out", "result", "release"):
             wiring.connect(m, getattr(u, name), wiring.flipped(getattr(self, name)))
         m.d.comb += [r.base.eq(self.tri_base), self.words.eq(r.words)]
         for name in ("int_ops", "tris", "busy"):
@@ -412,7 +412,7 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
     dut = IntBench(g.cfg, g.image, latency=latency, tri_slots=tri_slots)
     rng = random.Random(seed)
     pipe = dut.unit.pipe
-    ints, lanes, results, info = [], [], [], {}
+    ints, lanes, results, released, info = [], [], [], [], {}
 
     async def source(ctx):
         await drive(ctx, dut.ray_in, s.rays)
@@ -434,8 +434,11 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
         await watch(ctx, pipe.o_valid & pipe.en, pipe.o_tag, pipe.hit, pipe.t, pipe.u, pipe.v,
                     out=ints)
 
+    async def releases(ctx):
+        await watch(ctx, dut.release.valid, dut.release.payload, out=released)
+
     t0 = time.perf_counter()
-    run(dut, source, sink, readout, background=[monitor])
+    run(dut, source, sink, readout, background=[monitor, releases])
     seconds = time.perf_counter() - t0
     meta = dut.unit.pipe_meta
     bad: list = []
@@ -455,6 +458,12 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
     for name, got, want in streams:
         if len(got) != len(want):
             bad.append(f"{name}s: {len(got)}, model {len(want)}")
+    # each packet's thread is released in the cycle its last RayResult is taken
+    last_cycles = [c for c, p in results if p["last"]]
+    want_rel = list(zip(last_cycles, [d["thread"] for d in s.done]))
+    if released != want_rel:
+        bad.append(f"releases (cycle, thread) {released[:8]}..., want {want_rel[:8]}... "
+                   "(the thread of each packet with its last result)")
     want_ctr = unit_counters(s, g, whole=max_leaves is None) + [("words", 5 * len(s.tris))]
     if max_leaves is None:          # the whole image: the model's own word count too
         want_ctr.append(("words", int(g.counters.sum(axis=0)[C["int_reads"]])))

@@ -16,9 +16,9 @@ from amaranth.lib.wiring import In, Out
 __all__ = ["LFSR", "lfsr_seeds", "sixteenths", "passes", "feed_from_memory", "sink_to"]
 
 
-def lfsr_seeds(seed: int) -> tuple[int, int]:
-    """The two LFSR seeds (never 0) for ``seed``: bubbles, back-pressure."""
-    return tuple((seed * 40503 + j * 21011) % 65535 + 1 for j in range(2))
+def lfsr_seeds(seed: int, n: int = 2) -> tuple[int, ...]:
+    """``n`` LFSR seeds (never 0) for ``seed``: bubbles, back-pressure, then memory holds."""
+    return tuple((seed * 40503 + j * 21011) % 65535 + 1 for j in range(n))
 
 
 def sixteenths(rate: float, what: str = "rate") -> int:

@@ -207,15 +207,17 @@ def ray_words(image, rays, cfg: Config) -> np.ndarray:
 
 
 def write_input(path: Path | str, image, rays, cfg: Config, *, idle: float = 0.0,
-                stall: float = 0.0, seed: int = 1) -> None:
+                stall: float = 0.0, seed: int = 1, mem_stall: float = 0.0) -> None:
     """Write the load records for ``Vframe`` (format: ``tb/verilator_main.cpp``)."""
     idle_q, stall_q = sixteenths(idle, "idle"), sixteenths(stall, "stall")
     if len(rays) == 0:
         raise ValueError("no rays to trace")
-    s0, s1 = lfsr_seeds(seed)
+    s0, s1, s2, s3, s4 = lfsr_seeds(seed, 5)
     consts = {"node_base": image.node_base, "list_base": image.list_base,
               "tri_base": image.tri_base, "root": image.root, "rays": len(rays),
-              "idle_q": idle_q, "stall_q": stall_q, "seed0": s0, "seed1": s1}
+              "idle_q": idle_q, "stall_q": stall_q, "seed0": s0, "seed1": s1,
+              "mem_stall_q": sixteenths(mem_stall, "mem_stall"), "seed2": s2, "seed3": s3,
+              "seed4": s4}
     rw = ray_words(image, rays, cfg)
     slots = np.zeros((len(rays), 8), np.uint64)       # ray r, chunk c at load address 8r + c
     slots[:, :rw.shape[1]] = rw
@@ -280,10 +282,12 @@ def _trace_kind(path) -> bool | str:
 
 
 def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
-               trace_file=None, progress: bool = True, log=sys.stderr, desc: str = "frame",
-               names: list[str] | None = None, allow_limit: bool = False) -> FrameOutput:
+               trace_file=None, trace_from: int = 0, progress: bool = True, log=sys.stderr,
+               desc: str = "frame", names: list[str] | None = None,
+               allow_limit: bool = False) -> FrameOutput:
     """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
-    ``n`` results; return its parsed output (``names``: its counters). A run that hits
+    ``n`` results; return its parsed output (``names``: its counters). ``trace_file`` gets
+    the waveform from run cycle ``trace_from`` on (0: the load as well). A run that hits
     ``max_cycles`` raises :class:`FrameError` (``allow_limit``: returns it, status 2, for the
     caller to say what is stuck)."""
     from tqdm import tqdm
@@ -293,7 +297,7 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
         cmd = [str(b.binary), str(fin), str(fout), "--max-cycles", str(max_cycles),
                "--progress", "20000"]
         if trace_file is not None:
-            cmd += ["--trace", str(Path(trace_file).resolve())]
+            cmd += ["--trace", str(Path(trace_file).resolve()), "--trace-from", str(trace_from)]
         other = []
         with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
                 tqdm(total=n, unit="ray", desc=desc, disable=not progress, file=log) as bar:
@@ -323,13 +327,15 @@ class VerilatorRun(RTCRun):
 
 
 def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
-              stall: float = 0.0, seed: int = 1, max_cycles: int = 100_000_000,
-              trace_file: str | Path | None = None, progress: bool = True,
-              mem_words: int | None = None, ray_slots: int | None = None,
+              stall: float = 0.0, seed: int = 1, mem_stall: float = 0.0,
+              max_cycles: int = 100_000_000,
+              trace_file: str | Path | None = None, trace_from: int = 0,
+              progress: bool = True, mem_words: int | None = None, ray_slots: int | None = None,
               build_root: Path | str = BUILD_ROOT, log=sys.stderr) -> VerilatorRun:
     """Trace ``rays`` through ``image`` on one RTC in Verilator and compare every ray with the
     golden model (``model.rtc.trace``), as :func:`tb.rtc.run_rtc_free` does in pysim (same
-    bubbles and back-pressure for the same ``seed``, so the same cycle count)."""
+    bubbles and back-pressure for the same ``seed``, so the same cycle count). ``mem_stall``:
+    the fraction of cycles each memory holds its responses (random, in-order latency)."""
 
     from rtl.rtc_streams import RayResult
     n = len(rays)
@@ -346,9 +352,9 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
     b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
               trace=_trace_kind(trace_file), root=build_root, log=log)
     out = run_binary(b, lambda f: write_input(f, image, rays, cfg, idle=idle, stall=stall,
-                                              seed=seed),
-                     cfg, n, max_cycles=max_cycles, trace_file=trace_file, progress=progress,
-                     log=log, desc="RTC (Verilator)")
+                                              seed=seed, mem_stall=mem_stall),
+                     cfg, n, max_cycles=max_cycles, trace_file=trace_file,
+                     trace_from=trace_from, progress=progress, log=log, desc="RTC (Verilator)")
 
     lay = RayResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
@@ -385,12 +391,20 @@ def main(argv=None) -> int:
     ap.add_argument("--stall", type=float, default=0.0,
                     help="fraction of cycles the results are back-pressured (0 .. 15/16; "
                          "default 0)")
-    ap.add_argument("--seed", type=int, default=1, help="LFSR seed for --idle/--stall")
+    ap.add_argument("--mem-stall", type=float, default=0.0,
+                    help="fraction of cycles each memory holds its responses, making the "
+                         "latency random (responses stay in order, as from a cache; 0 .. 15/16; "
+                         "default 0)")
+    ap.add_argument("--seed", type=int, default=1,
+                    help="LFSR seed for --idle/--stall/--mem-stall")
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles (default 100000000)")
     ap.add_argument("--trace", metavar="OUT.fst",
                     help="write a waveform of every signal: FST, or VCD if the name ends in "
-                         ".vcd (builds a separate, slower tracing binary; for short runs)")
+                         ".vcd (builds a separate, slower tracing binary; for short runs or "
+                         "with --trace-from)")
+    ap.add_argument("--trace-from", type=int, default=0, metavar="CYCLE",
+                    help="start the waveform at this run cycle (default 0: from the load on)")
     ap.add_argument("--json", metavar="OUT.json", help="write the figures as JSON")
     ap.add_argument("--build-dir", default=str(BUILD_ROOT),
                     help="where binaries are cached (default build/verilator)")
@@ -413,13 +427,13 @@ def main(argv=None) -> int:
     image, rays = small_case(args.scene, w, h, cfg, args.kd_cache)
     try:
         r = run_frame(image, rays, cfg, mem_latency=latency, idle=args.idle, stall=args.stall,
-                      seed=args.seed, max_cycles=args.max_cycles, trace_file=args.trace,
-                      progress=not args.quiet, build_root=args.build_dir)
+                      seed=args.seed, mem_stall=args.mem_stall, max_cycles=args.max_cycles, trace_file=args.trace,
+                      trace_from=args.trace_from, progress=not args.quiet, build_root=args.build_dir)
     except (ToolMissing, FrameError, ValueError, ConfigError) as e:
         raise SystemExit(f"tb.verilator: {e}")
     cm = r.counter_mismatches()
     res = {"scene": args.scene, "res": [w, h], "mem_latency": latency, "idle": args.idle,
-           "stall": args.stall, "seed": args.seed, "config": cfg.to_dict(), "rays": r.rays,
+           "stall": args.stall, "mem_stall": args.mem_stall, "seed": args.seed, "config": cfg.to_dict(), "rays": r.rays,
            "packets": rays.n_packets, "cycles": r.cycles, "sim_cpu_s": round(r.seconds, 3),
            "cycles_per_s": round(r.cycles_per_s), "load_cycles": r.load_cycles,
            "load_cpu_s": round(r.load_seconds, 3), "built": r.build.built,

@@ -1,6 +1,7 @@
 // C++ main for the Verilator build of tb/frame.py's RTCFrame (driven by tb/verilator.py).
 //
-//   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE]   (FILE: FST or VCD, as built)
+//   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE] [--trace-from C]
+//   (FILE: FST or VCD, as built; C: first run cycle written to it, default 0 = load included)
 //
 // IN (little-endian): "RTCIN01\0", u64 blocks, then per block: u32 sel, u32 addr, u64 count,
 //   count x u64 words (written through the load port at ld_addr = addr, addr + 1, ...).
@@ -43,10 +44,11 @@ struct Sim {
     Trace* tfp = nullptr;
 #endif
     uint64_t time = 0;
+    bool tracing = true;       // false until --trace-from's cycle
 
     void dump() {
 #if VM_TRACE
-        if (tfp) tfp->dump(time);
+        if (tfp && tracing) tfp->dump(time);
 #endif
         time++;
     }
@@ -68,18 +70,19 @@ static void put_wide(std::vector<uint32_t>& out, const W& w, size_t words) {
 
 int main(int argc, char** argv) {
     if (argc < 3) {
-        std::fprintf(stderr, "usage: %s IN OUT [--max-cycles N] [--progress N] [--trace F.fst]\n",
-                     argv[0]);
+        std::fprintf(stderr, "usage: %s IN OUT [--max-cycles N] [--progress N] [--trace F.fst] "
+                     "[--trace-from CYCLE]\n", argv[0]);
         return 1;
     }
     std::string in_path = argv[1], out_path = argv[2], trace_path;
-    uint64_t max_cycles = 100000000ull, progress = 65536;
+    uint64_t max_cycles = 100000000ull, progress = 65536, trace_from = 0;
     for (int i = 3; i < argc; i++) {
         std::string a = argv[i];
         if (i + 1 >= argc) die("arguments", a + " needs a value");
         if (a == "--max-cycles") max_cycles = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--progress") progress = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--trace") trace_path = argv[++i];
+        else if (a == "--trace-from") trace_from = std::strtoull(argv[++i], nullptr, 10);
         else die("arguments", "unknown option " + a);
     }
     if (progress == 0) progress = ~0ull;
@@ -127,6 +130,7 @@ int main(int argc, char** argv) {
                        "(python -m tb.verilator --trace FILE)");
 #endif
     Vframe* top = s.top;
+    s.tracing = trace_from == 0;
     top->ld_valid = 0;
     top->start = 0;
     top->rst = 1;
@@ -175,6 +179,7 @@ int main(int argc, char** argv) {
     while (true) {
         top->clk = 0;
         top->eval();
+        if (cycles == trace_from) s.tracing = true;
         if (top->finished) break;
         if (cycles >= max_cycles) {
             status = 2;
