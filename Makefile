@@ -3,7 +3,7 @@ VENV  ?= .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.setup-done
 SCENE ?= scenes/cornell.toml
-RES   ?= 256x192
+RES   ?= 128x96
 OUT   ?= build/sim
 
 .PHONY: setup test sim bench clean
@@ -19,9 +19,18 @@ TEST_JOBS ?= auto
 test: setup
 	$(PY) -m pytest -q -n $(TEST_JOBS)
 
-## make sim: render the default scene (golden model until the RTL chip exists)
+## make sim: a frame through the whole chip (RGS, RTCs, caches, bus, SDRAM model), every ray
+##   checked against the golden model -> $(OUT)/image.png, stats.json, usage.png, rays/hits.npz.
+##   make sim SCENE=scenes/office.toml RES=256x192 RTCS=2 THREADS=8 BACKEND=verilator|amaranth
+##            TRACE=wave.fst CONFIG="--trav-cache-kb 16 --mem-latency 30"
+RTCS    ?=
+THREADS ?=
+BACKEND ?= verilator
+TRACE   ?=
 sim: setup
-	$(PY) -m model render $(SCENE) --res $(RES) --out $(OUT)
+	$(PY) -m tb.sim --scene $(SCENE) --res $(RES) --out $(OUT) --backend $(BACKEND) \
+	    $(if $(RTCS),--rtcs $(RTCS)) $(if $(THREADS),--threads $(THREADS)) \
+	    $(if $(TRACE),--trace $(TRACE)) $(CONFIG)
 
 ## make bench: long sweeps and speed measurements, written to build/bench/
 BENCH_SCENE ?= scenes/office.toml

@@ -185,6 +185,10 @@ class SDRAMMemory(wiring.Component):
     Counters (per chip, ``Out`` arrays): ``words`` (words read), ``busy`` (cycles the data bus is
     occupied); ``cycles`` (cycles since reset).
 
+    ``hold`` (input, default 0): while high no response leaves (due words wait, chips stop
+    starting accesses once their in-flight queues fill): a testbench driving it from an LFSR
+    adds random latency to every word, the order among chips changing with it.
+
     The words are read when they are answered (one read port, combinational: the model needs
     no more than one read a cycle). ``load``, ``depth`` and ``store`` as for
     :class:`IdealMemory` (a load port ``ld_en``, ``ld_addr``, ``ld_data``).
@@ -215,6 +219,7 @@ class SDRAMMemory(wiring.Component):
             "words": Out(COUNTER_BITS).array(chips),
             "busy": Out(COUNTER_BITS).array(chips),
             "cycles": Out(COUNTER_BITS),
+            "hold": In(1),
         }
         if load:
             ports.update({"ld_en": In(1), "ld_addr": In(addr_width), "ld_data": In(WORD_BITS)})
@@ -305,11 +310,11 @@ class SDRAMMemory(wiring.Component):
                         with m.Elif(due_heads[c]):
                             m.d.comb += sel.eq(c)
         m.d.comb += any_due.eq(Cat(*due_heads).any())
-        m.d.comb += [resp.valid.eq(any_due), rd.addr.eq(Array(due_addr)[sel]),
+        m.d.comb += [resp.valid.eq(any_due & ~self.hold), rd.addr.eq(Array(due_addr)[sel]),
                      resp.payload.data.eq(rd.data),
                      resp.payload.tag.eq(Array(due_tags)[sel])]
         for c in range(n):
-            m.d.comb += pops[c].eq(resp.ready & any_due & (sel == c))
+            m.d.comb += pops[c].eq(resp.valid & resp.ready & (sel == c))
         with m.If(resp.valid & resp.ready):
             m.d.sync += prio.eq(Mux(sel == n - 1, 0, sel + 1))
         return m

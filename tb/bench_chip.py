@@ -8,9 +8,10 @@ waited. Both op counts are the chip's own counters (equal to the golden model's)
 
 Run: ``.venv/bin/python -m tb.bench_chip [--scene S] [--res WxH] [config options] [--out DIR]``
 (``--help``); writes ``DIR/chip_<scene>_<W>x<H>.json``. With ``--seeds N`` it runs the frame
-N times instead, each with another random result back-pressure (seed i, stall i mod 16 / 16)
-on one Verilator binary, and checks that no ray is lost or duplicated and no run deadlocks
-(``DIR/chip_stalls_<scene>_<W>x<H>.json``).
+N times instead on one Verilator binary, run i with its own LFSR seed i, result
+back-pressure (i mod 16) / 16 and random memory latency (SDRAM responses held in
+(7 i mod 13) / 16 of the cycles), and checks that no ray is lost or duplicated, every ray is
+bit-exact and no run deadlocks (``DIR/chip_stalls_<scene>_<W>x<H>.json``).
 """
 from __future__ import annotations
 
@@ -53,11 +54,16 @@ def main(argv=None) -> int:
     ap.add_argument("--res", default="256x192", help="image WxH (default 256x192)")
     ap.add_argument("--stall", type=float, default=0.0,
                     help="fraction of cycles the results are back-pressured (default 0)")
+    ap.add_argument("--mem-stall", type=float, default=0.0,
+                    help="fraction of cycles the SDRAM model holds its responses: random "
+                         "memory latency (default 0)")
+    ap.add_argument("--seed", type=int, default=1, help="LFSR seed of --stall/--mem-stall")
     ap.add_argument("--max-cycles", type=int, default=20_000_000,
                     help="give up after this many cycles, naming the packets and RTCs that did "
                          "not finish (default 20000000)")
     ap.add_argument("--seeds", type=int, default=0,
-                    help="run N back-pressure seeds instead (stall bench); default 0")
+                    help="run N seeds of back-pressure and memory-latency jitter instead "
+                         "(stall bench); default 0")
     ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
     ap.add_argument("--kd-cache", default="default", help="kd-tree cache directory")
     add_config_args(ap)
@@ -73,10 +79,12 @@ def main(argv=None) -> int:
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
     if args.seeds:
         return stall_bench(cfg, prep.image, scene.camera, w, h, args.seeds,
-                           Path(args.out) / f"chip_stalls_{Path(args.scene).stem}_{w}x{h}.json")
+                           Path(args.out) / f"chip_stalls_{Path(args.scene).stem}_{w}x{h}.json",
+                           max_cycles=args.max_cycles)
     t0 = time.perf_counter()
     try:
         r = run_chip_frame(cfg, prep.image, scene.camera, w, h, stall=args.stall,
+                           mem_stall=args.mem_stall, seed=args.seed,
                            max_cycles=args.max_cycles)
     except FrameError as e:
         raise SystemExit(f"tb.bench_chip: {e}")
@@ -87,7 +95,8 @@ def main(argv=None) -> int:
     perf = relative_performance(cfg, r.cycles, trav, inter)
     hits = {k: sum(x[k] for x in c["hits"]) for k in ("trav", "list", "int")}
     miss = {k: sum(x[k] for x in c["misses"]) for k in ("trav", "list", "int")}
-    out = {"scene": args.scene, "res": [w, h], "rays": r.rays, "cycles": r.cycles,
+    out = {"scene": args.scene, "res": [w, h], "stall": args.stall, "mem_stall": args.mem_stall,
+           "seed": args.seed, "rays": r.rays, "cycles": r.cycles,
            "mismatches": len(r.mismatches), "trav_ops": trav, "int_ops": inter,
            "clock_mhz": cfg.clock_mhz, **perf,
            "cache_hit_rate": {k: hits[k] / max(1, hits[k] + miss[k]) for k in hits},
@@ -105,9 +114,11 @@ def main(argv=None) -> int:
     return 1 if r.mismatches else 0
 
 
-def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path) -> int:
-    """Run the frame with ``seeds`` result back-pressure patterns; every run must deliver
-    every ray exactly once, bit-exact, before the cycle limit."""
+def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path, *,
+                max_cycles: int = 2_000_000) -> int:
+    """Run the frame with ``seeds`` patterns of result back-pressure and memory-latency
+    jitter; every run must deliver every ray exactly once, bit-exact, before the cycle
+    limit."""
     from tqdm import tqdm
 
     from tb.compare import ResultError
@@ -116,16 +127,15 @@ def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path) -> i
     from .verilator import FrameError
     runs, failures = [], []
     for seed in tqdm(range(1, seeds + 1), desc="stall seeds", unit="run"):
-        stall = (seed % 16) / 16
+        kw = {"stall": (seed % 16) / 16, "mem_stall": (7 * seed % 13) / 16, "seed": seed}
         try:
-            r = run_chip_frame(cfg, image, camera, w, h, stall=stall, seed=seed,
-                               progress=False, max_cycles=2_000_000)
-            runs.append({"seed": seed, "stall": stall, "cycles": r.cycles,
-                         "mismatches": len(r.mismatches)})
+            r = run_chip_frame(cfg, image, camera, w, h, progress=False,
+                               max_cycles=max_cycles, **kw)
+            runs.append({**kw, "cycles": r.cycles, "mismatches": len(r.mismatches)})
             if r.mismatches:
-                failures.append({"seed": seed, "stall": stall, "what": "mismatch"})
+                failures.append({**kw, "what": f"{len(r.mismatches)} mismatching rays"})
         except (FrameError, ResultError) as e:     # deadlock (cycle limit), lost or duplicated
-            failures.append({"seed": seed, "stall": stall, "what": str(e)})
+            failures.append({**kw, "what": str(e)})
     cyc = [x["cycles"] for x in runs]
     out = {"runs": len(runs), "failures": failures, "cycles_min": min(cyc, default=0),
            "cycles_max": max(cyc, default=0), "config": cfg.to_dict(), "res": [w, h],

@@ -56,12 +56,19 @@ class ChipRun:
     counters: dict                 # the chip's counters (per RTC, caches, memory)
     model: dict                    # the model's counter totals
     mismatches: list = field(default_factory=list)
+    records: dict = field(default_factory=dict)    # the chip's results, in output order
+    hits: object = None            # the chip's hits by ray id (model.rtc.Hits, scene ids)
+    # counters every ``sample_every`` cycles: columns cycle, results, then chip_counter_names
+    samples: np.ndarray | None = None
 
 
-def const_values(cfg: Config, regs: dict, *, stall: float = 0.0, seed: int = 1) -> dict:
+def const_values(cfg: Config, regs: dict, *, stall: float = 0.0, seed: int = 1,
+                 mem_stall: float = 0.0) -> dict:
     """``{name: value}`` of :func:`chip_consts` for a frame's registers ``regs``."""
     from .lfsr import lfsr_seeds, sixteenths
-    vals = {"stall_q": sixteenths(stall, "stall"), "seed": lfsr_seeds(seed)[1]}
+    seeds = lfsr_seeds(seed, 3)
+    vals = {"stall_q": sixteenths(stall, "stall"), "seed": seeds[1],
+            "mem_stall_q": sixteenths(mem_stall, "mem_stall"), "mem_seed": seeds[2]}
     for k, vec in REGISTERS.items():
         if vec:
             vals.update({f"{k}_{i}": regs[k][i] for i in range(3)})
@@ -70,21 +77,26 @@ def const_values(cfg: Config, regs: dict, *, stall: float = 0.0, seed: int = 1) 
     return vals
 
 
-def chip_blocks(cfg: Config, image, regs: dict, *, stall: float = 0.0, seed: int = 1) -> list:
+def chip_blocks(cfg: Config, image, regs: dict, *, stall: float = 0.0, seed: int = 1,
+                mem_stall: float = 0.0) -> list:
     """The load blocks of a frame for :class:`ChipFrame`: the memory image and the
     constants (:func:`chip_consts` order)."""
     from .frame import SEL_CONST, SEL_IMAGE
-    vals = const_values(cfg, regs, stall=stall, seed=seed)
+    vals = const_values(cfg, regs, stall=stall, seed=seed, mem_stall=mem_stall)
     consts = np.array([vals[n] for n in chip_consts(cfg)], np.uint64)
     return [(SEL_IMAGE, 0, np.asarray(image.data, np.uint64)), (SEL_CONST, 0, consts)]
 
 
 def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall: float = 0.0,
-                   seed: int = 1, max_cycles: int = 100_000_000, trace_file=None,
-                   progress: bool = True, mem_words: int | None = None, build_root=None,
-                   log=None) -> ChipRun:
+                   seed: int = 1, mem_stall: float = 0.0, max_cycles: int = 100_000_000,
+                   trace_file=None, trace_from: int = 0, progress: bool = True,
+                   mem_words: int | None = None, build_root=None, log=None,
+                   sample_every: int = 0) -> ChipRun:
     """One frame through :class:`ChipFrame` in Verilator (built once per configuration),
-    every ray compared with the golden model as :func:`run_chip` does in pysim."""
+    every ray compared with the golden model as :func:`run_chip` does in pysim. ``stall``:
+    result back-pressure; ``mem_stall``: random memory latency (both fractions of cycles,
+    LFSRs seeded by ``seed``); ``trace_file`` from run cycle ``trace_from``; the counters
+    every ``sample_every`` cycles in ``ChipRun.samples``."""
     import sys
 
     from rtl.rtc_streams import RayResult
@@ -102,16 +114,16 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
               trace=_trace_kind(trace_file), root=build_root or BUILD_ROOT, log=log, top="chip")
     names = chip_counter_names(cfg)
     out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs, stall=stall,
-                                                              seed=seed)),
+                                                              seed=seed, mem_stall=mem_stall)),
                      cfg, len(rays), max_cycles=max_cycles, trace_file=trace_file,
-                     progress=progress, log=log, desc="chip (Verilator)", names=names,
+                     trace_from=trace_from, progress=progress, log=log, desc="chip (Verilator)", names=names,
                      allow_limit=True)
     lay = RayResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
     if out.status == 2:
         raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles))
     run = _finish(cfg, image, rays, records, out.cycles, out.seconds, out.counters)
-    run.build = b
+    run.build, run.samples = b, out.samples
     return run
 
 
@@ -134,6 +146,7 @@ def _finish(cfg: Config, image, rays, records: dict, cycles: int, seconds: float
     """Compare result ``records`` with the model; counters ``c`` by :func:`chip_counter_names`."""
     hits, ctrs = trace(image, rays, cfg)
     by_ray = compare.results_by_ray(records, rays)
+    chip_hits = compare.hits_of(by_ray, cfg, image)
     counters = {"cycles": cycles, "rays_in": c["rays_in"], "results_out": c["results_out"],
                 "mem_reads": c["mem_reads"],
                 "packets": [c[f"packets{s}"] for s in range(cfg.rtcs)],
@@ -144,14 +157,17 @@ def _finish(cfg: Config, image, rays, records: dict, cycles: int, seconds: float
     for k in ("hits", "misses", "grants"):
         counters[k] = [{cc: c[f"rtc{r}_{cc}_{k}"] for cc in CACHES} for r in range(cfg.rtcs)]
     return ChipRun(cycles, seconds, len(rays), counters, counter_totals(ctrs),
-                   compare.result_mismatches(by_ray, compare.expected(hits, cfg, image)))
+                   compare.result_mismatches(by_ray, compare.expected(hits, cfg, image)),
+                   records, chip_hits)
 
 
 def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: float = 0.0,
-             seed: int = 1, max_cycles: int = 1_000_000) -> ChipRun:
+             seed: int = 1, mem_stall: float = 0.0, max_cycles: int = 1_000_000,
+             sample_every: int = 0, vcd: str | None = None) -> ChipRun:
     """One frame through :class:`ChipFrame` in Amaranth's simulator (memory image and
     registers preloaded), every ray compared with the golden model; the same cycles as
-    :func:`run_chip_frame` in Verilator for the same ``stall`` and ``seed``."""
+    :func:`run_chip_frame` in Verilator for the same ``stall`` and ``seed``; ``sample_every``
+    and the samples as there; ``vcd``: a waveform of the whole run."""
     from amaranth.sim import Simulator
 
     from rtl.rtc_streams import RayResult
@@ -159,10 +175,15 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
     rays = eye_rays(camera, width, height, cfg)
     top = ChipFrame(cfg, mem_words=len(image.data), verilog_memories=False,
                     preload={"image": image.data,
-                             "consts": const_values(cfg, regs, stall=stall, seed=seed)})
+                             "consts": const_values(cfg, regs, stall=stall, seed=seed,
+                                                    mem_stall=mem_stall)})
     sim = Simulator(top)
     sim.add_clock(1e-8)
-    got, info = [], {}
+    got, info, rows = [], {}, []
+    names = chip_counter_names(cfg)
+
+    def unpack(v: int) -> list[int]:
+        return [(v >> (32 * i)) & 0xFFFFFFFF for i in range(len(names))]
 
     async def bench(ctx):
         ctx.set(top.start, 1)
@@ -178,17 +199,26 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
             if fin:
                 break
             cycles += 1
+            if sample_every and cycles % sample_every == 0:
+                rows.append([cycles, len(got), *unpack(int(ctrs))])
         info.update(seconds=time.process_time() - t0, finished=bool(fin), cycles=int(cyc),
                     counters=int(ctrs))
 
     sim.add_testbench(bench)
-    sim.run()
+    if vcd:
+        with sim.write_vcd(vcd):
+            sim.run()
+    else:
+        sim.run()
     if not info["finished"]:
         raise AssertionError(f"chip frame: {len(got)} of {len(rays)} results after "
                              f"{max_cycles} cycles (deadlock?)")
     lay = RayResult(cfg)
     records = {name: np.array([(v >> fld.offset) & ((1 << fld.width) - 1) for v in got],
                               np.int64) for name, fld in lay}
-    names = chip_counter_names(cfg)
-    c = {k: (info["counters"] >> (32 * i)) & 0xFFFFFFFF for i, k in enumerate(names)}
-    return _finish(cfg, image, rays, records, info["cycles"], info["seconds"], c)
+    c = dict(zip(names, unpack(info["counters"])))
+    run = _finish(cfg, image, rays, records, info["cycles"], info["seconds"], c)
+    if sample_every:
+        rows.append([info["cycles"], len(got), *unpack(info["counters"])])
+        run.samples = np.array(rows, np.int64)
+    return run

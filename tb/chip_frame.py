@@ -19,11 +19,12 @@ __all__ = ["ChipFrame", "chip_consts", "chip_counter_names", "REGISTERS"]
 def chip_consts(cfg: Config) -> list[str]:
     """The constants :class:`ChipFrame` loads (``ld_sel`` = CONST, address = position): the
     chip's registers (three words for a vector: ``pos_0``, ``pos_1``, ``pos_2``), then the
-    result back-pressure (``stall_q``, sixteenths) and its LFSR seed."""
+    result back-pressure (``stall_q``, sixteenths) and its LFSR seed, then the fraction of
+    cycles the SDRAM model holds its responses (``mem_stall_q``) and that LFSR's seed."""
     names = []
     for k, v in REGISTERS.items():
         names += [f"{k}_{i}" for i in range(3)] if v else [k]
-    return names + ["stall_q", "seed"]
+    return names + ["stall_q", "seed", "mem_stall_q", "mem_seed"]
 
 
 REGISTERS = {"node_base": 0, "list_base": 0, "tri_base": 0, "root": 0, "box_lo": 1, "box_hi": 1,
@@ -69,6 +70,7 @@ class _ChipRun(wiring.Component):
         m.d.sync += going.eq(1)
         m.d.comb += [chip.start.eq(~going), t.finished_run.eq(going & chip.done)]
         take = sink_to(m, chip.results, passes(t.lfsr.value, c["stall_q"]))
+        m.d.comb += mem.hold.eq(~passes(t.mem_lfsr.value, c["mem_stall_q"]))
         m.d.comb += [t.res_valid.eq(take), t.res_data.eq(chip.results.payload)]
         return m
 
@@ -124,7 +126,8 @@ class ChipFrame(wiring.Component):
         values = {} if preload is None else preload["consts"]
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True,
                                    init=int(values.get(name, 0))) for name in self.consts}
-        self.lfsr = LFSR(loadable=True)
+        self.lfsr = LFSR(loadable=True)           # result back-pressure
+        self.mem_lfsr = LFSR(loadable=True)       # memory response holds
         self.finished_run = Signal()
 
     def elaborate(self, platform):
@@ -141,8 +144,9 @@ class ChipFrame(wiring.Component):
         run = Signal()
         with m.If(self.start):
             m.d.sync += run.eq(1)
-        m.submodules.lfsr = self.lfsr
-        m.d.comb += [self.lfsr.en.eq(run), self.lfsr.seed.eq(self.const["seed"])]
+        m.submodules.lfsr, m.submodules.mem_lfsr = self.lfsr, self.mem_lfsr
+        m.d.comb += [self.lfsr.en.eq(run), self.lfsr.seed.eq(self.const["seed"]),
+                     self.mem_lfsr.en.eq(run), self.mem_lfsr.seed.eq(self.const["mem_seed"])]
         m.submodules.run = ResetInserter({"sync": ~run})(_ChipRun(self))
         with m.If(self.res_valid):
             m.d.sync += self.results.eq(self.results + 1)

@@ -7,6 +7,8 @@ t, u, v per result, in any order) and their counters as a dict:
 * :func:`expected`: the model's :class:`model.rtc.Hits` as the RTC reports them (the triangle's
   index in the memory image, a miss as all ones; t, u, v as bit patterns of the configured FP
   format).
+* :func:`hits_of`: the inverse of :func:`expected`: results by ray -> :class:`model.rtc.Hits`
+  (scene-order triangle ids, float32 carriers), the golden model's own result format.
 * :func:`results_by_ray`: result records -> one value per ray, by ray id
   (``rays.pk_start[packet] + lane``); a result that is not a ray of the input, a ray reported
   twice and a ray never reported raise :class:`ResultError`.
@@ -22,7 +24,7 @@ import numpy as np
 
 from model.config import Config
 
-__all__ = ["FIELDS", "MISS", "COMPARED", "ResultError", "expected", "results_by_ray",
+__all__ = ["FIELDS", "MISS", "COMPARED", "ResultError", "expected", "hits_of", "results_by_ray",
            "result_mismatches", "counter_mismatches", "describe"]
 
 FIELDS = ("tri", "t", "u", "v")
@@ -47,6 +49,15 @@ def expected(hits, cfg: Config, image) -> dict[str, np.ndarray]:
     for f in FIELDS[1:]:
         want[f] = cfg.fmt.to_bits(getattr(hits, f)).astype(np.int64)
     return want
+
+
+def hits_of(got: Mapping[str, np.ndarray], cfg: Config, image):
+    """The hardware's results by ray (:func:`results_by_ray`) as :class:`model.rtc.Hits`:
+    triangle by scene-order id (-1 for a miss), t, u, v decoded from the format's bits."""
+    from model.rtc import Hits
+    tri = np.asarray(got["tri"], np.int64)
+    tri = image.scene_ids(np.where(tri == MISS, -1, tri))
+    return Hits(tri, *(cfg.fmt.from_bits(np.asarray(got[f], np.int64)) for f in FIELDS[1:]))
 
 
 def results_by_ray(records: Mapping[str, np.ndarray], rays) -> dict[str, np.ndarray]:

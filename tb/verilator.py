@@ -43,7 +43,7 @@ from .lfsr import lfsr_seeds, sixteenths
 from .rtc import RTCRun, finish
 
 __all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "write_blocks",
-           "read_output", "run_binary", "run_frame", "main"]
+           "read_samples", "read_output", "run_binary", "run_frame", "main"]
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_ROOT = ROOT / "build" / "verilator"
@@ -244,6 +244,23 @@ class FrameOutput:
     load_cycles: int
     seconds: float             # CPU seconds of the run loop (after the load)
     load_seconds: float
+    samples: np.ndarray | None = None   # (k, 2 + counters): cycle, results, counters
+
+
+def read_samples(path: Path | str, names: list[str]) -> np.ndarray:
+    """The binary's ``--samples`` file as a ``(k, 2 + len(names))`` int64 array: run cycle,
+    results so far, then the counters in ``names`` order."""
+    raw = Path(path).read_bytes()
+    if raw[:8] != b"RTCSMP1\0":
+        raise FrameError(f"{path}: not a samples file")
+    ctr_words = struct.unpack_from("<I", raw, 8)[0]
+    row = 16 + 4 * ctr_words
+    body = raw[16:]
+    k = len(body) // row
+    rows = np.frombuffer(body[:k * row], np.uint8).reshape(k, row)
+    head = rows[:, :16].copy().view("<u8").astype(np.int64)
+    ctr = rows[:, 16:].copy().view("<u4").astype(np.int64)[:, :len(names)]
+    return np.concatenate([head, ctr], axis=1)
 
 
 def read_output(path: Path | str, cfg: Config, names: list[str] | None = None) -> FrameOutput:
@@ -284,20 +301,24 @@ def _trace_kind(path) -> bool | str:
 def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
                trace_file=None, trace_from: int = 0, progress: bool = True, log=sys.stderr,
                desc: str = "frame", names: list[str] | None = None,
-               allow_limit: bool = False) -> FrameOutput:
+               allow_limit: bool = False, sample_every: int = 0) -> FrameOutput:
     """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
     ``n`` results; return its parsed output (``names``: its counters). ``trace_file`` gets
-    the waveform from run cycle ``trace_from`` on (0: the load as well). A run that hits
+    the waveform from run cycle ``trace_from`` on (0: the load as well). ``sample_every``:
+    the counters every that many cycles (``FrameOutput.samples``). A run that hits
     ``max_cycles`` raises :class:`FrameError` (``allow_limit``: returns it, status 2, for the
     caller to say what is stuck)."""
     from tqdm import tqdm
     with tempfile.TemporaryDirectory(prefix="frame") as tmp:
         fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
+        fsmp = Path(tmp) / "samples.bin"
         write(fin)
         cmd = [str(b.binary), str(fin), str(fout), "--max-cycles", str(max_cycles),
                "--progress", "20000"]
         if trace_file is not None:
             cmd += ["--trace", str(Path(trace_file).resolve()), "--trace-from", str(trace_from)]
+        if sample_every:
+            cmd += ["--samples", str(fsmp), "--sample-every", str(sample_every)]
         other = []
         with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
                 tqdm(total=n, unit="ray", desc=desc, disable=not progress, file=log) as bar:
@@ -312,6 +333,8 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
         if rc == 1 or not fout.exists():
             raise FrameError(f"{b.binary} failed (exit {rc}): " + " / ".join(other[-5:]))
         out = read_output(fout, cfg, names)
+        if sample_every:
+            out.samples = read_samples(fsmp, names if names is not None else counter_names(cfg))
     if out.status == 2 and not allow_limit:
         raise FrameError(f"{desc}: {len(out.results)} of {n} results after the cycle limit "
                          f"max_cycles={max_cycles} (deadlock? else raise max_cycles / "
