@@ -37,6 +37,9 @@ BENCH_SCENE ?= scenes/office.toml
 # the golden model's speed against Embree: a real mesh if one is at hand (the README's figures
 # use the Stanford dragon), else the procedural terrain
 BENCH_MESH  ?= $(firstword $(wildcard $(SAARCOR_MESHES)/dragon.obj ../shared/meshes/dragon.obj))
+# the stall bench's small chip (2 RTCs, 1 KB caches: misses and evictions on every frame)
+CHIP_SMALL  ?= --rtcs 2 --threads 2 --tile-w 4 --tile-h 4 --trav-subunits 2 --trav-cache-kb 1 \
+	       --list-cache-kb 1 --int-cache-kb 9 --mem-latency 8
 bench: setup
 	mkdir -p build/bench
 	$(PY) -m model.bench --out build/bench $(if $(BENCH_MESH),--mesh $(BENCH_MESH))
@@ -47,6 +50,10 @@ bench: setup
 	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
 	    --mode async --out build/bench --name threads_standard_async.json
 	$(PY) -m tb.stress --out build/bench
+	$(PY) -m tb.bench_chip --res 256x192 --out build/bench
+	$(PY) -m tb.bench_chip --scene scenes/cornell.toml --res 16x16 --seeds 1000 $(CHIP_SMALL) \
+	    --out build/bench
+	$(PY) -m tb.bench_chip --res 64x48 --seeds 16 --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:

@@ -27,7 +27,11 @@ from rtl.rtcmi import CACHES
 from . import compare
 from .chip_frame import REGISTERS, ChipFrame, chip_consts, chip_counter_names
 
-__all__ = ["frame_registers", "ChipFrame", "ChipRun", "run_chip", "run_chip_frame",
+# the chip's Verilator binary holds this many memory words at least (64 MB, any scene up to
+# about a million triangles), so one build per configuration serves every scene
+CHIP_MIN_MEM_WORDS = 1 << 23
+
+__all__ = ["CHIP_MIN_MEM_WORDS", "frame_registers", "ChipFrame", "ChipRun", "run_chip", "run_chip_frame",
            "chip_consts", "chip_counter_names", "const_values", "chip_blocks"]
 
 
@@ -101,18 +105,23 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
 
     from rtl.rtc_streams import RayResult
 
-    from .verilator import (BUILD_ROOT, MIN_MEM_WORDS, FrameError, _field, _pow2, _trace_kind,
+    from .verilator import (BUILD_ROOT, FrameError, _field, _pow2, _trace_kind,
                             build, run_binary, write_blocks)
     log = sys.stderr if log is None else log
     regs = frame_registers(cfg, image, camera, width, height)
     rays = eye_rays(camera, width, height, cfg)
     words = len(image.data)
-    mw = _pow2(words if mem_words is None else mem_words, MIN_MEM_WORDS)
+    mw = _pow2(words if mem_words is None else mem_words, CHIP_MIN_MEM_WORDS)
     if words > mw:
         raise ValueError(f"the memory image has {words} words, the simulation holds {mw}")
     b = build(cfg, mem_words=mw, ray_slots=0, mem_latency=cfg.mem_latency,
               trace=_trace_kind(trace_file), root=build_root or BUILD_ROOT, log=log, top="chip")
     names = chip_counter_names(cfg)
+    # the golden model traces the frame while the simulation runs (another process)
+    from concurrent.futures import ThreadPoolExecutor
+    pool = ThreadPoolExecutor(max_workers=1)
+    golden = pool.submit(trace, image, rays, cfg)
+    pool.shutdown(wait=False)
     out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs, stall=stall,
                                                               seed=seed, mem_stall=mem_stall)),
                      cfg, len(rays), max_cycles=max_cycles, trace_file=trace_file,
@@ -122,7 +131,8 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
     if out.status == 2:
         raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles))
-    run = _finish(cfg, image, rays, records, out.cycles, out.seconds, out.counters)
+    run = _finish(cfg, image, rays, records, out.cycles, out.seconds, out.counters,
+                  golden=golden.result())
     run.build, run.samples = b, out.samples
     return run
 
@@ -142,9 +152,10 @@ def stuck(cfg: Config, rays, records: dict, c: dict, max_cycles: int) -> str:
 
 
 def _finish(cfg: Config, image, rays, records: dict, cycles: int, seconds: float,
-            c: dict) -> ChipRun:
-    """Compare result ``records`` with the model; counters ``c`` by :func:`chip_counter_names`."""
-    hits, ctrs = trace(image, rays, cfg)
+            c: dict, golden=None) -> ChipRun:
+    """Compare result ``records`` with the model (``golden``: its ``trace`` of ``rays`` if
+    already done); counters ``c`` by :func:`chip_counter_names`."""
+    hits, ctrs = golden if golden is not None else trace(image, rays, cfg)
     by_ray = compare.results_by_ray(records, rays)
     chip_hits = compare.hits_of(by_ray, cfg, image)
     counters = {"cycles": cycles, "rays_in": c["rays_in"], "results_out": c["results_out"],

@@ -131,3 +131,22 @@ def test_a_stuck_frame_names_its_packets_and_rtcs():
     assert "packets never finished: [2, 3]" in text
     assert "RTC 0: 2 packets in, 2 done" in text and "RTC 1: 2 packets in, 0 done" in text
     assert "42 of 64 results" in text
+
+
+def test_stall_bench_passes_and_can_fail(cornell, tmp_path):
+    """``tb.bench_chip --seeds``: a few seeds of back-pressure and memory-latency jitter on the
+    small chip finish bit-exact; with a cycle limit no frame can meet, every seed is reported
+    as a failure naming the unfinished packets."""
+    import json
+
+    from tb.bench_chip import stall_bench
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    path = tmp_path / "stalls.json"
+    assert stall_bench(cfg, image, scene.camera, 8, 8, 3, path) == 0
+    res = json.loads(path.read_text())
+    assert res["runs"] == 3 and res["failures"] == []
+    assert len({r["cycles"] for r in res["per_run"]}) > 1          # the seeds differ
+    assert stall_bench(cfg, image, scene.camera, 8, 8, 2, path, max_cycles=200) == 1
+    res = json.loads(path.read_text())
+    assert len(res["failures"]) == 2 and "packets never finished" in res["failures"][0]["what"]
