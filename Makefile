@@ -2,6 +2,8 @@
 VENV  ?= .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.setup-done
+# the `saarcor` command line (pyproject's [project.scripts]; `saarcor --help`)
+SAARCOR := $(VENV)/bin/saarcor
 SCENE ?= scenes/cornell.toml
 RES   ?= 128x96
 OUT   ?= build/sim
@@ -42,29 +44,35 @@ CHIP_SMALL  ?= --rtcs 2 --threads 2 --tile-w 4 --tile-h 4 --trav-subunits 2 --tr
 	       --list-cache-kb 1 --int-cache-kb 9 --mem-latency 8
 bench: setup
 	mkdir -p build/bench
-	$(PY) -m model.bench --out build/bench $(if $(BENCH_MESH),--mesh $(BENCH_MESH))
-	$(PY) -m tb.bench_memory --scene $(BENCH_SCENE) --out build/bench
-	$(PY) -m tb.bench_threads --out build/bench
-	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
-	    --out build/bench --name threads_standard.json
-	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
-	    --mode async --out build/bench --name threads_standard_async.json
-	$(PY) -m tb.stress --out build/bench
-	$(PY) -m tb.bench_chip --res 256x192 --out build/bench
-	$(PY) -m tb.bench_chip --scene scenes/cornell.toml --res 16x16 --seeds 1000 $(CHIP_SMALL) \
+	$(SAARCOR) bench model --out build/bench $(if $(BENCH_MESH),--mesh $(BENCH_MESH))
+	$(SAARCOR) bench memory --scene $(BENCH_SCENE) --out build/bench
+	$(SAARCOR) bench threads --out build/bench
+	$(SAARCOR) bench threads --scene scenes/office.toml --res 128x96 --tile-w 8 --tile-h 8 \
+	    --trav-subunits 4 --out build/bench --name threads_standard.json
+	$(SAARCOR) bench threads --scene scenes/office.toml --res 128x96 --tile-w 8 --tile-h 8 \
+	    --trav-subunits 4 --trav-sync false --out build/bench --name threads_standard_async.json
+	$(SAARCOR) bench stress --out build/bench
+	$(SAARCOR) bench chip --res 256x192 --out build/bench
+	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 16x16 --seeds 1000 $(CHIP_SMALL) \
 	    --out build/bench
-	$(PY) -m tb.bench_chip --res 64x48 --seeds 16 --out build/bench
+	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:
 	rm -rf build
 
+## make render SCENE=scenes/office.toml RES=1024x768: the golden model alone -> build/render/
+##   (image.png, stats.json, rays.npz, hits.npz; `saarcor render --help` for every option)
+RENDER_OUT ?= build/render
+render: setup
+	$(SAARCOR) render $(SCENE) --res $(RES) --out $(RENDER_OUT)
+
 ## make verilog TOP=rtc CONFIG="--threads 4 --trav-cache-kb 4": build/verilog/$(TOP).v
-##   (TOP: any of `python -m rtl.export --list`; CONFIG: any Config field as --option)
+##   (TOP: any of `saarcor verilog --list`; CONFIG: any Config field as --option)
 TOP    ?= rtc
 CONFIG ?=
 verilog: setup
-	$(PY) -m rtl.export --top $(TOP) $(CONFIG)
+	$(SAARCOR) verilog --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
 ##   (YoWASP Yosys + nextpnr, an hour or more on 2 cores; not in CI) -> build/fpga/report.json, README.md
@@ -72,6 +80,6 @@ FPGA_TOP    ?= rtc
 FPGA_CONFIG ?= --threads 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8
 fpga: setup
 	$(VENV)/bin/pip install -q -e ".[fpga]"
-	$(PY) -m rtl.fpga --top $(FPGA_TOP) $(FPGA_CONFIG)
+	$(SAARCOR) fpga --top $(FPGA_TOP) $(FPGA_CONFIG)
 
-.PHONY: verilog fpga
+.PHONY: render verilog fpga
