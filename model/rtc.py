@@ -202,8 +202,13 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False):
     hit_v = np.empty(n, np.float32)
     ctrs = np.zeros((rays.n_packets, N_COUNTERS), np.int64)
     E, M = cfg.fmt.em
+    # C-contiguous whatever the caller's layout (eye rays' origins are Fortran-ordered, a
+    # chunk of them neither): numba compiles a kernel per array layout, so one layout keeps
+    # one compiled (and cached) kernel for every call
+    org = np.ascontiguousarray(rays.org, np.float32)
+    dirn = np.ascontiguousarray(rays.dir, np.float32)
     args = (image.data, image.node_base, image.list_base, image.tri_base, image.root,
-            image.depth, rays.pk_start, rays.org, rays.dir, rs.inv, rs.k, rs.s,
+            image.depth, np.ascontiguousarray(rays.pk_start), org, dirn, rs.inv, rs.k, rs.s,
             rs.tnear, rs.tfar, rays.tmax.astype(np.float32), rays.anyhit.astype(np.bool_),
             hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
     if not record:
