@@ -97,7 +97,7 @@ def run(name: str, cmd: Command, argv: list[str]) -> int:
     try:
         module = importlib.import_module(cmd.module)
     except ModuleNotFoundError as e:
-        if e.name and cmd.module.startswith(e.name):
+        if e.name and (cmd.module + ".").startswith(e.name + "."):
             path = cmd.module.replace(".", "/") + ".py"
             raise SystemExit(f"{name}: {path} ({cmd.module}) is not in this checkout; update "
                              f"the checkout to a version that has it")
