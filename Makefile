@@ -30,7 +30,7 @@ THREADS ?=
 BACKEND ?= verilator
 TRACE   ?=
 sim: setup
-	$(PY) -m tb.sim --scene $(SCENE) --res $(RES) --out $(OUT) --backend $(BACKEND) \
+	$(SAARCOR) sim --scene $(SCENE) --res $(RES) --out $(OUT) --backend $(BACKEND) \
 	    $(if $(RTCS),--rtcs $(RTCS)) $(if $(THREADS),--threads $(THREADS)) \
 	    $(if $(TRACE),--trace $(TRACE)) $(CONFIG)
 

@@ -125,8 +125,9 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs, stall=stall,
                                                               seed=seed, mem_stall=mem_stall)),
                      cfg, len(rays), max_cycles=max_cycles, trace_file=trace_file,
-                     trace_from=trace_from, progress=progress, log=log, desc="chip (Verilator)", names=names,
-                     allow_limit=True)
+                     trace_from=trace_from, progress=progress, log=log,
+                     desc="chip (Verilator)", names=names, allow_limit=True,
+                     sample_every=sample_every)
     lay = RayResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
     if out.status == 2:
