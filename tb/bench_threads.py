@@ -25,7 +25,8 @@ PAPER = {8: 7.5, 16: 12.2}
 
 
 def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], latency: int,
-          cache_dir="default", log=sys.stderr, sim: str = "amaranth") -> dict:
+          cache_dir="default", log=None, sim: str = "amaranth") -> dict:
+    log = sys.stderr if log is None else log
     from .rtc import run_rtc_free
     from .traversal import small_case
     if sim not in ("amaranth", "verilator"):

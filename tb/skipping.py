@@ -29,7 +29,8 @@ def _counters(res) -> dict:
 
 
 def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = False,
-            log=sys.stderr) -> dict:
+            log=None) -> dict:
+    log = sys.stderr if log is None else log
     scene = load_scene(scene_path)
     out: dict = {"scene": str(scene_path), "resolution": [width, height],
                  "config": {"reflect_depth": cfg.reflect_depth, "tile": [cfg.tile_w, cfg.tile_h]}}

@@ -123,7 +123,7 @@ class FrameBuild:
 
 def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_RAY_SLOTS,
           mem_latency: int = 20, trace: bool | str = False, root: Path | str = BUILD_ROOT,
-          log=sys.stderr, top: str = "rtc") -> FrameBuild:
+          log=None, top: str = "rtc") -> FrameBuild:
     """Export ``RTCFrame`` (``top="chip"``: ``tb.chip_frame.ChipFrame``) and compile it with
     Verilator, or reuse the cached binary.
 
@@ -131,6 +131,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
     2^16 rays, so small scenes and frames up to 256x256 share one binary). Safe against
     concurrent builds (file lock).
     """
+    log = sys.stderr if log is None else log
     mem_words, ray_slots = _pow2(mem_words, MIN_MEM_WORDS), _pow2(ray_slots, MIN_RAY_SLOTS)
     if trace not in (False, "fst", "vcd"):
         raise ValueError(f"trace={trace!r}: False, 'fst' or 'vcd'")
@@ -299,7 +300,7 @@ def _trace_kind(path) -> bool | str:
 
 
 def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
-               trace_file=None, trace_from: int = 0, progress: bool = True, log=sys.stderr,
+               trace_file=None, trace_from: int = 0, progress: bool = True, log=None,
                desc: str = "frame", names: list[str] | None = None,
                allow_limit: bool = False, sample_every: int = 0) -> FrameOutput:
     """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
@@ -308,6 +309,7 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
     the counters every that many cycles (``FrameOutput.samples``). A run that hits
     ``max_cycles`` raises :class:`FrameError` (``allow_limit``: returns it, status 2, for the
     caller to say what is stuck)."""
+    log = sys.stderr if log is None else log
     from tqdm import tqdm
     with tempfile.TemporaryDirectory(prefix="frame") as tmp:
         fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
@@ -354,11 +356,12 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
               max_cycles: int = 100_000_000,
               trace_file: str | Path | None = None, trace_from: int = 0,
               progress: bool = True, mem_words: int | None = None, ray_slots: int | None = None,
-              build_root: Path | str = BUILD_ROOT, log=sys.stderr) -> VerilatorRun:
+              build_root: Path | str = BUILD_ROOT, log=None) -> VerilatorRun:
     """Trace ``rays`` through ``image`` on one RTC in Verilator and compare every ray with the
     golden model (``model.rtc.trace``), as :func:`tb.rtc.run_rtc_free` does in pysim (same
     bubbles and back-pressure for the same ``seed``, so the same cycle count). ``mem_stall``:
     the fraction of cycles each memory holds its responses (random, in-order latency)."""
+    log = sys.stderr if log is None else log
 
     from rtl.rtc_streams import RayResult
     n = len(rays)
