@@ -104,10 +104,19 @@ def counter_mismatches(counters: Mapping[str, int], model: Mapping[str, int]) ->
     return {k: (counters[k], model[v]) for k, v in COMPARED.items() if counters[k] != model[v]}
 
 
-def describe(mismatches: list, counters: dict | None = None, first: int = 10) -> str:
-    """The first ``first`` result mismatches (and any counter mismatch) as text."""
+def describe(mismatches: list, counters: dict | None = None, first: int = 10,
+             rays=None) -> str:
+    """The first ``first`` result mismatches (and any counter mismatch) as text; with
+    ``rays`` (:class:`model.raygen.Rays`) each ray's pixel, kind and packet too."""
+    from model.render import KIND_NAMES
     lines = [f"{len(mismatches)} result mismatches"]
-    lines += [f"  ray {r}: {f} RTL {a:#x}, model {b:#x}" for r, f, a, b in mismatches[:first]]
+    for r, f, a, b in mismatches[:first]:
+        where = ""
+        if rays is not None:
+            pk = int(np.searchsorted(rays.pk_start, r, side="right") - 1)
+            where = (f" (pixel {int(rays.pixel[r])}, {KIND_NAMES[int(rays.kind[r])]}, "
+                     f"packet {pk} lane {r - int(rays.pk_start[pk])})")
+        lines.append(f"  ray {r}{where}: {f} RTL {a:#x}, model {b:#x}")
     if counters:
         lines.append(f"counters differ (rtc, model): {counters}")
     return "\n".join(lines)

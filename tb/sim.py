@@ -294,7 +294,7 @@ def main(argv=None) -> int:
           + f"; {len(r.mismatches)} mismatching rays; simulated at "
           f"{stats['sim_cycles_per_second']:,} cycles/s; -> {out}/")
     if r.mismatches:
-        print(describe(r.mismatches), file=log)
+        print(describe(r.mismatches, rays=rays), file=log)
         print("sim: reproduce with a waveform: the same command with --trace mismatch.fst "
               "(and --trace-from CYCLE to skip the frame's start)", file=log)
         return 1

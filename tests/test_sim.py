@@ -75,3 +75,14 @@ def test_sim_errors_name_the_problem(tmp_path):
         main(["--rtcs", "0", "--out", str(tmp_path)])
     with pytest.raises(SystemExit, match="VCD"):
         main(["--backend", "amaranth", "--trace", "x.fst", "--out", str(tmp_path)])
+
+
+def test_a_mismatch_names_the_rays_pixel_kind_and_packet():
+    """The text a mismatching run prints: ray id, pixel, kind, packet and lane, both values."""
+    from model.config import Config
+    from tb.compare import describe
+    rays = eye_rays(load_scene(ROOT / "scenes/cornell.toml").camera, 16, 8,
+                    Config(tile_w=4, tile_h=4))
+    text = describe([(37, "t", 0x3f800000, 0x3f800001)], rays=rays)
+    # 4x4 packets over a 16-pixel row: ray 37 = packet 2 (tiles x = 8..11), lane 5 (x + 1, y + 1)
+    assert "ray 37 (pixel 25, eye, packet 2 lane 5): t RTL 0x3f800000, model 0x3f800001" in text
