@@ -83,3 +83,13 @@ fpga: setup
 	$(SAARCOR) fpga --top $(FPGA_TOP) $(FPGA_CONFIG)
 
 .PHONY: render verilog fpga
+
+## make sweep SPEC=scenes/sweeps/rtcs.toml: a design-space sweep on Dask (configurations x scenes
+##   x resolutions, every point cached) -> build/sweep/<name>/results.csv (docs/sweep.md)
+##   SWEEP_ARGS="--workers 2 --scheduler tcp://host:8786 --max-cycles N"
+SPEC       ?= scenes/sweeps/rtcs.toml
+SWEEP_ARGS ?=
+sweep: setup
+	$(PY) -m tb.sweep $(SPEC) $(SWEEP_ARGS)
+
+.PHONY: sweep
