@@ -351,7 +351,8 @@ def _error_text(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
-def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default") -> dict:
+def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default",
+               threads: int = 1) -> dict:
     """Build (or find cached) the Verilator chip binaries a configuration needs for
     ``scene_paths`` (one per memory size; ``tb.chip.run_chip_frame`` looks them up the same
     way). Never raises: ``{"error": text or None, "built": [...], "seconds": s}``."""
@@ -362,6 +363,7 @@ def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default") 
     t0 = time.perf_counter()
     log = io.StringIO()
     try:
+        _set_threads(threads)
         cfg = config_of(config)
         sizes = set()
         for sp in scene_paths:
@@ -382,14 +384,23 @@ def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default") 
                 "traceback": traceback.format_exc() + log.getvalue()[-4000:]}
 
 
+def _set_threads(n: int) -> None:
+    """Numba threads of this worker thread (the golden model traces packets in parallel)."""
+    import numba
+    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
+
+
 def run_point(point: Point, code: str, *, max_cycles: int | None = None,
-              kd_cache: str = "default", build: dict | None = None) -> dict:
-    """One point on this worker. Never raises: ``{"status": "ok" | "mismatch" | "error",
-    "error", "stats", "seconds", "traceback"}``; ``stats`` is ``make sim``'s ``stats.json``
-    dict (chip) or the model's ``RenderResult.stats`` (model), JSON-clean."""
+              kd_cache: str = "default", build: dict | None = None,
+              threads: int = 1) -> dict:
+    """One point on this worker, the golden model on ``threads`` threads. Never raises:
+    ``{"status": "ok" | "mismatch" | "error", "error", "stats", "seconds", "traceback"}``;
+    ``stats`` is ``make sim``'s ``stats.json`` dict (chip) or the model's
+    ``RenderResult.stats`` (model), JSON-clean."""
     t0 = time.perf_counter()
     out = {"status": "error", "error": None, "stats": None, "traceback": None}
     try:
+        _set_threads(threads)
         mine = code_hash()
         if mine != code:
             raise RuntimeError(f"this worker's code (hash {mine}, {ROOT}) differs from the "
@@ -559,9 +570,10 @@ def _cache_write(path: Path, key: str, point: Point, result: dict) -> None:
 
 
 def run_sweep(spec: Spec, *, out: Path, cache: Path, client=None, max_cycles: int | None = None,
-              kd_cache: str = "default", progress: bool = True, log=None) -> dict:
+              kd_cache: str = "default", progress: bool = True, log=None,
+              threads: int = 1) -> dict:
     """Run (or take from ``cache``) every point of ``spec`` on ``client``; write the table to
-    ``out``. Returns ``{"rows", "points", "cached", "computed", "failed", "paths"}``."""
+    ``out``; each job runs the golden model on ``threads`` threads. Returns ``{"rows", "points", "cached", "computed", "failed", "paths"}``."""
     log = sys.stdout if log is None else log
     code = code_hash()
     digests = {sp: scene_hash(sp) for sp in {p.scene_path for p in spec.points}}
@@ -592,13 +604,13 @@ def run_sweep(spec: Spec, *, out: Path, cache: Path, client=None, max_cycles: in
                   "build/verilator/ first (a new one takes minutes)", file=log, flush=True)
             for j, (ident, (cfgd, scenes)) in enumerate(need.items()):
                 builds[ident] = client.submit(build_chip, cfgd, sorted(set(scenes)), kd_cache,
-                                              key=f"build-{j}-{token}", priority=10, pure=False)
+                                              threads, key=f"build-{j}-{token}", priority=10, pure=False)
         futs = {}
         for i in todo:
             p = spec.points[i]
             b = builds.get(json.dumps(p.config, sort_keys=True))
             f = client.submit(run_point, p, code, max_cycles=mc, kd_cache=kd_cache, build=b,
-                              key=f"point-{i}-{p.label().replace(' ', '-')}-{token}",
+                              threads=threads, key=f"point-{i}-{p.label().replace(' ', '-')}-{token}",
                               pure=False)
             futs[f] = i
         bar = tqdm(total=len(futs), desc=f"sweep {spec.name}", unit="point",
@@ -672,6 +684,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--workers", type=int, default=2, metavar="N",
                     help="workers to start (local: processes of one thread each; jobqueue: "
                          "workers requested from the batch system); default 2")
+    ap.add_argument("--job-threads", type=int, default=1, metavar="N",
+                    help="threads of each job's golden model (numba traces packets in "
+                         "parallel); default 1, so that a worker of one thread uses one core")
     ap.add_argument("--max-cycles", type=int, metavar="N",
                     help="chip backend: a point fails after this many cycles, naming what did "
                          "not finish (default: the spec's max_cycles, else 100000000)")
@@ -688,6 +703,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.workers < 1:
         raise SystemExit("sweep: --workers must be >= 1")
+    if args.job_threads < 1:
+        raise SystemExit("sweep: --job-threads must be >= 1")
     if args.max_cycles is not None and args.max_cycles < 1:
         raise SystemExit("sweep: --max-cycles must be >= 1")
     try:
@@ -722,7 +739,8 @@ def main(argv=None) -> int:
                   + ("" if importlib.util.find_spec("bokeh") else
                      " (pip install bokeh to serve it)"), flush=True)
         res = run_sweep(spec, out=out, cache=cache, client=client, max_cycles=args.max_cycles,
-                        kd_cache=args.kd_cache, progress=not args.quiet)
+                        kd_cache=args.kd_cache, progress=not args.quiet,
+                        threads=args.job_threads)
     finally:
         if client is not None:
             client.close()
