@@ -741,6 +741,10 @@ def main(argv=None) -> int:
         res = run_sweep(spec, out=out, cache=cache, client=client, max_cycles=args.max_cycles,
                         kd_cache=args.kd_cache, progress=not args.quiet,
                         threads=args.job_threads)
+    except KeyboardInterrupt:
+        print(f"sweep {spec.name}: interrupted; the points finished so far are cached in "
+              f"{cache}: run the same command again to resume", file=sys.stderr)
+        return 130
     finally:
         if client is not None:
             client.close()
