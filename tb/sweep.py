@@ -573,7 +573,8 @@ def run_sweep(spec: Spec, *, out: Path, cache: Path, client=None, max_cycles: in
               kd_cache: str = "default", progress: bool = True, log=None,
               threads: int = 1) -> dict:
     """Run (or take from ``cache``) every point of ``spec`` on ``client``; write the table to
-    ``out``; each job runs the golden model on ``threads`` threads. Returns ``{"rows", "points", "cached", "computed", "failed", "paths"}``."""
+    ``out``; each job runs the golden model on ``threads`` threads. Returns ``{"rows",
+    "points", "cached", "computed", "failed", "paths"}``."""
     log = sys.stdout if log is None else log
     code = code_hash()
     digests = {sp: scene_hash(sp) for sp in {p.scene_path for p in spec.points}}
@@ -585,7 +586,6 @@ def run_sweep(spec: Spec, *, out: Path, cache: Path, client=None, max_cycles: in
             results[i] = hit
     todo = [i for i in range(len(keys)) if i not in results]
     n_cached = len(results)
-    failed_tb = []
     if todo:
         if client is None:
             raise ValueError("run_sweep: points to compute but no Dask client")
@@ -604,13 +604,15 @@ def run_sweep(spec: Spec, *, out: Path, cache: Path, client=None, max_cycles: in
                   "build/verilator/ first (a new one takes minutes)", file=log, flush=True)
             for j, (ident, (cfgd, scenes)) in enumerate(need.items()):
                 builds[ident] = client.submit(build_chip, cfgd, sorted(set(scenes)), kd_cache,
-                                              threads, key=f"build-{j}-{token}", priority=10, pure=False)
+                                              threads, key=f"build-{j}-{token}", priority=10,
+                                              pure=False)
         futs = {}
         for i in todo:
             p = spec.points[i]
             b = builds.get(json.dumps(p.config, sort_keys=True))
             f = client.submit(run_point, p, code, max_cycles=mc, kd_cache=kd_cache, build=b,
-                              threads=threads, key=f"point-{i}-{p.label().replace(' ', '-')}-{token}",
+                              threads=threads,
+                              key=f"point-{i}-{p.label().replace(' ', '-')}-{token}",
                               pure=False)
             futs[f] = i
         bar = tqdm(total=len(futs), desc=f"sweep {spec.name}", unit="point",
