@@ -569,13 +569,14 @@ def _cache_write(path: Path, key: str, point: Point, result: dict) -> None:
     tmp.replace(path)
 
 
-def run_sweep(spec: Spec, *, out: Path, cache: Path, client=None, max_cycles: int | None = None,
-              kd_cache: str = "default", progress: bool = True, log=None,
-              threads: int = 1) -> dict:
+def run_sweep(spec: Spec, *, out: Path | str, cache: Path | str, client=None,
+              max_cycles: int | None = None, kd_cache: str = "default", progress: bool = True,
+              log=None, threads: int = 1) -> dict:
     """Run (or take from ``cache``) every point of ``spec`` on ``client``; write the table to
     ``out``; each job runs the golden model on ``threads`` threads. Returns ``{"rows",
     "points", "cached", "computed", "failed", "paths"}``."""
     log = sys.stdout if log is None else log
+    out, cache = Path(out), Path(cache)
     code = code_hash()
     digests = {sp: scene_hash(sp) for sp in {p.scene_path for p in spec.points}}
     keys = [point_key(p, code, digests[p.scene_path]) for p in spec.points]
