@@ -354,12 +354,13 @@ def _error_text(e: BaseException) -> str:
 def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default",
                threads: int = 1) -> dict:
     """Build (or find cached) the Verilator chip binaries a configuration needs for
-    ``scene_paths`` (one per memory size; ``tb.chip.run_chip_frame`` looks them up the same
-    way). Never raises: ``{"error": text or None, "built": [...], "seconds": s}``."""
+    ``scene_paths`` (one per memory size, usually one for all: ``tb.chip.run_chip_frame``
+    looks them up the same way). Never raises: ``{"error": text or None, "built": [...], "seconds": s}``."""
     from model.render import prepare
     from model.scene import load_scene
 
-    from .verilator import BUILD_ROOT, MIN_MEM_WORDS, _pow2, build
+    from .chip import CHIP_MIN_MEM_WORDS
+    from .verilator import BUILD_ROOT, _pow2, build
     t0 = time.perf_counter()
     log = io.StringIO()
     try:
@@ -372,7 +373,7 @@ def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default",
             except Exception:       # the point reports its own scene error
                 continue
             sizes.add(_pow2(len(prepare(scene, cfg, cache_dir=kd_cache).image.data),
-                            MIN_MEM_WORDS))
+                            CHIP_MIN_MEM_WORDS))
         built = []
         for mw in sorted(sizes):
             b = build(cfg, mem_words=mw, ray_slots=0, mem_latency=cfg.mem_latency, trace=False,
