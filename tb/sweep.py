@@ -426,7 +426,9 @@ def run_point(point: Point, code: str, *, max_cycles: int | None = None,
                                 height=point.height, backend="verilator",
                                 wall=time.perf_counter() - t0)
             if run.mismatches:
-                out.update(status="mismatch", error=describe(run.mismatches, first=3)
+                from model.raygen import eye_rays
+                rays = eye_rays(scene.camera, point.width, point.height, cfg)
+                out.update(status="mismatch", error=describe(run.mismatches, first=3, rays=rays)
                            .replace("\n", ";"))
         out["stats"] = json.loads(json.dumps(stats, default=_jsonable))
         if out["status"] != "mismatch":
