@@ -31,6 +31,8 @@ COMMANDS: dict[str, Command] = {
                                      "nextpnr); resources and Fmax"),
     "verilator": Command("tb.verilator", "trace a frame through one RTC in Verilator, every ray "
                                          "compared with the golden model"),
+    "sweep": Command("tb.sweep", "a design-space sweep (configurations x scenes x resolutions) "
+                                 "on Dask, cached per point, into one results table"),
 }
 """Top-level commands; ``bench`` (below) is a group of its own."""
 

@@ -19,6 +19,8 @@ OPTION = {
     ("verilog",): "--threads",
     ("fpga",): "--freq",
     ("verilator",): "--mem-stall",
+    ("sweep",): "--scheduler",
+    ("sim",): "--mem-stall",
     ("bench", "chip"): "--seeds",
     ("bench", "memory"): "--words-per-chip",
     ("bench", "threads"): "--thread-counts",
@@ -38,7 +40,7 @@ def call(argv, capsys):
 
 
 def test_every_command_has_a_help_test():
-    names = {(n,) for n in COMMANDS if n != "sim"} | {("bench", n) for n in BENCHES}
+    names = {(n,) for n in COMMANDS} | {("bench", n) for n in BENCHES}
     assert names == set(OPTION)
 
 
@@ -74,15 +76,6 @@ def test_command_help_is_the_modules_help(cmd, capsys):
     assert OPTION[cmd] in out, out
     if cmd in (("render",), ("verilog",), ("bench", "threads")):   # Config options, generated
         assert "--trav-cache-kb" in out and "--fmt" in out
-
-
-def test_sim_forwards_to_tb_sim_or_says_it_is_missing(capsys):
-    status, out, err = call(["sim", "--help"], capsys)
-    if importlib.util.find_spec("tb.sim") is not None:
-        assert status == 0, err
-        assert "--scene" in out
-    else:
-        assert status != 0 and "tb/sim.py" in err
 
 
 @pytest.mark.parametrize("argv, words", [
