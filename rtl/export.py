@@ -227,6 +227,16 @@ def config_from_args(args: argparse.Namespace) -> Config:
     return Config(**changes)
 
 
+def config_and_res(args: argparse.Namespace, prog: str) -> tuple[Config, int, int]:
+    """The :class:`Config` (:func:`config_from_args`) and the ``--res`` width and height of a
+    command line; a bad value exits naming it (``prog: ...``)."""
+    from model.cli import parse_res
+    try:
+        return (config_from_args(args), *parse_res(args.res))
+    except (ConfigError, argparse.ArgumentTypeError) as e:
+        raise SystemExit(f"{prog}: {e}")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(prog="python -m rtl.export",
                                  description="Write the Verilog of a unit or of the one-RTC top.")

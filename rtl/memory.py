@@ -79,6 +79,12 @@ def _storage(image, addr_width: int, *, load: bool, depth: int | None, store, wh
     return image_memory(image, addr_width)
 
 
+def _load_port(m: Module, top, mem) -> None:
+    """``top``'s load port (``ld_en``, ``ld_addr``, ``ld_data``) writes ``mem``."""
+    wr = mem.write_port()
+    m.d.comb += [wr.addr.eq(top.ld_addr), wr.data.eq(top.ld_data), wr.en.eq(top.ld_en)]
+
+
 class IdealMemory(wiring.Component):
     """Memory with a fixed latency and a request queue.
 
@@ -134,9 +140,7 @@ class IdealMemory(wiring.Component):
         req, resp = self.port.req, self.port.resp
         tag_width = len(req.payload.tag)
         if self.load:
-            wr = mem.write_port()
-            m.d.comb += [wr.addr.eq(self.ld_addr), wr.data.eq(self.ld_data),
-                         wr.en.eq(self.ld_en)]
+            _load_port(m, self, mem)
 
         inflight = Signal(range(self.queue + 1))
         accept = req.valid & req.ready
@@ -233,9 +237,7 @@ class SDRAMMemory(wiring.Component):
         n, bits = self.chips, self.chips.bit_length() - 1
         rd = mem.read_port(domain="comb")
         if self.load:
-            wr = mem.write_port()
-            m.d.comb += [wr.addr.eq(self.ld_addr), wr.data.eq(self.ld_data),
-                         wr.en.eq(self.ld_en)]
+            _load_port(m, self, mem)
 
         now = Signal(COUNTER_BITS)
         phase = Signal(range(self.clock_ratio))

@@ -31,7 +31,7 @@ from .chip_frame import REGISTERS, ChipFrame, chip_consts, chip_counter_names
 # about a million triangles), so one build per configuration serves every scene
 CHIP_MIN_MEM_WORDS = 1 << 23
 
-__all__ = ["CHIP_MIN_MEM_WORDS", "frame_registers", "ChipFrame", "ChipRun", "run_chip", "run_chip_frame",
+__all__ = ["CHIP_MIN_MEM_WORDS", "chip_build", "frame_registers", "ChipFrame", "ChipRun", "run_chip", "run_chip_frame",
            "chip_consts", "chip_counter_names", "const_values", "chip_blocks"]
 
 
@@ -60,8 +60,9 @@ class ChipRun:
     counters: dict                 # the chip's counters (per RTC, caches, memory)
     model: dict                    # the model's counter totals
     mismatches: list = field(default_factory=list)
-    records: dict = field(default_factory=dict)    # the chip's results, in output order
     hits: object = None            # the chip's hits by ray id (model.rtc.Hits, scene ids)
+    eye: object = None             # the frame's rays (model.raygen.Rays) the hits belong to
+    build: object = None           # the Verilator binary (tb.verilator.FrameBuild), if any
     # counters every ``sample_every`` cycles: columns cycle, results, then chip_counter_names
     samples: np.ndarray | None = None
 
@@ -105,17 +106,16 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
 
     from rtl.rtc_streams import RayResult
 
-    from .verilator import (BUILD_ROOT, FrameError, _field, _pow2, _trace_kind,
-                            build, run_binary, write_blocks)
+    from .verilator import FrameError, _field, _trace_kind, run_binary, write_blocks
     log = sys.stderr if log is None else log
     regs = frame_registers(cfg, image, camera, width, height)
     rays = eye_rays(camera, width, height, cfg)
     words = len(image.data)
-    mw = _pow2(words if mem_words is None else mem_words, CHIP_MIN_MEM_WORDS)
-    if words > mw:
-        raise ValueError(f"the memory image has {words} words, the simulation holds {mw}")
-    b = build(cfg, mem_words=mw, ray_slots=0, mem_latency=cfg.mem_latency,
-              trace=_trace_kind(trace_file), root=build_root or BUILD_ROOT, log=log, top="chip")
+    if mem_words is not None and words > mem_words:
+        raise ValueError(f"the memory image has {words} words, mem_words={mem_words} holds "
+                         "fewer (leave mem_words out to size the binary from the image)")
+    b = chip_build(cfg, words if mem_words is None else mem_words,
+                   trace=_trace_kind(trace_file), build_root=build_root, log=log)
     names = chip_counter_names(cfg)
     # the golden model traces the frame while the simulation runs (another process)
     from concurrent.futures import ThreadPoolExecutor
@@ -136,6 +136,16 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                   golden=golden.result())
     run.build, run.samples = b, out.samples
     return run
+
+
+def chip_build(cfg: Config, mem_words: int, *, trace=False, build_root=None, log=None):
+    """The Verilator binary of :class:`ChipFrame` for ``cfg`` holding at least ``mem_words``
+    words (rounded up to a power of two, at least :data:`CHIP_MIN_MEM_WORDS`): built, or found
+    in ``build_root`` (default ``build/verilator``). Returns a ``tb.verilator.FrameBuild``."""
+    from .verilator import BUILD_ROOT, _pow2, build
+    return build(cfg, mem_words=_pow2(mem_words, CHIP_MIN_MEM_WORDS), ray_slots=0,
+                 mem_latency=cfg.mem_latency, trace=trace, root=build_root or BUILD_ROOT,
+                 log=log, top="chip")
 
 
 def stuck(cfg: Config, rays, records: dict, c: dict, max_cycles: int) -> str:
@@ -170,7 +180,7 @@ def _finish(cfg: Config, image, rays, records: dict, cycles: int, seconds: float
         counters[k] = [{cc: c[f"rtc{r}_{cc}_{k}"] for cc in CACHES} for r in range(cfg.rtcs)]
     return ChipRun(cycles, seconds, len(rays), counters, counter_totals(ctrs),
                    compare.result_mismatches(by_ray, compare.expected(hits, cfg, image)),
-                   records, chip_hits)
+                   chip_hits, rays)
 
 
 def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: float = 0.0,

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from amaranth.hdl import Module
 from amaranth.lib import wiring
-from amaranth.lib.wiring import In, Out
 
 from model.config import Config
 from rtl.chip import Chip, counter_names
@@ -97,7 +96,7 @@ class ChipFrame(wiring.Component):
         from amaranth.lib.memory import Memory
         from amaranth.utils import ceil_log2
 
-        from .frame import VerilogMemory, result_bits
+        from .frame import VerilogMemory, frame_signature
         from .lfsr import LFSR
         self.cfg = cfg
         self.chip = Chip(cfg)
@@ -114,15 +113,7 @@ class ChipFrame(wiring.Component):
                                   chip_queue=cfg.mem_chip_queue, load=True, store=store)
         self.consts = chip_consts(cfg)
         self.names = chip_counter_names(cfg)
-        super().__init__({
-            "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
-            "start": In(1),
-            "res_valid": Out(1), "res_data": Out(result_bits(cfg)),
-            "finished": Out(1), "running": Out(1),
-            "cycles": Out(32), "results": Out(32),
-            "counters": Out(32 * len(self.names)),
-            "cap_mem_words": Out(32), "cap_ray_slots": Out(32),
-        })
+        super().__init__(frame_signature(cfg, len(self.names)))
         values = {} if preload is None else preload["consts"]
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True,
                                    init=int(values.get(name, 0))) for name in self.consts}
@@ -131,19 +122,13 @@ class ChipFrame(wiring.Component):
         self.finished_run = Signal()
 
     def elaborate(self, platform):
-        from amaranth.hdl import ResetInserter, Signal
-        from .frame import SEL_CONST, SEL_IMAGE
+        from amaranth.hdl import ResetInserter
+        from .frame import SEL_IMAGE, load_consts_and_start
         m = Module()
-        sel, addr, data = self.ld_sel, self.ld_addr, self.ld_data
         mem = self.memory
-        m.d.comb += [mem.ld_en.eq(self.ld_valid & (sel == SEL_IMAGE)), mem.ld_addr.eq(addr),
-                     mem.ld_data.eq(data)]
-        for k, name in enumerate(self.consts):
-            with m.If(self.ld_valid & (sel == SEL_CONST) & (addr == k)):
-                m.d.sync += self.const[name].eq(data)
-        run = Signal()
-        with m.If(self.start):
-            m.d.sync += run.eq(1)
+        m.d.comb += [mem.ld_en.eq(self.ld_valid & (self.ld_sel == SEL_IMAGE)),
+                     mem.ld_addr.eq(self.ld_addr), mem.ld_data.eq(self.ld_data)]
+        run = load_consts_and_start(m, self, self.consts)
         m.submodules.lfsr, m.submodules.mem_lfsr = self.lfsr, self.mem_lfsr
         m.d.comb += [self.lfsr.en.eq(run), self.lfsr.seed.eq(self.const["seed"]),
                      self.mem_lfsr.en.eq(run), self.mem_lfsr.seed.eq(self.const["mem_seed"])]

@@ -72,6 +72,32 @@ def result_bits(cfg: Config) -> int:
     return max(96, -(-RayResult(cfg).size // 32) * 32)
 
 
+def frame_signature(cfg: Config, counters: int) -> dict:
+    """The ports of a Verilator frame top (:class:`RTCFrame`, ``tb.chip_frame.ChipFrame``):
+    what ``tb/verilator_main.cpp`` drives and reads; ``counters`` 32-bit counter fields."""
+    return {
+        "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
+        "start": In(1),
+        "res_valid": Out(1), "res_data": Out(result_bits(cfg)),
+        "finished": Out(1), "running": Out(1),
+        "cycles": Out(COUNTER_BITS), "results": Out(COUNTER_BITS),
+        "counters": Out(COUNTER_BITS * counters),
+        "cap_mem_words": Out(32), "cap_ray_slots": Out(32),
+    }
+
+
+def load_consts_and_start(m: Module, top, consts) -> Signal:
+    """In a frame top: constant ``k`` of ``consts`` into ``top.const[name]`` when the load port
+    writes address ``k`` with ``ld_sel`` = CONST; returns ``run``, set by ``start``."""
+    for k, name in enumerate(consts):
+        with m.If(top.ld_valid & (top.ld_sel == SEL_CONST) & (top.ld_addr == k)):
+            m.d.sync += top.const[name].eq(top.ld_data)
+    run = Signal()
+    with m.If(top.start):
+        m.d.sync += run.eq(1)
+    return run
+
+
 class VerilogMemory(Elaboratable):
     """A memory of ``depth`` (a power of two) x ``width`` bits held by ``tb/frame_mem.v``
     (an ``Instance``; Verilator builds only), with ``lib.memory.Memory``'s port methods: one
@@ -182,15 +208,7 @@ class RTCFrame(wiring.Component):
                              "chunks; the ray load address has room for 8")
         self.ray_mem = store(64 * self.chunks, self.ray_slots)
         self.names = counter_names(cfg)
-        super().__init__({
-            "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
-            "start": In(1),
-            "res_valid": Out(1), "res_data": Out(result_bits(cfg)),
-            "finished": Out(1), "running": Out(1),
-            "cycles": Out(COUNTER_BITS), "results": Out(COUNTER_BITS),
-            "counters": Out(COUNTER_BITS * len(self.names)),
-            "cap_mem_words": Out(32), "cap_ray_slots": Out(32),
-        })
+        super().__init__(frame_signature(cfg, len(self.names)))
         # loaded constants: registers that reset does not touch
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True) for name in CONSTS}
         # bubbles, back-pressure, then the holds of the node, list and tri memories
@@ -209,14 +227,8 @@ class RTCFrame(wiring.Component):
         m.d.comb += [wr.addr.eq(addr[3:]), wr.data.eq(data.replicate(self.chunks)),
                      wr.en.eq(_chunk_enable(self.ld_valid & (sel == SEL_RAYS), addr[:3],
                                             self.chunks))]
-        for k, name in enumerate(CONSTS):
-            with m.If(self.ld_valid & (sel == SEL_CONST) & (addr == k)):
-                m.d.sync += self.const[name].eq(data)
-
         # start: leave reset; the LFSRs hold their seeds until then
-        run = Signal()
-        with m.If(self.start):
-            m.d.sync += run.eq(1)
+        run = load_consts_and_start(m, self, CONSTS)
         for j, lfsr in enumerate(self.lfsr):
             m.submodules[f"lfsr{j}"] = lfsr
             m.d.comb += [lfsr.en.eq(run), lfsr.seed.eq(self.const[f"seed{j}"])]

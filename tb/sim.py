@@ -33,9 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from model.config import Config, ConfigError
+from model.config import Config
 
-__all__ = ["frame_stats", "shade_eye_hits", "write_usage_plot", "main"]
+__all__ = ["relative_performance", "frame_stats", "shade_eye_hits", "write_usage_plot",
+           "main"]
 
 ROOT = Path(__file__).resolve().parents[1]
 UNITS = ("trav", "list", "int")
@@ -64,6 +65,25 @@ def shade_eye_hits(scene, cfg: Config, image, rays, hits, n_pixels: int) -> np.n
     return color
 
 
+def relative_performance(cfg, cycles: int, trav_ops: int, int_ops: int) -> dict:
+    """fps, fps_ideal, the bound (trav or int) and their ratio for a frame of ``cycles``.
+
+    Relative performance (the paper's measure) = fps / fps_ideal with
+    ``fps_ideal = clock / max(trav_ops / (rtcs * trav_subunits), int_ops / rtcs)``: the
+    frame's cycles against the cycles its traversal and intersection work would take at one
+    operation per cycle on every sub-unit and intersection unit, so 100 % means the busiest
+    kind of unit never waited. Both op counts are the chip's own counters (equal to the
+    golden model's)."""
+    trav = trav_ops / (cfg.rtcs * cfg.trav_subunits)
+    inter = int_ops / cfg.rtcs
+    ideal = max(trav, inter, 1)
+    clock = cfg.clock_mhz * 1e6
+    return {"fps": clock / cycles, "fps_ideal": clock / ideal,
+            "relative_performance": ideal / cycles,
+            "bound": "trav-ops" if trav >= inter else "int-ops",
+            "trav_cycles_ideal": trav, "int_cycles_ideal": inter}
+
+
 def _sum(per_rtc: list, key: str) -> int:
     return int(sum(x[key] for x in per_rtc))
 
@@ -71,7 +91,6 @@ def _sum(per_rtc: list, key: str) -> int:
 def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backend: str,
                 wall: float) -> dict:
     """The figures of a chip frame (``run``: a :class:`tb.chip.ChipRun`) as ``stats.json``."""
-    from .bench_chip import relative_performance
     c, cyc = run.counters, max(1, run.cycles)
     rtc = c["rtc"]
     trav, inter, lst = _sum(rtc, "trav_ops"), _sum(rtc, "int_ops"), _sum(rtc, "list_ops")
@@ -108,8 +127,8 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "sim_seconds": round(run.seconds, 3),
         "sim_cycles_per_second": round(run.cycles / max(run.seconds, 1e-9)),
         "wall_seconds": round(wall, 2),
-        "build": {"built": bool(getattr(run, "build", None) and run.build.built),
-                  "seconds": round(run.build.seconds, 1) if getattr(run, "build", None) else 0},
+        "build": {"built": bool(run.build and run.build.built),
+                  "seconds": round(run.build.seconds, 1) if run.build else 0},
         "image": "the chip's eye-ray hits shaded on the host (ambient + Phong, no shadow or "
                  "reflection rays: the chip's RGS does not make them yet)",
         "config": cfg.to_dict(),
@@ -175,6 +194,9 @@ def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: P
 
 def build_parser() -> argparse.ArgumentParser:
     from rtl.export import add_config_args
+
+    from .lfsr import add_stall_args
+    from .verilator import add_trace_args
     ap = argparse.ArgumentParser(
         prog="python -m tb.sim",
         description="Render a frame through the whole SaarCOR chip (RGS, RTCs, caches, bus, "
@@ -190,21 +212,11 @@ def build_parser() -> argparse.ArgumentParser:
                          "amaranth (Amaranth's Python simulator: tiny frames only); default "
                          "verilator")
     ap.add_argument("--out", default="build/sim", help="output directory (default build/sim)")
-    ap.add_argument("--trace", metavar="FILE",
-                    help="write a waveform: FST, or VCD if the name ends in .vcd (Verilator: a "
-                         "separate tracing build; Amaranth: VCD only)")
-    ap.add_argument("--trace-from", type=int, default=0, metavar="CYCLE",
-                    help="Verilator: start the waveform at this cycle (default 0)")
-    ap.add_argument("--stall", type=float, default=0.0,
-                    help="fraction of cycles the chip's results are back-pressured "
-                         "(0 .. 15/16; default 0)")
-    ap.add_argument("--mem-stall", type=float, default=0.0,
-                    help="fraction of cycles the SDRAM model holds its responses: random "
-                         "memory latency (0 .. 15/16; default 0)")
-    ap.add_argument("--seed", type=int, default=1, help="LFSR seed of --stall / --mem-stall")
+    add_trace_args(ap)
+    add_stall_args(ap, "the SDRAM model")
     ap.add_argument("--sample-every", type=int, default=0, metavar="CYCLES",
                     help="counter sampling interval for usage.png (default: about 200 samples "
-                         "over the frame, from the model's op counts)")
+                         "over the frame, guessing 20 cycles a ray per RTC)")
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles, naming what did not finish "
                          "(default 100000000)")
@@ -216,24 +228,15 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    from rtl.export import config_from_args
+    from rtl.export import config_and_res
     ap = build_parser()
     args = ap.parse_args(argv)
-    try:
-        cfg = config_from_args(args)
-        w, h = (int(x) for x in args.res.lower().split("x"))
-        if w < 1 or h < 1:
-            raise ValueError
-    except ConfigError as e:
-        raise SystemExit(f"sim: {e}")
-    except ValueError:
-        raise SystemExit(f"sim: --res {args.res!r}: write WxH with positive sizes, e.g. 128x96")
+    cfg, w, h = config_and_res(args, "sim")
     if not Path(args.scene).exists():
         raise SystemExit(f"sim: scene {args.scene!r} not found (try scenes/*.toml)")
     if args.trace and args.backend == "amaranth" and not args.trace.endswith(".vcd"):
         raise SystemExit("sim: --backend amaranth writes VCD waveforms only: name the file *.vcd")
-    from model.raygen import eye_rays
-    from model.render import prepare, to_srgb8
+    from model.render import prepare, to_srgb8, write_rays_hits
     from model.scene import SceneError, load_scene
 
     from .chip import run_chip, run_chip_frame
@@ -247,8 +250,8 @@ def main(argv=None) -> int:
     except SceneError as e:
         raise SystemExit(f"sim: {e}")
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
-    rays = eye_rays(scene.camera, w, h, cfg)
-    every = args.sample_every or max(64, _guess_cycles(cfg, len(rays)) // 200)
+    n_rays = w * h * cfg.oversampling ** 2
+    every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 200)
     log = sys.stderr
     try:
         if args.backend == "verilator":
@@ -259,7 +262,7 @@ def main(argv=None) -> int:
                                sample_every=every)
         else:
             if not args.quiet:
-                print(f"sim: Amaranth's simulator, {len(rays)} rays (a few hundred cycles/s "
+                print(f"sim: Amaranth's simulator, {n_rays} rays (a few hundred cycles/s "
                       "for the standard chip: use tiny frames)", file=log)
             r = run_chip(cfg, prep.image, scene.camera, w, h, stall=args.stall,
                          mem_stall=args.mem_stall, seed=args.seed, max_cycles=args.max_cycles,
@@ -274,12 +277,9 @@ def main(argv=None) -> int:
                         wall=wall)
     (out / "stats.json").write_text(json.dumps(stats, indent=1))
     from PIL import Image
-    color = shade_eye_hits(scene, cfg, prep.image, rays, r.hits, w * h)
+    color = shade_eye_hits(scene, cfg, prep.image, r.eye, r.hits, w * h)
     Image.fromarray(to_srgb8(color.reshape(h, w, 3))).save(out / "image.png")
-    np.savez(out / "rays.npz", origin=rays.org, direction=rays.dir, tmax=rays.tmax,
-             kind=rays.kind, pixel=rays.pixel, packet_start=rays.pk_start)
-    np.savez(out / "hits.npz", tri=r.hits.tri.astype(np.int32), t=r.hits.t, u=r.hits.u,
-             v=r.hits.v)
+    write_rays_hits(out, r.eye, r.hits)
     if r.samples is not None and len(r.samples):
         write_usage_plot(cfg, r.samples, chip_counter_names(cfg), out / "usage.png",
                          f"{Path(args.scene).stem} {w}x{h}, {cfg.rtcs} RTCs x "
@@ -294,7 +294,7 @@ def main(argv=None) -> int:
           + f"; {len(r.mismatches)} mismatching rays; simulated at "
           f"{stats['sim_cycles_per_second']:,} cycles/s; -> {out}/")
     if r.mismatches:
-        print(describe(r.mismatches, rays=rays), file=log)
+        print(describe(r.mismatches, rays=r.eye), file=log)
         print("sim: reproduce with a waveform: the same command with --trace mismatch.fst "
               "(and --trace-from CYCLE to skip the frame's start)", file=log)
         return 1

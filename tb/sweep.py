@@ -133,11 +133,12 @@ def parse_fmt(v) -> FPFormat:
         if extra:
             raise ConfigError(f"fmt table: unknown keys {sorted(extra)}; use exp_bits, frac_bits")
         return FPFormat(int(v.get("exp_bits", 8)), int(v.get("frac_bits", 23)))
-    m = re.fullmatch(r"E(\d+)M(\d+)", str(v))
-    if not m:
+    from rtl.export import parse_fmt as parse_fmt_text
+    try:
+        return parse_fmt_text(str(v))
+    except ConfigError:
         raise ConfigError(f"fmt {v!r}: write the format as E<exp>M<frac>, e.g. \"E8M23\", or "
-                          "as a table {exp_bits = 8, frac_bits = 23}")
-    return FPFormat(int(m[1]), int(m[2]))
+                          "as a table {exp_bits = 8, frac_bits = 23}") from None
 
 
 def _check_field(name: str, value, where: str):
@@ -168,11 +169,12 @@ def _check_field(name: str, value, where: str):
 
 
 def parse_resolution(text, where: str) -> tuple[int, int]:
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", str(text))
-    if not m or int(m[1]) < 1 or int(m[2]) < 1:
+    from model.cli import parse_res
+    try:
+        return parse_res(str(text))
+    except argparse.ArgumentTypeError:
         raise SpecError(f"{where}: resolution {text!r}: write \"WxH\" with positive sizes, "
-                        "e.g. \"32x24\"")
-    return int(m[1]), int(m[2])
+                        "e.g. \"32x24\"") from None
 
 
 def _str_list(v, key: str, where: str) -> list[str]:
@@ -359,8 +361,8 @@ def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default",
     from model.render import prepare
     from model.scene import load_scene
 
-    from .chip import CHIP_MIN_MEM_WORDS
-    from .verilator import BUILD_ROOT, _pow2, build
+    from .chip import CHIP_MIN_MEM_WORDS, chip_build
+    from .verilator import _pow2
     t0 = time.perf_counter()
     log = io.StringIO()
     try:
@@ -376,8 +378,7 @@ def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default",
                             CHIP_MIN_MEM_WORDS))
         built = []
         for mw in sorted(sizes):
-            b = build(cfg, mem_words=mw, ray_slots=0, mem_latency=cfg.mem_latency, trace=False,
-                      root=BUILD_ROOT, log=log, top="chip")
+            b = chip_build(cfg, mw, log=log)
             built.append({"dir": b.dir.name, "built": b.built, "seconds": round(b.seconds, 1)})
         return {"error": None, "built": built, "seconds": time.perf_counter() - t0}
     except Exception as e:
@@ -426,9 +427,8 @@ def run_point(point: Point, code: str, *, max_cycles: int | None = None,
                                 height=point.height, backend="verilator",
                                 wall=time.perf_counter() - t0)
             if run.mismatches:
-                from model.raygen import eye_rays
-                rays = eye_rays(scene.camera, point.width, point.height, cfg)
-                out.update(status="mismatch", error=describe(run.mismatches, first=3, rays=rays)
+                out.update(status="mismatch",
+                           error=describe(run.mismatches, first=3, rays=run.eye)
                            .replace("\n", ";"))
         out["stats"] = json.loads(json.dumps(stats, default=_jsonable))
         if out["status"] != "mismatch":

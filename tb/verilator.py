@@ -39,7 +39,7 @@ from rtl.tools import ToolMissing, tool
 
 from . import compare
 from .frame import CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, ray_chunks
-from .lfsr import lfsr_seeds, sixteenths
+from .lfsr import add_stall_args, lfsr_seeds, sixteenths
 from .rtc import RTCRun, finish
 
 __all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "write_blocks",
@@ -293,6 +293,17 @@ def _field(words: np.ndarray, offset: int, width: int) -> np.ndarray:
     return (v & np.uint64((1 << width) - 1)).astype(np.int64)
 
 
+def add_trace_args(ap) -> None:
+    """``--trace FILE`` and ``--trace-from CYCLE`` of a frame's command line."""
+    ap.add_argument("--trace", metavar="FILE",
+                    help="write a waveform of every signal: FST, or VCD if the name ends in "
+                         ".vcd (Verilator: a separate, slower tracing binary; for short runs or "
+                         "with --trace-from)")
+    ap.add_argument("--trace-from", type=int, default=0, metavar="CYCLE",
+                    help="Verilator: start the waveform at this run cycle (default 0: from "
+                         "the load on)")
+
+
 def _trace_kind(path) -> bool | str:
     if path is None:
         return False
@@ -397,7 +408,7 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
 # --- CLI ------------------------------------------------------------------------------------
 
 def main(argv=None) -> int:
-    from rtl.export import add_config_args, config_from_args
+    from rtl.export import add_config_args, config_and_res
     ap = argparse.ArgumentParser(
         prog="python -m tb.verilator",
         description="Trace a frame of eye rays through one RTC (rtl/rtc.py) in Verilator and "
@@ -414,23 +425,10 @@ def main(argv=None) -> int:
     ap.add_argument("--idle", type=float, default=0.0,
                     help="fraction of cycles without a ray offered (0 .. 15/16, in steps of "
                          "1/16; default 0)")
-    ap.add_argument("--stall", type=float, default=0.0,
-                    help="fraction of cycles the results are back-pressured (0 .. 15/16; "
-                         "default 0)")
-    ap.add_argument("--mem-stall", type=float, default=0.0,
-                    help="fraction of cycles each memory holds its responses, making the "
-                         "latency random (responses stay in order, as from a cache; 0 .. 15/16; "
-                         "default 0)")
-    ap.add_argument("--seed", type=int, default=1,
-                    help="LFSR seed for --idle/--stall/--mem-stall")
+    add_stall_args(ap, "each memory (in order, as behind a cache)")
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles (default 100000000)")
-    ap.add_argument("--trace", metavar="OUT.fst",
-                    help="write a waveform of every signal: FST, or VCD if the name ends in "
-                         ".vcd (builds a separate, slower tracing binary; for short runs or "
-                         "with --trace-from)")
-    ap.add_argument("--trace-from", type=int, default=0, metavar="CYCLE",
-                    help="start the waveform at this run cycle (default 0: from the load on)")
+    add_trace_args(ap)
     ap.add_argument("--json", metavar="OUT.json", help="write the figures as JSON")
     ap.add_argument("--build-dir", default=str(BUILD_ROOT),
                     help="where binaries are cached (default build/verilator)")
@@ -439,13 +437,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     add_config_args(ap)
     args = ap.parse_args(argv)
-    try:
-        cfg = config_from_args(args)
-        w, h = (int(x) for x in args.res.lower().split("x"))
-    except ConfigError as e:
-        raise SystemExit(f"tb.verilator: {e}")
-    except ValueError:
-        raise SystemExit(f"tb.verilator: --res {args.res!r}: write WxH, e.g. 64x48")
+    cfg, w, h = config_and_res(args, "tb.verilator")
     latency = args.latency if args.latency is not None else cfg.mem_latency
     if not Path(args.scene).exists():
         raise SystemExit(f"tb.verilator: scene {args.scene!r} not found (try scenes/*.toml)")
