@@ -32,10 +32,12 @@ class Config:
     int_tri_slots: int = 8         # triangles the intersection unit holds (fetched ahead + tested)
     list_outstanding: int = 8      # list-word reads the list unit keeps in flight
     # pipeline stages of the RTL's FP units (0: the unit's default: add 3, mul 3, divider
-    # ceil((M+3)/4)+1 = 8 at binary32); more stages trade latency for clock rate (docs/fpga.md)
+    # ceil((M+3)/4)+1 = 8 at binary32, square root ceil((M+2)/4)+1 = 8); more stages trade
+    # latency for clock rate (docs/fpga.md)
     fp_add_latency: int = 0
     fp_mul_latency: int = 0
     fp_div_latency: int = 0
+    fp_sqrt_latency: int = 0
     tile_w: int = 8                # a packet is a tile_w x tile_h tile of eye rays
     tile_h: int = 8
 
@@ -73,7 +75,7 @@ class Config:
                      "cache_outstanding", "cache_line_words"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency"):
+        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency", "fp_sqrt_latency"):
             if not 0 <= getattr(self, name) <= 64:
                 raise ConfigError(f"{name}={getattr(self, name)} must be in 0..64 (pipeline "
                                   "stages of that FP unit; 0 = the unit's default)")
@@ -134,9 +136,10 @@ class Config:
         return self.mem_chips * self.mem_chip_bits / 8 * self.clock_mhz * 1e6 / self.mem_clock_ratio
 
     def fp_latencies(self) -> dict:
-        """``{"add": n, "mul": n, "div": n}`` for the RTL's FP units; None = the unit's default."""
+        """``{"add": n, "mul": n, "div": n, "sqrt": n}`` for the RTL's FP units; None = the
+        unit's default."""
         return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
-                "div": self.fp_div_latency or None}
+                "div": self.fp_div_latency or None, "sqrt": self.fp_sqrt_latency or None}
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)

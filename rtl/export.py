@@ -111,7 +111,8 @@ class RTCTop(wiring.Component):
 def _fp(kind: str) -> Callable:
     def make(cfg: Config, latency: int | None):
         from . import fp
-        cls = {"add": fp.FPAdd, "mul": fp.FPMul, "div": fp.FPDiv, "cmp": fp.FPCompare,
+        cls = {"add": fp.FPAdd, "mul": fp.FPMul, "div": fp.FPDiv, "sqrt": fp.FPSqrt,
+               "cmp": fp.FPCompare,
                "minmax": fp.FPMinMax, "conv": fp.FPFromInt}[kind]
         kw = {} if latency is None else {"latency": latency}
         return cls(cfg.fmt, **kw)
@@ -152,6 +153,7 @@ TOPS: dict[str, tuple[Callable, str]] = {
     "fp_add": (_fp("add"), "FP adder/subtractor (rtl/fp/add.py)"),
     "fp_mul": (_fp("mul"), "FP multiplier (rtl/fp/mul.py)"),
     "fp_div": (_fp("div"), "FP divider (rtl/fp/div.py)"),
+    "fp_sqrt": (_fp("sqrt"), "FP square root (rtl/fp/sqrt.py)"),
     "fp_cmp": (_fp("cmp"), "FP compare (rtl/fp/cmp.py)"),
     "fp_minmax": (_fp("minmax"), "FP min/max (rtl/fp/cmp.py)"),
     "fp_conv": (_fp("conv"), "int -> FP (rtl/fp/conv.py)"),

@@ -111,6 +111,37 @@ class ExactFormat:
             return self.nan_bits if va == 0 else self.inf(s)
         return self.round(s, va / vb)
 
+    def sqrt(self, a: int) -> int:
+        """Square root, correctly rounded: the integer square root gives the truncated
+        significand, and comparing 4*X with (2k+1)**2 (exact integers) decides the rounding."""
+        from math import isqrt
+        ka, sa, va = self.decode(a)
+        if ka == NAN or (sa and not (ka == FIN and va == 0)):
+            return self.nan_bits                      # NaN, or below zero (-inf included)
+        if ka == INF:
+            return self.inf(0)
+        if va == 0:
+            return self.zero(sa)
+        M = self.M
+        ev = va.numerator.bit_length() - va.denominator.bit_length()
+        if va < Fraction(2) ** ev:
+            ev -= 1                                   # 2**ev <= va < 2**(ev+1)
+        e = ev // 2                                   # 2**e <= sqrt(va) < 2**(e+1)
+        x = va * Fraction(4) ** (M - e)               # sqrt(x) in [2**M, 2**(M+1))
+        k = isqrt(x.numerator // x.denominator)
+        four_x, mid = 4 * x, (2 * k + 1) ** 2
+        if four_x > mid or (four_x == mid and k & 1):
+            k += 1
+        if k == 1 << (M + 1):
+            k >>= 1
+            e += 1
+        be = e + self.bias
+        if be < 1:
+            return self.zero(0)
+        if be > self.emax - 1:
+            return self.inf(0)
+        return (be << M) | (k - (1 << M))
+
     # -- compare, min, max (documented rules of model/fp.py) -----------------------------------
     def value(self, bits: int) -> float:
         """Exact value as a Python float (every E<=8, M<=23 value is a float64); NaN for NaN."""
