@@ -124,13 +124,12 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         np.add.at(color, rays.pixel[miss], bg * weight[miss, None])
         if hit.size == 0:
             break
-        p, ng, ns, mat, albedo = shader.surface(rays, hit, hits.tri[hit], hits.t[hit],
-                                                hits.u[hit], hits.v[hit])
+        surf = shader.surface(rays, hit, hits.tri[hit], hits.t[hit], hits.u[hit], hits.v[hit])
+        mat, albedo = surf.mat, surf.albedo
         local = AMBIENT * albedo
         d = rays.dir[hit]
-        p0 = shader.offset(p, ng, d)
         for light in scene.lights:
-            srays, keep = shader.shadow_rays(rays, hit, p0, ng, light,
+            srays, keep = shader.shadow_rays(rays, hit, surf, light,
                                              cull_behind=skip.lights_behind)
             if not skip.anyhit:
                 srays.anyhit = np.zeros(len(srays), bool)
@@ -140,14 +139,13 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
                 lit[keep] = (sh.tri < 0).astype(np.float32)
             else:
                 lit[keep] = 1.0
-            local += shader.phong(d, ns, albedo, mat, light, lit, p)
+            local += shader.phong(d, surf.n, albedo, mat, light, lit, surf.p0)
         refl = shader.reflect[mat]
         local *= (1 - refl)[:, None]
         np.add.at(color, rays.pixel[hit], local * weight[hit, None])
         if depth == cfg.reflect_depth:
             break
-        rays, keep = shader.reflection_rays(rays, hit, p0, ns, mat,
-                                            cull_matte=skip.nonreflective)
+        rays, keep = shader.reflection_rays(rays, hit, surf, cull_matte=skip.nonreflective)
         weight = weight[hit[keep]] * refl[keep]
     if bar is not None:
         bar.close()

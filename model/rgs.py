@@ -28,17 +28,38 @@ denormal encodings are signed zeros, see :func:`setup_rays`):
 * ``octant``: the sign bits of d, x | y << 1 | z << 2 (-0 counts as negative, as the
   traversal's ``sign_bit``).
 
+Secondary rays from a hit (:func:`secondary`, the RTL's ``SecondaryPipe``): the ray's origin o
+and direction d, the hit's t, u, v, the triangle's unit face normal n_f and vertex normals
+n_A, n_B, n_C (memory image), ``eps`` (a register):
+
+* ``hit``: p[a] = o[a] + t*d[a];
+* ``face``: g = -n_f if dot(n_f, d) > 0 else n_f (the face normal turned toward the ray);
+* ``dir_norm``: w = d * (1 / sqrt(dot(d, d))) (the unit incoming direction);
+* ``offset``: p0[a] = (p[a] + eps*g[a]) - eps*w[a] (every secondary ray's origin: off the
+  surface and back along the ray);
+* ``normal``: b = (1 - u) - v; s[a] = (b*n_A[a] + u*n_B[a]) + v*n_C[a];
+  n = s * (1 / sqrt(dot(s, s))), or g where dot(s, s) = 0; turned to g's side:
+  n = -n if dot(n, g) < 0;
+* ``reflect``: k = 2 * dot(d, n); r[a] = d[a] - k*n[a];
+
+with dot(a, b) = (a0*b0 + a1*b1) + a2*b2. Negation flips the sign bit (a NaN stays NaN).
+Shadow ray toward one light (:func:`shadow_dir`): direction l - p0 (point light at l, tmax 1)
+or the light's reversed direction (parallel light, tmax inf; the host negates it); it is cast
+only if ``dot(g, direction) > 0`` (the light faces the surface).
+
 Drivers: :func:`eye_packets` makes every packet (tile) of a frame in packet order, lanes in
-order; :func:`setup_rays` sets up an array of rays.
+order; :func:`setup_rays` sets up an array of rays; :func:`secondary_rays` and
+:func:`shadow_rays` make the secondary rays of an array of hits.
 """
 from __future__ import annotations
 
 import numba
 import numpy as np
 
-from .fp import fadd, fdiv, fmax, fmin, fmul, flush_in, fsub, round_exact, sign_bit
+from .fp import fadd, fdiv, fmax, fmin, fmul, flush_in, fsqrt, fsub, round_exact, sign_bit
 
-__all__ = ["sample_coord", "eye_ray", "ray_setup", "eye_packets", "packet_count", "setup_rays"]
+__all__ = ["sample_coord", "eye_ray", "ray_setup", "eye_packets", "packet_count", "setup_rays",
+           "dot3", "secondary", "secondary_rays", "shadow_dir", "shadow_rays"]
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
@@ -193,3 +214,123 @@ def eye_packets(sw, sh, tw, th, n, width, corner, dx, dy, dirn, pixel, pk_start,
                     pixel[r] = row + sx // n
                     r += 1
     pk_start[tiles_x * tiles_y] = r
+
+
+# ---------------------------------------------------------------------------------------------
+# secondary rays
+# ---------------------------------------------------------------------------------------------
+
+_TWO = np.float32(2.0)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def dot3(a0, a1, a2, b0, b1, b2, E, M):
+    """``dot``: (a0*b0 + a1*b1) + a2*b2, every operation rounded."""
+    return fadd(fadd(fmul(a0, b0, E, M), fmul(a1, b1, E, M), E, M), fmul(a2, b2, E, M), E, M)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _unit(x0, x1, x2, E, M):
+    """x * (1 / sqrt(dot(x, x))) per component, and dot(x, x)."""
+    q = dot3(x0, x1, x2, x0, x1, x2, E, M)
+    r = fdiv(_ONE, fsqrt(q, E, M), E, M)
+    return fmul(x0, r, E, M), fmul(x1, r, E, M), fmul(x2, r, E, M), q
+
+
+@numba.njit(cache=True, error_model="numpy")
+def secondary(o, d, t, u, v, nf, nv, eps, E, M):
+    """The module docstring's steps for one hit: ``o``, ``d``, ``nf`` (3,), ``nv`` (3, 3) vertex
+    normals A, B, C. Returns (p0, g, n, r), each a (3,) float32 array."""
+    p0 = np.empty(3, np.float32)
+    g = np.empty(3, np.float32)
+    n = np.empty(3, np.float32)
+    r = np.empty(3, np.float32)
+    # face
+    flip = dot3(nf[0], nf[1], nf[2], d[0], d[1], d[2], E, M) > _ZERO
+    for a in range(3):
+        g[a] = -nf[a] if flip else nf[a]
+    # dir_norm
+    w0, w1, w2, _ = _unit(d[0], d[1], d[2], E, M)
+    # hit, offset
+    w = (w0, w1, w2)
+    for a in range(3):
+        p = fadd(o[a], fmul(t, d[a], E, M), E, M)
+        p0[a] = fsub(fadd(p, fmul(eps, g[a], E, M), E, M), fmul(eps, w[a], E, M), E, M)
+    # normal
+    b = fsub(fsub(_ONE, u, E, M), v, E, M)
+    s = np.empty(3, np.float32)
+    for a in range(3):
+        s[a] = fadd(fadd(fmul(b, nv[0, a], E, M), fmul(u, nv[1, a], E, M), E, M),
+                    fmul(v, nv[2, a], E, M), E, M)
+    n0, n1, n2, q = _unit(s[0], s[1], s[2], E, M)
+    if q == _ZERO:
+        n0, n1, n2 = g[0], g[1], g[2]
+    if dot3(n0, n1, n2, g[0], g[1], g[2], E, M) < _ZERO:
+        n0, n1, n2 = -n0, -n1, -n2
+    n[0], n[1], n[2] = n0, n1, n2
+    # reflect
+    k = fmul(_TWO, dot3(d[0], d[1], d[2], n0, n1, n2, E, M), E, M)
+    for a in range(3):
+        r[a] = fsub(d[a], fmul(k, n[a], E, M), E, M)
+    return p0, g, n, r
+
+
+@numba.njit(cache=True, error_model="numpy")
+def secondary_rays(org, dirn, t, u, v, nf, nv, eps, E, M):
+    """:func:`secondary` for every hit (rows of ``org``, ``dirn`` (N, 3), ``t``, ``u``, ``v``
+    (N,), ``nf`` (N, 3), ``nv`` (N, 3, 3)); operands read as the hardware reads format words.
+    Returns ``p0``, ``g``, ``n``, ``r``, each (N, 3)."""
+    N = org.shape[0]
+    P0 = np.empty((N, 3), np.float32)
+    G = np.empty((N, 3), np.float32)
+    NS = np.empty((N, 3), np.float32)
+    R = np.empty((N, 3), np.float32)
+    o = np.empty(3, np.float32)
+    d = np.empty(3, np.float32)
+    f = np.empty(3, np.float32)
+    nn = np.empty((3, 3), np.float32)
+    e = flush_in(eps, E)
+    for i in range(N):
+        for a in range(3):
+            o[a] = flush_in(org[i, a], E)
+            d[a] = flush_in(dirn[i, a], E)
+            f[a] = flush_in(nf[i, a], E)
+            for c in range(3):
+                nn[c, a] = flush_in(nv[i, c, a], E)
+        p0, g, n, r = secondary(o, d, flush_in(t[i], E), flush_in(u[i], E), flush_in(v[i], E),
+                                f, nn, e, E, M)
+        for a in range(3):
+            P0[i, a] = p0[a]
+            G[i, a] = g[a]
+            NS[i, a] = n[a]
+            R[i, a] = r[a]
+    return P0, G, NS, R
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def shadow_dir(p0, g, light, point, E, M):
+    """The shadow ray toward one light from origin ``p0`` with oriented face normal ``g``:
+    (direction (3,), cast). ``light``: the point light's position (``point``) or the parallel
+    light's reversed direction."""
+    ds = np.empty(3, np.float32)
+    for a in range(3):
+        ds[a] = fsub(light[a], p0[a], E, M) if point else light[a]
+    return ds, dot3(g[0], g[1], g[2], ds[0], ds[1], ds[2], E, M) > _ZERO
+
+
+@numba.njit(cache=True, error_model="numpy")
+def shadow_rays(p0, g, light, point, E, M):
+    """:func:`shadow_dir` for every row of ``p0``, ``g`` (N, 3): directions (N, 3) and the
+    facing test (N,) bool."""
+    N = p0.shape[0]
+    D = np.empty((N, 3), np.float32)
+    cast = np.empty(N, np.bool_)
+    lf = np.empty(3, np.float32)
+    for a in range(3):
+        lf[a] = flush_in(light[a], E)
+    for i in range(N):
+        ds, c = shadow_dir(p0[i], g[i], lf, point, E, M)
+        for a in range(3):
+            D[i, a] = ds[a]
+        cast[i] = c
+    return D, cast

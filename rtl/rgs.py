@@ -12,6 +12,10 @@ one of its steps, in its order, so the rays come out bit for bit as
   ``mul_x``, ``mul_y``, ``add_x``, ``add_y``) and the pixel index.
 * :class:`EyeRays`: the slave's ray generator: packet requests in, each tile's rays in lane
   order through :class:`EyeRayPipe` and :class:`RaySetupPipe`, ``RayIn`` (+ pixel index) out.
+* :class:`SecondaryPipe`: a hit -> the secondary rays' origin, the oriented face and shading
+  normals and the reflected direction (``hit``, ``face``, ``dir_norm``, ``offset``,
+  ``normal``, ``reflect``); :class:`ShadowPipe`: (origin, normal, light) -> the shadow ray's
+  direction, tmax and whether it is cast.
 
 Flow control of the stream units: one clock enable stalls the whole pipeline while its last
 stage holds a ray the consumer does not take (``en = ~o.valid | o.ready``; ``i.ready = en``),
@@ -34,8 +38,8 @@ from .fp.schedule import Schedule
 from .rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
 
 __all__ = ["COORD_BITS", "PIXEL_BITS", "RaySetupIn", "EyeRequest", "EyeRay", "RaySetupPipe",
-           "RaySetup", "EyeRayPipe", "EyeRays", "div_const", "div_const_params",
-           "sample_converter"]
+           "RaySetup", "EyeRayPipe", "EyeRays", "SecondaryPipe", "ShadowPipe", "div_const",
+           "div_const_params", "sample_converter"]
 
 COORD_BITS = 16        # sample coordinates (and image sizes in samples) below 2**16
 PIXEL_BITS = 32        # pixel index y * width + x
@@ -489,4 +493,188 @@ class EyeRays(wiring.Component):
         out = data.View(self.setup_tag, setup.o_tag)
         m.d.comb += [self.o.valid.eq(setup.o_valid), self.o.payload.pixel.eq(out.pixel)]
         m.d.comb += _ray_out(setup, self.o.payload.ray, out.packet, out.lane, out.last, 0)
+        return m
+
+
+# ---------------------------------------------------------------------------------------------
+# secondary rays
+# ---------------------------------------------------------------------------------------------
+
+def _dot(sch: Schedule, a: list, b: list, name: str) -> tuple:
+    """``dot``: (a0*b0 + a1*b1) + a2*b2 on scheduled values."""
+    p = [sch.op("mul", a[i], b[i], f"{name}_m{i}") for i in range(3)]
+    return sch.op("add", sch.op("add", p[0], p[1], f"{name}_a0"), p[2], f"{name}_a1")
+
+
+def _positive(fmt: FPFormat, x: Value) -> Value:
+    """x > 0 (a NaN is not; a denormal encoding reads as zero)."""
+    u = unpack(fmt, x)
+    return ~u.sign & ~u.zero & ~u.nan
+
+
+def _negative(fmt: FPFormat, x: Value) -> Value:
+    """x < 0 (-0 and NaN are not)."""
+    u = unpack(fmt, x)
+    return u.sign & ~u.zero & ~u.nan
+
+
+def _neg_if(fmt: FPFormat, x: Value, cond: Value) -> Value:
+    """-x where ``cond`` (the sign bit flipped; a NaN stays the canonical NaN), else x."""
+    sign = Const(1 << (fmt.width - 1), fmt.width)
+    return Mux(cond & ~unpack(fmt, x).nan, x ^ sign, x)
+
+
+class SecondaryPipe(wiring.Component):
+    """Bare secondary-ray datapath: ``model.rgs.secondary`` as a pipeline.
+
+    In: ``org``, ``dir`` (the ray, 3 format words each), ``t``, ``u``, ``v`` (its hit), ``nf``
+    (the triangle's unit face normal), ``nv`` (vertex normals A, B, C: 3 x 3 words), ``tag``
+    (carried along), ``i_valid``, ``en``; ``eps`` (the offset register, constant while rays are
+    in flight). Out after ``latency`` enabled cycles: ``o_valid``, ``p0`` (the secondary rays'
+    origin), ``g`` (face normal turned toward the ray), ``n`` (shading normal), ``r`` (reflected
+    direction), ``o_tag``.
+
+    Operations (the model's steps, ``docs/rgs.md``): ``hit`` 3 mul + 3 add, ``face`` a dot
+    product (3 mul, 2 add) and a sign flip, ``dir_norm`` a dot product, a square root, a
+    reciprocal (div) and 3 mul, ``offset`` 6 mul + 3 add + 3 sub, ``normal`` 2 sub, 9 mul,
+    6 add, a dot product, a square root, a reciprocal, 3 mul, a zero test and mux and a dot
+    product for the side, ``reflect`` a dot product, 1 mul by 2, 3 mul, 3 sub: 43 mul, 27
+    add/sub, 2 sqrt, 2 div in all. Latency ``latency`` (binary32 with the default FP latencies:
+    add 3, mul 3, div 8, sqrt 8 gives 70: ``normal``'s chain of two dot products, square
+    root, reciprocal and the reflection ends the longest path). Throughput: one hit per cycle
+    in which ``en`` is 1.
+    ``latencies``: optional ``{"add": n, "mul": n, "div": n, "sqrt": n}``.
+    """
+
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+        self.fmt, self.tag_width = fmt, tag_width
+        self.latencies = _latencies(fmt, latencies)
+        w = fmt.width
+        v3 = data.ArrayLayout(w, 3)
+        super().__init__({
+            "org": In(v3), "dir": In(v3), "t": In(w), "u": In(w), "v": In(w), "nf": In(v3),
+            "nv": In(data.ArrayLayout(v3, 3)), "eps": In(w), "tag": In(tag_width),
+            "i_valid": In(1), "en": In(1, init=1),
+            "o_valid": Out(1), "p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3),
+            "o_tag": Out(tag_width),
+        })
+        dry = Module()
+        dry._MustUse__silence = True
+        self.latency = self._build(dry, dry=True)
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        fmt = self.fmt
+        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        at = sch.at
+        vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), 0) for a in range(3)]  # noqa: E731
+        d, o, nf = vec(self.dir, "d"), vec(self.org, "o"), vec(self.nf, "nf")
+        nv = [vec(self.nv[c], f"nv{c}_") for c in range(3)]
+        t, u, v, eps = ((wire(m, x, name), 0) for x, name in
+                        ((self.t, "t"), (self.u, "u"), (self.v, "v"), (self.eps, "eps")))
+        one = (_fp_const(fmt, "one"), 0)
+        # -- face: g = -nf if dot(nf, d) > 0 -------------------------------------------------
+        dn = _dot(sch, nf, d, "face_dot")
+        flip = wire(m, _positive(fmt, dn[0]), "face_flip")
+        g = [(wire(m, _neg_if(fmt, at(nf[a][0], 0, dn[1]), flip), f"g{a}"), dn[1])
+             for a in range(3)]
+        # -- dir_norm: w = d * (1 / sqrt(dot(d, d))) -----------------------------------------
+        rl = sch.op("div", one, sch.op("sqrt", _dot(sch, d, d, "dir_dot"), None, "dir_len"),
+                    "dir_rcp")
+        w_ = [sch.op("mul", d[a], rl, f"w{a}") for a in range(3)]
+        # -- hit, offset: p0 = (o + t*d + eps*g) - eps*w --------------------------------------
+        p = [sch.op("add", o[a], sch.op("mul", t, d[a], f"hit_m{a}"), f"hit{a}") for a in range(3)]
+        p0 = [sch.op("sub", sch.op("add", p[a], sch.op("mul", eps, g[a], f"off_g{a}"),
+                                   f"off_a{a}"),
+                     sch.op("mul", eps, w_[a], f"off_w{a}"), f"p0_{a}") for a in range(3)]
+        # -- normal: interpolate, normalize (g where the sum is zero), turn to g's side --------
+        b = sch.op("sub", sch.op("sub", one, u, "bary_1u"), v, "bary_b")
+        s = [sch.op("add", sch.op("add", sch.op("mul", b, nv[0][a], f"nrm_b{a}"),
+                                  sch.op("mul", u, nv[1][a], f"nrm_u{a}"), f"nrm_a{a}"),
+                    sch.op("mul", v, nv[2][a], f"nrm_v{a}"), f"nrm_s{a}") for a in range(3)]
+        q = _dot(sch, s, s, "nrm_dot")
+        rn = sch.op("div", one, sch.op("sqrt", q, None, "nrm_len"), "nrm_rcp")
+        s1 = [sch.op("mul", s[a], rn, f"nrm_n{a}") for a in range(3)]
+        tn = s1[0][1]
+        zero = wire(m, unpack(fmt, at(q[0], q[1], tn)).zero, "nrm_zero")
+        n1 = [(wire(m, Mux(zero, at(g[a][0], g[a][1], tn), s1[a][0]), f"nrm_sel{a}"), tn)
+              for a in range(3)]
+        side = _dot(sch, n1, g, "side_dot")
+        back = wire(m, _negative(fmt, side[0]), "side_flip")
+        n = [(wire(m, _neg_if(fmt, at(n1[a][0], tn, side[1]), back), f"n{a}"), side[1])
+             for a in range(3)]
+        # -- reflect: r = d - (2 * dot(d, n)) * n ---------------------------------------------
+        two = (Const(fmt.to_bits(2.0).item(), fmt.width), 0)
+        k = sch.op("mul", two, _dot(sch, d, n, "refl_dot"), "refl_k")
+        r = [sch.op("sub", d[a], sch.op("mul", k, n[a], f"refl_m{a}"), f"r{a}") for a in range(3)]
+        L = max(x[1] for x in (*p0, *g, *n, *r))
+        if dry:
+            return L
+        out = lambda xs: Cat(*(at(x[0], x[1], L) for x in xs))  # noqa: E731
+        m.d.comb += [
+            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.p0.eq(out(p0)), self.g.eq(out(g)), self.n.eq(out(n)), self.r.eq(out(r)),
+            self.o_tag.eq(at(self.tag, 0, L)),
+        ]
+        return L
+
+    def elaborate(self, platform):
+        m = Module()
+        self._build(m)
+        return m
+
+
+class ShadowPipe(wiring.Component):
+    """Bare shadow-ray datapath: ``model.rgs.shadow_dir`` as a pipeline.
+
+    In: ``p0``, ``g`` (a hit's secondary origin and oriented face normal, from
+    :class:`SecondaryPipe`), ``light`` (3 format words: a point light's position, or a parallel
+    light's reversed direction), ``point`` (1: point light), ``tag``, ``i_valid``, ``en``.
+    Out after ``latency`` enabled cycles: ``o_valid``, ``dir`` (light - p0, or the light vector
+    itself for a parallel light), ``tmax`` (1 for a point light, +inf for a parallel one),
+    ``cast`` (dot(g, dir) > 0: the light faces the surface; no ray otherwise), ``o_tag``.
+    Operations: 3 sub, a dot product (3 mul, 2 add), a sign test. Latency: add + mul + 2 add
+    (12 at the binary32 defaults). Throughput: one (hit, light) pair per enabled cycle.
+    """
+
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+        self.fmt, self.tag_width = fmt, tag_width
+        self.latencies = _latencies(fmt, latencies)
+        w = fmt.width
+        v3 = data.ArrayLayout(w, 3)
+        super().__init__({
+            "p0": In(v3), "g": In(v3), "light": In(v3), "point": In(1), "tag": In(tag_width),
+            "i_valid": In(1), "en": In(1, init=1),
+            "o_valid": Out(1), "dir": Out(v3), "tmax": Out(w), "cast": Out(1),
+            "o_tag": Out(tag_width),
+        })
+        dry = Module()
+        dry._MustUse__silence = True
+        self.latency = self._build(dry, dry=True)
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        fmt = self.fmt
+        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        at = sch.at
+        point = wire(m, self.point, "point")
+        sub = [sch.op("sub", (self.light[a], 0), (self.p0[a], 0), f"ldir{a}") for a in range(3)]
+        ts = sub[0][1]
+        ds = [(wire(m, Mux(at(point, 0, ts), sub[a][0], at(self.light[a], 0, ts)), f"dir{a}"),
+               ts) for a in range(3)]
+        dot = _dot(sch, [(self.g[a], 0) for a in range(3)], ds, "face_dot")
+        L = max(dot[1], 1)
+        if dry:
+            return L
+        pt = at(point, 0, L)
+        m.d.comb += [
+            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.dir.eq(Cat(*(at(x[0], x[1], L) for x in ds))),
+            self.tmax.eq(Mux(pt, _fp_const(fmt, "one"), _fp_const(fmt, "+inf"))),
+            self.cast.eq(_positive(fmt, at(dot[0], dot[1], L))),
+            self.o_tag.eq(at(self.tag, 0, L)),
+        ]
+        return L
+
+    def elaborate(self, platform):
+        m = Module()
+        self._build(m)
         return m

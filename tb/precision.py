@@ -103,12 +103,10 @@ def shadow_error(scene, prep, cfg: Config, rays: Rays, hits, ref: Reference) -> 
     sel = np.nonzero(hits.tri >= 0)[0]
     if sel.size == 0 or not scene.lights:
         return {"rays": 0}
-    p, ng, _, _, _ = shader.surface(rays, sel, hits.tri[sel], hits.t[sel], hits.u[sel],
-                                    hits.v[sel])
-    p0 = shader.offset(p, ng, rays.dir[sel])
+    surf = shader.surface(rays, sel, hits.tri[sel], hits.t[sel], hits.u[sel], hits.v[sel])
     org, dirn, tmax, parent = [], [], [], []
     for light in scene.lights:
-        s, keep = shader.shadow_rays(rays, sel, p0, ng, light)
+        s, keep = shader.shadow_rays(rays, sel, surf, light)
         org.append(s.org), dirn.append(s.dir), tmax.append(s.tmax)
         parent.append(hits.tri[sel[keep]])
     org, dirn, tmax, parent = (np.concatenate(x) for x in (org, dirn, tmax, parent))

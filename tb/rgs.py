@@ -256,3 +256,125 @@ def edge_rays(fmt: FPFormat, bounds, n_random: int = 64, seed: int = 1,
     anyhit = rng.random(len(dirs)) < 0.3
     return Rays.from_arrays(org, dirn, fmt.quantize(np.array(tmax)), packet=packet,
                             anyhit=anyhit)
+
+
+# ---- secondary rays ------------------------------------------------------------------------------
+
+@dataclass
+class Hits:
+    """Hits as the slave's secondary-ray datapath takes them (format values, float32)."""
+    org: np.ndarray          # (N, 3) ray origin
+    dir: np.ndarray          # (N, 3) ray direction
+    t: np.ndarray            # (N,)
+    u: np.ndarray
+    v: np.ndarray
+    nf: np.ndarray           # (N, 3) unit face normal
+    nv: np.ndarray           # (N, 3, 3) vertex normals A, B, C
+    eps: float
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+def secondary_cases(fmt: FPFormat, n: int = 200, seed: int = 1) -> Hits:
+    """Random hits plus the datapath's edge cases: face normals on either side of the ray,
+    directions with zero and signed-zero components, u = v = 0, u + v = 1, t = 0, vertex
+    normals that cancel (the interpolated normal is exactly zero: the face normal is used) or
+    point away from the face normal (the shading normal is turned), tiny and huge
+    directions."""
+    rng = np.random.default_rng(seed)
+    q = fmt.quantize
+
+    def unit(x):
+        return x / np.linalg.norm(x, axis=-1, keepdims=True)
+    org = q(rng.uniform(-10, 10, (n, 3)))
+    d = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-2, 2, (n, 1))
+    zero = rng.random((n, 3)) < 0.08
+    d = np.where(zero, rng.choice([0.0, -0.0], (n, 3)), d)
+    d[np.all(d == 0, axis=1), 2] = 1.0
+    t = q(rng.uniform(0, 5, n) * (rng.random(n) > 0.05))
+    u = rng.uniform(0, 1, n)
+    v = rng.uniform(0, 1, n) * (1 - u)
+    e = rng.integers(0, 5, n)
+    u = np.where(e == 0, 0.0, np.where(e == 1, 1.0, u))
+    v = np.where(e <= 1, 0.0, np.where(e == 2, 1 - u, v))
+    nf = unit(rng.normal(size=(n, 3)))
+    nv = unit(nf[:, None, :] + 0.4 * rng.normal(size=(n, 3, 3)))
+    away = rng.random(n) < 0.1                 # vertex normals on the far side of the face
+    nv[away] = -nv[away]
+    cancel = rng.random(n) < 0.05              # n_A = -n_B, u = 0.5, v = 0: the sum is zero
+    nv[cancel, 1] = -nv[cancel, 0]
+    u[cancel], v[cancel] = 0.5, 0.0
+    return Hits(org, q(d), t, q(u), q(v), q(nf), q(nv), float(q(1e-3)))
+
+
+def _pack_rows(fmt: FPFormat, x: np.ndarray) -> list[int]:
+    """Rows of format values (N, ...) as ints, element 0 in the low bits."""
+    b = fmt.to_bits(np.asarray(x, np.float32)).astype(object).reshape(len(x), -1)
+    w = fmt.width
+    return [sum(int(v) << (w * i) for i, v in enumerate(row)) for row in b]
+
+
+def secondary_ports(hits: Hits, fmt: FPFormat, tag_width: int) -> tuple[dict, dict]:
+    """``SecondaryPipe``'s port values per hit and the model's (``model.rgs.secondary_rays``)
+    outputs ``p0``, ``g``, ``n``, ``r``, ``o_tag``."""
+    from model.rgs import secondary_rays
+    p0, g, nn, r = secondary_rays(hits.org, hits.dir, hits.t, hits.u, hits.v, hits.nf, hits.nv,
+                                  np.float32(hits.eps), *fmt.em)
+    tag = [i % (1 << tag_width) for i in range(len(hits))]
+    eps = int(fmt.to_bits(np.float32(hits.eps)))
+    ins = {"org": _pack_rows(fmt, hits.org), "dir": _pack_rows(fmt, hits.dir),
+           "t": _pack_rows(fmt, hits.t), "u": _pack_rows(fmt, hits.u),
+           "v": _pack_rows(fmt, hits.v), "nf": _pack_rows(fmt, hits.nf),
+           "nv": _pack_rows(fmt, hits.nv), "eps": [eps] * len(hits), "tag": tag}
+    outs = {"p0": _pack_rows(fmt, p0), "g": _pack_rows(fmt, g), "n": _pack_rows(fmt, nn),
+            "r": _pack_rows(fmt, r), "o_tag": tag}
+    return ins, outs
+
+
+def run_secondary(hits: Hits, fmt: FPFormat, *, latencies=None, seed: int = 0,
+                  p_bubble: float = 0.2, p_stall: float = 0.2) -> tuple[int, list]:
+    """Every hit through ``SecondaryPipe`` with random bubbles and stalls, every output checked
+    at its exact cycle against the model: (cycles, mismatches)."""
+    from rtl.rgs import SecondaryPipe
+    from .common import run_fixed_pipe
+    dut = SecondaryPipe(fmt, tag_width=max(1, len(hits).bit_length()), latencies=latencies)
+    ins, outs = secondary_ports(hits, fmt, dut.tag_width)
+    return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+
+
+def shadow_ports(hits: Hits, lights: np.ndarray, point: np.ndarray, fmt: FPFormat,
+                 tag_width: int) -> tuple[dict, dict]:
+    """``ShadowPipe``'s port values for every (hit, light) pair — the hits' ``p0`` and ``g``
+    from the model's secondary rays, light vectors ``lights`` (L, 3) of kind ``point`` (L,) —
+    and the model's (``model.rgs.shadow_rays``) ``dir``, ``tmax``, ``cast``, ``o_tag``."""
+    from model.rgs import secondary_rays, shadow_rays
+    p0, g, _, _ = secondary_rays(hits.org, hits.dir, hits.t, hits.u, hits.v, hits.nf, hits.nv,
+                                 np.float32(hits.eps), *fmt.em)
+    ins = {"p0": [], "g": [], "light": [], "point": []}
+    outs = {"dir": [], "tmax": [], "cast": []}
+    for vec, pt in zip(lights, point):
+        vec = fmt.quantize(vec)
+        d, cast = shadow_rays(p0, g, vec, bool(pt), *fmt.em)
+        ins["p0"] += _pack_rows(fmt, p0)
+        ins["g"] += _pack_rows(fmt, g)
+        ins["light"] += _pack_rows(fmt, np.broadcast_to(vec, p0.shape))
+        ins["point"] += [int(pt)] * len(p0)
+        outs["dir"] += _pack_rows(fmt, d)
+        outs["tmax"] += _pack_rows(fmt, np.full(len(p0), 1.0 if pt else np.inf, np.float32))
+        outs["cast"] += cast.astype(int).tolist()
+    tag = [i % (1 << tag_width) for i in range(len(ins["p0"]))]
+    ins["tag"] = outs["o_tag"] = tag
+    return ins, outs
+
+
+def run_shadow(hits: Hits, lights, point, fmt: FPFormat, *, latencies=None, seed: int = 0,
+               p_bubble: float = 0.2, p_stall: float = 0.2) -> tuple[int, list]:
+    """Every (hit, light) pair through ``ShadowPipe``, checked like :func:`run_secondary`."""
+    from rtl.rgs import ShadowPipe
+    from .common import run_fixed_pipe
+    n = len(hits) * len(lights)
+    dut = ShadowPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
+    ins, outs = shadow_ports(hits, np.asarray(lights, np.float64), np.asarray(point), fmt,
+                             dut.tag_width)
+    return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)

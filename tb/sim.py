@@ -55,12 +55,12 @@ def shade_eye_hits(scene, cfg: Config, image, rays, hits, n_pixels: int) -> np.n
     np.add.at(color, rays.pixel[miss], bg * weight)
     if hit.size:
         shader = Shader(scene, cfg.fmt, eps=surface_offset(image.bounds))
-        p, ng, ns, mat, albedo = shader.surface(rays, hit, hits.tri[hit], hits.t[hit],
-                                                hits.u[hit], hits.v[hit])
-        local = AMBIENT * albedo
+        surf = shader.surface(rays, hit, hits.tri[hit], hits.t[hit], hits.u[hit], hits.v[hit])
+        local = AMBIENT * surf.albedo
         lit = np.ones(hit.size, np.float32)
         for light in scene.lights:
-            local = local + shader.phong(rays.dir[hit], ns, albedo, mat, light, lit, p)
+            local = local + shader.phong(rays.dir[hit], surf.n, surf.albedo, surf.mat, light,
+                                         lit, surf.p0)
         np.add.at(color, rays.pixel[hit], local * weight)
     return color
 

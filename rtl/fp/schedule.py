@@ -17,6 +17,7 @@ from .add import FPAdd
 from .cmp import FPMinMax
 from .div import FPDiv
 from .mul import FPMul
+from .sqrt import FPSqrt
 
 __all__ = ["Schedule"]
 
@@ -29,7 +30,7 @@ class Schedule:
     the units' defaults). ``dry=True`` instantiates nothing and only computes ready cycles (to
     learn a datapath's latency before building it)."""
 
-    UNITS = {"add": FPAdd, "sub": FPAdd, "mul": FPMul, "div": FPDiv,
+    UNITS = {"add": FPAdd, "sub": FPAdd, "mul": FPMul, "div": FPDiv, "sqrt": FPSqrt,
              "min": FPMinMax, "max": FPMinMax}
 
     def __init__(self, m: Module, en: Value, fmt: FPFormat, latencies: dict, dry: bool = False):
@@ -39,12 +40,13 @@ class Schedule:
 
     @classmethod
     def default_latencies(cls, fmt: FPFormat, latencies: dict | None = None) -> dict:
-        """``latencies`` (``{"add": n, "mul": n, "div": n, "minmax": n}``, any missing or None)
+        """``latencies`` (``{"add": n, "mul": n, "div": n, "sqrt": n, "minmax": n}``, any missing
+        or None)
         completed with each unit's default latency, as ``{kind: n}`` for every kind of
         :attr:`UNITS` (sub = add, min = max = minmax)."""
         given = dict(latencies or {})
         out = {}
-        for kind, unit in (("add", FPAdd), ("mul", FPMul), ("div", FPDiv),
+        for kind, unit in (("add", FPAdd), ("mul", FPMul), ("div", FPDiv), ("sqrt", FPSqrt),
                            ("minmax", FPMinMax)):
             if given.get(kind) is None:
                 probe = unit(fmt)                           # the unit's default latency
@@ -72,17 +74,19 @@ class Schedule:
             chain.append(reg)
         return chain[t - t0]
 
-    def op(self, kind: str, a: tuple, b: tuple, name: str) -> tuple:
-        """``(value, ready cycle)`` of ``a kind b``; operands are ``(value, ready cycle)``."""
-        t = max(a[1], b[1])
+    def op(self, kind: str, a: tuple, b: tuple | None, name: str) -> tuple:
+        """``(value, ready cycle)`` of ``a kind b`` (``sqrt``: of ``a``, ``b`` is None);
+        operands are ``(value, ready cycle)``."""
+        t = a[1] if b is None else max(a[1], b[1])
         out = Signal(self.fmt.width, name=name)
         if self.dry:
             return out, t + self.lat[kind]
         unit = self.UNITS[kind](self.fmt, latency=self.lat[kind])
         assert unit.latency == self.lat[kind]
         self.m.submodules[name] = unit
-        self.m.d.comb += [unit.a.eq(self.at(a[0], a[1], t)), unit.b.eq(self.at(b[0], b[1], t)),
-                          unit.en.eq(self.en)]
+        self.m.d.comb += [unit.a.eq(self.at(a[0], a[1], t)), unit.en.eq(self.en)]
+        if b is not None:
+            self.m.d.comb += unit.b.eq(self.at(b[0], b[1], t))
         if kind in ("add", "sub"):
             self.m.d.comb += unit.op.eq(kind == "sub")
         elif kind in ("min", "max"):
