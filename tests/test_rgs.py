@@ -1,7 +1,9 @@
 """RGS slave RTL (``rtl/rgs.py``): ``EyeRays`` and ``RaySetup`` bit for bit against the golden
 model (``model.raygen.eye_rays`` + ``setup``, i.e. ``model/rgs.py``), with random request
 bubbles and output back-pressure; exact latency and one-ray-per-cycle throughput; the sample
-conversion over its whole range; the pixel index's constant division."""
+conversion over its whole range; the pixel index's constant division; the secondary-ray
+datapaths (``SecondaryPipe``, ``ShadowPipe``) against ``model.rgs.secondary_rays`` /
+``shadow_rays`` at their exact cycles."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,9 +13,10 @@ from amaranth.sim import Simulator
 from model.config import Config
 from model.fp import FPFormat
 from model.raygen import eye_rays, setup
-from rtl.rgs import COORD_BITS, EyeRays, RaySetup, RaySetupPipe, div_const_params, sample_converter
+from rtl.rgs import (COORD_BITS, EyeRays, RaySetup, RaySetupPipe, SecondaryPipe, ShadowPipe,
+                     div_const_params, sample_converter)
 from tb.rgs import (AXIS_BOX, axis_camera, edge_rays, oblique_camera, run_eye_rays,
-                    run_ray_setup, tile_grid)
+                    run_ray_setup, run_secondary, run_shadow, secondary_cases, tile_grid)
 
 B32 = FPFormat(8, 23)
 OBLIQUE_BOX = np.array([[-1.5, -1.0, -2.0], [1.0, 2.0, 0.5]])
@@ -171,3 +174,60 @@ def test_div_const_exact():
 
 def test_tile_grid():
     assert tile_grid(15, 11, Config(oversampling=2)) == (4, 3)
+
+
+# ----------------------------------------------------------------------------------------------
+# secondary rays: SecondaryPipe, ShadowPipe
+# ----------------------------------------------------------------------------------------------
+
+LIGHTS = np.array([[1.0, 2.0, 3.0], [0.3, -0.5, 0.8], [-4.0, 5.0, 1.0]])
+POINT = np.array([1, 0, 1])
+
+
+@pytest.mark.parametrize("fmt,latencies", [
+    (B32, None), (FPFormat(8, 12), {"add": 1, "mul": 2, "div": 3, "sqrt": 2}),
+    (FPFormat(6, 10), {"add": 5, "mul": 4, "div": 12, "sqrt": 11})], ids=str)
+def test_secondary_pipe(fmt, latencies):
+    """Every output of every hit (random and edge cases) at its exact cycle, bit for bit with
+    ``model.rgs.secondary_rays``, with 20 % input bubbles and 20 % stalls."""
+    hits = secondary_cases(fmt, 80, seed=fmt.frac_bits)
+    cycles, bad = run_secondary(hits, fmt, latencies=latencies)
+    assert bad == [], bad[:5]
+    assert cycles > len(hits)
+
+
+def test_secondary_cases_reach_every_branch():
+    """The edge cases make each of the datapath's selects go both ways in the model."""
+    from model.rgs import secondary_rays
+    fmt = B32
+    h = secondary_cases(fmt, 200, seed=3)
+    p0, g, n, r = secondary_rays(h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps),
+                                 *fmt.em)
+    flipped = np.all(g == -h.nf, axis=1) & np.any(h.nf != 0, axis=1)
+    assert 0 < flipped.sum() < len(h)                          # face: both orientations
+    assert np.all(np.sum(g.astype(np.float64) * h.dir, axis=1) <= 0)
+    zero_sum = np.all(n == g, axis=1)
+    assert zero_sum.any()                                      # normal: the zero-sum rule
+    assert np.all(np.sum(n.astype(np.float64) * g, axis=1) >= 0)   # n on g's side
+    assert np.any(h.dir == 0) and np.any(np.signbit(h.dir) & (h.dir == 0))
+
+
+def test_secondary_pipe_latency_formula():
+    """Latency = 11 add + 7 mul + sqrt + div (the shading normal's path through the
+    reflection), for two sets of FP latencies."""
+    for lat in ({"add": 3, "mul": 3, "div": 8, "sqrt": 8}, {"add": 2, "mul": 5, "div": 9, "sqrt": 4}):
+        p = SecondaryPipe(B32, latencies=lat)
+        assert p.latency == 11 * lat["add"] + 7 * lat["mul"] + lat["sqrt"] + lat["div"]
+        s = ShadowPipe(B32, latencies=lat)
+        assert s.latency == 3 * lat["add"] + lat["mul"]
+    assert SecondaryPipe(B32).latency == 70 and ShadowPipe(B32).latency == 12
+
+
+@pytest.mark.parametrize("fmt", [B32, FPFormat(8, 12)], ids=str)
+def test_shadow_pipe(fmt):
+    """Point and parallel lights: direction, tmax and the facing test of every (hit, light)
+    pair bit for bit with ``model.rgs.shadow_rays``."""
+    hits = secondary_cases(fmt, 50, seed=7)
+    cycles, bad = run_shadow(hits, LIGHTS, POINT, fmt)
+    assert bad == [], bad[:5]
+    assert cycles > 3 * len(hits)

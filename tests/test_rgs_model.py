@@ -247,3 +247,68 @@ def test_sample_coordinate_identity_every_format():
             want = fmt.to_bits(fmt.quantize(s + 0.5))
             assert np.array_equal(fmt.to_bits(_sample_coords(s.size, E, M)), want), fmt
             assert np.array_equal(fmt.to_bits(fmt.from_fixed(2 * s + 1, 1)), want), fmt
+
+
+# ----------------------------------------------------------------------------------------------
+# secondary rays against the NumPy-vectorized recomputation and float64
+# ----------------------------------------------------------------------------------------------
+
+def np_secondary(h, fmt):
+    """The documented steps (``docs/rgs.md``) with ``FPFormat``'s array operations."""
+    add, sub, mul, div, sqrt = fmt.add, fmt.sub, fmt.mul, fmt.div, fmt.sqrt
+
+    def dot(a, b):
+        return add(add(mul(a[:, 0], b[:, 0]), mul(a[:, 1], b[:, 1])), mul(a[:, 2], b[:, 2]))
+
+    def unit(x):
+        q = dot(x, x)
+        r = div(np.float32(1), sqrt(q))
+        return np.stack([mul(x[:, a], r) for a in range(3)], axis=1), q
+    d, o = h.dir, h.org
+    g = np.where((dot(h.nf, d) > 0)[:, None], -h.nf, h.nf)
+    w, _ = unit(d)
+    p = np.stack([add(o[:, a], mul(h.t, d[:, a])) for a in range(3)], axis=1)
+    p0 = np.stack([sub(add(p[:, a], mul(h.eps, g[:, a])), mul(h.eps, w[:, a]))
+                   for a in range(3)], axis=1)
+    b = sub(sub(np.float32(1), h.u), h.v)
+    s = np.stack([add(add(mul(b, h.nv[:, 0, a]), mul(h.u, h.nv[:, 1, a])), mul(h.v, h.nv[:, 2, a]))
+                  for a in range(3)], axis=1)
+    n, q = unit(s)
+    n = np.where((q == 0)[:, None], g, n)
+    n = np.where((dot(n, g) < 0)[:, None], -n, n)
+    k = mul(np.float32(2), dot(d, n))
+    r = np.stack([sub(d[:, a], mul(k, n[:, a])) for a in range(3)], axis=1)
+    return p0, g, n, r
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=str)
+def test_secondary_matches_vectorized(fmt):
+    from model.rgs import secondary_rays
+    from tb.rgs import secondary_cases
+    h = secondary_cases(fmt, 3000, seed=11)
+    got = secondary_rays(h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps), *fmt.em)
+    for name, a, b in zip(("p0", "g", "n", "r"), got, np_secondary(h, fmt)):
+        assert same(fmt, a, b), name
+
+
+def test_secondary_geometry_float64():
+    """What the steps are for, checked in float64 at binary32: the origin lies on g's side of
+    the hit point's tangent plane and before it along the ray; the shading normal has unit
+    length and lies on g's side; the reflection keeps |d| and mirrors d about n."""
+    from model.rgs import secondary_rays
+    from tb.rgs import secondary_cases
+    fmt = FPFormat(8, 23)
+    h = secondary_cases(fmt, 2000, seed=12)
+    p0, g, n, r = (x.astype(np.float64) for x in secondary_rays(
+        h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps), *fmt.em))
+    d = h.dir.astype(np.float64)
+    p = h.org + h.t[:, None].astype(np.float64) * d
+    off = p0 - p
+    ok = np.linalg.norm(p, axis=1) < 100            # eps = 1e-3 is above the rounding there
+    assert np.all(np.sum(off * g, axis=1)[ok] > 0)
+    assert np.all(np.sum(off * d, axis=1)[ok] < 0)
+    assert np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-5)
+    assert np.all(np.sum(n * g, axis=1) >= 0)
+    want = d - 2 * np.sum(d * n, axis=1, keepdims=True) * n
+    scale = np.linalg.norm(d, axis=1, keepdims=True)
+    assert np.allclose(r / scale, want / scale, atol=1e-5)
