@@ -52,6 +52,9 @@ class Config:
     reflect_depth: int = 3         # maximum reflection bounces
     oversampling: int = 1          # rays per pixel side: n x n rays on a regular sub-pixel grid
     shadows: bool = True           # every light casts shadows
+    rgs_lights: int = 4            # light registers per RGS slave (the most lights a scene has)
+    shade_cache_kb: int = 16       # each RGS slave's cache of shading records (face and vertex
+                                   # normals, flags: 52 bytes a triangle)
 
     # --- memory interface (RTC-MI) -------------------------------------------------------------
     clock_mhz: float = 533.0       # chip clock
@@ -85,8 +88,14 @@ class Config:
         if self.list_outstanding < 2 or not _pow2(self.list_outstanding):
             raise ConfigError(f"list_outstanding={self.list_outstanding} must be a power of two "
                               ">= 2")
-        if self.reflect_depth < 0:
-            raise ConfigError(f"reflect_depth={self.reflect_depth} must be >= 0")
+        if not 0 <= self.reflect_depth <= 15:
+            raise ConfigError(f"reflect_depth={self.reflect_depth} must be in 0..15 (the "
+                              "slave's 4-bit ray depth)")
+        if not 0 <= self.rgs_lights <= 14:
+            raise ConfigError(f"rgs_lights={self.rgs_lights} must be in 0..14 (light "
+                              "registers per RGS slave)")
+        if self.shade_cache_kb < 1:
+            raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
         if self.oversampling < 1:
             raise ConfigError(f"oversampling={self.oversampling} must be >= 1")
         if self.packet_size > 64:

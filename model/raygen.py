@@ -37,10 +37,22 @@ class Rays:
     pixel: np.ndarray            # (N,) int32: y * width + x of the pixel the ray contributes to
     pk_start: np.ndarray         # (P + 1,) int64
     anyhit: np.ndarray = field(default=None)   # (N,) bool: any hit ends the ray (shadow rays)
+    # the ray's id in its frame (what the chip reports): the eye ray it descends from (index in
+    # eye-ray order), its depth (reflections before it) and, for a shadow ray, its light
+    eye: np.ndarray = field(default=None)      # (N,) int64; default: the ray's own index
+    depth: np.ndarray = field(default=None)    # (N,) uint8; default 0
+    light: np.ndarray = field(default=None)    # (N,) int16: light index, -1 for no shadow ray
 
     def __post_init__(self):
+        n = self.org.shape[0]
         if self.anyhit is None:
             self.anyhit = self.kind == SHADOW
+        if self.eye is None:
+            self.eye = np.arange(n, dtype=np.int64)
+        if self.depth is None:
+            self.depth = np.zeros(n, np.uint8)
+        if self.light is None:
+            self.light = np.full(n, -1, np.int16)
 
     def __len__(self) -> int:
         return self.org.shape[0]
@@ -79,7 +91,10 @@ class Rays:
         return Rays(np.concatenate([p.org for p in parts]), np.concatenate([p.dir for p in parts]),
                     np.concatenate([p.tmax for p in parts]), np.concatenate([p.kind for p in parts]),
                     np.concatenate([p.pixel for p in parts]), np.concatenate(starts),
-                    np.concatenate([p.anyhit for p in parts]))
+                    np.concatenate([p.anyhit for p in parts]),
+                    np.concatenate([p.eye for p in parts]),
+                    np.concatenate([p.depth for p in parts]),
+                    np.concatenate([p.light for p in parts]))
 
 
 def empty_rays() -> Rays:

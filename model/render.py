@@ -18,7 +18,7 @@ from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays
 from .rtc import COUNTERS, Hits, counter_totals, trace
-from .shading import AMBIENT, Shader, surface_offset
+from .shading import AMBIENT, Shader, shading_data, surface_offset
 
 KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
 CHUNK_PACKETS = 4096
@@ -34,10 +34,13 @@ class Prepared:
 
 
 def prepare(scene, cfg: Config, cache_dir="default") -> Prepared:
+    """Quantize the scene, build (or load) its kd-tree and lay out its memory image, shading
+    data included (``model.shading.shading_data``: the RGS slave reads its records)."""
     tris = cfg.fmt.quantize(scene.tris).astype(np.float32)
     kw = {} if cache_dir == "default" else {"cache_dir": cache_dir}
     tree = build_kdtree(tris, cfg, **kw)
-    image = build_image(tris, tree, cfg, tri_id=scene.tri_id)
+    image = build_image(tris, tree, cfg, tri_id=scene.tri_id,
+                        shading=shading_data(scene, cfg.fmt))
     return Prepared(image, tree, tris, tree.build_seconds, tree.from_cache)
 
 
@@ -128,9 +131,9 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         mat, albedo = surf.mat, surf.albedo
         local = AMBIENT * albedo
         d = rays.dir[hit]
-        for light in scene.lights:
+        for li, light in enumerate(scene.lights):
             srays, keep = shader.shadow_rays(rays, hit, surf, light,
-                                             cull_behind=skip.lights_behind)
+                                             cull_behind=skip.lights_behind, light_index=li)
             if not skip.anyhit:
                 srays.anyhit = np.zeros(len(srays), bool)
             lit = np.zeros(hit.size, np.float32)
@@ -181,7 +184,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         "lane_utilization": {
             "trav": totals["trav_ops"] / max(1, totals["trav_steps"] * cfg.packet_size),
             "int": totals["int_ops"] / max(1, totals["int_steps"] * cfg.packet_size)},
-        "kdtree": kdtree_stats(prep.tree, len(prep.tris)),
+        "kdtree": kdtree_stats(prep.tree, len(prep.tris)) if prep.tree is not None else {},
         "memory_image_bytes": int(image.data.nbytes),
         "build_seconds": round(prep.build_seconds, 4),
         "kdtree_from_cache": bool(prep.from_cache),

@@ -9,7 +9,8 @@ corner), the shading normal n (the vertex normals interpolated with u, v, normal
 g's side) and the reflected direction ``d - 2 (d.n) n``; :func:`~model.rgs.shadow_dir` makes a
 shadow ray per light that faces the surface (a light behind the surface, as seen from the ray,
 casts no ray: the point is unlit). The unit face normals are computed once on the host (float64,
-rounded once per component), as a driver would store them in the memory image.
+rounded once per component: ``model.layout.face_normals``), as the memory image's slave
+records hold them.
 
 The colour (Phong, texture, accumulation) is plain float32 NumPy: it only makes the picture.
 """
@@ -20,19 +21,32 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fp import FPFormat
+from .layout import MATERIAL_DTYPE, ShadingData, face_normals
 from .raygen import REFLECTION, SHADOW, Rays
 from .rgs import secondary_rays, shadow_rays
 
 AMBIENT = np.float32(0.08)
 
 
-def face_normals(tris: np.ndarray, fmt: FPFormat) -> np.ndarray:
-    """Unit normals (N, 3) of triangles ``tris`` (N, 3, 3), (B - A) x (C - A) normalized in
-    float64 and rounded once to ``fmt`` (a zero-area triangle gives a zero vector)."""
-    t = np.asarray(tris, np.float64)
-    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    return fmt.quantize(n)
+def shading_data(scene, fmt: FPFormat) -> ShadingData:
+    """The scene's materials, per-triangle material ids, vertex normals, texture coordinates
+    and textures (RGBA8) as the memory image holds them (``model.layout.ShadingData``)."""
+    mats = np.zeros(len(scene.materials), MATERIAL_DTYPE)
+    textures = []
+    for i, mm in enumerate(scene.materials):
+        mats[i]["diffuse"] = mm.diffuse
+        mats[i]["specular"] = mm.specular
+        mats[i]["shininess"] = mm.shininess
+        mats[i]["reflect"] = mm.reflect
+        mats[i]["ior"] = 1.0
+        mats[i]["texture"] = -1
+        if mm.texture is not None:
+            t = np.asarray(mm.texture, np.uint8)
+            textures.append(np.concatenate([t, np.full(t.shape[:2] + (1,), 255, np.uint8)], 2))
+            mats[i]["texture"] = len(textures) - 1
+    return ShadingData(mat_id=np.asarray(scene.material), materials=mats,
+                       normals=np.asarray(scene.normals), uvs=np.asarray(scene.uv),
+                       textures=textures)
 
 
 def bilinear(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -118,16 +132,17 @@ class Shader:
             return self.fmt.quantize(light.position), True
         return self.fmt.quantize(-np.asarray(light.direction, np.float64)), False
 
-    def shadow_rays(self, src: Rays, sel, surf: Surface, light,
-                    cull_behind: bool = True) -> tuple[Rays, np.ndarray]:
-        """One shadow ray per hit whose surface faces ``light``; packets follow the source
-        packets. Returns the rays and, per ray, the index into ``sel`` it came from."""
+    def shadow_rays(self, src: Rays, sel, surf: Surface, light, cull_behind: bool = True,
+                    light_index: int = 0) -> tuple[Rays, np.ndarray]:
+        """One shadow ray per hit whose surface faces ``light`` (light ``light_index`` of the
+        scene); packets follow the source packets. Returns the rays and, per ray, the index
+        into ``sel`` it came from."""
         vec, point = self.light_vector(light)
         d, facing = shadow_rays(surf.p0, surf.g, vec, point, *self.fmt.em)
         tmax = np.full(len(d), 1.0 if point else np.inf, np.float32)
         if not cull_behind:
             facing = np.ones(len(d), bool)
-        return _packetize(src, sel, facing, surf.p0, d, tmax, SHADOW)
+        return _packetize(src, sel, facing, surf.p0, d, tmax, SHADOW, light=light_index)
 
     def reflection_rays(self, src: Rays, sel, surf: Surface,
                         cull_matte: bool = True) -> tuple[Rays, np.ndarray]:
@@ -153,12 +168,19 @@ class Shader:
         return out * lit[:, None]
 
 
-def _packetize(src: Rays, sel: np.ndarray, want: np.ndarray, org, d, tmax, kind):
-    """Keep rays where ``want``; a secondary packet = the wanted rays of one source packet."""
+def _packetize(src: Rays, sel: np.ndarray, want: np.ndarray, org, d, tmax, kind,
+               light: int = -1):
+    """Keep rays where ``want``; a secondary packet = the wanted rays of one source packet, in
+    lane order (the RGS slave packs them the same way). Shadow rays keep their source ray's
+    depth, reflection rays add one; both keep its eye ray."""
     keep = np.nonzero(want)[0]
     src_packet = np.searchsorted(src.pk_start, sel[keep], side="right") - 1
     counts = np.bincount(src_packet, minlength=src.n_packets)
     pk_start = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
+    parent = sel[keep]
+    depth = src.depth[parent] + (1 if kind == REFLECTION else 0)
     rays = Rays(org[keep].astype(np.float32), d[keep].astype(np.float32), tmax[keep],
-                np.full(len(keep), kind, np.uint8), src.pixel[sel[keep]], pk_start)
+                np.full(len(keep), kind, np.uint8), src.pixel[parent], pk_start,
+                eye=src.eye[parent], depth=depth.astype(np.uint8),
+                light=np.full(len(keep), light, np.int16))
     return rays, keep

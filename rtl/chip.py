@@ -26,7 +26,7 @@ from model.config import Config
 
 from .bus import RoundRobinBus
 from .common import COUNTER_BITS
-from .memport import connect_tags
+from .memport import WORD_BITS, MemReadPort, connect_tags
 from .rtc import COUNTERS, RTC
 from .rtc_streams import RayIn, RayResult
 from .rtcmi import CACHES, RTCMI
@@ -43,13 +43,15 @@ def counter_names(cfg: Config) -> list[str]:
 class RTCArray(wiring.Component):
     """``cfg.rtcs`` RTCs with their RTC-MIs on one bus; see the module docstring."""
 
-    def __init__(self, cfg: Config):
+    def __init__(self, cfg: Config, extra_tag_widths: tuple = ()):
         self.cfg = cfg
         n = cfg.rtcs
         self.rtcs = [RTC(cfg) for _ in range(n)]
         self.mis = [RTCMI(cfg, rtc) for rtc in self.rtcs]
         tag = max(len(mi.mem(c).req.payload.tag) for mi in self.mis for c in CACHES)
-        self.bus = RoundRobinBus(3 * n, addr_width=32, tag_width=tag)
+        tag = max(tag, *extra_tag_widths) if extra_tag_widths else tag
+        self.n_extra = len(extra_tag_widths)
+        self.bus = RoundRobinBus(3 * n + self.n_extra, addr_width=32, tag_width=tag)
         self.names = counter_names(cfg)
         super().__init__({
             "rays": In(stream.Signature(RayIn(cfg))).array(n),
@@ -58,8 +60,11 @@ class RTCArray(wiring.Component):
             "node_base": In(32), "list_base": In(32), "tri_base": In(32), "root": In(NODE_BITS),
             "rtc_counters": Out(COUNTER_BITS * len(self.names)).array(n),
             "hits": Out(COUNTER_BITS).array(3 * n), "misses": Out(COUNTER_BITS).array(3 * n),
-            "grants": Out(COUNTER_BITS).array(3 * n),
+            "grants": Out(COUNTER_BITS).array(3 * n + self.n_extra),
             "mem_reads": Out(COUNTER_BITS),
+            **({"ext": In(MemReadPort(addr_width=32, data_width=WORD_BITS,
+                                      tag_width=tag)).array(self.n_extra)}
+               if self.n_extra else {}),
         })
 
     def elaborate(self, platform):
@@ -67,6 +72,10 @@ class RTCArray(wiring.Component):
         m.submodules.bus = bus = self.bus
         wiring.connect(m, bus.mem, wiring.flipped(self.mem))
         m.d.comb += self.mem_reads.eq(bus.req_cycles)
+        n = self.cfg.rtcs
+        for e in range(self.n_extra):
+            wiring.connect(m, bus.inputs[3 * n + e], wiring.flipped(self.ext[e]))
+            m.d.comb += self.grants[3 * n + e].eq(bus.grants[3 * n + e])
         for r, (rtc, mi) in enumerate(zip(self.rtcs, self.mis)):
             m.submodules[f"rtc{r}"] = rtc
             m.submodules[f"rtcmi{r}"] = mi
@@ -94,7 +103,8 @@ class RGSMaster(wiring.Component):
     Each slave has a request queue of ``depth`` entries (``req[s]`` is its write side): in a
     cycle where some queues have room, the first of them at or after a round-robin pointer
     gets the next tile. ``start`` (one cycle) begins a frame of ``tiles_x`` × ``tiles_y``
-    tiles; ``dispatched`` is high once every tile was handed out (and before the first start).
+    tiles; ``dispatched`` is high once every tile was handed out (and before the first start);
+    ``queued`` while a queue holds a tile no slave has taken yet.
     Throughput: one packet a cycle. Counter: ``packets[s]`` (packets each slave got).
     """
 
@@ -104,7 +114,7 @@ class RGSMaster(wiring.Component):
         super().__init__({
             "start": In(1), "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS),
             "req": Out(stream.Signature(EyeRequest(cfg))).array(slaves),
-            "dispatched": Out(1),
+            "dispatched": Out(1), "queued": Out(1),
             "packets": Out(COUNTER_BITS).array(slaves),
         })
 
@@ -128,6 +138,7 @@ class RGSMaster(wiring.Component):
             fifos.append(f)
             m.d.comb += [room[s].eq(f.w_rdy), self.req[s].valid.eq(f.r_rdy),
                          self.req[s].payload.eq(f.r_data), f.r_en.eq(self.req[s].ready)]
+        m.d.comb += self.queued.eq(Cat(*(f.r_rdy for f in fifos)).any())
         p2 = 1 << max(0, (n - 1).bit_length())
         ptr = Signal(range(p2))
         req_bits = Signal(p2)
@@ -156,43 +167,63 @@ class RGSMaster(wiring.Component):
 
 
 class Chip(wiring.Component):
-    """The SaarCOR chip: RGS master, one RGS slave per RTC, :class:`RTCArray` (the RTCs, their
-    RTC-MIs, the bus), one memory port ``mem`` for the memory controller.
+    """The SaarCOR chip: RGS master, one RGS slave per RTC (``rtl/rgs_slave.py``: eye rays,
+    results, secondary rays) with its shading cache, :class:`RTCArray` (the RTCs, their
+    RTC-MIs, the bus: requesters ``3 r + c`` the RTC caches, ``3 rtcs + s`` slave s's shading
+    cache), one memory port ``mem`` for the memory controller.
 
     Host side (inputs held for the frame): the image constants ``node_base``, ``list_base``,
-    ``tri_base``, ``root``, the scene box ``box_lo``/``box_hi``; the camera ``pos``,
-    ``corner``, ``dx``, ``dy`` (format words, as ``model.raygen.eye_rays`` quantizes them for
-    the sample image), ``width``/``height`` (pixels), ``tiles_x``/``tiles_y`` (tiles of the
-    sample image), ``n_rays`` (rays of the frame). ``start`` (one cycle) renders a frame;
-    ``busy`` is high from the cycle after ``start`` until the last result has left; ``done``
-    = not busy. ``results`` (Out stream, ``RayResult``): every ray's hit, labelled with its
-    packet (tile index) and lane, in any order.
+    ``tri_base``, ``root``, ``rec_base`` (the slave records), the scene box
+    ``box_lo``/``box_hi``; the camera ``pos``, ``corner``, ``dx``, ``dy`` (format words, as
+    ``model.raygen.eye_rays`` quantizes them for the sample image), ``width``/``height``
+    (pixels), ``tiles_x``/``tiles_y`` (tiles of the sample image); ``eps``, ``lights``,
+    ``light_point``, ``n_lights``, ``reflect_depth`` (the slaves' secondary rays). ``start``
+    (one cycle) renders a frame; ``busy`` is high from the cycle after ``start`` until every
+    ray the frame spawned has finished and its result has left; ``done`` = not busy.
+    ``results`` (Out stream, ``SlaveResult``): every ray's id (eye packet and lane, depth,
+    sub) and hit, in any order.
 
     Counters: ``cycles`` (busy cycles of the last frame), ``rays_in`` (rays into the RTCs),
-    ``results_out``, ``packets[s]`` (packets slave s got) and :class:`RTCArray`'s
-    (``rtc_counters``, ``hits``, ``misses``, ``grants``, ``mem_reads``).
+    ``results_out``, ``packets[s]`` (eye packets slave s got), per slave ``rays_eye``,
+    ``rays_shadow``, ``rays_reflect``, ``sec_busy`` (``slave_counters[s]``) and its shading
+    cache's ``shade_hits``/``shade_misses``, and :class:`RTCArray`'s (``rtc_counters``,
+    ``hits``, ``misses``, ``grants``, ``mem_reads``).
     """
 
+    SLAVE_COUNTERS = ("rays_eye", "rays_shadow", "rays_reflect", "sec_busy")
+
     def __init__(self, cfg: Config):
-        from .rgs import COORD_BITS, EyeRays
+        from model.layout import REC_BITS
+        from .cache import Cache
+        from .rgs import COORD_BITS
+        from .rgs_slave import DEPTH_BITS, Slave, SlaveResult, shade_cache_geometry
         from .rtc_streams import vec3
         self.cfg = cfg
         n = cfg.rtcs
-        self.array = RTCArray(cfg)
         self.master = RGSMaster(cfg, n)
-        self.slaves = [EyeRays(cfg, cfg.fp_latencies()) for _ in range(n)]
+        self.slaves = [Slave(cfg) for _ in range(n)]
+        geom = shade_cache_geometry(cfg)
+        self.shade_caches = [Cache(geom, tag_width=1) for _ in range(n)]
+        self.array = RTCArray(cfg, tuple(len(c.mem.req.payload.tag) for c in self.shade_caches))
+        assert geom.item_bits == REC_BITS
         v3 = vec3(cfg)
+        L = max(1, cfg.rgs_lights)
         members = {
             "start": In(1), "busy": Out(1), "done": Out(1),
             "node_base": In(32), "list_base": In(32), "tri_base": In(32), "root": In(NODE_BITS),
+            "rec_base": In(32),
             "box_lo": In(v3), "box_hi": In(v3),
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(COORD_BITS), "height": In(COORD_BITS),
-            "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS), "n_rays": In(32),
-            "results": Out(stream.Signature(RayResult(cfg))),
+            "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS),
+            "eps": In(cfg.fmt.width), "lights": In(v3).array(L), "light_point": In(L),
+            "n_lights": In(range(cfg.rgs_lights + 1)), "reflect_depth": In(DEPTH_BITS),
+            "results": Out(stream.Signature(SlaveResult(cfg))),
             "cycles": Out(COUNTER_BITS), "rays_in": Out(COUNTER_BITS),
             "results_out": Out(COUNTER_BITS),
             "packets": Out(COUNTER_BITS).array(n),
+            "slave_counters": Out(COUNTER_BITS * len(self.SLAVE_COUNTERS)).array(n),
+            "shade_hits": Out(COUNTER_BITS).array(n), "shade_misses": Out(COUNTER_BITS).array(n),
         }
         for name in ("mem", "rtc_counters", "hits", "misses", "grants", "mem_reads"):
             members[name] = self.array.signature.members[name]
@@ -201,6 +232,7 @@ class Chip(wiring.Component):
     def elaborate(self, platform):
         from amaranth.hdl import Mux, Signal
         from .common import OutputStage, rr_pick
+        from .rgs_slave import SlaveResult
         m = Module()
         cfg, n = self.cfg, self.cfg.rtcs
         m.submodules.array = arr = self.array
@@ -216,47 +248,58 @@ class Chip(wiring.Component):
         for s in range(n):
             m.d.comb += self.packets[s].eq(master.packets[s])
 
-        # -- slaves: eye rays for their RTC ------------------------------------------------------
-        rays_in = Signal(range(n + 1))
+        # -- slaves: rays for their RTC, its results back, their shading caches ---------------------
         counts = []
-        for s, slave in enumerate(self.slaves):
+        for s, (slave, cache) in enumerate(zip(self.slaves, self.shade_caches)):
             m.submodules[f"slave{s}"] = slave
+            m.submodules[f"shade_cache{s}"] = cache
             wiring.connect(m, master.req[s], slave.req)
-            for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi"):
+            wiring.connect(m, slave.shade, cache.port)
+            connect_tags(m, cache.mem, arr.ext[s])
+            m.d.comb += [cache.base.eq(self.rec_base), self.shade_hits[s].eq(cache.hits),
+                         self.shade_misses[s].eq(cache.misses)]
+            for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi", "eps",
+                      "light_point", "n_lights", "reflect_depth"):
                 m.d.comb += getattr(slave, k).eq(getattr(self, k))
+            for a, b in zip(slave.lights, self.lights):
+                m.d.comb += a.eq(b)
+            wiring.connect(m, slave.rays, arr.rays[s])
+            wiring.connect(m, arr.results[s], slave.results)
+            m.d.comb += self.slave_counters[s].eq(
+                Cat(*(getattr(slave, k) for k in self.SLAVE_COUNTERS)))
             rays = arr.rays[s]
-            m.d.comb += [rays.valid.eq(slave.o.valid), rays.payload.eq(slave.o.payload.ray),
-                         slave.o.ready.eq(rays.ready)]
             counts.append(rays.valid & rays.ready)
-        total = sum(counts[1:], counts[0])
-        m.d.comb += rays_in.eq(total)
+        rays_in = Signal(range(n + 1))
+        m.d.comb += rays_in.eq(sum(counts[1:], counts[0]))
 
-        # -- results: round-robin over the RTCs into one registered output -----------------------
-        m.submodules.res_out = out = OutputStage(RayResult(cfg))
+        # -- results: round-robin over the slaves into one registered output ---------------------
+        m.submodules.res_out = out = OutputStage(SlaveResult(cfg))
         wiring.connect(m, out.o, wiring.flipped(self.results))
         p2 = 1 << max(0, (n - 1).bit_length())
         valid = Signal(p2)
-        m.d.comb += valid.eq(Cat(*(arr.results[s].valid for s in range(n))))
+        m.d.comb += valid.eq(Cat(*(sl.out.valid for sl in self.slaves)))
         ptr = Signal(range(p2))
         anyv, pick = rr_pick(m, valid, ptr, "chip_results")
         m.d.comb += out.i.valid.eq(anyv)
-        for s in range(n):
+        for s, sl in enumerate(self.slaves):
             sel = pick == s
             with m.If(sel):
-                m.d.comb += out.i.payload.eq(arr.results[s].payload)
-            m.d.comb += arr.results[s].ready.eq(out.i.ready & sel)
+                m.d.comb += out.i.payload.eq(sl.out.payload)
+            m.d.comb += sl.out.ready.eq(out.i.ready & sel)
         with m.If(out.i.valid & out.i.ready):
             m.d.sync += ptr.eq(Mux(pick == n - 1, 0, pick + 1))
 
         # -- frame control and counters ------------------------------------------------------------
         res = self.results
         out_now = res.valid & res.ready
+        idle = Signal()
+        m.d.comb += idle.eq(master.dispatched & ~master.queued &
+                            Cat(*(sl.idle for sl in self.slaves)).all() & ~res.valid)
         m.d.comb += self.done.eq(~self.busy)
         with m.If(self.busy):
             m.d.sync += [self.cycles.eq(self.cycles + 1), self.rays_in.eq(self.rays_in + rays_in),
                          self.results_out.eq(self.results_out + out_now)]
-            with m.If(master.dispatched & (self.results_out + out_now == self.n_rays) &
-                      (self.rays_in + rays_in == self.n_rays)):
+            with m.If(idle):
                 m.d.sync += self.busy.eq(0)
         with m.If(self.start):
             m.d.sync += [self.busy.eq(1), self.cycles.eq(0), self.rays_in.eq(0),

@@ -62,9 +62,10 @@ def EyeRequest(cfg: Config) -> data.StructLayout:
 
 
 def EyeRay(cfg: Config) -> data.StructLayout:
-    """An eye ray out of :class:`EyeRays`: the ``RayIn`` for the RTC and the index
-    ``y * width + x`` of the pixel the sample belongs to."""
-    return data.StructLayout({"ray": RayIn(cfg), "pixel": PIXEL_BITS})
+    """An eye ray out of :class:`EyeRays`: the ``RayIn`` for the RTC, the index
+    ``y * width + x`` of the pixel the sample belongs to and the ray's direction (which the
+    slave keeps for the ray's secondary rays)."""
+    return data.StructLayout({"ray": RayIn(cfg), "pixel": PIXEL_BITS, "dir": vec3(cfg)})
 
 
 def div_const_params(n: int, bits: int) -> tuple[int, int]:
@@ -129,7 +130,8 @@ class RaySetupPipe(wiring.Component):
 
     In: ``org``, ``dir`` (3 format words each), ``tmax``, ``tag`` (carried along unchanged),
     ``i_valid``, ``en``; ``lo``, ``hi``: the scene box (held constant while rays are in
-    flight). Out after ``latency`` enabled cycles: ``o_valid``, ``o_org``, ``inv``, ``octant``,
+    flight). Out after ``latency`` enabled cycles: ``o_valid``, ``o_org``, ``o_dir``, ``inv``,
+    ``octant``,
     ``k`` (kx, ky, kz), ``s`` (Sx, Sy, Sz), ``tnear``, ``tfar``, ``o_tmax``, ``o_tag`` (every
     output comes from registers that hold while ``en`` is 0; a ``static`` input is passed
     straight through).
@@ -161,7 +163,8 @@ class RaySetupPipe(wiring.Component):
         super().__init__({
             "org": In(v3), "dir": In(v3), "tmax": In(w), "lo": In(v3), "hi": In(v3),
             "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
-            "o_valid": Out(1), "o_org": Out(v3), "inv": Out(v3), "octant": Out(3),
+            "o_valid": Out(1), "o_org": Out(v3), "o_dir": Out(v3), "inv": Out(v3),
+            "octant": Out(3),
             "k": Out(data.ArrayLayout(2, 3)), "s": Out(v3), "tnear": Out(w), "tfar": Out(w),
             "o_tmax": Out(w), "o_tag": Out(tag_width),
         })
@@ -229,6 +232,7 @@ class RaySetupPipe(wiring.Component):
         m.d.comb += [
             self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
             self.o_org.eq(Cat(*(keep(x, "org") for x in org))),
+            self.o_dir.eq(Cat(*(sch.at(x, 0, L) for x in d))),
             self.inv.eq(Cat(*(at(x) for x in inv))),
             self.octant.eq(sch.at(octant, 0, L)),
             self.k.eq(Cat(sch.at(kx, 0, L), sch.at(ky, 0, L), sch.at(kz, 0, L))),
@@ -491,7 +495,8 @@ class EyeRays(wiring.Component):
             st.pixel.eq(gen.pixel),
         ]
         out = data.View(self.setup_tag, setup.o_tag)
-        m.d.comb += [self.o.valid.eq(setup.o_valid), self.o.payload.pixel.eq(out.pixel)]
+        m.d.comb += [self.o.valid.eq(setup.o_valid), self.o.payload.pixel.eq(out.pixel),
+                     self.o.payload.dir.eq(setup.o_dir)]
         m.d.comb += _ray_out(setup, self.o.payload.ray, out.packet, out.lane, out.last, 0)
         return m
 
@@ -629,7 +634,8 @@ class ShadowPipe(wiring.Component):
     In: ``p0``, ``g`` (a hit's secondary origin and oriented face normal, from
     :class:`SecondaryPipe`), ``light`` (3 format words: a point light's position, or a parallel
     light's reversed direction), ``point`` (1: point light), ``tag``, ``i_valid``, ``en``.
-    Out after ``latency`` enabled cycles: ``o_valid``, ``dir`` (light - p0, or the light vector
+    Out after ``latency`` enabled cycles: ``o_valid``, ``o_p0`` (the origin, carried along),
+    ``dir`` (light - p0, or the light vector
     itself for a parallel light), ``tmax`` (1 for a point light, +inf for a parallel one),
     ``cast`` (dot(g, dir) > 0: the light faces the surface; no ray otherwise), ``o_tag``.
     Operations: 3 sub, a dot product (3 mul, 2 add), a sign test. Latency: add + mul + 2 add
@@ -644,7 +650,7 @@ class ShadowPipe(wiring.Component):
         super().__init__({
             "p0": In(v3), "g": In(v3), "light": In(v3), "point": In(1), "tag": In(tag_width),
             "i_valid": In(1), "en": In(1, init=1),
-            "o_valid": Out(1), "dir": Out(v3), "tmax": Out(w), "cast": Out(1),
+            "o_valid": Out(1), "o_p0": Out(v3), "dir": Out(v3), "tmax": Out(w), "cast": Out(1),
             "o_tag": Out(tag_width),
         })
         dry = Module()
@@ -667,6 +673,7 @@ class ShadowPipe(wiring.Component):
         pt = at(point, 0, L)
         m.d.comb += [
             self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_p0.eq(Cat(*(at(self.p0[a], 0, L) for a in range(3)))),
             self.dir.eq(Cat(*(at(x[0], x[1], L) for x in ds))),
             self.tmax.eq(Mux(pt, _fp_const(fmt, "one"), _fp_const(fmt, "+inf"))),
             self.cast.eq(_positive(fmt, at(dot[0], dot[1], L))),

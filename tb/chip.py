@@ -21,7 +21,7 @@ import numpy as np
 from model.config import Config
 from model.raygen import camera_registers, eye_rays
 from model.rtc import counter_totals, trace
-from rtl.chip import counter_names
+from rtl.chip import Chip, counter_names
 from rtl.rtcmi import CACHES
 
 from . import compare
@@ -35,21 +35,63 @@ __all__ = ["CHIP_MIN_MEM_WORDS", "chip_build", "frame_registers", "ChipFrame", "
            "chip_consts", "chip_counter_names", "const_values", "chip_blocks"]
 
 
-def frame_registers(cfg: Config, image, camera, width: int, height: int) -> dict:
+def frame_registers(cfg: Config, image, camera, width: int, height: int,
+                    scene=None) -> dict:
     """The chip's host registers for a ``width x height`` frame of ``camera`` (values as the
-    chip's ports take them: format words as their bit patterns)."""
+    chip's ports take them: format words as their bit patterns). With ``scene`` the slaves make
+    its secondary rays (a shadow ray per light, if ``cfg.shadows``; reflections to
+    ``cfg.reflect_depth``) from the image's slave records; without, eye rays only."""
+    from model.shading import Shader, surface_offset
     fmt, n = cfg.fmt, cfg.oversampling
     sw, sh = width * n, height * n
     pos, corner, dx, dy = camera_registers(camera, width, height, cfg)
     bits = lambda v: [int(b) for b in fmt.to_bits(np.asarray(v, np.float32))]  # noqa: E731
-    return {
+    lights = scene.lights if scene is not None and cfg.shadows else []
+    if len(lights) > cfg.rgs_lights:
+        raise ValueError(f"the scene has {len(lights)} lights; the chip's slaves hold "
+                         f"rgs_lights={cfg.rgs_lights}: raise --rgs-lights")
+    depth = cfg.reflect_depth if scene is not None else 0
+    rec_base = image.shading_header()["rec_base"]
+    if (lights or depth) and not rec_base:
+        raise ValueError("the memory image has no slave records (build it with shading data: "
+                         "model.render.prepare) but the frame has secondary rays")
+    vecs, point = [], 0
+    if lights:
+        shader = Shader(scene, fmt, eps=0.0)
+        for li, light in enumerate(lights):
+            v, pt = shader.light_vector(light)
+            vecs.append(bits(v))
+            point |= int(pt) << li
+    vecs += [[0, 0, 0]] * (max(1, cfg.rgs_lights) - len(vecs))
+    eps = fmt.quantize(surface_offset(image.bounds))
+    regs = {
         "node_base": image.node_base, "list_base": image.list_base,
-        "tri_base": image.tri_base, "root": image.root,
+        "tri_base": image.tri_base, "root": image.root, "rec_base": rec_base,
         "box_lo": bits(image.bounds[0]), "box_hi": bits(image.bounds[1]),
         "pos": bits(pos), "corner": bits(corner), "dx": bits(dx), "dy": bits(dy),
         "width": width, "height": height,
-        "tiles_x": -(-sw // cfg.tile_w), "tiles_y": -(-sh // cfg.tile_h), "n_rays": sw * sh,
+        "tiles_x": -(-sw // cfg.tile_w), "tiles_y": -(-sh // cfg.tile_h),
+        "eps": bits([eps])[0], "light_point": point, "n_lights": len(lights),
+        "reflect_depth": depth,
     }
+    for li, v in enumerate(vecs):
+        regs[f"light{li}"] = v
+    return regs
+
+
+def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None):
+    """What the chip must report for the frame of :func:`frame_registers`: ``(eye rays, every
+    ray with its id, their hits, the model's counter totals)``. With ``scene``:
+    ``model.render.render``'s ray tree (the same rays in the same packets as the slaves make
+    them); without: ``model.rtc.trace`` of the eye rays."""
+    eye = eye_rays(camera, width, height, cfg)
+    if scene is None:
+        hits, ctrs = trace(image, eye, cfg)
+        return eye, eye, hits, counter_totals(ctrs)
+    from model.render import Prepared, render
+    res = render(scene, cfg, width, height,
+                 prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False))
+    return eye, res.rays, res.hits, res.counters
 
 
 @dataclass
@@ -60,8 +102,10 @@ class ChipRun:
     counters: dict                 # the chip's counters (per RTC, caches, memory)
     model: dict                    # the model's counter totals
     mismatches: list = field(default_factory=list)
-    hits: object = None            # the chip's hits by ray id (model.rtc.Hits, scene ids)
-    eye: object = None             # the frame's rays (model.raygen.Rays) the hits belong to
+    hits: object = None            # the chip's hits of the eye rays (model.rtc.Hits, scene ids)
+    eye: object = None             # the frame's eye rays (model.raygen.Rays) the hits belong to
+    frame_rays: object = None      # every ray of the frame (eye, shadow, reflection), with ids
+    frame_hits: object = None      # the chip's hits of every ray
     build: object = None           # the Verilator binary (tb.verilator.FrameBuild), if any
     # counters every ``sample_every`` cycles: columns cycle, results, then chip_counter_names
     samples: np.ndarray | None = None
@@ -79,6 +123,8 @@ def const_values(cfg: Config, regs: dict, *, stall: float = 0.0, seed: int = 1,
             vals.update({f"{k}_{i}": regs[k][i] for i in range(3)})
         else:
             vals[k] = regs[k]
+    for li in range(max(1, cfg.rgs_lights)):
+        vals.update({f"light{li}_{i}": regs[f"light{li}"][i] for i in range(3)})
     return vals
 
 
@@ -96,19 +142,20 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                    seed: int = 1, mem_stall: float = 0.0, max_cycles: int = 100_000_000,
                    trace_file=None, trace_from: int = 0, progress: bool = True,
                    mem_words: int | None = None, build_root=None, log=None,
-                   sample_every: int = 0) -> ChipRun:
+                   sample_every: int = 0, scene=None) -> ChipRun:
     """One frame through :class:`ChipFrame` in Verilator (built once per configuration),
     every ray compared with the golden model as :func:`run_chip` does in pysim. ``stall``:
     result back-pressure; ``mem_stall``: random memory latency (both fractions of cycles,
     LFSRs seeded by ``seed``); ``trace_file`` from run cycle ``trace_from``; the counters
-    every ``sample_every`` cycles in ``ChipRun.samples``."""
+    every ``sample_every`` cycles in ``ChipRun.samples``; ``scene``: with its secondary rays
+    (:func:`frame_registers`)."""
     import sys
 
-    from rtl.rtc_streams import RayResult
+    from rtl.rgs_slave import SlaveResult
 
     from .verilator import FrameError, _field, _trace_kind, run_binary, write_blocks
     log = sys.stderr if log is None else log
-    regs = frame_registers(cfg, image, camera, width, height)
+    regs = frame_registers(cfg, image, camera, width, height, scene)
     rays = eye_rays(camera, width, height, cfg)
     words = len(image.data)
     if mem_words is not None and words > mem_words:
@@ -120,7 +167,7 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     # the golden model traces the frame while the simulation runs (another process)
     from concurrent.futures import ThreadPoolExecutor
     pool = ThreadPoolExecutor(max_workers=1)
-    golden = pool.submit(trace, image, rays, cfg)
+    golden = pool.submit(golden_frame, cfg, image, camera, width, height, scene)
     pool.shutdown(wait=False)
     out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs, stall=stall,
                                                               seed=seed, mem_stall=mem_stall)),
@@ -128,12 +175,12 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                      trace_from=trace_from, progress=progress, log=log,
                      desc="chip (Verilator)", names=names, allow_limit=True,
                      sample_every=sample_every)
-    lay = RayResult(cfg)
+    lay = SlaveResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
     if out.status == 2:
         raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles))
-    run = _finish(cfg, image, rays, records, out.cycles, out.seconds, out.counters,
-                  golden=golden.result())
+    run = _finish(cfg, image, records, out.cycles, out.seconds, out.counters,
+                  golden.result())
     run.build, run.samples = b, out.samples
     return run
 
@@ -162,12 +209,12 @@ def stuck(cfg: Config, rays, records: dict, c: dict, max_cycles: int) -> str:
             "the cycle limit)")
 
 
-def _finish(cfg: Config, image, rays, records: dict, cycles: int, seconds: float,
-            c: dict, golden=None) -> ChipRun:
-    """Compare result ``records`` with the model (``golden``: its ``trace`` of ``rays`` if
-    already done); counters ``c`` by :func:`chip_counter_names`."""
-    hits, ctrs = golden if golden is not None else trace(image, rays, cfg)
-    by_ray = compare.results_by_ray(records, rays)
+def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: dict,
+            golden) -> ChipRun:
+    """Compare result ``records`` (``SlaveResult`` fields) with the model's ``golden``
+    (:func:`golden_frame`); counters ``c`` by :func:`chip_counter_names`."""
+    eye, rays, hits, model_totals = golden
+    by_ray = compare.results_by_id(records, rays, eye.pk_start)
     chip_hits = compare.hits_of(by_ray, cfg, image)
     counters = {"cycles": cycles, "rays_in": c["rays_in"], "results_out": c["results_out"],
                 "mem_reads": c["mem_reads"],
@@ -175,25 +222,32 @@ def _finish(cfg: Config, image, rays, records: dict, cycles: int, seconds: float
                 "mem_words": [c[f"chip{k}_words"] for k in range(cfg.mem_chips)],
                 "mem_busy": [c[f"chip{k}_busy"] for k in range(cfg.mem_chips)],
                 "rtc": [{k: c[f"rtc{r}_{k}"] for k in counter_names(cfg)}
-                        for r in range(cfg.rtcs)]}
+                        for r in range(cfg.rtcs)],
+                "slave": [{k: c[f"slave{r}_{k}"] for k in Chip.SLAVE_COUNTERS}
+                          for r in range(cfg.rtcs)]}
     for k in ("hits", "misses", "grants"):
-        counters[k] = [{cc: c[f"rtc{r}_{cc}_{k}"] for cc in CACHES} for r in range(cfg.rtcs)]
-    return ChipRun(cycles, seconds, len(rays), counters, counter_totals(ctrs),
+        counters[k] = [{**{cc: c[f"rtc{r}_{cc}_{k}"] for cc in CACHES},
+                        "shade": c[f"slave{r}_shade_{k}"]} for r in range(cfg.rtcs)]
+    n_eye = len(eye)
+    from model.rtc import Hits
+    eye_hits = Hits(*(getattr(chip_hits, f)[:n_eye] for f in ("tri", "t", "u", "v")))
+    return ChipRun(cycles, seconds, len(rays), counters, model_totals,
                    compare.result_mismatches(by_ray, compare.expected(hits, cfg, image)),
-                   chip_hits, rays)
+                   eye_hits, eye, rays, chip_hits)
 
 
 def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: float = 0.0,
              seed: int = 1, mem_stall: float = 0.0, max_cycles: int = 1_000_000,
-             sample_every: int = 0, vcd: str | None = None) -> ChipRun:
+             sample_every: int = 0, vcd: str | None = None, scene=None) -> ChipRun:
     """One frame through :class:`ChipFrame` in Amaranth's simulator (memory image and
     registers preloaded), every ray compared with the golden model; the same cycles as
     :func:`run_chip_frame` in Verilator for the same ``stall`` and ``seed``; ``sample_every``
-    and the samples as there; ``vcd``: a waveform of the whole run."""
+    and the samples as there; ``vcd``: a waveform of the whole run; ``scene``: with its
+    secondary rays."""
     from amaranth.sim import Simulator
 
-    from rtl.rtc_streams import RayResult
-    regs = frame_registers(cfg, image, camera, width, height)
+    from rtl.rgs_slave import SlaveResult
+    regs = frame_registers(cfg, image, camera, width, height, scene)
     rays = eye_rays(camera, width, height, cfg)
     top = ChipFrame(cfg, mem_words=len(image.data), verilog_memories=False,
                     preload={"image": image.data,
@@ -235,11 +289,12 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
     if not info["finished"]:
         raise AssertionError(f"chip frame: {len(got)} of {len(rays)} results after "
                              f"{max_cycles} cycles (deadlock?)")
-    lay = RayResult(cfg)
+    lay = SlaveResult(cfg)
     records = {name: np.array([(v >> fld.offset) & ((1 << fld.width) - 1) for v in got],
                               np.int64) for name, fld in lay}
     c = dict(zip(names, unpack(info["counters"])))
-    run = _finish(cfg, image, rays, records, info["cycles"], info["seconds"], c)
+    run = _finish(cfg, image, records, info["cycles"], info["seconds"], c,
+                  golden_frame(cfg, image, camera, width, height, scene))
     if sample_every:
         rows.append([info["cycles"], len(got), *unpack(info["counters"])])
         run.samples = np.array(rows, np.int64)

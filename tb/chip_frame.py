@@ -17,18 +17,22 @@ __all__ = ["ChipFrame", "chip_consts", "chip_counter_names", "REGISTERS"]
 
 def chip_consts(cfg: Config) -> list[str]:
     """The constants :class:`ChipFrame` loads (``ld_sel`` = CONST, address = position): the
-    chip's registers (three words for a vector: ``pos_0``, ``pos_1``, ``pos_2``), then the
-    result back-pressure (``stall_q``, sixteenths) and its LFSR seed, then the fraction of
-    cycles the SDRAM model holds its responses (``mem_stall_q``) and that LFSR's seed."""
+    chip's registers (three words for a vector: ``pos_0``, ``pos_1``, ``pos_2``; light l's
+    vector ``light{l}_0`` ...), then the result back-pressure (``stall_q``, sixteenths) and its
+    LFSR seed, then the fraction of cycles the SDRAM model holds its responses
+    (``mem_stall_q``) and that LFSR's seed."""
     names = []
     for k, v in REGISTERS.items():
         names += [f"{k}_{i}" for i in range(3)] if v else [k]
+    for li in range(max(1, cfg.rgs_lights)):
+        names += [f"light{li}_{i}" for i in range(3)]
     return names + ["stall_q", "seed", "mem_stall_q", "mem_seed"]
 
 
-REGISTERS = {"node_base": 0, "list_base": 0, "tri_base": 0, "root": 0, "box_lo": 1, "box_hi": 1,
-              "pos": 1, "corner": 1, "dx": 1, "dy": 1, "width": 0, "height": 0, "tiles_x": 0,
-              "tiles_y": 0, "n_rays": 0}                     # 1: a vector of 3 format words
+REGISTERS = {"node_base": 0, "list_base": 0, "tri_base": 0, "root": 0, "rec_base": 0,
+             "box_lo": 1, "box_hi": 1, "pos": 1, "corner": 1, "dx": 1, "dy": 1, "width": 0,
+             "height": 0, "tiles_x": 0, "tiles_y": 0, "eps": 0, "light_point": 0,
+             "n_lights": 0, "reflect_depth": 0}           # 1: a vector of 3 format words
 
 
 def chip_counter_names(cfg: Config) -> list[str]:
@@ -38,6 +42,8 @@ def chip_counter_names(cfg: Config) -> list[str]:
     for r in range(cfg.rtcs):
         names += [f"rtc{r}_{k}" for k in counter_names(cfg)]
         names += [f"rtc{r}_{c}_{k}" for c in CACHES for k in ("hits", "misses", "grants")]
+        names += [f"slave{r}_{k}" for k in Chip.SLAVE_COUNTERS]
+        names += [f"slave{r}_shade_{k}" for k in ("hits", "misses", "grants")]
     names += [f"chip{c}_{k}" for k in ("words", "busy") for c in range(cfg.mem_chips)]
     return names
 
@@ -65,6 +71,9 @@ class _ChipRun(wiring.Component):
                     m.d.comb += port[i].eq(c[f"{k}_{i}"])
             else:
                 m.d.comb += port.eq(c[k])
+        for li, port in enumerate(chip.lights):
+            for i in range(3):
+                m.d.comb += port[i].eq(c[f"light{li}_{i}"])
         going = Signal()
         m.d.sync += going.eq(1)
         m.d.comb += [chip.start.eq(~going), t.finished_run.eq(going & chip.done)]
@@ -113,7 +122,8 @@ class ChipFrame(wiring.Component):
                                   chip_queue=cfg.mem_chip_queue, load=True, store=store)
         self.consts = chip_consts(cfg)
         self.names = chip_counter_names(cfg)
-        super().__init__(frame_signature(cfg, len(self.names)))
+        from rtl.rgs_slave import SlaveResult
+        super().__init__(frame_signature(cfg, len(self.names), SlaveResult(cfg)))
         values = {} if preload is None else preload["consts"]
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True,
                                    init=int(values.get(name, 0))) for name in self.consts}
@@ -143,6 +153,10 @@ class ChipFrame(wiring.Component):
             values += [word[32 * i:32 * i + 32] for i in range(len(names))]
             for c in range(3):
                 values += [chip.hits[3 * r + c], chip.misses[3 * r + c], chip.grants[3 * r + c]]
+            word = chip.slave_counters[r]
+            values += [word[32 * i:32 * i + 32] for i in range(len(Chip.SLAVE_COUNTERS))]
+            values += [chip.shade_hits[r], chip.shade_misses[r],
+                       chip.grants[3 * self.cfg.rtcs + r]]
         values += list(mem.words) + list(mem.busy)
         from amaranth.hdl import Cat
         m.d.comb += [self.counters.eq(Cat(*values)), self.cycles.eq(chip.cycles),

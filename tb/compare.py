@@ -11,7 +11,8 @@ t, u, v per result, in any order) and their counters as a dict:
   (scene-order triangle ids, float32 carriers), the golden model's own result format.
 * :func:`results_by_ray`: result records -> one value per ray, by ray id
   (``rays.pk_start[packet] + lane``); a result that is not a ray of the input, a ray reported
-  twice and a ray never reported raise :class:`ResultError`.
+  twice and a ray never reported raise :class:`ResultError`. :func:`results_by_id` does the
+  same for the chip's records, whose id is (eye packet and lane, depth, sub).
 * :func:`result_mismatches`: every (ray, field, rtl, model) that differs, bit for bit.
 * :func:`counter_mismatches`: the RTC counters of :data:`COMPARED` against the model's totals.
 * :func:`describe`: the first mismatches in words, for an assertion message.
@@ -25,7 +26,7 @@ import numpy as np
 from model.config import Config
 
 __all__ = ["FIELDS", "MISS", "COMPARED", "ResultError", "expected", "hits_of", "results_by_ray",
-           "result_mismatches", "counter_mismatches", "describe"]
+           "results_by_id", "ray_ids", "result_mismatches", "counter_mismatches", "describe"]
 
 FIELDS = ("tri", "t", "u", "v")
 MISS = (1 << 32) - 1            # the RTC's triangle id of a ray that hit nothing
@@ -75,6 +76,12 @@ def results_by_ray(records: Mapping[str, np.ndarray], rays) -> dict[str, np.ndar
         j = int(np.flatnonzero(bad)[0])
         raise ResultError(f"result {j}: packet {packet[j]} lane {lane[j]} is not a ray of the "
                           f"input ({rays.n_packets} packets)")
+    return _place(records, ray, n)
+
+
+def _place(records: Mapping[str, np.ndarray], ray: np.ndarray, n: int) -> dict:
+    """``records`` (results for rays ``ray``) as one value per ray 0..n-1; each ray exactly
+    once."""
     seen = np.bincount(ray, minlength=n)
     if (seen != 1).any():
         r = int(np.flatnonzero(seen != 1)[0])
@@ -85,6 +92,41 @@ def results_by_ray(records: Mapping[str, np.ndarray], rays) -> dict[str, np.ndar
         got[f] = np.empty(n, np.int64)
         got[f][ray] = np.asarray(records[f], np.int64)
     return got
+
+
+def ray_ids(eye: np.ndarray, depth: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """One integer per ray from its id: eye ray index, depth (< 16), sub (< 16: 0 eye or
+    reflection ray, 1 + l shadow ray of light l)."""
+    return (np.asarray(eye, np.int64) * 16 + np.asarray(depth, np.int64)) * 16 + \
+        np.asarray(sub, np.int64)
+
+
+def results_by_id(records: Mapping[str, np.ndarray], rays, eye_pk_start) -> dict:
+    """Order the chip's result records by ray: ``records`` holds ``packet`` and ``lane`` (of
+    the ray's eye ray), ``depth``, ``sub`` and each of :data:`FIELDS`; ``rays`` every ray of
+    the frame with its id (``Rays.eye``, ``depth``, ``light``); ``eye_pk_start`` the eye
+    rays' packet starts. Unknown, repeated and missing rays raise :class:`ResultError`."""
+    pk = np.asarray(eye_pk_start, np.int64)
+    packet = np.asarray(records["packet"], np.int64)
+    lane = np.asarray(records["lane"], np.int64)
+    ok = (packet >= 0) & (packet < len(pk) - 1)
+    p = np.where(ok, packet, 0)
+    eye = pk[p] + lane
+    ok &= (lane >= 0) & (eye < pk[p + 1])
+    got_id = ray_ids(eye, records["depth"], records["sub"])
+    want_id = ray_ids(rays.eye, rays.depth, np.asarray(rays.light, np.int64) + 1)
+    order = np.argsort(want_id, kind="stable")
+    pos = np.searchsorted(want_id[order], got_id)
+    pos = np.minimum(pos, len(order) - 1) if len(order) else pos
+    found = ok & (len(order) > 0)
+    if len(order):
+        found &= want_id[order][pos] == got_id
+    if not found.all():
+        j = int(np.flatnonzero(~found)[0])
+        raise ResultError(f"result {j}: eye packet {packet[j]} lane {lane[j]} depth "
+                          f"{records['depth'][j]} sub {records['sub'][j]} is no ray of the "
+                          f"frame ({len(rays)} rays)")
+    return _place(records, order[pos], len(rays))
 
 
 def result_mismatches(got: Mapping[str, np.ndarray],

@@ -66,19 +66,21 @@ def ray_chunks(cfg: Config) -> int:
     return -(-RayIn(cfg).size // 64)
 
 
-def result_bits(cfg: Config) -> int:
-    """Width of ``res_data``: ``RayResult`` rounded up to 32 bits, at least 96 (so that a C++
-    main reads it as a ``VlWide`` whatever the format)."""
-    return max(96, -(-RayResult(cfg).size // 32) * 32)
+def result_bits(cfg: Config, layout=None) -> int:
+    """Width of ``res_data``: the result ``layout`` (default ``RayResult``) rounded up to 32
+    bits, at least 96 (so that a C++ main reads it as a ``VlWide`` whatever the format)."""
+    size = (RayResult(cfg) if layout is None else layout).size
+    return max(96, -(-size // 32) * 32)
 
 
-def frame_signature(cfg: Config, counters: int) -> dict:
+def frame_signature(cfg: Config, counters: int, result_layout=None) -> dict:
     """The ports of a Verilator frame top (:class:`RTCFrame`, ``tb.chip_frame.ChipFrame``):
-    what ``tb/verilator_main.cpp`` drives and reads; ``counters`` 32-bit counter fields."""
+    what ``tb/verilator_main.cpp`` drives and reads; ``counters`` 32-bit counter fields;
+    ``res_data`` holds a ``result_layout`` (default ``RayResult``)."""
     return {
         "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
         "start": In(1),
-        "res_valid": Out(1), "res_data": Out(result_bits(cfg)),
+        "res_valid": Out(1), "res_data": Out(result_bits(cfg, result_layout)),
         "finished": Out(1), "running": Out(1),
         "cycles": Out(COUNTER_BITS), "results": Out(COUNTER_BITS),
         "counters": Out(COUNTER_BITS * counters),

@@ -124,7 +124,8 @@ def eye_ray_streams(camera, width: int, height: int, cfg: Config, bounds, *, til
     for t, pid in zip(tiles, ids):
         for lane in per_packet[t]:
             r = int(rays.pk_start[t]) + lane["lane"]
-            want.append({"ray": {**lane, "packet": pid}, "pixel": int(rays.pixel[r])})
+            want.append({"ray": {**lane, "packet": pid}, "pixel": int(rays.pixel[r]),
+                         "dir": _words(fmt, rays.dir[r])})
     pos, corner, dx, dy = camera_registers(camera, width, height, cfg)
     regs = {k: _words(fmt, v) for k, v in (("pos", pos), ("corner", corner), ("dx", dx),
                                             ("dy", dy), ("box_lo", bounds[0]),
