@@ -81,17 +81,18 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
 
 def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None):
     """What the chip must report for the frame of :func:`frame_registers`: ``(eye rays, every
-    ray with its id, their hits, the model's counter totals)``. With ``scene``:
-    ``model.render.render``'s ray tree (the same rays in the same packets as the slaves make
-    them); without: ``model.rtc.trace`` of the eye rays."""
+    ray with its id, their hits, the model's counter totals, the model's colour image or
+    None)``. With ``scene``: ``model.render.render``'s ray tree (the same rays in the same
+    packets as the slaves make them) and its image; without: ``model.rtc.trace`` of the eye
+    rays."""
     eye = eye_rays(camera, width, height, cfg)
     if scene is None:
         hits, ctrs = trace(image, eye, cfg)
-        return eye, eye, hits, counter_totals(ctrs)
+        return eye, eye, hits, counter_totals(ctrs), None
     from model.render import Prepared, render
     res = render(scene, cfg, width, height,
                  prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False))
-    return eye, res.rays, res.hits, res.counters
+    return eye, res.rays, res.hits, res.counters, res.image
 
 
 @dataclass
@@ -106,6 +107,7 @@ class ChipRun:
     eye: object = None             # the frame's eye rays (model.raygen.Rays) the hits belong to
     frame_rays: object = None      # every ray of the frame (eye, shadow, reflection), with ids
     frame_hits: object = None      # the chip's hits of every ray
+    color: np.ndarray | None = None   # the golden model's image of the frame's rays (a scene)
     build: object = None           # the Verilator binary (tb.verilator.FrameBuild), if any
     # counters every ``sample_every`` cycles: columns cycle, results, then chip_counter_names
     samples: np.ndarray | None = None
@@ -213,7 +215,7 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
             golden) -> ChipRun:
     """Compare result ``records`` (``SlaveResult`` fields) with the model's ``golden``
     (:func:`golden_frame`); counters ``c`` by :func:`chip_counter_names`."""
-    eye, rays, hits, model_totals = golden
+    eye, rays, hits, model_totals, color = golden
     by_ray = compare.results_by_id(records, rays, eye.pk_start)
     chip_hits = compare.hits_of(by_ray, cfg, image)
     counters = {"cycles": cycles, "rays_in": c["rays_in"], "results_out": c["results_out"],
@@ -233,7 +235,7 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
     eye_hits = Hits(*(getattr(chip_hits, f)[:n_eye] for f in ("tri", "t", "u", "v")))
     return ChipRun(cycles, seconds, len(rays), counters, model_totals,
                    compare.result_mismatches(by_ray, compare.expected(hits, cfg, image)),
-                   eye_hits, eye, rays, chip_hits)
+                   eye_hits, eye, rays, chip_hits, color=color)
 
 
 def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: float = 0.0,

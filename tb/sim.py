@@ -115,12 +115,20 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
              "per_rtc": [{"trav": x["trav_busy"] / cyc, "trav_subunits": s,
                           "list": x["list_busy"] / cyc, "int": x["int_busy"] / cyc}
                          for x, s in zip(rtc, sub)]}
+    from model.render import KIND_NAMES
+    kinds = np.bincount(run.frame_rays.kind, minlength=3)
+    slaves = c.get("slave", [])
+    shade = {"hits": sum(x["shade"] for x in c["hits"]),
+             "misses": sum(x["shade"] for x in c["misses"]),
+             "memory_words": sum(x["shade"] for x in c["grants"])}
+    shade["hit_rate"] = shade["hits"] / max(1, shade["hits"] + shade["misses"])
     return {
         "scene": scene, "resolution": [width, height], "backend": backend,
-        "rays": {"eye": run.rays}, "rays_total": run.rays,
+        "rays": {KIND_NAMES[k]: int(kinds[k]) for k in range(3)}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
-        "cache": cache, "memory": memory, "units": units,
+        "cache": cache, "shade_cache": shade, "memory": memory, "units": units,
+        "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
         "bus": {"words_per_cycle": c["mem_reads"] / cyc},
         "packets_per_rtc": c["packets"],
         "mismatches": len(run.mismatches),
@@ -129,8 +137,10 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "wall_seconds": round(wall, 2),
         "build": {"built": bool(run.build and run.build.built),
                   "seconds": round(run.build.seconds, 1) if run.build else 0},
-        "image": "the chip's eye-ray hits shaded on the host (ambient + Phong, no shadow or "
-                 "reflection rays: the chip's RGS does not make them yet)",
+        "image": ("the golden model's colour of the frame's rays (ambient + Phong, shadows, "
+                  "reflections; host float32), whose every hit the chip matched bit for bit"
+                  if run.color is not None and not run.mismatches else
+                  "the chip's eye-ray hits shaded on the host (ambient + Phong, unshadowed)"),
         "config": cfg.to_dict(),
         "counters": c,
     }
@@ -222,6 +232,9 @@ def build_parser() -> argparse.ArgumentParser:
                          "(default 100000000)")
     ap.add_argument("--kd-cache", default="default",
                     help="kd-tree cache directory (default: the model's)")
+    ap.add_argument("--eye-only", action="store_true",
+                    help="eye rays only: the slaves make no shadow or reflection rays (the "
+                         "image is then the eye hits shaded on the host, unshadowed)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     add_config_args(ap)
     return ap
@@ -250,6 +263,7 @@ def main(argv=None) -> int:
     except SceneError as e:
         raise SystemExit(f"sim: {e}")
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
+    frame_scene = None if args.eye_only else scene
     n_rays = w * h * cfg.oversampling ** 2
     every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 200)
     log = sys.stderr
@@ -259,14 +273,14 @@ def main(argv=None) -> int:
                                mem_stall=args.mem_stall, seed=args.seed,
                                max_cycles=args.max_cycles, trace_file=args.trace,
                                trace_from=args.trace_from, progress=not args.quiet, log=log,
-                               sample_every=every)
+                               sample_every=every, scene=frame_scene)
         else:
             if not args.quiet:
                 print(f"sim: Amaranth's simulator, {n_rays} rays (a few hundred cycles/s "
                       "for the standard chip: use tiny frames)", file=log)
             r = run_chip(cfg, prep.image, scene.camera, w, h, stall=args.stall,
                          mem_stall=args.mem_stall, seed=args.seed, max_cycles=args.max_cycles,
-                         sample_every=every, vcd=args.trace)
+                         sample_every=every, vcd=args.trace, scene=frame_scene)
     except (FrameError, ResultError, ToolMissing, ValueError) as e:
         raise SystemExit(f"sim: {e}")
     wall = time.perf_counter() - t0
@@ -277,9 +291,12 @@ def main(argv=None) -> int:
                         wall=wall)
     (out / "stats.json").write_text(json.dumps(stats, indent=1))
     from PIL import Image
-    color = shade_eye_hits(scene, cfg, prep.image, r.eye, r.hits, w * h)
+    if r.color is not None and not r.mismatches:
+        color = r.color                 # the model's shading of exactly the chip's rays and hits
+    else:
+        color = shade_eye_hits(scene, cfg, prep.image, r.eye, r.hits, w * h)
     Image.fromarray(to_srgb8(color.reshape(h, w, 3))).save(out / "image.png")
-    write_rays_hits(out, r.eye, r.hits)
+    write_rays_hits(out, r.frame_rays, r.frame_hits)
     if r.samples is not None and len(r.samples):
         write_usage_plot(cfg, r.samples, chip_counter_names(cfg), out / "usage.png",
                          f"{Path(args.scene).stem} {w}x{h}, {cfg.rtcs} RTCs x "
@@ -294,7 +311,7 @@ def main(argv=None) -> int:
           + f"; {len(r.mismatches)} mismatching rays; simulated at "
           f"{stats['sim_cycles_per_second']:,} cycles/s; -> {out}/")
     if r.mismatches:
-        print(describe(r.mismatches, rays=r.eye), file=log)
+        print(describe(r.mismatches, rays=r.frame_rays), file=log)
         print("sim: reproduce with a waveform: the same command with --trace mismatch.fst "
               "(and --trace-from CYCLE to skip the frame's start)", file=log)
         return 1

@@ -1,5 +1,6 @@
 """The whole chip (rtl/chip.py): RGS master and slaves, RTCs behind their RTC-MIs, one bus to
-the SDRAM model; every eye ray bit-exact with the golden model in both simulators."""
+the SDRAM model; every ray — eye rays, and with a scene its shadow and reflection rays made by
+the slaves — bit-exact with the golden model in both simulators."""
 import numpy as np
 import pytest
 
@@ -7,6 +8,7 @@ from model.cache import CacheModel
 from model.config import Config
 from model.events import EV_LEAF, EV_NODE, EV_TRI
 from model.raygen import eye_rays
+from model.layout import REC_WORDS
 from model.render import prepare
 from model.rtc import trace
 from model.scene import load_scene
@@ -28,12 +30,17 @@ def cornell(kd_cache):
 
 def check_frame(r, cfg, image, rays):
     """Every ray bit-exact; every ray in and out once; the RTCs' counters add up to the
-    model's; the caches' and the memory's counters agree with each other."""
+    model's; the caches' and the memory's counters agree with each other. ``rays``: the eye
+    rays (the frame's other rays are ``r.frame_rays``, the model's)."""
+    from model.raygen import EYE, REFLECTION, SHADOW
     c = r.counters
+    every = r.frame_rays
     assert r.mismatches == []
-    assert c["rays_in"] == c["results_out"] == len(rays)
+    assert c["rays_in"] == c["results_out"] == len(every) == r.rays
     assert sum(c["packets"]) == rays.n_packets
-    assert sum(x["packets_done"] for x in c["rtc"]) == rays.n_packets
+    assert sum(x["packets_done"] for x in c["rtc"]) == every.n_packets
+    for kind, name in ((EYE, "rays_eye"), (SHADOW, "rays_shadow"), (REFLECTION, "rays_reflect")):
+        assert sum(x[name] for x in c["slave"]) == int((every.kind == kind).sum()), name
     for rtc_name, model_name in COMPARED.items():
         assert sum(x[rtc_name] for x in c["rtc"]) == r.model[model_name], rtc_name
     for x, h, mi, g in zip(c["rtc"], c["hits"], c["misses"], c["grants"]):
@@ -41,6 +48,7 @@ def check_frame(r, cfg, image, rays):
         assert h["list"] + mi["list"] == x["list_reads"]
         assert h["int"] + mi["int"] == x["int_tris"]
         assert (g["trav"], g["list"], g["int"]) == (mi["trav"], mi["list"], 5 * mi["int"])
+        assert g["shade"] == REC_WORDS * mi["shade"]
     assert sum(c["mem_words"]) == c["mem_reads"] == sum(sum(g.values()) for g in c["grants"])
 
 
@@ -116,6 +124,41 @@ def test_chip_verilator_cornell_16x16(cornell):
                            progress=False)
     check_frame(fixed, cfg, image, rays)
     assert r.cycles > fixed.cycles        # the holds do act
+
+
+def test_chip_secondary_rays_in_amaranth_sim(cornell):
+    """A 4x4 Cornell frame with its shadow rays (3 point lights) and reflections (the mirror
+    sphere): the slaves make every secondary ray in FP hardware from the RTCs' results, and
+    every ray of the frame's ray tree is bit-exact with ``model.render``'s, found by its id."""
+    from tb.chip import run_chip
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(scene.camera, 4, 4, cfg)
+    r = run_chip(cfg, image, scene.camera, 4, 4, stall=0.25, seed=3, scene=scene)
+    check_frame(r, cfg, image, rays)
+    kinds = np.bincount(r.frame_rays.kind, minlength=3)
+    assert kinds[1] > kinds[0] > 0                  # shadow rays toward every light
+    name = "chip/cornell_4x4_scene_rtcs2"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+
+
+def test_chip_secondary_rays_verilator(cornell):
+    """The same 4x4 frame with secondary rays in Verilator: the same cycle count as in
+    Amaranth's simulator; then 16x16 (shadows, a reflective sphere, the textured floor) under
+    back-pressure and random memory latency: every ray bit-exact, reflections included."""
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    r = run_chip_frame(cfg, image, scene.camera, 4, 4, stall=0.25, seed=3, scene=scene,
+                       progress=False)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 4, 4, cfg))
+    name = "chip/cornell_4x4_scene_rtcs2"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
+                       scene=scene, progress=False)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    kinds = np.bincount(r.frame_rays.kind, minlength=3)
+    assert kinds[2] > 0 and (r.frame_rays.depth > 1).any()     # reflections of reflections
 
 
 def test_a_stuck_frame_names_its_packets_and_rtcs():

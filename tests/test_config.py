@@ -13,7 +13,8 @@ SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
 @pytest.mark.parametrize("field,value", [
     ("fp_add_latency", -1), ("fp_mul_latency", 65), ("fp_div_latency", -3),
     ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
-    ("list_outstanding", 1)])
+    ("list_outstanding", 1), ("fp_sqrt_latency", 65), ("rgs_lights", 15), ("reflect_depth", 16),
+    ("shade_cache_kb", 0)])
 def test_bad_rtl_parameters_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         Config(**{field: value})
@@ -23,7 +24,8 @@ def test_units_take_latencies_and_sizes_from_config():
     base = Config(**SMALL)
     slow = base.replace(fp_add_latency=5, fp_mul_latency=4, int_tri_slots=16,
                         list_outstanding=4)
-    assert base.fp_latencies() == {"add": None, "mul": None, "div": None}
+    assert base.fp_latencies() == {"add": None, "mul": None, "div": None, "sqrt": None}
+    assert slow.replace(fp_sqrt_latency=11).fp_latencies()["sqrt"] == 11
     sub0, sub1 = TravSubunit(base), TravSubunit(slow)
     assert (sub0.add.latency, sub0.mul.latency) == (3, 3)
     assert (sub1.add.latency, sub1.mul.latency) == (5, 4)
