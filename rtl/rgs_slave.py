@@ -89,6 +89,12 @@ def shade_cache_geometry(cfg: Config) -> CacheGeometry:
                          outstanding=cfg.cache_outstanding, queue=cfg.cache_queue)
 
 
+def _regs(n: int, shape, name: str) -> Array:
+    """``n`` registers as an ``Array``, padded to a power of two (an index never falls outside
+    it, so a read mux has no uncovered case: no latch)."""
+    return Array(Signal(shape, name=f"{name}{i}") for i in range(1 << ceil_log2(max(2, n))))
+
+
 def SlaveResult(cfg: Config) -> data.StructLayout:
     """A ray's result as the chip reports it: the ray's id — ``packet`` and ``lane`` of its eye
     ray (the tile and the lane in it), ``depth`` (reflections before it), ``sub`` (0: eye or
@@ -174,9 +180,9 @@ class Slave(wiring.Component):
         # -- RTC packet slots and their table -------------------------------------------------------
         slot_free = Signal(NS, init=(1 << NS) - 1)
         any_slot, new_slot = lowest(m, slot_free, "slot")
-        t_packet = Array(Signal(PACKET_ID_BITS, name=f"slot{i}_packet") for i in range(NS))
-        t_depth = Array(Signal(DEPTH_BITS, name=f"slot{i}_depth") for i in range(NS))
-        t_sub = Array(Signal(SUB_BITS, name=f"slot{i}_sub") for i in range(NS))
+        t_packet = _regs(NS, PACKET_ID_BITS, "slot_packet")
+        t_depth = _regs(NS, DEPTH_BITS, "slot_depth")
+        t_sub = _regs(NS, SUB_BITS, "slot_sub")
         slot_take = Signal()            # allocate new_slot this cycle
         slot_release = Signal()         # free rel_slot this cycle
         rel_slot = Signal(range(NS))
@@ -186,10 +192,10 @@ class Slave(wiring.Component):
         # -- pending buffers: free, ready (with their packet's metadata), credits --------------------
         buf_free = Signal(NB, init=(1 << NB) - 1)
         buf_ready = Signal(NB)
-        b_count = Array(Signal(range(P + 1), name=f"buf{i}_count") for i in range(NB))
-        b_sub = Array(Signal(SUB_BITS, name=f"buf{i}_sub") for i in range(NB))
-        b_depth = Array(Signal(DEPTH_BITS, name=f"buf{i}_depth") for i in range(NB))
-        b_packet = Array(Signal(PACKET_ID_BITS, name=f"buf{i}_packet") for i in range(NB))
+        b_count = _regs(NB, range(P + 1), "buf_count")
+        b_sub = _regs(NB, SUB_BITS, "buf_sub")
+        b_depth = _regs(NB, DEPTH_BITS, "buf_depth")
+        b_packet = _regs(NB, PACKET_ID_BITS, "buf_packet")
         credits = Signal(range(NB + 1), init=NB)
         entry = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb})
         pend = Memory(shape=entry, depth=NB * P, init=[])
@@ -381,7 +387,9 @@ class Slave(wiring.Component):
             m.d.sync += commit_wait.eq(1)
         tt = data.View(self.shd_tag, shd.tag)
         m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(sec.p0), shd.g.eq(sec.g),
-                     shd.light.eq(Array(x.as_value() for x in self.lights)[li] if L else 0),
+                     shd.light.eq(Array([x.as_value() for x in self.lights] +
+                                        [self.lights[0].as_value()] *
+                                        ((1 << ceil_log2(max(2, L))) - L))[li] if L else 0),
                      shd.point.eq(self.light_point.bit_select(li, 1) if L else 0),
                      tt.lane.eq(so.lane), tt.light.eq(li),
                      tt.hit.eq(so.hit & (self.n_lights != 0)), tt.last.eq(take & so.last),
@@ -390,8 +398,8 @@ class Slave(wiring.Component):
         # -- builders: L shadow packets and the reflection packet of the current source packet -----
         nbld = L + 1
         has = Signal(nbld)
-        bbuf = Array(Signal(bb, name=f"bld{i}_buf") for i in range(nbld))
-        bcnt = Array(Signal(range(P + 1), name=f"bld{i}_count") for i in range(nbld))
+        bbuf = _regs(nbld, bb, "bld_buf")
+        bcnt = _regs(nbld, range(P + 1), "bld_count")
         # reflection write (light loop, first token of a hit on a reflective surface)
         rf_w = loop_go & (li == 0) & so.hit & so.refl & (so.depth < self.reflect_depth)
         # shadow write (ShadowPipe output)

@@ -29,7 +29,7 @@ VLT = ROOT / "rtl" / "saarcor.vlt"
 # small but complete: every unit, caches in a few KB, a 4-level stack
 SMALL = Config(threads=2, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9,
                kd_max_depth=4, fmt=FPFormat(8, 10))
-UNITS = ["fp_add", "fp_mul", "fp_div", "fp_cmp", "fp_minmax", "fp_conv", "cache_trav",
+UNITS = ["fp_add", "fp_mul", "fp_div", "fp_sqrt", "fp_cmp", "fp_minmax", "fp_conv", "cache_trav",
          "cache_list", "cache_int", "bus", "memif", "list", "traversal", "ray_setup", "rgs_eye"]
 # the intersection unit, its datapath and the bare RTC are inside "rtc"; exported alone in
 # test_big_units_export (slow: ~20 s each)

@@ -10,7 +10,6 @@ from PIL import Image
 
 from model.raygen import eye_rays
 from model.render import prepare
-from model.rtc import trace
 from model.scene import load_scene
 
 from .conftest import ROOT
@@ -35,7 +34,9 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
                  list_cache_kb=1, int_cache_kb=9, mem_latency=8)
     assert cfg.to_dict() == c
     assert stats["mismatches"] == 0 and stats["backend"] == "verilator"
-    assert stats["rays"] == {"eye": 16 * 12}
+    kinds = stats["rays"]
+    assert kinds["eye"] == 16 * 12 and kinds["shadow"] > kinds["eye"]
+    assert stats["rays_total"] == sum(kinds.values())
     # the figures are the counters' own: op counts, the paper's ideal and relative performance
     ctr = stats["counters"]
     assert stats["trav_ops"] == sum(x["trav_ops"] for x in ctr["rtc"]) > 0
@@ -51,20 +52,22 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
     assert [p["share"] for p in mem["per_chip"]] == [p["words"] / mem["words"]
                                                      for p in mem["per_chip"]]
     assert 0 < stats["units"]["int"] <= 1 and 0 < stats["bus"]["words_per_cycle"] <= 1
-    # the image and hits are the chip's: equal to the golden model's trace of the eye rays
+    # the rays and hits are the chip's: equal to the golden model's render of the frame, and
+    # the image is that render's (the model's colour of exactly these rays and hits)
+    from model.render import render, to_srgb8
     scene = load_scene(ROOT / "scenes/cornell.toml")
-    image = prepare(scene, cfg, cache_dir=kd_cache).image
-    rays = eye_rays(scene.camera, 16, 12, cfg)
-    want, _ = trace(image, rays, cfg)
+    prep = prepare(scene, cfg, cache_dir=kd_cache)
+    want = render(scene, cfg, 16, 12, prepared=prep)
     hits = np.load(out / "hits.npz")
-    assert np.array_equal(hits["tri"], want.tri)
+    assert np.array_equal(hits["tri"], want.hits.tri)
     for f in ("t", "u", "v"):
-        assert np.array_equal(hits[f].view(np.uint32), getattr(want, f).view(np.uint32)), f
+        assert np.array_equal(hits[f].view(np.uint32), getattr(want.hits, f).view(np.uint32)), f
     assert (hits["tri"] >= 0).any()
     img = np.asarray(Image.open(out / "image.png"))
     assert img.shape == (12, 16, 3) and img.std() > 5
+    assert np.array_equal(img, to_srgb8(want.image))
     assert Image.open(out / "usage.png").size[0] > 500
-    assert len(np.load(out / "rays.npz")["pixel"]) == 16 * 12
+    assert len(np.load(out / "rays.npz")["pixel"]) == stats["rays_total"]
 
 
 def test_sim_errors_name_the_problem(tmp_path):
