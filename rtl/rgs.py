@@ -543,7 +543,7 @@ class SecondaryPipe(wiring.Component):
     product (3 mul, 2 add) and a sign flip, ``dir_norm`` a dot product, a square root, a
     reciprocal (div) and 3 mul, ``offset`` 6 mul + 3 add + 3 sub, ``normal`` 2 sub, 9 mul,
     6 add, a dot product, a square root, a reciprocal, 3 mul, a zero test and mux and a dot
-    product for the side, ``reflect`` a dot product, 1 mul by 2, 3 mul, 3 sub: 43 mul, 27
+    product for the side, ``reflect`` a dot product, 1 mul by 2, 3 mul, 3 sub: 43 mul, 30
     add/sub, 2 sqrt, 2 div in all. Latency ``latency`` (binary32 with the default FP latencies:
     add 3, mul 3, div 8, sqrt 8 gives 70: ``normal``'s chain of two dot products, square
     root, reciprocal and the reflection ends the longest path). Throughput: one hit per cycle

@@ -405,8 +405,8 @@ class Slave(wiring.Component):
         # shadow write (ShadowPipe output)
         ot = data.View(self.shd_tag, shd.o_tag)
         sh_w = shd.o_valid & ot.hit & shd.cast
-        sh_b = Signal(range(nbld))
-        m.d.comb += sh_b.eq(ot.light)
+        sh_b = ot.light               # the light's builder (as wide as the light index: the
+                                      # register arrays' read muxes stay complete)
         # buffers for builders without one: up to two new ones a cycle
         a1, f1 = lowest(m, buf_free, "alloc1")
         a2, f2 = lowest(m, buf_free & ~(1 << f1), "alloc2")

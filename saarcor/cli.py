@@ -46,6 +46,8 @@ BENCHES: dict[str, Command] = {
                                     "build time"),
     "stress": Command("tb.stress", "numerical stress cases of the golden model against the "
                                    "exact oracle"),
+    "resources": Command("tb.resources", "the chip's FP units by kind, flip-flop and memory "
+                                         "bits, from its netlist"),
 }
 
 BENCH_HELP = "benchmarks, written to build/bench/: " + ", ".join(BENCHES)

@@ -23,7 +23,7 @@ import time
 from collections import Counter
 from pathlib import Path
 
-__all__ = ["chip_resources", "main"]
+__all__ = ["resources", "chip_resources", "main"]
 
 PAPER = {"fp_units": 192, "register_file_kb": 822, "cache_kb": 272}
 
@@ -40,13 +40,18 @@ def _part(path: tuple) -> str:
 
 
 def chip_resources(cfg) -> dict:
-    """FP units by kind, flip-flop and memory bits of ``rtl.chip.Chip(cfg)`` (see the module
-    docstring); ``{"fp_units": {kind: n}, "flipflop_bits": {part: n}, "memory_bits": {part:
-    n}, "totals": {...}, "seconds": elaboration time}``."""
+    """:func:`resources` of ``rtl.chip.Chip(cfg)``."""
+    from rtl.chip import Chip
+    return resources(lambda: Chip(cfg))
+
+
+def resources(make) -> dict:
+    """FP units by kind, flip-flop and memory bits of the component ``make()`` builds (see the
+    module docstring); ``{"fp_units": {kind: n}, "flipflop_bits": {part: n}, "memory_bits":
+    {part: n}, "totals": {...}, "seconds": elaboration time}``."""
     from amaranth.hdl import _ir, _nir
 
     from rtl import fp
-    from rtl.chip import Chip
     kinds = {"add": fp.FPAdd, "mul": fp.FPMul, "div": fp.FPDiv, "sqrt": fp.FPSqrt,
              "minmax": fp.FPMinMax, "compare": fp.FPCompare, "int_to_fp": fp.FPFromInt}
     units: Counter = Counter()
@@ -62,7 +67,7 @@ def chip_resources(cfg) -> dict:
     try:
         from amaranth.hdl import ValueCastable
         from amaranth.lib import wiring
-        chip = Chip(cfg)
+        chip = make()
         ports = {}
         for path, member, value in chip.signature.flatten(chip):
             value = value.as_value() if isinstance(value, ValueCastable) else value
