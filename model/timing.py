@@ -45,7 +45,7 @@ from .cache import CacheGeometry, cache_geometry
 from .config import Config
 from .events import EV_DONE, EV_INT, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI
 
-__all__ = ["Estimate", "ChipTiming", "chip_timing", "work_of", "estimate_events",
+__all__ = ["Estimate", "ChipTiming", "chip_timing", "work_of", "record_work", "estimate_events",
            "estimate_frame", "fps_error"]
 
 # fixed latencies of the RTL units (binary32 FP latencies: add 3, mul 3, div 8)
@@ -54,7 +54,7 @@ INT_LAT = 36             # intersection: test issue -> LaneResult out (34 store 
 CACHE_HIT = 3            # cache hit latency
 EYE_LAT = 30             # master + RGS slave pipeline: tile handed out -> first ray at the RTC
 
-H_BITS = 20              # calendars: 2^20 cycles ahead at most
+H_BITS = 16              # calendars: bookings at most 2^16 cycles ahead
 H = 1 << H_BITS
 
 
@@ -101,18 +101,73 @@ def chip_timing(cfg: Config) -> ChipTiming:
 # --- the work of a frame, from the event log ----------------------------------------------------
 
 def work_of(events: np.ndarray, image, n_packets: int, lanes: np.ndarray) -> dict:
-    """The arrays :func:`estimate_events` replays: the event log without the per-lane
-    ``EV_INT`` rows, and where each packet's events start. ``lanes``: rays per packet."""
+    """The arrays :func:`estimate_events` replays: the event log (decoded, ``model.events``)
+    without the per-lane ``EV_INT`` rows, and where each packet's events start. ``lanes``:
+    rays per packet."""
     ev = events[events["kind"] != EV_INT]
-    start = np.searchsorted(ev["packet"], np.arange(n_packets + 1)).astype(np.int64)
-    kind = ev["kind"].astype(np.int64)
-    addr = np.where(kind == EV_TRI, ev["tri"], ev["node"]).astype(np.int64)
-    return {"kind": kind, "addr": addr, "mask": ev["mask"].astype(np.uint64),
-            "first": ev["first"].astype(np.int64), "count": ev["count"].astype(np.int64),
-            "sp": ev["sp"].astype(np.int64), "octant": ev["octant"].astype(np.int64),
-            "near": ev["near"].astype(np.uint64), "far": ev["far"].astype(np.uint64),
-            "start": start, "lanes": np.asarray(lanes, np.int64),
-            "bases": np.array([image.node_base, image.list_base, image.tri_base], np.int64)}
+    cols = {"kind": ev["kind"], "packet": ev["packet"],
+            "addr": np.where(ev["kind"] == EV_TRI, ev["tri"], ev["node"]),
+            "mask": ev["mask"], "first": ev["first"], "count": ev["count"], "sp": ev["sp"],
+            "octant": ev["octant"], "near": ev["near"], "far": ev["far"]}
+    return _work(cols, image, n_packets, lanes)
+
+
+def _work(cols: dict, image, n_packets: int, lanes) -> dict:
+    start = np.searchsorted(cols["packet"], np.arange(n_packets + 1)).astype(np.int64)
+    out = {k: np.ascontiguousarray(cols[k], np.uint64 if k in ("mask", "near", "far")
+                                   else np.int64)
+           for k in ("kind", "addr", "mask", "first", "count", "sp", "octant", "near", "far")}
+    out.update(start=start, lanes=np.asarray(lanes, np.int64),
+               bases=np.array([image.node_base, image.list_base, image.tri_base], np.int64))
+    return out
+
+
+def record_work(image, rays, cfg: Config) -> dict:
+    """:func:`work_of` straight from the golden model's raw event rows (``model.rtc``'s
+    recording tracer, without decoding every row into ``EVENT_DTYPE``): the same arrays,
+    faster."""
+    from . import rtc
+    from .events import _COLUMNS
+    from .raygen import setup
+    n = len(rays)
+    rs = setup(rays, image.bounds, cfg.fmt)
+    hit_t = np.empty(n, np.float32)
+    hit_tri = np.empty(n, np.int32)
+    hit_u = np.empty(n, np.float32)
+    hit_v = np.empty(n, np.float32)
+    ctrs = np.zeros((rays.n_packets, rtc.N_COUNTERS), np.int64)
+    args = (image.data, image.node_base, image.list_base, image.tri_base, image.root,
+            image.depth, np.ascontiguousarray(rays.pk_start),
+            np.ascontiguousarray(rays.org, np.float32), np.ascontiguousarray(rays.dir, np.float32),
+            rs.inv, rs.k, rs.s, rs.tnear, rs.tfar, rays.tmax.astype(np.float32),
+            rays.anyhit.astype(np.bool_), hit_t, hit_tri, hit_u, hit_v, ctrs, *cfg.fmt.em)
+    cap = max(1024, 24 * n)
+    while True:
+        rec = np.empty((cap, 8), np.int64)
+        rec_n = np.zeros(1, np.int64)
+        ctrs[:] = 0
+        if n:
+            rtc.trace_recorded(*args, rec, rec_n)
+        if rec_n[0] <= cap:
+            break
+        cap = int(rec_n[0])
+    raw = rec[:rec_n[0]]
+    raw = raw[raw[:, 0] != EV_INT]
+    kind = raw[:, 0]
+    cols = {"kind": kind, "packet": raw[:, 1]}
+    for name in ("node", "tri", "mask", "first", "count", "sp", "octant", "near", "far"):
+        v = np.zeros(len(raw), np.int64)
+        for k, columns in _COLUMNS.items():
+            if name in columns and k != EV_INT:
+                sel = kind == k
+                v[sel] = raw[sel, columns[name]]
+        cols[name] = v
+    cols["addr"] = np.where(kind == EV_TRI, cols["tri"], cols["node"])
+    for k in ("mask", "near", "far"):
+        cols[k] = cols[k].view(np.uint64)
+    work = _work(cols, image, rays.n_packets, np.diff(rays.pk_start))
+    work["totals"] = rtc.counter_totals(ctrs)
+    return work
 
 
 # --- the discrete-event model ---------------------------------------------------------------------
@@ -204,7 +259,10 @@ def _cache(ci, item, word, t, tags, fill, rr, acc_free, last_resp, mshr, n_miss,
         ready = max(ta + P[14], fill[ci, s, w_hit] + 1)
     else:
         misses[ci] += 1
-        k = n_miss[ci] % outst
+        k = 0                                  # the MSHR that frees first
+        for j in range(1, outst):
+            if mshr[ci, j] < mshr[ci, k]:
+                k = j
         tm = max(ta + 1, mshr[ci, k])          # a free MSHR (the lookup stalls meanwhile)
         acc_free[ci] = tm
         lw = lwords[u]
@@ -313,6 +371,9 @@ def _simulate(P, kind, addr, mask, first, count, sp, octant, near, far, start, l
         t = tm
         a = act[th]
         if a == 0:                                   # load a packet
+            if loader_free[r] > t:                   # the loader is busy: wait for it
+                wake[th] = loader_free[r]
+                continue
             if nheld[r] == 0:
                 act[th] = 9
                 alive -= 1
@@ -514,11 +575,11 @@ def estimate_frame(cfg: Config, image, rays, *, events=None) -> Estimate:
     """The estimate for a frame of ``rays`` (``model.raygen.Rays``, packet = tile index):
     the golden model's event log (traced here unless ``events`` is given), then
     :func:`estimate_events`. ``seconds_trace`` / ``seconds_model`` split the run time."""
-    from .rtc import trace
     t0 = time.perf_counter()
     if events is None:
-        _, _, events = trace(image, rays, cfg, record=True)
-    work = work_of(events, image, rays.n_packets, np.diff(rays.pk_start))
+        work = record_work(image, rays, cfg)
+    else:
+        work = work_of(events, image, rays.n_packets, np.diff(rays.pk_start))
     t1 = time.perf_counter()
     est = estimate_events(cfg, work)
     est["seconds_trace"] = t1 - t0
