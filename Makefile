@@ -56,6 +56,7 @@ bench: setup
 	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 16x16 --seeds 1000 $(CHIP_SMALL) \
 	    --out build/bench
 	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench
+	$(SAARCOR) bench ladder --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:
