@@ -42,22 +42,19 @@ def _band_camera(cfg: Config, camera, width: int, height: int, y0: int):
 
 def band_registers(cfg: Config, image, camera, width: int, height: int, y0: int,
                    rows: int) -> dict:
-    """The chip's host registers for sample rows ``[y0, y0 + rows)`` of the frame (as
-    ``tb.chip.frame_registers`` makes them for a whole frame)."""
+    """The chip's host registers for sample rows ``[y0, y0 + rows)`` of the frame, eye rays
+    only (``tb.chip.frame_registers`` of a ``width x rows`` frame with the band's camera)."""
+    from .chip import frame_registers
     fmt, n = cfg.fmt, cfg.oversampling
     if n != 1:
         raise ValueError("bands of oversampled frames are not supported (oversampling=1)")
-    pos, corner, dx, dy = _band_camera(cfg, camera, width, height, y0)
+    regs = frame_registers(cfg, image, camera, width, rows)
     bits = lambda v: [int(b) for b in fmt.to_bits(np.asarray(v, np.float32))]  # noqa: E731
-    return {
-        "node_base": image.node_base, "list_base": image.list_base,
-        "tri_base": image.tri_base, "root": image.root,
-        "box_lo": bits(image.bounds[0]), "box_hi": bits(image.bounds[1]),
-        "pos": bits(pos), "corner": bits(corner), "dx": bits(dx), "dy": bits(dy),
-        "width": width, "height": rows,
-        "tiles_x": -(-width // cfg.tile_w), "tiles_y": -(-rows // cfg.tile_h),
-        "n_rays": width * rows,
-    }
+    for k, v in zip(("pos", "corner", "dx", "dy"),
+                    _band_camera(cfg, camera, width, height, y0)):
+        regs[k] = bits(v)
+    regs["n_rays"] = width * rows
+    return regs
 
 
 def band_rays(cfg: Config, camera, width: int, height: int, y0: int, rows: int):
@@ -85,10 +82,10 @@ def run_band(cfg: Config, image, camera, width: int, height: int, y0: int, rows:
     model when ``check``. Returns a ``tb.chip.ChipRun`` (``eye`` = the band's rays)."""
     import sys
 
-    from model.rtc import trace
-    from rtl.rtc_streams import RayResult
+    from model.rtc import counter_totals, trace
+    from rtl.rgs_slave import SlaveResult
 
-    from .chip import _finish, chip_blocks, chip_build, stuck
+    from .chip import ChipRun, _finish, chip_blocks, chip_build, stuck
     from .chip_frame import chip_counter_names
     from .verilator import FrameError, _field, run_binary, write_blocks
     log = sys.stderr if log is None else log
@@ -105,15 +102,15 @@ def run_band(cfg: Config, image, camera, width: int, height: int, y0: int, rows:
     out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs)), cfg,
                      len(rays), max_cycles=max_cycles, progress=False, log=log,
                      desc="chip band (Verilator)", names=names, allow_limit=True)
-    lay = RayResult(cfg)
+    lay = SlaveResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
     if out.status == 2:
         raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles))
     if check:
-        run = _finish(cfg, image, rays, records, out.cycles, out.seconds, out.counters,
-                      golden=golden.result())
+        hits, ctrs = golden.result()
+        run = _finish(cfg, image, records, out.cycles, out.seconds, out.counters,
+                      (rays, rays, hits, counter_totals(ctrs), None))
     else:
-        from .chip import ChipRun
         run = ChipRun(out.cycles, out.seconds, len(rays), {}, {}, eye=rays)
     run.build = b
     run.load_seconds = out.load_seconds          # the binary's CPU seconds: load, run loop
@@ -467,6 +464,9 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
     from .sim import relative_performance, shade_eye_hits
     if args.trace:
         raise SystemExit(f"sim: --trace needs --fidelity rtl (no waveform at {args.fidelity})")
+    if not getattr(args, "eye_only", True):
+        print(f"sim: --fidelity {args.fidelity} models eye-ray frames only: the frame is "
+              "estimated as with --eye-only", file=sys.stderr)
     if args.stall or args.mem_stall:
         print("sim: --stall/--mem-stall are not modelled by the estimate (no back-pressure, "
               "fixed memory latency)", file=sys.stderr)
@@ -476,7 +476,8 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
     tot = work["totals"]
     est = estimate_events(cfg, work)
     stats = {"scene": args.scene, "resolution": [width, height], "fidelity": args.fidelity,
-             "estimate": True, "rays": {"eye": len(rays)}, "rays_total": len(rays),
+             "estimate": True, "eye_only": True, "rays": {"eye": len(rays)},
+             "rays_total": len(rays),
              "trav_ops": tot["trav_ops"], "int_ops": tot["int_ops"],
              "list_ops": tot["list_ops"], "clock_mhz": cfg.clock_mhz}
     if args.fidelity == "estimate":

@@ -225,8 +225,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="rtl: the whole frame on the simulated chip (exact cycles); sampled: "
                          "a band of tile rows in Verilator, extrapolated with the estimate; "
                          "estimate: the discrete-event model alone (model/timing.py), no "
-                         "simulator. estimate and sampled mark their cycles and fps as "
-                         "estimates in stats.json (docs/ladder.md); default rtl")
+                         "simulator. estimate and sampled cover eye rays only (as "
+                         "--eye-only) and mark their cycles and fps as estimates in "
+                         "stats.json (docs/ladder.md); default rtl")
     ap.add_argument("--out", default="build/sim", help="output directory (default build/sim)")
     add_trace_args(ap)
     add_stall_args(ap, "the SDRAM model")

@@ -111,6 +111,7 @@ def test_band_rays_are_the_frames_rays(cornell):
     band = band_rays(SMALL, scene.camera, w, h, y0, rows)
     regs = band_registers(SMALL, prep.image, scene.camera, w, h, y0, rows)
     assert regs["n_rays"] == len(band) == w * rows and regs["height"] == rows
+    assert regs["reflect_depth"] == 0 and regs["n_lights"] == 0       # eye rays only
     # the frame's rays of those rows: packets of tile row y0 / tile_h on
     tiles_x = w // SMALL.tile_w
     p0 = (y0 // SMALL.tile_h) * tiles_x
