@@ -57,6 +57,7 @@ bench: setup
 	    --out build/bench
 	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench
 	$(SAARCOR) bench resources --json build/bench/resources.json
+	$(SAARCOR) bench ladder --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:

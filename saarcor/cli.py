@@ -44,6 +44,8 @@ BENCHES: dict[str, Command] = {
                                            "speed-up)"),
     "model": Command("model.bench", "golden-model rays per second next to Embree, kd-tree "
                                     "build time"),
+    "ladder": Command("tb.ladder", "the simulation ladder: golden model, cycle estimate, "
+                                   "sampled RTL, Verilator, Amaranth: run time against fps error"),
     "stress": Command("tb.stress", "numerical stress cases of the golden model against the "
                                    "exact oracle"),
     "resources": Command("tb.resources", "the chip's FP units by kind, flip-flop and memory "

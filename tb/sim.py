@@ -221,6 +221,13 @@ def build_parser() -> argparse.ArgumentParser:
                     help="simulator: verilator (compiled once per configuration, fast) or "
                          "amaranth (Amaranth's Python simulator: tiny frames only); default "
                          "verilator")
+    ap.add_argument("--fidelity", choices=("estimate", "sampled", "rtl"), default="rtl",
+                    help="rtl: the whole frame on the simulated chip (exact cycles); sampled: "
+                         "a band of tile rows in Verilator, extrapolated with the estimate; "
+                         "estimate: the discrete-event model alone (model/timing.py), no "
+                         "simulator. estimate and sampled cover eye rays only (as "
+                         "--eye-only) and mark their cycles and fps as estimates in "
+                         "stats.json (docs/ladder.md); default rtl")
     ap.add_argument("--out", default="build/sim", help="output directory (default build/sim)")
     add_trace_args(ap)
     add_stall_args(ap, "the SDRAM model")
@@ -264,6 +271,9 @@ def main(argv=None) -> int:
         raise SystemExit(f"sim: {e}")
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
     frame_scene = None if args.eye_only else scene
+    if args.fidelity != "rtl":
+        from .ladder import sim_estimate
+        return sim_estimate(args, cfg, scene, prep, w, h, t0)
     n_rays = w * h * cfg.oversampling ** 2
     every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 200)
     log = sys.stderr

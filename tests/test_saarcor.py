@@ -26,6 +26,7 @@ OPTION = {
     ("bench", "threads"): "--thread-counts",
     ("bench", "model"): "--build-copies",
     ("bench", "stress"): "--formats",
+    ("bench", "ladder"): "--fraction",
 }
 
 
