@@ -25,7 +25,7 @@ from model.config import Config
 from model.fp import FPFormat
 from model.raygen import Rays, camera_registers, eye_rays, setup
 from model.scene_data import Camera
-from rtl.rgs import EyeRay, EyeRays, RaySetup, RaySetupIn
+from rtl.rgs import EyeRay, EyeRays, RaySetup
 from rtl.rtc_streams import RayIn
 
 from .common import drain, drive, run

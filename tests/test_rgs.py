@@ -12,8 +12,8 @@ from amaranth.sim import Simulator
 
 from model.config import Config
 from model.fp import FPFormat
-from model.raygen import eye_rays, setup
-from rtl.rgs import (COORD_BITS, EyeRays, RaySetup, RaySetupPipe, SecondaryPipe, ShadowPipe,
+from model.raygen import eye_rays
+from rtl.rgs import (COORD_BITS, EyeRays, RaySetupPipe, SecondaryPipe, ShadowPipe,
                      div_const_params, sample_converter)
 from tb.rgs import (AXIS_BOX, axis_camera, edge_rays, oblique_camera, run_eye_rays,
                     run_ray_setup, run_secondary, run_shadow, secondary_cases, tile_grid)
