@@ -27,6 +27,7 @@ OPTION = {
     ("bench", "model"): "--build-copies",
     ("bench", "stress"): "--formats",
     ("bench", "ladder"): "--fraction",
+    ("bench", "resources"): "--json",
 }
 
 
