@@ -233,7 +233,15 @@ class Slave(wiring.Component):
                          t_depth[new_slot].eq(0), t_sub[new_slot].eq(0)]
 
         # -- sender: a ready buffer's rays into RaySetup ----------------------------------------------
-        any_ready, rb = lowest(m, buf_ready, "ready")
+        # a ready reflection packet that may spawn waits for its reservation; the others (shadow
+        # packets, reflections that spawn nothing) may start: the lowest ready buffer that can
+        # start goes, so a waiting reflection packet never blocks the shadow packets whose
+        # buffers give the credits back
+        startable = Signal(NB)
+        m.d.comb += startable.eq(Cat(*(
+            buf_ready[i] & ~((b_sub[i] == 0) & spawns(b_depth[i]) & (credits < K))
+            for i in range(NB))))
+        any_ready, rb = lowest(m, startable, "ready")
         s_buf = Signal(bb)
         s_slot = Signal(range(NS))
         s_count = Signal(range(P + 1))
@@ -242,8 +250,7 @@ class Slave(wiring.Component):
         rd_lane = Signal(lb)
         spawning = (b_sub[rb] == 0) & spawns(b_depth[rb])   # a reflection packet that may spawn
         start_send = Signal()
-        m.d.comb += start_send.eq(~sender_busy & any_ready & any_slot &
-                                  (~spawning | (credits >= K)))
+        m.d.comb += start_send.eq(~sender_busy & any_ready & any_slot)
         with m.If(start_send):
             m.d.comb += slot_take.eq(1)
             with m.If(spawning):
