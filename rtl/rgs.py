@@ -125,7 +125,32 @@ def _latencies(fmt: FPFormat, latencies: dict | None) -> dict:
     return lat
 
 
-class RaySetupPipe(wiring.Component):
+class _Datapath(wiring.Component):
+    """A bare fixed-latency datapath of FP units (``Schedule``): ``inputs`` and ``outputs``
+    ports plus ``tag`` (carried along), ``i_valid``, ``en`` (0 holds every stage),
+    ``o_valid`` and ``o_tag``. A subclass writes ``_build(m, dry)``, which returns the
+    latency; ``latency`` comes from a dry build (ready cycles only, no units)."""
+
+    def __init__(self, fmt: FPFormat, tag_width: int, latencies: dict | None,
+                 inputs: dict, outputs: dict):
+        self.fmt, self.tag_width = fmt, tag_width
+        self.latencies = _latencies(fmt, latencies)
+        super().__init__({**inputs, "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
+                          "o_valid": Out(1), **outputs, "o_tag": Out(tag_width)})
+        dry = Module()
+        dry._MustUse__silence = True
+        self.latency = self._build(dry, dry=True)
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        raise NotImplementedError
+
+    def elaborate(self, platform):
+        m = Module()
+        self._build(m)
+        return m
+
+
+class RaySetupPipe(_Datapath):
     """Bare ray-setup datapath: ``model.rgs.ray_setup`` as a pipeline.
 
     In: ``org``, ``dir`` (3 format words each), ``tmax``, ``tag`` (carried along unchanged),
@@ -156,21 +181,15 @@ class RaySetupPipe(wiring.Component):
                  static: tuple = ()):
         if set(static) - set(self.STATIC):
             raise ValueError(f"RaySetupPipe static={static!r}: only {self.STATIC} may be static")
-        self.fmt, self.tag_width, self.static = fmt, tag_width, tuple(static)
-        self.latencies = _latencies(fmt, latencies)
+        self.static = tuple(static)
         v3 = data.ArrayLayout(fmt.width, 3)
         w = fmt.width
-        super().__init__({
-            "org": In(v3), "dir": In(v3), "tmax": In(w), "lo": In(v3), "hi": In(v3),
-            "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
-            "o_valid": Out(1), "o_org": Out(v3), "o_dir": Out(v3), "inv": Out(v3),
-            "octant": Out(3),
-            "k": Out(data.ArrayLayout(2, 3)), "s": Out(v3), "tnear": Out(w), "tfar": Out(w),
-            "o_tmax": Out(w), "o_tag": Out(tag_width),
-        })
-        dry = Module()
-        dry._MustUse__silence = True
-        self.latency = self._build(dry, dry=True)
+        super().__init__(fmt, tag_width, latencies,
+                         {"org": In(v3), "dir": In(v3), "tmax": In(w), "lo": In(v3),
+                          "hi": In(v3)},
+                         {"o_org": Out(v3), "o_dir": Out(v3), "inv": Out(v3), "octant": Out(3),
+                          "k": Out(data.ArrayLayout(2, 3)), "s": Out(v3), "tnear": Out(w),
+                          "tfar": Out(w), "o_tmax": Out(w)})
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
@@ -243,11 +262,6 @@ class RaySetupPipe(wiring.Component):
         ]
         return L
 
-    def elaborate(self, platform):
-        m = Module()
-        self._build(m)
-        return m
-
 
 def _stall(m: Module, o) -> Signal:
     """The pipeline enable of a stream unit whose last stage is its output ``o``: advance
@@ -309,7 +323,7 @@ class RaySetup(wiring.Component):
         return m
 
 
-class EyeRayPipe(wiring.Component):
+class EyeRayPipe(_Datapath):
     """Bare eye-ray datapath: ``model.rgs.eye_ray`` and the pixel index as a pipeline.
 
     In: ``sx``, ``sy`` (sample coordinates, ``coord_bits`` each), ``tag``, ``i_valid``, ``en``;
@@ -327,20 +341,12 @@ class EyeRayPipe(wiring.Component):
 
     def __init__(self, fmt: FPFormat, oversampling: int = 1, tag_width: int = 1,
                  latencies: dict | None = None, coord_bits: int = COORD_BITS):
-        self.fmt, self.n, self.coord_bits = fmt, oversampling, coord_bits
-        self.tag_width = tag_width
-        self.latencies = _latencies(fmt, latencies)
+        self.n, self.coord_bits = oversampling, coord_bits
         v3 = data.ArrayLayout(fmt.width, 3)
-        super().__init__({
-            "sx": In(coord_bits), "sy": In(coord_bits), "tag": In(tag_width),
-            "i_valid": In(1), "en": In(1, init=1),
-            "corner": In(v3), "dx": In(v3), "dy": In(v3), "width": In(coord_bits),
-            "o_valid": Out(1), "dir": Out(v3), "pixel": Out(PIXEL_BITS),
-            "o_tag": Out(tag_width),
-        })
-        dry = Module()
-        dry._MustUse__silence = True
-        self.latency = self._build(dry, dry=True)
+        super().__init__(fmt, tag_width, latencies,
+                         {"sx": In(coord_bits), "sy": In(coord_bits), "corner": In(v3),
+                          "dx": In(v3), "dy": In(v3), "width": In(coord_bits)},
+                         {"dir": Out(v3), "pixel": Out(PIXEL_BITS)})
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
@@ -379,11 +385,6 @@ class EyeRayPipe(wiring.Component):
             self.o_tag.eq(sch.at(self.tag, 0, L)),
         ]
         return L
-
-    def elaborate(self, platform):
-        m = Module()
-        self._build(m)
-        return m
 
 
 class EyeRays(wiring.Component):
@@ -529,7 +530,7 @@ def _neg_if(fmt: FPFormat, x: Value, cond: Value) -> Value:
     return Mux(cond & ~unpack(fmt, x).nan, x ^ sign, x)
 
 
-class SecondaryPipe(wiring.Component):
+class SecondaryPipe(_Datapath):
     """Bare secondary-ray datapath: ``model.rgs.secondary`` as a pipeline.
 
     In: ``org``, ``dir`` (the ray, 3 format words each), ``t``, ``u``, ``v`` (its hit), ``nf``
@@ -552,20 +553,12 @@ class SecondaryPipe(wiring.Component):
     """
 
     def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
-        self.fmt, self.tag_width = fmt, tag_width
-        self.latencies = _latencies(fmt, latencies)
         w = fmt.width
         v3 = data.ArrayLayout(w, 3)
-        super().__init__({
-            "org": In(v3), "dir": In(v3), "t": In(w), "u": In(w), "v": In(w), "nf": In(v3),
-            "nv": In(data.ArrayLayout(v3, 3)), "eps": In(w), "tag": In(tag_width),
-            "i_valid": In(1), "en": In(1, init=1),
-            "o_valid": Out(1), "p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3),
-            "o_tag": Out(tag_width),
-        })
-        dry = Module()
-        dry._MustUse__silence = True
-        self.latency = self._build(dry, dry=True)
+        super().__init__(fmt, tag_width, latencies,
+                         {"org": In(v3), "dir": In(v3), "t": In(w), "u": In(w), "v": In(w),
+                          "nf": In(v3), "nv": In(data.ArrayLayout(v3, 3)), "eps": In(w)},
+                         {"p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3)})
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
@@ -622,13 +615,8 @@ class SecondaryPipe(wiring.Component):
         ]
         return L
 
-    def elaborate(self, platform):
-        m = Module()
-        self._build(m)
-        return m
 
-
-class ShadowPipe(wiring.Component):
+class ShadowPipe(_Datapath):
     """Bare shadow-ray datapath: ``model.rgs.shadow_dir`` as a pipeline.
 
     In: ``p0``, ``g`` (a hit's secondary origin and oriented face normal, from
@@ -643,19 +631,11 @@ class ShadowPipe(wiring.Component):
     """
 
     def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
-        self.fmt, self.tag_width = fmt, tag_width
-        self.latencies = _latencies(fmt, latencies)
         w = fmt.width
         v3 = data.ArrayLayout(w, 3)
-        super().__init__({
-            "p0": In(v3), "g": In(v3), "light": In(v3), "point": In(1), "tag": In(tag_width),
-            "i_valid": In(1), "en": In(1, init=1),
-            "o_valid": Out(1), "o_p0": Out(v3), "dir": Out(v3), "tmax": Out(w), "cast": Out(1),
-            "o_tag": Out(tag_width),
-        })
-        dry = Module()
-        dry._MustUse__silence = True
-        self.latency = self._build(dry, dry=True)
+        super().__init__(fmt, tag_width, latencies,
+                         {"p0": In(v3), "g": In(v3), "light": In(v3), "point": In(1)},
+                         {"o_p0": Out(v3), "dir": Out(v3), "tmax": Out(w), "cast": Out(1)})
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
@@ -680,8 +660,3 @@ class ShadowPipe(wiring.Component):
             self.o_tag.eq(at(self.tag, 0, L)),
         ]
         return L
-
-    def elaborate(self, platform):
-        m = Module()
-        self._build(m)
-        return m
