@@ -43,7 +43,7 @@ import numpy as np
 
 from .cache import CacheGeometry, cache_geometry
 from .config import Config
-from .events import EV_DONE, EV_INT, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI
+from .events import EV_DONE, EV_INT, EV_NODE, EV_TRI
 
 __all__ = ["Estimate", "ChipTiming", "chip_timing", "work_of", "record_work", "estimate_events",
            "estimate_frame", "fps_error"]

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import random
 import time
-from collections import deque
 from dataclasses import dataclass, field
 
 import numba
@@ -197,61 +196,19 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
              p_stall: float = 0.2, latencies: dict | None = None) -> PipeRun:
     """Drive ``tests`` through the datapath and compare every output at its exact cycle
     (latency ``L`` enabled cycles after its input) with the model; returns the mismatches."""
+    from .common import run_fixed_pipe
     n = len(tests)
     dut = IntersectPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
-    L = dut.latency
     ins, outs = pipe_ports(tests, fmt, dut.tag_width)
-    tri, org, k, s, tag = (ins[x] for x in ("tri", "org", "k", "s", "tag"))
-    hit, tb, ub, vb = (outs[x] for x in ("hit", "t", "u", "v"))
-    rnd = random.Random(seed)
-    w = fmt.width
-    stats = {"outputs": 0}
-    mismatches: list = []
 
-    async def bench(ctx):
-        pipe = deque([None] * L)
-        i = cycle = 0
-        while i < n or any(x is not None for x in pipe):
-            en = rnd.random() >= p_stall
-            valid = i < n and rnd.random() >= p_bubble
-            if valid:
-                vals = (tri[i], org[i], k[i], s[i], tag[i])
-            else:
-                vals = (rnd.getrandbits(9 * w), rnd.getrandbits(3 * w), rnd.getrandbits(6),
-                        rnd.getrandbits(3 * w), 0)
-            for port, x in zip((dut.tri, dut.org, dut.k, dut.s, dut.tag), vals):
-                ctx.set(port.as_value() if hasattr(port, "as_value") else port, x)
-            ctx.set(dut.i_valid, valid)
-            ctx.set(dut.en, en)
-            head = pipe[-1]
-            o_valid = ctx.get(dut.o_valid)
-            if o_valid != (head is not None):
-                mismatches.append(f"IntersectPipe: cycle {cycle}: o_valid={o_valid}, expected "
-                                  f"{int(head is not None)}")
-            if head is not None:
-                stats["outputs"] += int(en)
-                got = (ctx.get(dut.o_tag), ctx.get(dut.hit), ctx.get(dut.t), ctx.get(dut.u),
-                       ctx.get(dut.v))
-                want = (tag[head], hit[head], tb[head], ub[head], vb[head])
-                if got != want:
-                    mismatches.append(
-                        f"IntersectPipe: cycle {cycle}, test #{head}: (tag, hit, t, u, v) = "
-                        f"{tuple(hex(x) for x in got)}, model {tuple(hex(x) for x in want)}; "
-                        f"tri={tests.tri[head].tolist()} org={tests.org[head].tolist()} "
-                        f"k={tests.k[head].tolist()} s={tests.s[head].tolist()}")
-            if en:
-                pipe.pop()
-                pipe.appendleft(i if valid else None)
-                if valid:
-                    i += 1
-            await ctx.tick()
-            cycle += 1
-        stats["cycles"] = cycle
-
+    def describe(i):
+        return (f"tri={tests.tri[i].tolist()} org={tests.org[i].tolist()} "
+                f"k={tests.k[i].tolist()} s={tests.s[i].tolist()}")
     t0 = time.perf_counter()
-    run(dut, bench)
-    return PipeRun(n, stats["cycles"], time.perf_counter() - t0, L, stats["outputs"],
-                   mismatches)
+    r = run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall,
+                       describe=describe)
+    return PipeRun(n, r.cycles, time.perf_counter() - t0, dut.latency, r.outputs,
+                   [f"IntersectPipe: {x}" for x in r.mismatches])
 
 
 # ---- the whole unit ---------------------------------------------------------------------------

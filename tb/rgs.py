@@ -334,9 +334,9 @@ def secondary_ports(hits: Hits, fmt: FPFormat, tag_width: int) -> tuple[dict, di
 
 
 def run_secondary(hits: Hits, fmt: FPFormat, *, latencies=None, seed: int = 0,
-                  p_bubble: float = 0.2, p_stall: float = 0.2) -> tuple[int, list]:
+                  p_bubble: float = 0.2, p_stall: float = 0.2):
     """Every hit through ``SecondaryPipe`` with random bubbles and stalls, every output checked
-    at its exact cycle against the model: (cycles, mismatches)."""
+    at its exact cycle against the model (``tb.common.FixedPipeRun``)."""
     from rtl.rgs import SecondaryPipe
     from .common import run_fixed_pipe
     dut = SecondaryPipe(fmt, tag_width=max(1, len(hits).bit_length()), latencies=latencies)
@@ -370,7 +370,7 @@ def shadow_ports(hits: Hits, lights: np.ndarray, point: np.ndarray, fmt: FPForma
 
 
 def run_shadow(hits: Hits, lights, point, fmt: FPFormat, *, latencies=None, seed: int = 0,
-               p_bubble: float = 0.2, p_stall: float = 0.2) -> tuple[int, list]:
+               p_bubble: float = 0.2, p_stall: float = 0.2):
     """Every (hit, light) pair through ``ShadowPipe``, checked like :func:`run_secondary`."""
     from rtl.rgs import ShadowPipe
     from .common import run_fixed_pipe

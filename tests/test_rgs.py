@@ -191,9 +191,9 @@ def test_secondary_pipe(fmt, latencies):
     """Every output of every hit (random and edge cases) at its exact cycle, bit for bit with
     ``model.rgs.secondary_rays``, with 20 % input bubbles and 20 % stalls."""
     hits = secondary_cases(fmt, 80, seed=fmt.frac_bits)
-    cycles, bad = run_secondary(hits, fmt, latencies=latencies)
-    assert bad == [], bad[:5]
-    assert cycles > len(hits)
+    r = run_secondary(hits, fmt, latencies=latencies)
+    assert r.mismatches == [], r.mismatches[:5]
+    assert r.outputs == len(hits) and r.cycles > len(hits)
 
 
 def test_secondary_cases_reach_every_branch():
@@ -228,6 +228,6 @@ def test_shadow_pipe(fmt):
     """Point and parallel lights: direction, tmax and the facing test of every (hit, light)
     pair bit for bit with ``model.rgs.shadow_rays``."""
     hits = secondary_cases(fmt, 50, seed=7)
-    cycles, bad = run_shadow(hits, LIGHTS, POINT, fmt)
-    assert bad == [], bad[:5]
-    assert cycles > 3 * len(hits)
+    r = run_shadow(hits, LIGHTS, POINT, fmt)
+    assert r.mismatches == [], r.mismatches[:5]
+    assert r.outputs == 3 * len(hits) and r.cycles > 3 * len(hits)

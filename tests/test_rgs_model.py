@@ -22,7 +22,7 @@ from model.fp import FPFormat
 from model.raygen import Rays, camera_registers, eye_rays, setup
 from model.rgs import sample_coord
 from tb.rgs import AXIS_BOX, axis_camera, edge_rays, oblique_camera
-from tests.fp_exact import FIN, INF, NAN, ExactFormat
+from tests.fp_exact import INF, NAN, ExactFormat
 
 FORMATS = [FPFormat(8, 23), FPFormat(8, 14), FPFormat(6, 10), FPFormat(5, 10)]
 
