@@ -51,8 +51,12 @@ class ExactFormat:
         num = n << max(0, M - e)
         den = d << max(0, e - M)
         k, r = divmod(num, den)                       # k in [2**M, 2**(M+1))
-        if 2 * r > den or (2 * r == den and k & 1):
-            k += 1
+        return self.encode(s, e, k + (2 * r > den or (2 * r == den and k & 1)))
+
+    def encode(self, s: int, e: int, k: int) -> int:
+        """Sign ``s`` and the rounded value ``k * 2**(e - M)`` (``k`` in [2**M, 2**(M+1)], the
+        top end from a rounding carry): renormalise, then flush to zero or overflow to inf."""
+        M = self.M
         if k == 1 << (M + 1):
             k >>= 1
             e += 1
@@ -130,17 +134,7 @@ class ExactFormat:
         x = va * Fraction(4) ** (M - e)               # sqrt(x) in [2**M, 2**(M+1))
         k = isqrt(x.numerator // x.denominator)
         four_x, mid = 4 * x, (2 * k + 1) ** 2
-        if four_x > mid or (four_x == mid and k & 1):
-            k += 1
-        if k == 1 << (M + 1):
-            k >>= 1
-            e += 1
-        be = e + self.bias
-        if be < 1:
-            return self.zero(0)
-        if be > self.emax - 1:
-            return self.inf(0)
-        return (be << M) | (k - (1 << M))
+        return self.encode(0, e, k + (four_x > mid or (four_x == mid and k & 1)))
 
     # -- compare, min, max (documented rules of model/fp.py) -----------------------------------
     def value(self, bits: int) -> float:
