@@ -390,13 +390,15 @@ def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default",
         _set_threads(threads)
         cfg = config_of(config)
         sizes = set()
-        for sp in scene_paths:
+        for sp in ([] if mem_words else scene_paths):      # a fixed size: no scene to read
             try:
                 scene = load_scene(sp)
             except Exception:       # the point reports its own scene error
                 continue
             sizes.add(_chip_mem_words(len(prepare(scene, cfg, cache_dir=kd_cache).image.data),
                                       mem_words))
+        if mem_words:        # a larger image gets its own binary when its point runs
+            sizes.add(_chip_mem_words(0, mem_words))
         built = []
         for mw in sorted(sizes):
             b = chip_build(cfg, mw, log=log)
