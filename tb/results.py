@@ -33,7 +33,7 @@ from . import sweep as sw
 
 ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
-PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene")
+PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene", "note")
 SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "oversampling", "scaling")
 
 # ---- the paper's figures (Schmittler, Wald, Slusallek 2002, Section 5; 1024x768) ----------
@@ -76,6 +76,7 @@ class Plan:
     threads: dict | None     # {scene, res, counts}
     usage_scene: str | None
     resolution_note: str = ""
+    notes: dict = field(default_factory=dict)   # table key -> a paragraph under its table
 
 
 def load_plan(path: str | Path) -> Plan:
@@ -103,7 +104,7 @@ def load_plan(path: str | Path) -> Plan:
     if thr is not None:
         thr = dict(thr, scene=str(path.parent / thr["scene"]))
     return Plan(path, doc.get("title", "Results"), dict(doc.get("class", {})), sweeps, thr,
-                doc.get("usage_scene"), doc.get("resolution_note", ""))
+                doc.get("usage_scene"), doc.get("resolution_note", ""), dict(doc.get("note", {})))
 
 
 # ---- running ---------------------------------------------------------------------------------
@@ -114,13 +115,15 @@ class Run:
     specs: dict = field(default_factory=dict)     # sweep key -> Spec
     seconds: dict = field(default_factory=dict)   # sweep key -> wall seconds
     failed: int = 0
+    computed: int = 0
     threads: dict | None = None
     scaling: dict | None = None
 
 
 def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: bool,
-             scaling: bool, log=sys.stdout) -> Run:
+             scaling: bool, kd_cache: str = "default", log=None) -> Run:
     """Every sweep of ``plan`` on one local cluster (only if a point is not cached)."""
+    log = sys.stdout if log is None else log
     run = Run()
     code = sw.code_hash()
     specs = {k: sw.load_spec(p) for k, p in plan.sweeps.items() if k != "scaling"}
@@ -138,10 +141,11 @@ def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: b
         for k, spec in specs.items():
             t0 = time.perf_counter()
             res = sw.run_sweep(spec, out=out_dir / spec.name, cache=cache, client=client,
-                               progress=False, log=log)
+                               progress=False, log=log, kd_cache=kd_cache)
             run.seconds[k] = time.perf_counter() - t0
             run.rows[k], run.specs[k] = res["rows"], spec
             run.failed += res["failed"]
+            run.computed += res["computed"]
             print(f"results: {spec.name}: {res['points']} points, {res['cached']} cached, "
                   f"{res['computed']} computed, {res['failed']} failed, "
                   f"{run.seconds[k]:.0f} s", file=log, flush=True)
@@ -153,7 +157,7 @@ def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: b
     if threads and plan.threads:
         run.threads = run_threads(plan.threads, out_dir, log)
     if scaling and "scaling" in plan.sweeps:
-        run.scaling = measure_scaling(plan.sweeps["scaling"], log)
+        run.scaling = measure_scaling(plan.sweeps["scaling"], log, kd_cache)
     return run
 
 
@@ -172,7 +176,7 @@ def run_threads(t: dict, out_dir: Path, log) -> dict:
     return res
 
 
-def measure_scaling(spec_path: Path, log) -> dict:
+def measure_scaling(spec_path: Path, log, kd_cache: str = "default") -> dict:
     """The same small spec with 1 and 2 local workers, each with an empty result cache."""
     from distributed import Client, LocalCluster
     spec = sw.load_spec(spec_path)
@@ -184,7 +188,8 @@ def measure_scaling(spec_path: Path, log) -> dict:
             with LocalCluster(n_workers=n, threads_per_worker=1,
                               dashboard_address=":0") as cluster, Client(cluster) as client:
                 res = sw.run_sweep(spec, out=Path(d) / "out", cache=Path(d) / "cache",
-                                   client=client, progress=False, log=io.StringIO())
+                                   client=client, progress=False, log=io.StringIO(),
+                                   kd_cache=kd_cache)
             wall = time.perf_counter() - t0
         jobs = sum(float(r["job_seconds"] or 0) for r in res["rows"])
         out["runs"].append({"workers": n, "wall_seconds": wall, "job_seconds": jobs,
@@ -238,6 +243,15 @@ def _res(rows) -> str:
     return ", ".join(rs) if rs else "—"
 
 
+def _frac(rows) -> str:
+    """The share of the paper's 1024x768 rays a frame of ``rows``' resolution has."""
+    px = {int(r["width"]) * int(r["height"]) for r in rows}
+    if len(px) != 1:
+        return "a fraction"
+    f = px.pop() / (1024 * 768)
+    return f"1/{1 / f:.0f}" if f < 1 and abs(1 / f - round(1 / f)) < 1e-9 else f"{f:.3g}×"
+
+
 def _ideal_cycles(trav, inter, rtcs=4, sub=4):
     return max(trav / (rtcs * sub), inter / rtcs)
 
@@ -275,10 +289,15 @@ class Writer:
         self.figures.append(p)
         return f"![{name}]({self.rel(p)})"
 
-    def cell(self, x, fmt="{:.2f}"):
-        if x is None:
+    def cell(self, x, fmt="{:.2f}", planned=True):
+        """A value; an empty cell counts as missing unless nothing was planned there."""
+        if x is None and planned:
             self.missing += 1
-        return _f(x, fmt)
+        return _f(x, fmt, "—" if planned else "not run")
+
+    def note(self, key) -> str:
+        n = self.plan.notes.get(key)
+        return f"\n\n{n.strip()}" if n else ""
 
     def pcell(self, x):
         if x is None:
@@ -328,6 +347,7 @@ paper's columns are for 1024×768.
             if not any(_stem(r) == ours for r in rows):
                 continue
             pts = [_one(rows, scene=ours, rtcs=n) for n in RTCS]
+            planned = [any(_stem(r) == ours and r.get("rtcs") == n for r in rows) for n in RTCS]
             fps = [_num(p, "fps") for p in pts]
             rays = [_num(p, "rays_total") for p in pts]
             mr = [f * r / 1e6 if f and r else None for f, r in zip(fps, rays)]
@@ -338,18 +358,21 @@ paper's columns are for 1024×768.
                 eye = _ideal_cycles(_num(pts[2], "trav_ops"), _num(pts[2], "int_ops"))
                 allr = _ideal_cycles(_num(m, "counters.trav_ops"), _num(m, "counters.int_ops"))
                 sec = fps[2] * eye / allr if fps[2] else None
-            body.append([f"`{ours}` ({paper})", *[self.cell(x, "{:,.0f}") for x in fps],
-                         *[self.cell(x, "{:.1f}") for x in mr],
+            body.append([f"`{ours}` ({paper})",
+                         *[self.cell(x, "{:,.0f}", q) for x, q in zip(fps, planned)],
+                         *[self.cell(x, "{:.1f}", q) for x, q in zip(mr, planned)],
                          *[f"{x:.1f}" for x in pr],
-                         self.cell(sec, "{:,.0f}"),
+                         self.cell(sec, "{:,.0f}", planned[2] and m is not None),
                          *[f"{x:.2f}" for x in PAPER_FPS[paper]]])
             rel = [_num(p, "relative_performance") for p in pts]
             bound = [p.get("bound") if p else None for p in pts]
             rel_body.append([f"`{ours}` ({paper})",
-                             *[self.pcell(x) + (f" ({b})" if b else "") for x, b in zip(rel, bound)],
+                             *[(self.pcell(x) + (f" ({b})" if b else "")) if q else "not run"
+                               for x, b, q in zip(rel, bound, planned)],
                              *[f"{100 * x:.0f} %" for x in PAPER_REL[paper]]])
             fig_data[ours] = (paper, mr, pr)
         res = _res(rows)
+        frac = _frac(rows)
         plt = _plt()
         fig, ax = plt.subplots(1, 2, figsize=(11, 4))
         for ours, (paper, mr, pr) in fig_data.items():
@@ -371,7 +394,7 @@ paper's columns are for 1024×768.
 The standard chip (16 threads, 4 traversal sub-units, caches 64/64/144 KB, 4 SDRAM chips =
 1 GB/s, 533 MHz) with 1, 2 and 4 RTCs. **Chip columns: eye rays only**, one frame at {res}
 through the whole chip in Verilator (`{self._spec('rtcs')}`), every ray checked against the
-golden model; a frame this small has 1/16 of the paper's rays and starts with cold caches.
+golden model; a frame this small has {frac} of the paper's rays and starts with cold caches.
 Frames of different sizes compare by rays per second (M rays/s = fps × rays per frame; the
 paper's rays include its shadow and reflection rays, which it finds cost about the same as
 eye rays). *Full-frame estimate*: the chip's measured 4-RTC eye-ray fps scaled by the
@@ -380,7 +403,7 @@ against all rays of the frame (`{self._spec('rays')}`) — an estimate, not a me
 
 """ + _md_table(["scene", "fps 1 RTC", "2 RTCs", "4 RTCs", "M rays/s 1", "2", "4",
                  "paper M rays/s 1", "2", "4", "all rays, 4 RTCs (estimate, fps)",
-                 "paper fps 1", "2", "4"], body) + f"""
+                 "paper fps 1", "2", "4"], body) + self.note("rtcs") + f"""
 
 {figure}
 
@@ -429,13 +452,13 @@ in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
         self.add(f"""
 ## Table 3: int-cache size and memory bandwidth
 
-`{scene}` (our largest scene, the paper's CruiserGL class), 4 RTCs, eye rays at {_res(rows)}
+`{scene}`, 4 RTCs, eye rays at {_res(rows)}
 through the chip (`{self._spec('intcache')}`); int-cache {', '.join(f'{k} KB' for k in kbs)} ×
 {' and '.join(str(c) for c in chips)} SDRAM chips. In brackets: fps relative to the standard
 chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
 
 """ + _md_table(["bandwidth", *[f"{k} KB" for k in kbs], *[f"paper {k} KB" for k in kbs]],
-                body) + f"\n\n{figure}")
+                body) + self.note("intcache") + f"\n\n{figure}")
 
     # -- Tables 5 and 6 ------------------------------------------------------------------------
     def table5(self):
@@ -473,7 +496,7 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
                          self.cell(_num(r, "counters.trav_ops"), "{:,.0f}"),
                          self.cell(_num(r, "counters.int_ops"), "{:,.0f}"),
                          self.cell(ideal, "{:,.0f}"), self.cell(cost, "{:.2f}×"),
-                         _f(measured, "{:,.0f}"), _f(meas_cost, "{:.2f}×"),
+                         _f(measured, "{:,.0f}", "n/a"), _f(meas_cost, "{:.2f}×", "n/a"),
                          f"{prays:,}", f"{100 * PAPER_T5[0][1] / prays:.0f} %", f"{pfps:.2f}",
                          f"{PAPER_T5[0][2] / pfps:.2f}×"])
             pts.append((name[:3], n / base[0] if n and base[0] else None, cost, meas_cost,
@@ -655,7 +678,7 @@ A cluster worker is one core.
 """ + (_md_table(["workers", "efficiency (assumed)", "wall for the paper-sized set"], proj)
        if proj else "(no chip points to project from)"))
 
-    def page(self, total_seconds: float, load: tuple) -> str:
+    def render(self, total_seconds: float, load: tuple) -> str:
         head = f"""# {self.plan.title}
 
 <!-- generated by `saarcor results` (tb/results.py) from {os.path.relpath(self.plan.path, ROOT)}; edit those, not this page -->
@@ -692,7 +715,7 @@ def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float
     w.usage()
     w.scaling()
     page.parent.mkdir(parents=True, exist_ok=True)
-    page.write_text(w.page(total_seconds, load))
+    page.write_text(w.render(total_seconds, load))
     return w
 
 
@@ -712,6 +735,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--cache", default="build/sweep/cache",
                     help="per-point result cache shared with `saarcor sweep`")
     ap.add_argument("--workers", type=int, default=2, help="local Dask workers (default 2)")
+    ap.add_argument("--kd-cache", default="default", metavar="DIR",
+                    help="kd-tree cache directory (default: the model's)")
     ap.add_argument("--skip-threads", action="store_true", help="no threads bench")
     ap.add_argument("--skip-scaling", action="store_true",
                     help="no 1- and 2-worker timing of the scaling spec")
@@ -727,13 +752,14 @@ def main(argv=None) -> int:
         page = Path(args.out)
         run = run_plan(plan, workers=args.workers, cache=Path(args.cache),
                        out_dir=Path(args.work), threads=not args.skip_threads,
-                       scaling=not args.skip_scaling)
+                       scaling=not args.skip_scaling, kd_cache=args.kd_cache)
     except (ResultsError, sw.SpecError) as e:
         raise SystemExit(f"results: {e}")
     w = write_page(plan, run, page, Path(args.img) if args.img else page.parent / "img",
                    time.perf_counter() - t0, (load0, os.getloadavg()[0]))
     print(f"results: wrote {page} and {len(w.figures)} plots in "
-          f"{(time.perf_counter() - t0) / 60:.1f} min; {run.failed} failed point(s), "
+          f"{(time.perf_counter() - t0) / 60:.1f} min; {run.computed} point(s) computed, "
+          f"{run.failed} failed point(s), "
           f"{w.missing} empty cell(s)")
     return 1 if run.failed or w.missing else 0
 

@@ -64,6 +64,8 @@ SPEC_KEYS = ("name", "backend", "scenes", "resolutions", "config", "grid", "poin
 POINT_KEYS = ("scenes", "resolutions")
 CODE_DIRS = ("rtl", "model", "tb")
 CODE_SUFFIXES = (".py", ".cpp", ".h", ".v", ".sv")
+# sources no point's result depends on: the page writer reads the tables, computes none
+CODE_EXCLUDE = ("tb/results.py",)
 CACHE_VERSION = 1
 FIELDS = {f.name: f for f in dataclasses.fields(Config)}
 DEFAULT_MAX_CYCLES = 100_000_000
@@ -294,7 +296,8 @@ def code_hash(root: str = str(ROOT)) -> str:
     h = hashlib.sha256()
     for d in CODE_DIRS:
         for p in sorted(Path(root, d).rglob("*")):
-            if p.suffix in CODE_SUFFIXES and p.is_file() and "__pycache__" not in p.parts:
+            if (p.suffix in CODE_SUFFIXES and p.is_file() and "__pycache__" not in p.parts
+                    and p.relative_to(root).as_posix() not in CODE_EXCLUDE):
                 h.update(p.relative_to(root).as_posix().encode() + b"\0")
                 h.update(p.read_bytes())
     return h.hexdigest()[:16]
