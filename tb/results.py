@@ -252,6 +252,46 @@ def _frac(rows) -> str:
     return f"1/{1 / f:.0f}" if f < 1 and abs(1 / f - round(1 / f)) < 1e-9 else f"{f:.3g}×"
 
 
+def _os_rows(rows):
+    """(frame, the same frame 4x oversampled) among ok chip rows: oversampling = 2, or a frame
+    of twice the width and height (the same rays and packets)."""
+    ok = [r for r in rows if r.get("status") == "ok"]
+    eye = next((r for r in ok if int(r["oversampling"]) == 1), None)
+    if eye is None:
+        return None, None
+    w, h = int(eye["width"]), int(eye["height"])
+    for r in ok:
+        if r is eye:
+            continue
+        if int(r["oversampling"]) == 2 and (int(r["width"]), int(r["height"])) == (w, h):
+            return eye, r
+        if int(r["oversampling"]) == 1 and (int(r["width"]), int(r["height"])) == (2 * w, 2 * h):
+            return eye, r
+    return eye, None
+
+
+def _os_text(eye, os_row) -> str:
+    if eye is None:
+        return "no frame"
+    w, h = eye["width"], eye["height"]
+    if os_row is None:
+        return f"{w}×{h}; the oversampled frame is missing"
+    how = ("`oversampling = 2`" if int(os_row["oversampling"]) == 2 else
+           f"run as the {os_row['width']}×{os_row['height']} frame, whose rays and packets are "
+           "exactly those of 2×2 rays per pixel")
+    return f"{w}×{h}, and 4× oversampled ({how})"
+
+
+def _commit() -> str:
+    import subprocess
+    try:
+        c = subprocess.run(["git", "-C", str(ROOT), "describe", "--always", "--dirty"],
+                           capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        c = ""
+    return f"`{c}`" if c else "unknown"
+
+
 def _ideal_cycles(trav, inter, rtcs=4, sub=4):
     return max(trav / (rtcs * sub), inter / rtcs)
 
@@ -476,8 +516,8 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
                                                    oversampling=2))]
         scene = _stem(rows[0])
         base = None
-        chip_eye = _num(_one(chip, oversampling=1), "fps")
-        chip_os = _num(_one(chip, oversampling=2), "fps")
+        eye_row, os_row = _os_rows(chip)
+        chip_eye, chip_os = _num(eye_row, "fps"), _num(os_row, "fps")
         body, pts = [], []
         for (name, match), (_, prays, pfps) in zip(cases, PAPER_T5):
             r = _one(rows, **match)
@@ -525,8 +565,9 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
 int-ops of every ray kind, the ideal fps of 4 RTCs from those counts (533 MHz /
 `max(trav-ops / 16, int-ops / 4)`, a bound, not a measurement) and the cost relative to eye
 rays in those ideal cycles. **Chip columns** (`{self._spec('oversampling')}`): measured fps of
-the frames the chip can make, eye rays with and without 4× oversampling, at {_res(chip)}; the
-chip's shadow and reflection rays are not built yet, so (b)–(d) have no chip figure.
+the frames the chip can make, eye rays with and without 4× oversampling
+({_os_text(eye_row, os_row)}); the chip's shadow and reflection rays are not in these
+sweeps, so (b)–(d) have no chip figure.
 
 """ + _md_table(["case", "rays (model)", "rays(er)/rays", "trav-ops", "int-ops",
                  "ideal fps, 4 RTCs", "cost / cost(er) (model)", "chip fps, 4 RTCs",
@@ -539,17 +580,18 @@ chip's shadow and reflection rays are not built yet, so (b)–(d) have no chip f
             return
         scene = _stem(chip[0])
         body = []
+        eye_row, os_row = _os_rows(chip)
         for k in ("trav", "list", "int"):
-            a = _num(_one(chip, oversampling=1), f"cache.{k}.hit_rate")
-            b = _num(_one(chip, oversampling=2), f"cache.{k}.hit_rate")
+            a = _num(eye_row, f"cache.{k}.hit_rate")
+            b = _num(os_row, f"cache.{k}.hit_rate")
             body.append([f"{k}-cache", self.pcell(a), self.pcell(b),
                          f"{100 * PAPER_T6[k][0]:.1f} %", f"{100 * PAPER_T6[k][1]:.1f} %"])
         self.add(f"""
 ## Table 6: cache hit rates with and without oversampling
 
 `{scene}`, the standard chip (4 RTCs, 64/64/144 KB direct-mapped caches), **eye rays through
-the chip** at {_res(chip)} (`{self._spec('oversampling')}`); 4× oversampling is 2×2 rays per
-pixel (`oversampling = 2`). Paper: Office, 1024×768, all rays.
+the chip** (`{self._spec('oversampling')}`): {_os_text(eye_row, os_row)}.
+Paper: Office, 1024×768, all rays.
 
 """ + _md_table(["", "ours, none", "ours, 4×", "paper, none", "paper, 4×"], body))
 
@@ -678,6 +720,31 @@ A cluster worker is one core.
 """ + (_md_table(["workers", "efficiency (assumed)", "wall for the paper-sized set"], proj)
        if proj else "(no chip points to project from)"))
 
+    def cost(self):
+        """What each sweep's points cost when they were computed (job_seconds)."""
+        body, total = [], 0.0
+        for k, rows in self.run.rows.items():
+            js = [float(r["job_seconds"]) for r in rows if r.get("job_seconds") not in (None, "")]
+            total += sum(js)
+            body.append([f"`{self._spec(k)}`", rows[0]["backend"] if rows else "", len(rows),
+                         f"{sum(js) / 60:.1f} min", f"{max(js, default=0):.0f} s"])
+        t = self.run.threads
+        if t:
+            ts = sum(r["wall_s"] for r in t["runs"])
+            total += ts
+            body.append(["threads bench", "one RTC", len(t["runs"]), f"{ts / 60:.1f} min",
+                         f"{max(r['wall_s'] for r in t['runs']):.0f} s"])
+        self.add(f"""
+## What this page costs
+
+Each sweep point's own time when it was computed (`job_seconds`: loading the scene, the
+kd-tree from its cache, the frame and its check; one worker process each), and the threads
+bench's runs (without its builds). From an empty result cache the page takes about the sum,
+{total / 60:.0f} minutes of job time, divided among the workers, plus the Verilator builds
+(one per chip configuration, 4 to 15 minutes each here) and the 1- and 2-worker timing.
+
+""" + _md_table(["sweep", "backend", "points", "sum of job times", "longest job"], body))
+
     def render(self, total_seconds: float, load: tuple) -> str:
         head = f"""# {self.plan.title}
 
@@ -689,14 +756,14 @@ and golden model, each table beside the paper's figures. Regenerate with `make r
 so a second run recomputes nothing; the chip's Verilator binaries are built once per
 configuration.
 
-**What is measured how.** The chip makes eye rays only so far: every *chip* figure is an
-eye-ray frame through the whole chip (RGS, RTCs, caches, bus, SDRAM model) in Verilator, every
-ray checked bit for bit against the golden model. Figures for shadow and reflection rays are
-the *golden model's* operation counts (the ops the chip's units would perform: the chip's
+**What is measured how.** Every *chip* figure is an eye-ray frame through the whole chip
+(RGS, RTCs, caches, bus, SDRAM model) in Verilator, every ray checked bit for bit against the
+golden model (the sweep's chip backend runs eye rays). Figures for shadow and reflection rays
+are the *golden model's* operation counts (the ops the chip's units perform: the chip's
 counters equal the model's on every frame checked). Estimates are marked as such.
 {self.plan.resolution_note}
 
-This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
+Code: commit {_commit()}. This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
 {load[1]:.2f} before / after, on a 2-core machine shared with other work);
 {sum(len(v) for v in self.run.rows.values())} sweep points.
 """
@@ -714,6 +781,7 @@ def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float
     w.threads()
     w.usage()
     w.scaling()
+    w.cost()
     page.parent.mkdir(parents=True, exist_ok=True)
     page.write_text(w.render(total_seconds, load))
     return w
