@@ -128,6 +128,9 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     t6 = table(text, "## Table 6")
     assert t6[2][1:3] == [f"{100 * chip[(4, 144, 4, o)]['cache']['int']['hit_rate']:.1f} %"
                           for o in (1, 2)]
+    # the trends, from the tables: the made-up int-cache and bandwidth gains hold
+    trends = text[text.index("## Which of the paper's trends hold"):]
+    assert re.search(r"larger int-cache gives 1\.\d\d× the fps \(paper 1\.31×\): \*\*holds", trends)
     # scaling: both worker counts timed, every plot written
     assert len(table(text, "## Sweeps on more workers")) == 2
     for name in ("rtcs", "intcache", "raykinds", "usage"):
