@@ -631,7 +631,7 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
         if r is None:
             return
         plt = _plt()
-        fig, ax = plt.subplots(1, 4, figsize=(13, 3.2))
+        fig, ax = plt.subplots(1, 5, figsize=(16, 3.2))
         n, subs = 4, int(r["trav_subunits"])
         per = [[_num(r, f"units.per_rtc.{i}.{k}") or 0 for k in ("trav_subunits", "trav",
                                                                    "list", "int")]
@@ -649,11 +649,14 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
         hits = [_num(r, f"cache.{k}.hit_rate") or 0 for k in ("trav", "list", "int")]
         ax[2].bar(["trav", "list", "int"], [100 * h for h in hits])
         ax[2].set_title("(e) cache hit rates", fontsize=9)
+        words = [_num(r, f"cache.{k}.memory_words") or 0 for k in ("trav", "list", "int")]
+        ax[3].bar(["trav", "list", "int"], [100 * w / max(1, sum(words)) for w in words])
+        ax[3].set_title("(f) memory words per cache", fontsize=9)
         chips = int(r["mem_chips"])
-        ax[3].bar(range(chips), [100 * (_num(r, f"memory.per_chip.{i}.share") or 0)
+        ax[4].bar(range(chips), [100 * (_num(r, f"memory.per_chip.{i}.share") or 0)
                                  for i in range(chips)])
-        ax[3].set_title("(h) share of memory accesses per SDRAM chip", fontsize=9)
-        ax[3].set_xlabel("SDRAM chip")
+        ax[4].set_title("(h) accesses per SDRAM chip", fontsize=9)
+        ax[4].set_xlabel("SDRAM chip")
         for a in ax:
             a.set_ylim(0, 105)
             a.set_ylabel("%")
@@ -665,8 +668,9 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
 
 `{scene}` on the standard chip (4 RTCs, {subs} traversal sub-units each), eye rays at
 {r['width']}×{r['height']} (the `{self._spec('rtcs')}` point): busy share of the cycles of
-each unit, the caches' hit rates and each SDRAM chip's share of the memory accesses —
-panels (a), (b), (e) and (h) of the paper's Figure 5 (BQD-1). Memory port: {_f(_num(r, 'bus.words_per_cycle'), '{:.3f}')}
+each unit, the caches' hit rates, each cache's share of the memory words and each SDRAM
+chip's share of the memory accesses — panels (a), (b), (e), (f) and (h) of the paper's
+Figure 5 (BQD-1). Memory port: {_f(_num(r, 'bus.words_per_cycle'), '{:.3f}')}
 words a cycle.
 
 """ + _md_table(["RTC", "traversal sub-units", "traversal", "list", "intersection"], body)

@@ -33,8 +33,8 @@ def fake_chip_stats(cfg: Config, rays: int) -> dict:
                for r in range(cfg.rtcs)]
     return {"cycles": cycles, "rays_total": rays, "trav_ops": trav, "int_ops": inter,
             **relative_performance(cfg, cycles, trav, inter),
-            "cache": {k: {"hit_rate": h + 0.01 * cfg.oversampling}
-                      for k, h in (("trav", 0.8), ("list", 0.7), ("int", 0.9))},
+            "cache": {k: {"hit_rate": h + 0.01 * cfg.oversampling, "memory_words": w}
+                      for k, h, w in (("trav", 0.8, 300), ("list", 0.7, 100), ("int", 0.9, 600))},
             "units": {"per_rtc": per_rtc},
             "memory": {"per_chip": [{"share": 1 / cfg.mem_chips}] * cfg.mem_chips},
             "bus": {"words_per_cycle": 0.1}}
