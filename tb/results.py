@@ -633,10 +633,13 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
         plt = _plt()
         fig, ax = plt.subplots(1, 5, figsize=(16, 3.2))
         n, subs = 4, int(r["trav_subunits"])
-        per = [[_num(r, f"units.per_rtc.{i}.{k}") or 0 for k in ("trav_subunits", "trav",
-                                                                   "list", "int")]
-               for i in range(n)]
-        ax[0].bar(range(n), [100 * p[0] for p in per])
+        def subs_mean(i):     # the sub-units' busy shares of RTC i (one column each)
+            v = [_num(r, f"units.per_rtc.{i}.trav_subunits.{j}") for j in range(subs)]
+            v = [x for x in v if x is not None]
+            return sum(v) / len(v) if v else _num(r, f"units.per_rtc.{i}.trav_subunits")
+        per = [[subs_mean(i)] + [_num(r, f"units.per_rtc.{i}.{k}") or 0
+                                 for k in ("trav", "list", "int")] for i in range(n)]
+        ax[0].bar(range(n), [100 * (p[0] or 0) for p in per])
         ax[0].set_title("(a) traversal sub-units, mean busy", fontsize=9)
         ax[0].set_xlabel("RTC")
         for j, (k, lab) in enumerate((("trav", "traversal"), ("list", "list"),
