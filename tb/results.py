@@ -775,8 +775,9 @@ words a cycle.
         if full:
             for n in (1, 2, 8, 32, 128):
                 eff = 1.0 if n == 1 else (speed / 2 if n == 2 else 0.9)
-                hours = paper_frames * full / (n * (1.0 if n == 1 else eff)) / 3600
-                proj.append([n, f"{eff:.2f}", f"{hours:.1f} h"])
+                secs = math.ceil(paper_frames / n) * full / eff    # whole frames per worker
+                proj.append([n, f"{eff:.2f}", f"{secs / 3600:.1f} h" if secs >= 3600 else
+                             f"{secs / 60:.0f} min"])
         self.add(f"""
 ## Sweeps on more workers
 
@@ -801,7 +802,8 @@ frame (frames with secondary rays cost more: more rays); every frame is an indep
 job; Verilator binaries are built beforehand (one per configuration, about 10 minutes each,
 in parallel on the cluster); the efficiency of 2 workers is the measured one, beyond that
 0.9 (jobs this long amortise start-up; a shared filesystem serves the scenes and binaries).
-A cluster worker is one core.
+A cluster worker is one core; a worker runs whole frames, so beyond {paper_frames} workers
+nothing is gained.
 
 """ + (_md_table(["workers", "efficiency (assumed)", "wall for the paper-sized set"], proj)
        if proj else "(no chip points to project from)"))
