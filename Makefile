@@ -99,3 +99,12 @@ sweep: setup
 	$(PY) -m tb.sweep $(SPEC) $(SWEEP_ARGS)
 
 .PHONY: sweep
+
+## make results: docs/results.md and docs/img/results_*.png, the paper's Section 5 tables beside
+##   ours, from the sweeps of scenes/sweeps/results/plan.toml (every point cached; the chip's
+##   Verilator binaries are built once per configuration). RESULTS_ARGS="--skip-threads"
+RESULTS_ARGS ?=
+results: setup
+	nice -n 10 $(SAARCOR) results $(RESULTS_ARGS)
+
+.PHONY: results

@@ -33,6 +33,8 @@ COMMANDS: dict[str, Command] = {
                                          "compared with the golden model"),
     "sweep": Command("tb.sweep", "a design-space sweep (configurations x scenes x resolutions) "
                                  "on Dask, cached per point, into one results table"),
+    "results": Command("tb.results", "docs/results.md: the paper's Section 5 tables beside "
+                                     "ours, from sweeps, with plots"),
 }
 """Top-level commands; ``bench`` (below) is a group of its own."""
 

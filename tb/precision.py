@@ -330,8 +330,9 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(
         description="Precision study: image/ray error, FP-unit cost and run time per format.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--scenes", nargs="*", default=[str(p) for p in sorted(
-        (ROOT / "scenes").glob("*.toml"))], help="scene files (TOML or meshes)")
+    ap.add_argument("--scenes", nargs="*", default=[str(ROOT / "scenes" / f"{n}.toml") for n in
+                                                    ("conference", "cornell", "office", "terrain")],
+                    help="scene files (TOML or meshes); default: the four small shipped scenes")
     ap.add_argument("--meshes", default=None,
                     help="directory with the real meshes (teapot, bunny, spot, cruiser, f-16, "
                          "dragon, nefertiti .obj); missing ones are skipped with a message")

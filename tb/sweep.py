@@ -60,10 +60,12 @@ __all__ = ["SpecError", "Point", "Spec", "load_spec", "code_hash", "point_key", 
 ROOT = Path(__file__).resolve().parents[1]
 BACKENDS = ("chip", "model")
 SPEC_KEYS = ("name", "backend", "scenes", "resolutions", "config", "grid", "point",
-             "max_cycles", "skip_invalid")
+             "max_cycles", "skip_invalid", "mem_words")
 POINT_KEYS = ("scenes", "resolutions")
 CODE_DIRS = ("rtl", "model", "tb")
 CODE_SUFFIXES = (".py", ".cpp", ".h", ".v", ".sv")
+# sources no point's result depends on: the page writer reads the tables, computes none
+CODE_EXCLUDE = ("tb/results.py",)
 CACHE_VERSION = 1
 FIELDS = {f.name: f for f in dataclasses.fields(Config)}
 DEFAULT_MAX_CYCLES = 100_000_000
@@ -108,6 +110,7 @@ class Spec:
     points: list[Point]
     max_cycles: int | None = None
     skipped: list[str] = dataclasses.field(default_factory=list)   # invalid grid combinations
+    mem_words: int | None = None     # chip: memory words of every binary, at least
 
 
 def config_of(d: dict) -> Config:
@@ -210,6 +213,11 @@ def load_spec(path: str | Path) -> Spec:
     max_cycles = doc.get("max_cycles")
     if max_cycles is not None and (not isinstance(max_cycles, int) or max_cycles < 1):
         raise SpecError(f"{where}: max_cycles = {max_cycles!r} must be a positive integer")
+    mem_words = doc.get("mem_words")
+    if mem_words is not None and (not isinstance(mem_words, int) or mem_words < 1
+                                  or mem_words & (mem_words - 1)):
+        raise SpecError(f"{where}: mem_words = {mem_words!r} must be a power of two (the "
+                        "memory words every chip binary holds, e.g. 67108864 = 2**26)")
     skip_invalid = doc.get("skip_invalid", False)
     if not isinstance(skip_invalid, bool):
         raise SpecError(f"{where}: skip_invalid must be true or false")
@@ -274,7 +282,7 @@ def load_spec(path: str | Path) -> Spec:
     if not points:
         raise SpecError(f"{where}: no valid configuration left "
                         f"({len(skipped)} skipped as invalid: {skipped[:3]})")
-    return Spec(path, name, backend, points, max_cycles, skipped)
+    return Spec(path, name, backend, points, max_cycles, skipped, mem_words)
 
 
 # --------------------------------------------------------------------------------------------
@@ -288,23 +296,32 @@ def code_hash(root: str = str(ROOT)) -> str:
     h = hashlib.sha256()
     for d in CODE_DIRS:
         for p in sorted(Path(root, d).rglob("*")):
-            if p.suffix in CODE_SUFFIXES and p.is_file() and "__pycache__" not in p.parts:
+            if (p.suffix in CODE_SUFFIXES and p.is_file() and "__pycache__" not in p.parts
+                    and p.relative_to(root).as_posix() not in CODE_EXCLUDE):
                 h.update(p.relative_to(root).as_posix().encode() + b"\0")
                 h.update(p.read_bytes())
     return h.hexdigest()[:16]
 
 
-def _referenced_files(doc, base: Path):
-    """Mesh and texture files a scene TOML reads (keys ``mesh`` and ``texture``)."""
+def _referenced_files(doc, base: Path, depth: int = 0):
+    """Mesh, texture and base-scene files a scene TOML reads (keys ``mesh``, ``texture``,
+    ``base``; a base scene's own files too)."""
     if isinstance(doc, dict):
         for k, v in doc.items():
             if k in ("mesh", "texture") and isinstance(v, str):
                 yield base / v
+            elif k == "base" and isinstance(v, str) and depth == 0:
+                f = base / v
+                yield f
+                try:
+                    yield from _referenced_files(tomllib.loads(f.read_text()), f.parent, 1)
+                except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+                    pass
             else:
-                yield from _referenced_files(v, base)
+                yield from _referenced_files(v, base, depth)
     elif isinstance(doc, list):
         for v in doc:
-            yield from _referenced_files(v, base)
+            yield from _referenced_files(v, base, depth)
 
 
 def scene_hash(path: str | Path) -> str:
@@ -353,29 +370,38 @@ def _error_text(e: BaseException) -> str:
     return f"{type(e).__name__}: {e}"
 
 
+def _chip_mem_words(words: int, mem_words: int | None) -> int:
+    """Memory words of the binary a chip frame of a ``words``-word image runs on."""
+    from .chip import CHIP_MIN_MEM_WORDS
+    from .verilator import _pow2
+    return _pow2(max(words, mem_words or 0), CHIP_MIN_MEM_WORDS)
+
+
 def build_chip(config: dict, scene_paths: list[str], kd_cache: str = "default",
-               threads: int = 1) -> dict:
+               threads: int = 1, mem_words: int | None = None) -> dict:
     """Build (or find cached) the Verilator chip binaries a configuration needs for
-    ``scene_paths`` (one per memory size, usually one for all: ``tb.chip.run_chip_frame``
-    looks them up the same way). Never raises: ``{"error": text or None, "built": [...], "seconds": s}``."""
+    ``scene_paths`` (one per memory size, at least ``mem_words``; usually one for all:
+    :func:`run_point` looks them up the same way). Never raises: ``{"error": text or None,
+    "built": [...], "seconds": s}``."""
     from model.render import prepare
     from model.scene import load_scene
 
-    from .chip import CHIP_MIN_MEM_WORDS, chip_build
-    from .verilator import _pow2
+    from .chip import chip_build
     t0 = time.perf_counter()
     log = io.StringIO()
     try:
         _set_threads(threads)
         cfg = config_of(config)
         sizes = set()
-        for sp in scene_paths:
+        for sp in ([] if mem_words else scene_paths):      # a fixed size: no scene to read
             try:
                 scene = load_scene(sp)
             except Exception:       # the point reports its own scene error
                 continue
-            sizes.add(_pow2(len(prepare(scene, cfg, cache_dir=kd_cache).image.data),
-                            CHIP_MIN_MEM_WORDS))
+            sizes.add(_chip_mem_words(len(prepare(scene, cfg, cache_dir=kd_cache).image.data),
+                                      mem_words))
+        if mem_words:        # a larger image gets its own binary when its point runs
+            sizes.add(_chip_mem_words(0, mem_words))
         built = []
         for mw in sorted(sizes):
             b = chip_build(cfg, mw, log=log)
@@ -394,7 +420,7 @@ def _set_threads(n: int) -> None:
 
 def run_point(point: Point, code: str, *, max_cycles: int | None = None,
               kd_cache: str = "default", build: dict | None = None,
-              threads: int = 1) -> dict:
+              threads: int = 1, mem_words: int | None = None) -> dict:
     """One point on this worker, the golden model on ``threads`` threads. Never raises:
     ``{"status": "ok" | "mismatch" | "error", "error", "stats", "seconds", "traceback"}``;
     ``stats`` is ``make sim``'s ``stats.json`` dict (chip) or the model's
@@ -422,7 +448,8 @@ def run_point(point: Point, code: str, *, max_cycles: int | None = None,
             from .sim import frame_stats
             run = run_chip_frame(cfg, prep.image, scene.camera, point.width, point.height,
                                  max_cycles=max_cycles or DEFAULT_MAX_CYCLES, progress=False,
-                                 log=io.StringIO())
+                                 log=io.StringIO(),
+                                 mem_words=_chip_mem_words(len(prep.image.data), mem_words))
             stats = frame_stats(cfg, run, scene=point.scene, width=point.width,
                                 height=point.height, backend="verilator",
                                 wall=time.perf_counter() - t0)
@@ -608,14 +635,15 @@ def run_sweep(spec: Spec, *, out: Path | str, cache: Path | str, client=None,
                   "build/verilator/ first (a new one takes minutes)", file=log, flush=True)
             for j, (ident, (cfgd, scenes)) in enumerate(need.items()):
                 builds[ident] = client.submit(build_chip, cfgd, sorted(set(scenes)), kd_cache,
-                                              threads, key=f"build-{j}-{token}", priority=10,
+                                              threads, spec.mem_words,
+                                              key=f"build-{j}-{token}", priority=10,
                                               pure=False)
         futs = {}
         for i in todo:
             p = spec.points[i]
             b = builds.get(json.dumps(p.config, sort_keys=True))
             f = client.submit(run_point, p, code, max_cycles=mc, kd_cache=kd_cache, build=b,
-                              threads=threads,
+                              threads=threads, mem_words=spec.mem_words,
                               key=f"point-{i}-{p.label().replace(' ', '-')}-{token}",
                               pure=False)
             futs[f] = i

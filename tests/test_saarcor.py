@@ -20,6 +20,7 @@ OPTION = {
     ("fpga",): "--freq",
     ("verilator",): "--mem-stall",
     ("sweep",): "--scheduler",
+    ("results",): "--skip-threads",
     ("sim",): "--mem-stall",
     ("bench", "chip"): "--seeds",
     ("bench", "memory"): "--words-per-chip",

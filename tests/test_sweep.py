@@ -140,6 +140,8 @@ def test_spec_errors_name_the_problem(tmp_path, body, message):
     ('backend = "rtl"\nscenes = ["a.toml"]\nresolutions = ["8x8"]', 'backend = "chip"'),
     ('backend = "model"\nscene = ["a.toml"]\nresolutions = ["8x8"]', "unknown key(s) scene"),
     ('backend = "model"\nresolutions = ["8x8"]', "give scenes"),
+    ('backend = "chip"\nscenes = ["a.toml"]\nresolutions = ["8x8"]\nmem_words = 1000',
+     "mem_words = 1000 must be a power of two"),
 ])
 def test_spec_top_level_errors(tmp_path, text, message):
     with pytest.raises(sweep.SpecError) as e:
@@ -200,6 +202,23 @@ rtcs = [1, 2]
     assert sweep.point_key(spec.points[0], "other code") != keys[0]
     scene.write_text(scene.read_text() + "\n# an edit\n")
     assert sweep.point_key(spec.points[0], code) != keys[0]
+
+
+def test_cache_key_follows_a_view_s_base_scene(tmp_path):
+    """A view (base = "...") hashes its base scene and the files the base reads."""
+    (tmp_path / "tex").mkdir()
+    (tmp_path / "tex" / "t.png").write_bytes(b"one")
+    base = tmp_path / "base.toml"
+    base.write_text(CORNELL.read_text() + '\n[[material]]\nname = "pic"\ntexture = "tex/t.png"\n')
+    (tmp_path / "views").mkdir()
+    view = tmp_path / "views" / "v.toml"
+    view.write_text('base = "../base.toml"\n')
+    h0 = sweep.scene_hash(view)
+    (tmp_path / "tex" / "t.png").write_bytes(b"two")
+    h1 = sweep.scene_hash(view)
+    base.write_text(base.read_text() + "\n# an edit\n")
+    h2 = sweep.scene_hash(view)
+    assert len({h0, h1, h2}) == 3
 
 
 def test_flatten_names_nested_scalars():
