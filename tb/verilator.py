@@ -56,7 +56,7 @@ FLAGS = ["--cc", "--exe", "--build", "-j", "2", "-Wno-WIDTH", "-Wno-fatal",
          "-MAKEFLAGS", "CFG_CXXFLAGS_PCH_I=-include",
          "-MAKEFLAGS", "CFG_CXXFLAGS_STD=-std=gnu++17",
          "-MAKEFLAGS", "CFG_LDLIBS_THREADS=-pthread"]
-MIN_MEM_WORDS = 1 << 17           # office (124 k words) and Cornell share a binary
+MIN_MEM_WORDS = 1 << 19           # office (272 k words) and Cornell share a binary
 MIN_RAY_SLOTS = 1 << 16           # up to 256x256 rays (4 MB of ray memory)
 IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
 
@@ -127,7 +127,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
     """Export ``RTCFrame`` (``top="chip"``: ``tb.chip_frame.ChipFrame``) and compile it with
     Verilator, or reuse the cached binary.
 
-    ``mem_words`` / ``ray_slots`` are rounded up to powers of two (at least 2^17 words and
+    ``mem_words`` / ``ray_slots`` are rounded up to powers of two (at least 2^19 words and
     2^16 rays, so small scenes and frames up to 256x256 share one binary). Safe against
     concurrent builds (file lock).
     """

@@ -122,7 +122,7 @@ def test_waveform_window(kd_cache, tmp_path):
 
 
 def test_second_scene_reuses_the_binary(kd_cache):
-    """Office (a 124 k-word image) runs on the binary Cornell built: loaded, not rebuilt."""
+    """Office (a 272 k-word image) runs on the binary Cornell built: loaded, not rebuilt."""
     image, rays = case("cornell", 4, 4, kd_cache)
     first = frame(image, rays)
     image, rays = case("office", 8, 8, kd_cache)
@@ -153,9 +153,9 @@ def test_bad_inputs_say_what_is_wrong(kd_cache, tmp_path):
     image, rays = case("cornell", 4, 4, kd_cache)
     with pytest.raises(vl.FrameError, match=r"max_cycles=300 .*raise"):
         frame(image, rays, max_cycles=300)
-    huge = dataclasses.replace(image, data=np.zeros((1 << 17) + 1, np.uint64))
-    with pytest.raises(ValueError, match=r"131073 words, the simulation holds 131072 .*"
-                                         r"pass mem_words >= 131073"):
+    huge = dataclasses.replace(image, data=np.zeros((1 << 19) + 1, np.uint64))
+    with pytest.raises(ValueError, match=r"524289 words, the simulation holds 524288 .*"
+                                         r"pass mem_words >= 524289"):
         frame(huge, rays, mem_words=1000)
     with pytest.raises(ValueError, match=r"idle=1.0.*\[0, 15/16\]"):
         vl.write_input(tmp_path / "x.bin", image, rays, TINY, idle=1.0)
