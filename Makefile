@@ -25,18 +25,17 @@ test: setup
 ##   checked against the golden model -> $(OUT)/image.png, stats.json, usage.png, rays/hits.npz.
 ##   make sim SCENE=scenes/office.toml RES=256x192 RTCS=2 THREADS=8 BACKEND=verilator|amaranth
 ##            TRACE=wave.fst CONFIG="--trav-cache-kb 16 --mem-latency 30"
-##   SECONDARY=1: the slaves also make the shadow and reflection rays (default: eye rays only,
-##   until the standard chip's hang with secondary rays is fixed: docs/chip.md)
+##   EYE_ONLY=1: eye rays only (default: the slaves also make the shadow and reflection rays)
 RTCS    ?=
 THREADS ?=
 BACKEND ?= verilator
 TRACE   ?=
-SECONDARY ?=
-EYE_ONLY := $(if $(SECONDARY),,--eye-only)
+EYE_ONLY ?=
+EYE_ONLY_FLAG := $(if $(EYE_ONLY),--eye-only)
 sim: setup
 	$(SAARCOR) sim --scene $(SCENE) --res $(RES) --out $(OUT) --backend $(BACKEND) \
 	    $(if $(RTCS),--rtcs $(RTCS)) $(if $(THREADS),--threads $(THREADS)) \
-	    $(if $(TRACE),--trace $(TRACE)) $(EYE_ONLY) $(CONFIG)
+	    $(if $(TRACE),--trace $(TRACE)) $(EYE_ONLY_FLAG) $(CONFIG)
 
 ## make bench: long sweeps and speed measurements, written to build/bench/
 BENCH_SCENE ?= scenes/office.toml
@@ -56,10 +55,10 @@ bench: setup
 	$(SAARCOR) bench threads --scene scenes/office.toml --res 128x96 --tile-w 8 --tile-h 8 \
 	    --trav-subunits 4 --trav-sync false --out build/bench --name threads_standard_async.json
 	$(SAARCOR) bench stress --out build/bench
-	$(SAARCOR) bench chip --res 256x192 --out build/bench $(EYE_ONLY)
-	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 16x16 --seeds 1000 $(CHIP_SMALL) \
-	    --out build/bench $(EYE_ONLY)
-	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench $(EYE_ONLY)
+	$(SAARCOR) bench chip --res 256x192 --out build/bench $(EYE_ONLY_FLAG)
+	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 $(CHIP_SMALL) \
+	    --out build/bench $(EYE_ONLY_FLAG)
+	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench resources --json build/bench/resources.json
 	$(SAARCOR) bench ladder --out build/bench
 	$(PY) -m pytest -q -m slow

@@ -162,6 +162,22 @@ def test_chip_secondary_rays_verilator(cornell):
     assert ((rays.kind == SHADOW) & (rays.depth == 1)).any()     # shadow rays at reflection hits
 
 
+def test_chip_reflections_of_reflections_verilator(kd_cache):
+    """Office (3 lights, a mirror) on the same binary, 16x16 under back-pressure: reflections of
+    reflections and many reflection packets waiting for their reservations. (The standard chip
+    hung on office while the slave's sender tried only the lowest ready buffer: a reflection
+    packet waiting for its reservation blocked the shadow packets that return it.)"""
+    from tb.chip import run_chip_frame
+    cfg = TINY.replace(rtcs=2)
+    scene = load_scene(ROOT / "scenes/office.toml")
+    image = prepare(scene, cfg, cache_dir=kd_cache).image
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, seed=3, scene=scene,
+                       progress=False, max_cycles=1_000_000)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    rays = r.frame_rays
+    assert (rays.depth == 2).any() and (rays.kind == REFLECTION).sum() > 10
+
+
 def test_a_stuck_frame_names_its_packets_and_rtcs():
     """When a frame hits the cycle limit, the message names the packets whose results are
     missing and, per RTC, packets given against packets finished."""
