@@ -158,5 +158,17 @@ class Config:
         d["fmt"] = {"exp_bits": self.fmt.exp_bits, "frac_bits": self.fmt.frac_bits}
         return d
 
+    def hardware_dict(self) -> dict:
+        """:meth:`to_dict` without :data:`HOST_FIELDS`: what the elaborated hardware depends on
+        (a Verilator binary's cache key; one binary serves every value of the others)."""
+        return {k: v for k, v in self.to_dict().items() if k not in HOST_FIELDS}
+
+
+# Fields the RTL never reads: how the host builds the kd-tree, which rays a frame asks for
+# (registers the host loads per frame: the slaves' reflect_depth and n_lights) and the clock
+# the figures are quoted at.
+HOST_FIELDS = ("kd_leaf_size", "kd_bins", "kd_cost_trav", "kd_cost_int", "reflect_depth",
+               "shadows", "clock_mhz")
+
 
 DEFAULT = Config()

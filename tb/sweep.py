@@ -2,7 +2,8 @@
 as one independent job, results cached per point and gathered into one table.
 
 A spec (format: ``docs/sweep.md``; examples in ``scenes/sweeps/``) names a ``backend``
-(``chip``: a frame of eye rays through the whole chip in Verilator, every ray checked, the
+(``chip``: a frame through the whole chip in Verilator — eye rays and, as the configuration's
+``shadows`` and ``reflect_depth`` ask, the slaves' shadow and reflection rays — every ray checked, the
 figures of ``make sim``'s ``stats.json``; ``model``: the golden model's full render, its
 ``RenderResult.stats``), the scenes, the resolutions and the configurations: a ``[grid]`` of
 :class:`~model.config.Config` fields, each a list of values (cartesian product), and explicit
@@ -448,14 +449,14 @@ def run_point(point: Point, code: str, *, max_cycles: int | None = None,
             from .sim import frame_stats
             run = run_chip_frame(cfg, prep.image, scene.camera, point.width, point.height,
                                  max_cycles=max_cycles or DEFAULT_MAX_CYCLES, progress=False,
-                                 log=io.StringIO(),
+                                 log=io.StringIO(), scene=scene,
                                  mem_words=_chip_mem_words(len(prep.image.data), mem_words))
             stats = frame_stats(cfg, run, scene=point.scene, width=point.width,
                                 height=point.height, backend="verilator",
                                 wall=time.perf_counter() - t0)
             if run.mismatches:
                 out.update(status="mismatch",
-                           error=describe(run.mismatches, first=3, rays=run.eye)
+                           error=describe(run.mismatches, first=3, rays=run.frame_rays)
                            .replace("\n", ";"))
         out["stats"] = json.loads(json.dumps(stats, default=_jsonable))
         if out["status"] != "mismatch":

@@ -100,7 +100,7 @@ def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
     except Exception:
         vl = "unknown"
     h = hashlib.sha256()
-    h.update(json.dumps({"top": top, "cfg": cfg.to_dict(), "mem_words": mem_words,
+    h.update(json.dumps({"top": top, "cfg": cfg.hardware_dict(), "mem_words": mem_words,
                          "ray_slots": ray_slots,
                          "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
                          "amaranth": amaranth.__version__, "verilator": vl},

@@ -37,3 +37,27 @@ def test_units_take_latencies_and_sizes_from_config():
     assert ListUnit(slow).outstanding == 4 and ListUnit(base).outstanding == 8
     for u in (sub0, sub1, i0, i1):
         u._MustUse__silence = True
+
+
+def test_host_fields_are_not_read_by_the_hardware():
+    """A Verilator binary is shared across values of ``HOST_FIELDS`` (its key leaves them out),
+    so no RTL source, simulation top or Config property the RTL reads may use them."""
+    import ast
+    import inspect
+    import re
+    from pathlib import Path
+    from model.config import HOST_FIELDS
+    root = Path(__file__).resolve().parent.parent
+    files = sorted((root / "rtl").rglob("*.py")) + [root / "tb" / n for n in (
+        "frame.py", "chip_frame.py", "lfsr.py")]
+    read = set()
+    for p in files:
+        read |= set(re.findall(r"cfg\.(\w+)", p.read_text()))
+    assert {"threads", "stack_depth", "fp_latencies"} <= read
+    assert not read & set(HOST_FIELDS), read & set(HOST_FIELDS)
+    for node in ast.walk(ast.parse(inspect.getsource(Config))):     # properties the RTL reads
+        if isinstance(node, ast.FunctionDef) and node.name in read:
+            used = {a.attr for a in ast.walk(node) if isinstance(a, ast.Attribute)}
+            assert not used & set(HOST_FIELDS), (node.name, used & set(HOST_FIELDS))
+    d = Config().hardware_dict()
+    assert not set(HOST_FIELDS) & set(d) and {"rtcs", "fmt", "kd_max_depth"} <= set(d)

@@ -275,7 +275,7 @@ mem_latency = 8
 def test_chip_backend_point(tmp_path, scheduler, kd_cache, capsys):
     """A chip point: the binary is built (or found) by the build job before the point runs,
     so the point itself builds nothing; its row holds make sim's figures, the same cycles as
-    a direct run."""
+    a direct run, with the frame's shadow and reflection rays (the Config asks for them)."""
     from model.render import prepare
     from model.scene import load_scene
     from tb.chip import run_chip_frame
@@ -298,7 +298,9 @@ resolutions = ["8x8"]
     cfg = sweep.load_spec(spec).points[0].cfg()
     scene = load_scene(CORNELL)
     direct = run_chip_frame(cfg, prepare(scene, cfg, cache_dir=kd_cache).image, scene.camera,
-                            8, 8, progress=False)
-    assert int(row["cycles"]) == direct.cycles and int(row["rays_total"]) == 64
+                            8, 8, progress=False, scene=scene)
+    assert int(row["cycles"]) == direct.cycles
+    assert int(row["rays_total"]) == len(direct.frame_rays) > int(row["rays.eye"]) == 64
+    assert int(row["rays.shadow"]) > 0                 # the slaves' shadow rays, traced
     stored = json.loads(next((tmp_path / "cache").glob("*.json")).read_text())
     assert stored["stats"]["cycles"] == direct.cycles
