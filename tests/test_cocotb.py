@@ -241,7 +241,7 @@ def test_chip(sim, secondary, cornell_chip, tmp_path):
     delays and order, request back-pressure) and takes every result; every ray — with the
     scene its shadow and reflection rays too — bit-exact by its id, every ray in and out
     once, the RTC's counters the model's, the caches' grants the words the memory served.
-    (Icarus runs the chip at about 230 cycles/s: slow, ``docs/cocotb.md``.)"""
+    (Icarus runs the chip at 200-265 cycles/s: slow, ``docs/cocotb.md``.)"""
     run, r = run_chip_frame(cornell_chip, sim, tmp_path, secondary=secondary, mem_stall=0.25)
     assert run.counters["mem_words"] == [run.counters["mem_reads"]] == [r.values["served"]]
     if secondary:
