@@ -221,8 +221,11 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
     counters = {"cycles": cycles, "rays_in": c["rays_in"], "results_out": c["results_out"],
                 "mem_reads": c["mem_reads"],
                 "packets": [c[f"packets{s}"] for s in range(cfg.rtcs)],
-                "mem_words": [c[f"chip{k}_words"] for k in range(cfg.mem_chips)],
-                "mem_busy": [c[f"chip{k}_busy"] for k in range(cfg.mem_chips)],
+                # the SDRAM chips' counters (none when the memory is not the SDRAM model)
+                "mem_words": [c[f"chip{k}_words"] for k in range(cfg.mem_chips)
+                              if f"chip{k}_words" in c],
+                "mem_busy": [c[f"chip{k}_busy"] for k in range(cfg.mem_chips)
+                             if f"chip{k}_busy" in c],
                 "rtc": [{k: c[f"rtc{r}_{k}"] for k in counter_names(cfg)}
                         for r in range(cfg.rtcs)],
                 "slave": [{k: c[f"slave{r}_{k}"] for k in Chip.SLAVE_COUNTERS}

@@ -2,20 +2,24 @@
 
 CI (``make test``) runs them under Icarus Verilog: no C++ build, so each bench costs its
 simulator start-up (~2-3 s) plus the run; the same benches under Verilator (a 15-60 s C++ build
-per top) are marked slow (``make bench``). ``docs/cocotb.md`` has the figures. Deliberately
-broken exports (a flipped rounding rule, a dropped ``last`` flag) must make the benches fail.
+per top) are marked slow (``make bench``), and so is the whole chip on either simulator
+(Icarus runs it at about 200 cycles/s). ``docs/cocotb.md`` has the figures. Deliberately
+broken exports (a flipped rounding rule, a dropped ``last`` flag, a stuck result bit of the
+chip) must make the benches fail.
 """
 from __future__ import annotations
 
 import re
 import zlib
 
+import numpy as np
 import pytest
 
 from model.config import Config
 from tb.cocotb.runner import BenchFailed
 
-from .conftest import ROOT
+from .conftest import ROOT, TIMING, timing_changed
+from .test_chip import TINY as CHIP, check_frame
 
 CI_SIM = "icarus"
 SIMS = [CI_SIM, pytest.param("verilator", marks=pytest.mark.slow)]
@@ -171,3 +175,121 @@ def test_eye_rays(sim, tmp_path):
     r = run_eye_rays(axis_camera(), 15, 12, Config(), BINARY32.quantize(AXIS_BOX), sim,
                      tmp_path, tiles=[3, 0], packet_ids=[7, 0xFFFFFFFF], seed=2)
     assert r.values["outputs"] == 7 * 4 + 8 * 8
+
+
+# ---- the whole chip -----------------------------------------------------------------------------
+
+def test_lfsr_pattern_is_the_hardware_lfsr():
+    """The benches' :class:`LFSRPattern` holds a stream in exactly the cycles ``tb/lfsr.py``'s
+    LFSR does (what ``ChipFrame`` uses for its result back-pressure), from its seed on."""
+    from amaranth.sim import Simulator
+
+    from tb.cocotb.streams import LFSRPattern
+    from tb.lfsr import LFSR, lfsr_seeds, passes
+    seed, q = lfsr_seeds(3, 3)[1], 4
+    dut = LFSR(loadable=True)
+    sim = Simulator(dut)
+    sim.add_clock(1e-8)
+    held = []
+
+    async def bench(ctx):
+        ctx.set(dut.seed, seed)
+        ctx.set(dut.en, 0)
+        await ctx.tick()                       # loads the seed
+        ctx.set(dut.en, 1)
+        for _ in range(300):
+            held.append(not ctx.get(passes(dut.value, q)))
+            await ctx.tick()
+
+    sim.add_testbench(bench)
+    sim.run()
+    pattern = LFSRPattern(q, seed)
+    assert [pattern(k) for k in range(300)] == held
+    assert 0.15 < sum(held) / 300 < 0.35
+
+
+@pytest.fixture(scope="module")
+def cornell_chip(kd_cache):
+    """The Cornell box and its memory image (with the slave records) for the small chip."""
+    from model.render import prepare
+    from model.scene import load_scene
+    scene = load_scene(ROOT / "scenes" / "cornell.toml")
+    return scene, prepare(scene, CHIP, cache_dir=kd_cache).image
+
+
+def run_chip_frame(cornell_chip, sim, tmp_path, *, top="chip", secondary=False, width=4,
+                   height=4, **kw):
+    """A Cornell frame through the chip's Verilog (25 % result back-pressure, seed 3, as
+    ``tests/test_chip.py``'s frames); checked as ``tests/test_chip.py`` checks the Amaranth and
+    Verilator frames."""
+    from model.raygen import eye_rays
+    from tb.cocotb.chip import run_chip
+    scene, image = cornell_chip
+    run, r = run_chip(CHIP, image, scene.camera, width, height, sim, tmp_path, top=top,
+                      scene=scene if secondary else None, stall=0.25, seed=3, **kw)
+    check_frame(run, CHIP, image, eye_rays(scene.camera, width, height, CHIP))
+    return run, r
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sim,secondary", [("icarus", False), ("verilator", False),
+                                           ("verilator", True)],
+                         ids=["icarus-eye", "verilator-eye", "verilator-secondary"])
+def test_chip(sim, secondary, cornell_chip, tmp_path):
+    """The chip's Verilog (``make verilog TOP=chip``, 1 RTC) on a 4x4 Cornell frame: the bench
+    sets the host registers, starts the frame, serves the memory port from the image (random
+    delays and order, request back-pressure) and takes every result; every ray — with the
+    scene its shadow and reflection rays too — bit-exact by its id, every ray in and out
+    once, the RTC's counters the model's, the caches' grants the words the memory served.
+    (Icarus runs the chip at 200-265 cycles/s: slow, ``docs/cocotb.md``.)"""
+    run, r = run_chip_frame(cornell_chip, sim, tmp_path, secondary=secondary, mem_stall=0.25)
+    assert run.counters["mem_words"] == [run.counters["mem_reads"]] == [r.values["served"]]
+    if secondary:
+        kinds = np.bincount(run.frame_rays.kind, minlength=3)
+        assert kinds[1] > kinds[0] == 16
+
+
+@pytest.mark.slow
+def test_chip_on_sdram_has_the_amaranth_cycles(cornell_chip, tmp_path):
+    """The chip on the SDRAM model (``tb/chip_sdram.py``) in Verilator through cocotb, with
+    ``ChipFrame``'s result back-pressure: the cycle counts of the Amaranth-simulator runs of
+    ``tests/test_chip.py`` (the timing contract), eye rays and with the secondary rays."""
+    run, _ = run_chip_frame(cornell_chip, "verilator", tmp_path / "eye", top="chip_sdram",
+                            width=8, height=4)
+    name = "chip/cornell_8x4_rtcs1"
+    assert run.cycles == TIMING[name], timing_changed(name, run.cycles)
+    assert len(run.counters["mem_words"]) == CHIP.mem_chips
+    run, _ = run_chip_frame(cornell_chip, "verilator", tmp_path / "scene", top="chip_sdram",
+                            secondary=True)
+    name = "chip/cornell_4x4_scene_rtcs1"
+    assert run.cycles == TIMING[name], timing_changed(name, run.cycles)
+
+
+def stuck_t_lsb(verilog: str) -> str:
+    """Break the chip's result output (in module ``chip``, the ``results`` port): bit 0 of
+    every result's t stuck at 0."""
+    from rtl.rgs_slave import SlaveResult
+    lay = SlaveResult(CHIP)
+    hi, lo = lay.size - 1, lay["t"].offset
+    start = verilog.index("\nmodule chip(")
+    end = verilog.index("\nendmodule", start)
+    body = verilog[start:end]
+    port = f"  output [{hi}:0] results__payload;\n"
+    assert body.count(port) == 1 and body.count(".o__payload(results__payload)") == 1
+    body = body.replace(".o__payload(results__payload)", ".o__payload(results_raw)")
+    body = body.replace(port, port + f"  wire [{hi}:0] results_raw;\n  assign results__payload = "
+                        f"{{results_raw[{hi}:{lo + 1}], 1'h0, results_raw[{lo - 1}:0]}};\n")
+    return verilog[:start] + body + verilog[end:]
+
+
+@pytest.mark.slow
+def test_chip_bench_fails_on_broken_output(cornell_chip, tmp_path):
+    """The chip's Verilog with bit 0 of t stuck at 0: the comparison by ray id names the rays
+    whose t is odd, and nothing else."""
+    from tb.cocotb.chip import run_chip
+    scene, image = cornell_chip
+    run, _ = run_chip(CHIP, image, scene.camera, 4, 4, CI_SIM, tmp_path, stall=0.25, seed=3,
+                      patch=stuck_t_lsb)
+    assert run.mismatches
+    assert all(f == "t" and rtl == model & ~1 and model & 1 for _, f, rtl, model
+               in run.mismatches)

@@ -14,10 +14,12 @@ from model.config import Config
 
 from .runner import SIMULATORS
 
-UNITS = ("fp_mul", "list", "traversal", "intersect_pipe", "rtc")
+UNITS = ("fp_mul", "list", "traversal", "intersect_pipe", "rtc", "chip", "chip_scene")
 # the RTC's units as tests/test_cocotb.py configures them: 2 threads, 4x4 packets, small caches
 TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1,
               int_cache_kb=9)
+# the chip as tests/test_chip.py configures it: one RTC of TINY, SDRAM latency 8
+CHIP = TINY.replace(rtcs=1, mem_latency=8)
 
 
 def bench(unit: str, sim: str, run_dir: Path, public: str):
@@ -50,6 +52,17 @@ def bench(unit: str, sim: str, run_dir: Path, public: str):
                                  tempfile.mkdtemp())
         run, r = run_rtc(image, rays, TINY, sim, run_dir, top="rtc", seed=2, public=public)
         assert run.mismatches == [] and run.counter_mismatches() == {}
+        return r
+    if unit in ("chip", "chip_scene"):
+        from model.render import prepare
+        from model.scene import load_scene
+        from .chip import run_chip
+        scene = load_scene(root / "scenes" / "cornell.toml")
+        image = prepare(scene, CHIP, cache_dir=tempfile.mkdtemp()).image
+        run, r = run_chip(CHIP, image, scene.camera, 4, 4, sim, run_dir, stall=0.25, seed=3,
+                          mem_stall=0.25, scene=scene if unit == "chip_scene" else None,
+                          public=public)
+        assert run.mismatches == []
         return r
     raise SystemExit(f"--unit {unit!r}: choose one of {', '.join(UNITS)}")
 

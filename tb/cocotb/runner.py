@@ -34,8 +34,9 @@ from model.config import Config
 
 from .streams import RUN_DIR_ENV, from_ints
 
-__all__ = ["SIMULATORS", "BUILD_ROOT", "BenchFailed", "Build", "Result", "build", "exported", "run",
-           "pack", "unpack", "fields", "interface", "elaborated_elsewhere", "port_layout"]
+__all__ = ["SIMULATORS", "BUILD_ROOT", "SIM_TOPS", "BenchFailed", "Build", "Result", "build",
+           "exported", "run", "pack", "unpack", "fields", "interface", "elaborated_elsewhere",
+           "port_layout"]
 
 ROOT = Path(__file__).resolve().parents[2]
 BUILD_ROOT = ROOT / "build" / "cocotb"
@@ -48,6 +49,10 @@ TIMESCALE = ("1ns", "1ps")
 # tb/verilator.py's -MAKEFLAGS). cocotb runs make itself, so they go in through MAKEFLAGS.
 VERILATOR_MAKEFLAGS = (" -- CFG_CXXFLAGS_PCH_I=-include CFG_CXXFLAGS_STD=-std=gnu++17 "
                        "CFG_LDLIBS_THREADS=-pthread")
+# simulation tops (not in rtl.export.TOPS, not synthesizable): name -> (module, class). The
+# class is built from the configuration; the module's VERILOG_SOURCES (files of tb/ beside
+# it) are compiled with the export.
+SIM_TOPS = {"chip_sdram": ("tb.chip_sdram", "ChipOnSDRAM")}
 
 
 class BenchFailed(AssertionError):
@@ -80,7 +85,8 @@ def _runner(sim: str):
 def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
           patch: Callable[[str], str] | None = None, public: str = "ports",
           root: Path | str = BUILD_ROOT) -> Build:
-    """Export ``top`` (a key of ``rtl.export.TOPS``) with ``cfg`` and compile it for ``sim``.
+    """Export ``top`` (a key of ``rtl.export.TOPS`` or :data:`SIM_TOPS`) with ``cfg`` and
+    compile it for ``sim`` (with a :data:`SIM_TOPS` top's Verilog files).
 
     ``public`` (Verilator): ``"ports"`` makes only the top's ports visible to cocotb (what the
     benches read and write: ``--no-public-flat-rw`` and a ``.vlt`` naming each port),
@@ -96,13 +102,14 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
         if patched == text:
             raise ValueError("build: patch left the Verilog unchanged")
         text = patched
+    extra = {f: (ROOT / "tb" / f).read_text() for f in _sim_top(top)[2]}
     args = list(BUILD_ARGS[sim])
     vlt = None
     if sim == "verilator" and public == "ports":
         args.append("--no-public-flat-rw")
         vlt = public_ports_vlt(text, top)
     h = hashlib.sha256()
-    for part in (text, sim, json.dumps(args), vlt or "", cocotb.__version__):
+    for part in (text, *extra.values(), sim, json.dumps(args), vlt or "", cocotb.__version__):
         h.update(part.encode())
     d = Path(root) / sim / f"{top}-{h.hexdigest()[:16]}"
     with _lock(d.with_suffix(".lock")):
@@ -113,6 +120,9 @@ def build(top: str, cfg: Config, sim: str, *, latency: int | None = None,
             d.mkdir(parents=True)
             (d / f"{top}.v").write_text(text)
             sources = [d / f"{top}.v"]
+            for f, v in extra.items():
+                (d / f).write_text(v)
+                sources.append(d / f)
             if vlt is not None:
                 (d / "public.vlt").write_text(vlt)
                 sources.insert(0, d / "public.vlt")
@@ -144,15 +154,41 @@ def exported(top: str, cfg: Config, latency: int | None = None, *,
     import amaranth
     from rtl.export import export
     h = hashlib.sha256(json.dumps([top, cfg.to_dict(), latency, amaranth.__version__]).encode())
-    for f in sorted([*(ROOT / "rtl").rglob("*.py"), *(ROOT / "model").rglob("*.py")]):
+    _, files, _ = _sim_top(top)
+    for f in sorted([*(ROOT / "rtl").rglob("*.py"), *(ROOT / "model").rglob("*.py"), *files]):
         h.update(str(f.relative_to(ROOT)).encode())
         h.update(f.read_bytes())
     d = Path(root) / "export" / h.hexdigest()[:16]
     v = d / f"{top}.v"
     with _lock(d.with_suffix(".lock")):
         if not v.exists():
-            export(top, cfg, d / "tmp", latency, name=top).replace(v)
+            if top in SIM_TOPS:
+                from amaranth.back import verilog
+                d.mkdir(parents=True, exist_ok=True)
+                tmp = d / f"{top}.v.tmp"
+                tmp.write_text(verilog.convert(build_sim_top(top, cfg), name=top))
+                tmp.replace(v)
+            else:
+                export(top, cfg, d / "tmp", latency, name=top).replace(v)
     return v
+
+
+def _sim_top(top: str) -> tuple:
+    """``(class, source files, Verilog files)`` of a :data:`SIM_TOPS` top: the files its
+    Verilog is made from beside ``rtl/`` and ``model/``; ``(None, [], ())`` for the others."""
+    if top not in SIM_TOPS:
+        return None, [], ()
+    import importlib
+    module, cls = SIM_TOPS[top]
+    mod = importlib.import_module(module)
+    files = [Path(mod.__file__), ROOT / "tb" / "frame.py", ROOT / "tb" / "lfsr.py"]
+    sources = tuple(getattr(mod, "VERILOG_SOURCES", ()))
+    return getattr(mod, cls), files + [ROOT / "tb" / f for f in sources], sources
+
+
+def build_sim_top(top: str, cfg: Config):
+    """The component of a :data:`SIM_TOPS` top for ``cfg``."""
+    return _sim_top(top)[0](cfg)
 
 
 def public_ports_vlt(verilog: str, top: str) -> str:
@@ -194,8 +230,9 @@ class Result:
 
 def run(bench: str, b: Build, run_dir: Path | str, *, params: dict | None = None,
         arrays: dict[str, np.ndarray] | None = None, testcase: str | None = None,
-        seed: int = 1) -> Result:
-    """Run the cocotb tests of ``tb.cocotb.<bench>`` (or only ``testcase``) on build ``b``."""
+        seed: int = 1, plusargs: Sequence[str] = ()) -> Result:
+    """Run the cocotb tests of ``tb.cocotb.<bench>`` (or only ``testcase``) on build ``b``;
+    ``plusargs`` (``+name=value``) go to the simulator."""
     d = Path(run_dir)
     d.mkdir(parents=True, exist_ok=True)
     for f in ("out.json", "out.npz", "results.xml"):
@@ -207,6 +244,7 @@ def run(bench: str, b: Build, run_dir: Path | str, *, params: dict | None = None
         _runner(b.sim).test(test_module=f"tb.cocotb.{bench}", hdl_toplevel=b.top,
                             hdl_toplevel_lang="verilog",
                             build_dir=b.dir, test_dir=d, testcase=testcase, seed=seed,
+                            plusargs=list(plusargs),
                             results_xml=str((d / "results.xml").resolve()),
                             extra_env={RUN_DIR_ENV: str(d.resolve())}, log_file=d / "sim.log")
     except SystemExit:
@@ -246,7 +284,8 @@ def interface(top: str, cfg: Config):
     """The component of ``top`` (``rtl.export.build_top``), for its ports' layouts and widths
     (:func:`elaborated_elsewhere`: the export elaborates its own)."""
     from rtl.export import build_top
-    return elaborated_elsewhere(build_top(top, cfg))
+    return elaborated_elsewhere(build_sim_top(top, cfg) if top in SIM_TOPS else
+                                build_top(top, cfg))
 
 
 def elaborated_elsewhere(component):

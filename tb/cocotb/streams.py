@@ -22,6 +22,8 @@ where ``valid & ready`` are still what ``sample`` read. Agents:
 * :class:`Memory`: serves a memory read port (``rtl/memport.py``) from an image, responses after
   random delays, in random order;
 * :class:`Watch`: reads a few output ports every cycle (a monitor);
+* :class:`LFSRPattern`: the cycles a frame top's hardware LFSR holds a stream (a
+  :class:`Pattern` for the benches that must see that top's cycles);
 * :class:`FixedLatency`: drives a fixed-latency datapath (``i_valid``/``en``/``o_valid``: the FP
   units) and checks every output at the exact cycle it must appear.
 
@@ -40,9 +42,9 @@ import cocotb
 from cocotb.clock import Clock
 from cocotb.triggers import FallingEdge, RisingEdge
 
-__all__ = ["RUN_DIR_ENV", "Mismatch", "StreamTimeout", "Fields", "Pattern", "to_ints",
-           "from_ints", "load", "save", "start", "run", "read", "read_ports", "Source", "Sink",
-           "Memory", "Watch", "FixedLatency"]
+__all__ = ["RUN_DIR_ENV", "Mismatch", "StreamTimeout", "Fields", "Pattern", "LFSRPattern",
+           "to_ints", "from_ints", "load", "save", "start", "run", "read", "read_ports", "Source",
+           "Sink", "Memory", "Watch", "FixedLatency"]
 
 RUN_DIR_ENV = "SAARCOR_COCOTB_DIR"      # the run directory, set by tb.cocotb.runner
 
@@ -152,6 +154,26 @@ class Pattern:
 
 
 NEVER = Pattern(0.0)
+
+
+class LFSRPattern:
+    """The cycles ``tb/lfsr.py``'s hardware LFSR holds a stream: held in cycle k when the low 4
+    bits of the LFSR's k-th value are below ``q`` (sixteenths: ``tb.lfsr.passes``), value 0 =
+    ``seed``, one step a cycle (16 bits, taps 16, 14, 13, 11). A bench that holds a stream with
+    the LFSR of a frame top (``tb.chip_frame.ChipFrame``'s result back-pressure and memory
+    holds) from that top's first run cycle on sees that run's cycles."""
+
+    def __init__(self, q: int, seed: int):
+        if not 0 <= q <= 15 or not 0 < seed < 1 << 16:
+            raise ValueError(f"LFSRPattern: q={q} in 0..15, seed={seed} in 1..65535")
+        self.q, self.value, self.held = q, seed, []
+
+    def __call__(self, cycle: int) -> bool:
+        while cycle >= len(self.held):
+            r = self.value
+            self.held.append((r & 15) < self.q)
+            self.value = (r >> 1) | (((r ^ r >> 2 ^ r >> 3 ^ r >> 5) & 1) << 15)
+        return self.held[cycle]
 
 
 # ---- the clock loop ----------------------------------------------------------------------------
