@@ -180,7 +180,8 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     lay = SlaveResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
     if out.status == 2:
-        raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles))
+        raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles,
+                               golden.result()[1]))
     run = _finish(cfg, image, records, out.cycles, out.seconds, out.counters,
                   golden.result())
     run.build, run.samples = b, out.samples
@@ -197,15 +198,20 @@ def chip_build(cfg: Config, mem_words: int, *, trace=False, build_root=None, log
                  log=log, top="chip")
 
 
-def stuck(cfg: Config, rays, records: dict, c: dict, max_cycles: int) -> str:
-    """What did not finish by the cycle limit: the packets with results missing and, per
-    RTC, the packets it was given against those its traversal finished."""
-    sizes = np.diff(rays.pk_start)
-    got = np.bincount(np.asarray(records["packet"], np.int64), minlength=len(sizes))
-    missing = [int(p) for p in np.flatnonzero(got[:len(sizes)] < sizes)]
+def stuck(cfg: Config, rays, records: dict, c: dict, max_cycles: int, every=None) -> str:
+    """What did not finish by the cycle limit: the eye packets (tiles) with results missing
+    and, per RTC, the packets it was given against those its traversal finished. ``rays``: the
+    eye rays; ``every``: all the frame's rays (with their eye ray's id), if not just those."""
+    every = rays if every is None else every
+    n = len(rays.pk_start) - 1
+    ids = np.asarray(every.eye, np.int64)
+    tile = np.searchsorted(rays.pk_start, ids, side="right") - 1
+    sizes = np.bincount(tile, minlength=n)
+    got = np.bincount(np.asarray(records["packet"], np.int64), minlength=n)
+    missing = [int(p) for p in np.flatnonzero(got[:n] < sizes)]
     per_rtc = [f"RTC {r}: {c[f'packets{r}']} packets in, {c[f'rtc{r}_packets_done']} done"
                for r in range(cfg.rtcs)]
-    return (f"chip (Verilator): {len(records['packet'])} of {len(rays)} results after "
+    return (f"chip (Verilator): {len(records['packet'])} of {len(ids)} results after "
             f"max_cycles={max_cycles}; packets never finished: {missing[:20]}; "
             f"{'; '.join(per_rtc)}; rays into the RTCs {c['rays_in']} (a deadlock, or raise "
             "the cycle limit)")

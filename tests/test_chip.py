@@ -1,6 +1,8 @@
 """The whole chip (rtl/chip.py): RGS master and slaves, RTCs behind their RTC-MIs, one bus to
 the SDRAM model; every ray — eye rays, and with a scene its shadow and reflection rays made by
 the slaves — bit-exact with the golden model in both simulators."""
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -191,6 +193,11 @@ def test_a_stuck_frame_names_its_packets_and_rtcs():
     assert "packets never finished: [2, 3]" in text
     assert "RTC 0: 2 packets in, 2 done" in text and "RTC 1: 2 packets in, 0 done" in text
     assert "42 of 64 results" in text
+    # with secondary rays a tile has finished when the rays it spawned have: tile 0's eye rays
+    # 3 and 5 spawned two more
+    every = SimpleNamespace(eye=np.concatenate([np.arange(64), [3, 5]]))
+    text = stuck(cfg, rays, records, c, 1000, every)
+    assert "packets never finished: [0, 2, 3]" in text and "42 of 66 results" in text
 
 
 def test_stall_bench_passes_and_can_fail(cornell, tmp_path):
