@@ -137,6 +137,13 @@ class Config:
         return self.kd_max_depth
 
     @property
+    def secondary_rays(self) -> bool:
+        """Do the RGS slaves have the secondary-ray hardware (ray setup, the secondary and
+        shadow datapaths, pending buffers, shading caches)? Not when they hold no light and
+        make no reflection (``rgs_lights == 0 and reflect_depth == 0``): eye rays only."""
+        return self.rgs_lights > 0 or self.reflect_depth > 0
+
+    @property
     def thread_bits(self) -> int:
         return max(1, (self.threads - 1).bit_length())
 
@@ -149,6 +156,40 @@ class Config:
         unit's default."""
         return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
                 "div": self.fp_div_latency or None, "sqrt": self.fp_sqrt_latency or None}
+
+    def for_scene(self, scene, image, width: int, height: int) -> "Config":
+        """The smallest chip of this configuration that renders ``scene`` at ``width x
+        height`` the same: the traversal stack as deep as the scene's kd-tree (``image``, its
+        memory image, built with this configuration: ``model.render.prepare``), as many light
+        registers as the scene casts shadows from, no reflections if no triangle reflects (so
+        for a scene without lights and mirrors no secondary-ray hardware:
+        :attr:`secondary_rays`). Rebuilding the
+        tree with the derived ``kd_max_depth`` gives the same tree (the limit was not
+        reached below it). Raises :class:`ConfigError` if the scene needs more than this
+        configuration provides (:meth:`check_scene`)."""
+        self.check_scene(scene, image, width, height)
+        need = scene_needs(scene, image, self)
+        return self.replace(kd_max_depth=max(1, need["stack_depth"]),
+                            rgs_lights=need["lights"], reflect_depth=need["reflect_depth"])
+
+    def check_scene(self, scene, image, width: int, height: int) -> None:
+        """Raise :class:`ConfigError` naming what ``scene`` (with its memory ``image``) at
+        ``width x height`` needs beyond this configuration."""
+        need = scene_needs(scene, image, self)
+        if need["stack_depth"] > self.stack_depth:
+            raise ConfigError(f"the scene's kd-tree is {need['stack_depth']} levels deep, the "
+                              f"traversal stack holds {self.stack_depth} (kd_max_depth="
+                              f"{self.kd_max_depth}): build the tree with this configuration "
+                              "or raise kd_max_depth")
+        if need["lights"] > self.rgs_lights:
+            raise ConfigError(f"the scene casts shadows from {need['lights']} lights, the RGS "
+                              f"slaves hold rgs_lights={self.rgs_lights}: raise rgs_lights "
+                              "(or turn shadows off)")
+        for name, n in (("width", width), ("height", height)):
+            if not 1 <= n * self.oversampling < 1 << COORD_BITS:
+                raise ConfigError(f"{name}={n} x oversampling {self.oversampling}: the RGS "
+                                  f"counts samples in {COORD_BITS} bits (1 .. "
+                                  f"{(1 << COORD_BITS) - 1})")
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)
@@ -164,11 +205,28 @@ class Config:
         return {k: v for k, v in self.to_dict().items() if k not in HOST_FIELDS}
 
 
-# Fields the RTL never reads: how the host builds the kd-tree, which rays a frame asks for
-# (registers the host loads per frame: the slaves' reflect_depth and n_lights) and the clock
-# the figures are quoted at.
-HOST_FIELDS = ("kd_leaf_size", "kd_bins", "kd_cost_trav", "kd_cost_int", "reflect_depth",
-               "shadows", "clock_mhz")
+# Fields the RTL never reads: how the host builds the kd-tree, whether a frame asks for shadow
+# rays (the slaves' n_lights register, loaded per frame) and the clock the figures are quoted
+# at. (reflect_depth is loaded per frame too, but reflect_depth = 0 with rgs_lights = 0 builds
+# the eye-ray-only slave: secondary_rays.)
+HOST_FIELDS = ("kd_leaf_size", "kd_bins", "kd_cost_trav", "kd_cost_int", "shadows",
+               "clock_mhz")
+
+
+COORD_BITS = 16        # sample coordinates (and image sizes in samples) below 2**16
+
+
+def scene_needs(scene, image, cfg: Config) -> dict:
+    """What rendering ``scene`` (``image``: its memory image) with ``cfg`` uses of the chip:
+    ``stack_depth`` (the kd-tree's depth), ``lights`` (shadow-casting lights: 0 without
+    ``cfg.shadows``), ``reflect_depth`` (``cfg.reflect_depth``, 0 if no triangle's material
+    reflects)."""
+    import numpy as np
+    reflect = np.array([m.reflect for m in scene.materials], np.float64)
+    reflective = bool(len(scene.material) and (reflect[scene.material] > 0).any())
+    return {"stack_depth": int(image.depth),
+            "lights": len(scene.lights) if cfg.shadows else 0,
+            "reflect_depth": cfg.reflect_depth if reflective else 0}
 
 
 DEFAULT = Config()

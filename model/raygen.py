@@ -158,9 +158,15 @@ class RaySetup:
     octant: np.ndarray = None   # (N,) int64: direction sign bits x | y << 1 | z << 2
 
 
-def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat) -> RaySetup:
+def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat, box_cull: bool = True) -> RaySetup:
     """Ray setup in the format's arithmetic: ``model.rgs.ray_setup`` on every ray (the RTL's
-    ``RaySetupPipe``; steps in ``model/rgs.py`` and ``docs/rgs.md``)."""
+    ``RaySetupPipe``; steps in ``model/rgs.py`` and ``docs/rgs.md``).
+
+    A ray whose interval clipped to the scene box is empty (``not tnear <= tfar``) starts
+    inactive: it never enters traversal (the box cull). ``box_cull=False`` is the setup without
+    the cull, only to measure what it saves: such a ray gets its unclipped interval
+    ``[0, tmax]`` and goes through traversal like any other; the rays that meet the box keep
+    their clipped interval."""
     n = len(rays)
     inv = np.empty((n, 3), np.float32)
     s = np.empty((n, 3), np.float32)
@@ -173,4 +179,34 @@ def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat) -> RaySetup:
                np.ascontiguousarray(rays.dir, np.float32),
                np.ascontiguousarray(rays.tmax, np.float32), b[0].copy(), b[1].copy(),
                inv, k, s, tnear, tfar, octant, *fmt.em)
+    if not box_cull:
+        miss = box_misses(tnear, tfar)
+        tnear[miss] = 0.0
+        tfar[miss] = fmt.quantize(rays.tmax[miss].astype(np.float64))
     return RaySetup(inv, k, s, tnear, tfar, octant)
+
+
+def box_misses(tnear: np.ndarray, tfar: np.ndarray) -> np.ndarray:
+    """The rays the box cull stops: an empty (or NaN) clipped interval, the traversal's
+    ``not tnear <= tfar`` (``model.traversal.start_packet``)."""
+    return ~(tnear <= tfar)
+
+
+def live_packets(rays: Rays, rs: RaySetup) -> np.ndarray:
+    """Per packet: does any of its rays meet the scene box? A packet with none does no
+    traversal step; an RGS that skips empty tiles need not send it at all."""
+    live = (~box_misses(rs.tnear, rs.tfar)).astype(np.int64)
+    counts = np.add.reduceat(live, rays.pk_start[:-1]) if len(rays) else np.zeros(0, np.int64)
+    return (counts > 0) & (np.diff(rays.pk_start) > 0)
+
+
+def select_packets(rays: Rays, keep: np.ndarray) -> tuple[Rays, np.ndarray]:
+    """The packets ``keep`` (bool per packet) of ``rays``, in order; also the indices of their
+    rays in ``rays``."""
+    keep = np.asarray(keep, bool)
+    sizes = np.diff(rays.pk_start)
+    idx = np.flatnonzero(np.repeat(keep, sizes))
+    pk = np.r_[0, np.cumsum(sizes[keep])].astype(np.int64)
+    sub = Rays(rays.org[idx], rays.dir[idx], rays.tmax[idx], rays.kind[idx], rays.pixel[idx],
+               pk, rays.anyhit[idx], rays.eye[idx], rays.depth[idx], rays.light[idx])
+    return sub, idx

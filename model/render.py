@@ -16,7 +16,7 @@ import numpy as np
 from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
-from .raygen import EYE, Rays, eye_rays
+from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
 from .rtc import COUNTERS, Hits, counter_totals, trace
 from .shading import AMBIENT, Shader, shading_data, surface_offset
 
@@ -44,10 +44,11 @@ def prepare(scene, cfg: Config, cache_dir="default") -> Prepared:
     return Prepared(image, tree, tris, tree.build_seconds, tree.from_cache)
 
 
-def trace_rays(image: MemoryImage, rays: Rays, cfg: Config, progress=None) -> tuple[Hits, np.ndarray]:
+def trace_rays(image: MemoryImage, rays: Rays, cfg: Config, progress=None,
+               box_cull: bool = True) -> tuple[Hits, np.ndarray]:
     """Trace in chunks of packets (so a progress bar can advance); same result as one call."""
     if rays.n_packets <= CHUNK_PACKETS:
-        hits, ctrs = trace(image, rays, cfg)
+        hits, ctrs = trace(image, rays, cfg, box_cull=box_cull)
         if progress is not None:
             progress.update(len(rays))
         return hits, ctrs
@@ -57,7 +58,7 @@ def trace_rays(image: MemoryImage, rays: Rays, cfg: Config, progress=None) -> tu
         a, b = rays.pk_start[p0], rays.pk_start[p1]
         sub = Rays(rays.org[a:b], rays.dir[a:b], rays.tmax[a:b], rays.kind[a:b],
                    rays.pixel[a:b], rays.pk_start[p0:p1 + 1] - a, rays.anyhit[a:b])
-        h, c = trace(image, sub, cfg)
+        h, c = trace(image, sub, cfg, box_cull=box_cull)
         parts.append(h)
         ctr_parts.append(c)
         if progress is not None:
@@ -78,13 +79,19 @@ class RenderResult:
 
 @dataclass(frozen=True)
 class Skip:
-    """Work the renderer leaves out (each on by default; off only to measure what it saves):
+    """Work the renderer leaves out (on by default; off only to measure what it saves):
     ``anyhit``: a shadow ray ends at its first hit; ``lights_behind``: no shadow ray toward a
     light behind the surface; ``nonreflective``: no reflection ray off a material with
-    ``reflect == 0``."""
+    ``reflect == 0``; ``box_cull``: a ray that misses the scene box never enters traversal
+    (``model.raygen.setup``). ``empty_tiles`` (off by default, because the RGS slaves send
+    every tile): a packet none of whose rays meets the scene box is not traced at all; its
+    rays are misses (they would be anyway: with the box cull such a packet does no traversal
+    step, but in the RTC it still takes a thread and its rays' input and output cycles)."""
     anyhit: bool = True
     lights_behind: bool = True
     nonreflective: bool = True
+    box_cull: bool = True
+    empty_tiles: bool = False
 
 
 def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
@@ -102,6 +109,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
 
     t1 = time.perf_counter()
     all_rays, all_hits, all_ctrs = [], [], []
+    skipped = [0]                          # packets not traced (empty tiles)
     n_samples = cfg.oversampling ** 2
     color = np.zeros((width * height, 3), np.float32)
     bg = np.asarray(scene.background, np.float32)
@@ -110,7 +118,19 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         if bar is not None and len(rays) and rays.kind[0] != EYE:
             bar.total += len(rays)          # secondary rays are known only once they are made
             bar.refresh()
-        hits, ctrs = trace_rays(image, rays, cfg, bar)
+        traced = rays
+        if skip.empty_tiles:
+            keep = live_packets(rays, setup(rays, image.bounds, cfg.fmt, skip.box_cull))
+            traced, idx = select_packets(rays, keep)
+            skipped[0] += int((~keep).sum())
+        got, ctrs = trace_rays(image, traced, cfg, bar, box_cull=skip.box_cull)
+        if traced is rays:
+            hits = got
+        else:
+            hits = Hits(np.full(len(rays), -1, np.int32), np.full(len(rays), np.inf, np.float32),
+                        np.zeros(len(rays), np.float32), np.zeros(len(rays), np.float32))
+            for f in ("tri", "t", "u", "v"):
+                getattr(hits, f)[idx] = getattr(got, f)
         all_rays.append(rays)
         all_hits.append(hits)
         all_ctrs.append((rays, ctrs))
@@ -176,6 +196,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         "rays": {KIND_NAMES[int(k)]: int(c) for k, c in zip(kinds, counts)},
         "rays_total": int(len(rays_all)),
         "packets": int(sum(r.n_packets for r in all_rays)),
+        "packets_skipped": skipped[0],
         "counters": totals,
         "counters_by_kind": by_kind,
         "memory_reads_64bit": {"trav": totals["node_reads"], "list": totals["list_reads"],

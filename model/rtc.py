@@ -183,8 +183,11 @@ class Hits:
     v: np.ndarray        # (N,) float32
 
 
-def trace(image, rays, cfg, ray_setup=None, record: bool = False):
+def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool = True):
     """Trace every packet of ``rays`` through ``image``.
+
+    ``box_cull=False``: rays that miss the scene box traverse anyway (``model.raygen.setup``;
+    only to measure what the cull saves).
 
     Returns ``(hits, counters)`` — counters an int64 array ``(n_packets, N_COUNTERS)``,
     columns named by ``COUNTERS`` — or, with ``record=True``, ``(hits, counters, events)``
@@ -195,7 +198,7 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False):
     sizes = np.diff(rays.pk_start)
     if sizes.size and sizes.max() > 64:
         raise ValueError(f"a packet has {sizes.max()} rays; at most 64 (the active mask width)")
-    rs = ray_setup if ray_setup is not None else setup(rays, image.bounds, cfg.fmt)
+    rs = ray_setup if ray_setup is not None else setup(rays, image.bounds, cfg.fmt, box_cull)
     hit_t = np.empty(n, np.float32)
     hit_tri = np.empty(n, np.int32)
     hit_u = np.empty(n, np.float32)

@@ -170,7 +170,9 @@ class Chip(wiring.Component):
     """The SaarCOR chip: RGS master, one RGS slave per RTC (``rtl/rgs_slave.py``: eye rays,
     results, secondary rays) with its shading cache, :class:`RTCArray` (the RTCs, their
     RTC-MIs, the bus: requesters ``3 r + c`` the RTC caches, ``3 rtcs + s`` slave s's shading
-    cache), one memory port ``mem`` for the memory controller.
+    cache), one memory port ``mem`` for the memory controller. With ``cfg.secondary_rays``
+    false (no light registers, reflection depth 0) the slaves are eye-ray-only
+    (``Slave.elaborate_eye_only``) and there are no shading caches.
 
     Host side (inputs held for the frame): the image constants ``node_base``, ``list_base``,
     ``tri_base``, ``root``, ``rec_base`` (the slave records), the scene box
@@ -202,8 +204,11 @@ class Chip(wiring.Component):
         n = cfg.rtcs
         self.master = RGSMaster(cfg, n)
         self.slaves = [Slave(cfg) for _ in range(n)]
+        # eye rays only (no secondary-ray hardware): no shading caches, no bus requesters for
+        # them; their counters (shade_hits, shade_misses, grants[3 rtcs + s]) stay 0
         geom = shade_cache_geometry(cfg)
-        self.shade_caches = [Cache(geom, tag_width=1) for _ in range(n)]
+        self.shade_caches = ([Cache(geom, tag_width=1) for _ in range(n)]
+                             if cfg.secondary_rays else [])
         self.array = RTCArray(cfg, tuple(len(c.mem.req.payload.tag) for c in self.shade_caches))
         assert geom.item_bits == REC_BITS
         v3 = vec3(cfg)
@@ -225,8 +230,9 @@ class Chip(wiring.Component):
             "slave_counters": Out(COUNTER_BITS * len(self.SLAVE_COUNTERS)).array(n),
             "shade_hits": Out(COUNTER_BITS).array(n), "shade_misses": Out(COUNTER_BITS).array(n),
         }
-        for name in ("mem", "rtc_counters", "hits", "misses", "grants", "mem_reads"):
+        for name in ("mem", "rtc_counters", "hits", "misses", "mem_reads"):
             members[name] = self.array.signature.members[name]
+        members["grants"] = Out(COUNTER_BITS).array(4 * n)
         super().__init__(members)
 
     def elaborate(self, platform):
@@ -250,14 +256,16 @@ class Chip(wiring.Component):
 
         # -- slaves: rays for their RTC, its results back, their shading caches ---------------------
         counts = []
-        for s, (slave, cache) in enumerate(zip(self.slaves, self.shade_caches)):
+        for s, slave in enumerate(self.slaves):
             m.submodules[f"slave{s}"] = slave
-            m.submodules[f"shade_cache{s}"] = cache
             wiring.connect(m, master.req[s], slave.req)
-            wiring.connect(m, slave.shade, cache.port)
-            connect_tags(m, cache.mem, arr.ext[s])
-            m.d.comb += [cache.base.eq(self.rec_base), self.shade_hits[s].eq(cache.hits),
-                         self.shade_misses[s].eq(cache.misses)]
+            if self.shade_caches:
+                cache = self.shade_caches[s]
+                m.submodules[f"shade_cache{s}"] = cache
+                wiring.connect(m, slave.shade, cache.port)
+                connect_tags(m, cache.mem, arr.ext[s])
+                m.d.comb += [cache.base.eq(self.rec_base), self.shade_hits[s].eq(cache.hits),
+                             self.shade_misses[s].eq(cache.misses)]
             for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi", "eps",
                       "light_point", "n_lights", "reflect_depth"):
                 m.d.comb += getattr(slave, k).eq(getattr(self, k))

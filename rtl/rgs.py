@@ -29,7 +29,7 @@ from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
-from model.config import Config
+from model.config import COORD_BITS, Config
 from model.fp import FPFormat
 
 from .fp.common import unpack, wire
@@ -41,8 +41,8 @@ __all__ = ["COORD_BITS", "PIXEL_BITS", "RaySetupIn", "EyeRequest", "EyeRay", "Ra
            "RaySetup", "EyeRayPipe", "EyeRays", "SecondaryPipe", "ShadowPipe", "div_const",
            "div_const_params", "sample_converter"]
 
-COORD_BITS = 16        # sample coordinates (and image sizes in samples) below 2**16
 PIXEL_BITS = 32        # pixel index y * width + x
+# COORD_BITS (model.config): sample coordinates (and image sizes in samples) below 2**16
 
 
 def RaySetupIn(cfg: Config) -> data.StructLayout:

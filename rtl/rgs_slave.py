@@ -129,17 +129,20 @@ class Slave(wiring.Component):
             raise ConfigError(f"rgs_lights={L} must be in 0..{(1 << SUB_BITS) - 2}")
         lat = cfg.fp_latencies()
         self.eye = EyeRays(cfg, lat)
-        self.setup = RaySetup(cfg, lat)
-        self.sec_tag = data.StructLayout({
-            "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
-            "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-        self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat)
-        self.shd_tag = data.StructLayout({
-            "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "last": 1,
-            "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-        self.shd = ShadowPipe(cfg.fmt, self.shd_tag.size, lat)
         self.slots = 2 * cfg.threads
-        self.buffers = slave_buffers(cfg)
+        if cfg.secondary_rays:
+            self.setup = RaySetup(cfg, lat)
+            self.sec_tag = data.StructLayout({
+                "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
+                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
+            self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat)
+            self.shd_tag = data.StructLayout({
+                "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "last": 1,
+                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
+            self.shd = ShadowPipe(cfg.fmt, self.shd_tag.size, lat)
+            self.buffers = slave_buffers(cfg)
+        else:
+            self.buffers = 0
         v3 = vec3(cfg)
         w = cfg.fmt.width
         super().__init__({
@@ -158,9 +161,68 @@ class Slave(wiring.Component):
             "rays_reflect": Out(COUNTER_BITS), "sec_busy": Out(COUNTER_BITS),
         })
 
+    def elaborate_eye_only(self, m: Module) -> Module:
+        """The slave without secondary-ray hardware (``cfg.secondary_rays`` false): tiles in,
+        eye rays to the RTC, every result to the host. The same cycles as the whole slave on
+        a frame with no lights and no reflections: admission, the RTC input and the result
+        path (a registered stage, the output queue and stage) are the same; an eye ray's
+        lane in its tile is its lane in the RTC packet, so no ray store is needed."""
+        cfg, NS = self.cfg, self.slots
+        sb = ceil_log2(NS)
+        m.submodules.eye = eye = self.eye
+        for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi"):
+            m.d.comb += getattr(eye, k).eq(getattr(self, k))
+        slot_free = Signal(NS, init=(1 << NS) - 1)
+        any_slot, new_slot = lowest(m, slot_free, "slot")
+        t_packet = _regs(NS, PACKET_ID_BITS, "slot_packet")
+        slot_release = Signal()
+        rel_slot = Signal(range(NS))
+        admit = Signal()
+        m.d.sync += slot_free.eq((slot_free & ~Mux(admit, 1 << new_slot, 0))
+                                 | Mux(slot_release, 1 << rel_slot, 0))
+        m.d.comb += [
+            eye.req.valid.eq(self.req.valid & any_slot),
+            self.req.ready.eq(eye.req.ready & any_slot),
+            eye.req.payload.tile_x.eq(self.req.payload.tile_x),
+            eye.req.payload.tile_y.eq(self.req.payload.tile_y),
+            eye.req.payload.packet.eq(new_slot),
+            admit.eq(self.req.valid & self.req.ready),
+        ]
+        with m.If(admit):
+            m.d.sync += t_packet[new_slot].eq(self.req.payload.packet)
+        m.d.comb += [self.rays.valid.eq(eye.o.valid),
+                     self.rays.payload.eq(eye.o.payload.ray.as_value()),
+                     eye.o.ready.eq(self.rays.ready)]
+        with m.If(eye.o.valid & eye.o.ready):
+            m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
+        res = self.results
+        b_valid = Signal()
+        b_res = Signal(RayResult(cfg))
+        b_adv = Signal()
+        m.d.comb += res.ready.eq(~b_valid | b_adv)
+        with m.If(res.ready):
+            m.d.sync += [b_valid.eq(res.valid), b_res.eq(res.payload)]
+        bslot = b_res.packet[:sb]
+        m.submodules.outq = outq = SyncFIFO(width=SlaveResult(cfg).size, depth=4)
+        m.d.comb += b_adv.eq(b_valid & outq.w_rdy)
+        rec = Signal(SlaveResult(cfg))
+        m.d.comb += [rec.packet.eq(t_packet[bslot]), rec.lane.eq(b_res.lane),
+                     rec.tri.eq(b_res.tri), rec.t.eq(b_res.t), rec.u.eq(b_res.u),
+                     rec.v.eq(b_res.v), outq.w_data.eq(rec), outq.w_en.eq(b_adv),
+                     rel_slot.eq(bslot), slot_release.eq(b_adv & b_res.last)]
+        m.submodules.out_stage = ost = OutputStage(SlaveResult(cfg))
+        m.d.comb += [ost.i.valid.eq(outq.r_rdy), ost.i.payload.eq(outq.r_data),
+                     outq.r_en.eq(ost.i.ready)]
+        wiring.connect(m, ost.o, wiring.flipped(self.out))
+        m.d.comb += self.idle.eq((slot_free == (1 << NS) - 1) & ~b_valid & ~outq.r_rdy &
+                                 ~self.out.valid)
+        return m
+
     def elaborate(self, platform):
         m = Module()
         cfg, fmt = self.cfg, self.cfg.fmt
+        if not cfg.secondary_rays:
+            return self.elaborate_eye_only(m)
         P, L, NS, NB = cfg.packet_size, cfg.rgs_lights, self.slots, self.buffers
         lb, sb, bb = lane_bits(cfg), ceil_log2(NS), max(1, ceil_log2(NB))
         w = fmt.width

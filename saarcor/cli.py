@@ -52,6 +52,8 @@ BENCHES: dict[str, Command] = {
                                    "exact oracle"),
     "resources": Command("tb.resources", "the chip's FP units by kind, flip-flop and memory "
                                          "bits, from its netlist"),
+    "skipping": Command("tb.skipping", "what skipping work a scene doesn't need saves: run-time "
+                                       "skips, the chip built for the scene, second runs"),
 }
 
 BENCH_HELP = "benchmarks, written to build/bench/: " + ", ".join(BENCHES)

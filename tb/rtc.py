@@ -70,10 +70,10 @@ def read_counters(ctx, rtc) -> dict:
 
 
 def finish(run_cls, image, rays, cfg: Config, records, *, cycles: int, seconds: float,
-           counters: dict, **extra) -> RTCRun:
+           counters: dict, box_cull: bool = True, **extra) -> RTCRun:
     """Compare result ``records`` (:func:`tb.compare.results_by_ray`) with the model; a
     ``run_cls`` (:class:`RTCRun` or a subclass) with the counters and every mismatch."""
-    hits, ctrs = trace(image, rays, cfg)
+    hits, ctrs = trace(image, rays, cfg, box_cull=box_cull)
     got = compare.results_by_ray(records, rays)
     return run_cls(cycles, seconds, len(rays), counters, counter_totals(ctrs),
                    compare.result_mismatches(got, expected(hits, cfg, image)), **extra)

@@ -187,15 +187,15 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         return FrameBuild(binary, d, True, secs, mem_words, ray_slots)
 
 
-def ray_words(image, rays, cfg: Config) -> np.ndarray:
+def ray_words(image, rays, cfg: Config, box_cull: bool = True) -> np.ndarray:
     """The ``RayIn`` bits of every lane (as ``RTCSelfTest`` makes them) as 64-bit chunks,
-    ``(rays, ray_chunks(cfg))`` uint64, low chunk first."""
+    ``(rays, ray_chunks(cfg))`` uint64, low chunk first (``box_cull``: ``model.raygen.setup``)."""
     from model.raygen import setup
     from rtl.rtc_streams import RayIn
 
     from .traversal import ray_payloads
     lay = RayIn(cfg)
-    rs = setup(rays, image.bounds, cfg.fmt)
+    rs = setup(rays, image.bounds, cfg.fmt, box_cull)
     chunks = ray_chunks(cfg)
     out = np.zeros((len(rays), chunks), np.uint64)
     r = 0
@@ -208,7 +208,8 @@ def ray_words(image, rays, cfg: Config) -> np.ndarray:
 
 
 def write_input(path: Path | str, image, rays, cfg: Config, *, idle: float = 0.0,
-                stall: float = 0.0, seed: int = 1, mem_stall: float = 0.0) -> None:
+                stall: float = 0.0, seed: int = 1, mem_stall: float = 0.0,
+                box_cull: bool = True) -> None:
     """Write the load records for ``Vframe`` (format: ``tb/verilator_main.cpp``)."""
     idle_q, stall_q = sixteenths(idle, "idle"), sixteenths(stall, "stall")
     if len(rays) == 0:
@@ -219,7 +220,7 @@ def write_input(path: Path | str, image, rays, cfg: Config, *, idle: float = 0.0
               "idle_q": idle_q, "stall_q": stall_q, "seed0": s0, "seed1": s1,
               "mem_stall_q": sixteenths(mem_stall, "mem_stall"), "seed2": s2, "seed3": s3,
               "seed4": s4}
-    rw = ray_words(image, rays, cfg)
+    rw = ray_words(image, rays, cfg, box_cull)
     slots = np.zeros((len(rays), 8), np.uint64)       # ray r, chunk c at load address 8r + c
     slots[:, :rw.shape[1]] = rw
     write_blocks(path, [(SEL_IMAGE, 0, np.asarray(image.data, np.uint64)),
@@ -367,11 +368,14 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
               max_cycles: int = 100_000_000,
               trace_file: str | Path | None = None, trace_from: int = 0,
               progress: bool = True, mem_words: int | None = None, ray_slots: int | None = None,
-              build_root: Path | str = BUILD_ROOT, log=None) -> VerilatorRun:
+              build_root: Path | str = BUILD_ROOT, log=None,
+              box_cull: bool = True) -> VerilatorRun:
     """Trace ``rays`` through ``image`` on one RTC in Verilator and compare every ray with the
     golden model (``model.rtc.trace``), as :func:`tb.rtc.run_rtc_free` does in pysim (same
     bubbles and back-pressure for the same ``seed``, so the same cycle count). ``mem_stall``:
-    the fraction of cycles each memory holds its responses (random, in-order latency)."""
+    the fraction of cycles each memory holds its responses (random, in-order latency).
+    ``box_cull=False``: rays that miss the scene box enter traversal too (``model.raygen.setup``;
+    the host makes the rays' setup, so the RTC runs unchanged)."""
     log = sys.stderr if log is None else log
 
     from rtl.rtc_streams import RayResult
@@ -389,7 +393,8 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
     b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
               trace=_trace_kind(trace_file), root=build_root, log=log)
     out = run_binary(b, lambda f: write_input(f, image, rays, cfg, idle=idle, stall=stall,
-                                              seed=seed, mem_stall=mem_stall),
+                                              seed=seed, mem_stall=mem_stall,
+                                              box_cull=box_cull),
                      cfg, n, max_cycles=max_cycles, trace_file=trace_file,
                      trace_from=trace_from, progress=progress, log=log, desc="RTC (Verilator)")
 
@@ -400,7 +405,7 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
     try:
         return finish(VerilatorRun, image, rays, cfg, records, cycles=out.cycles,
                       seconds=out.seconds, counters=c, build=b, load_cycles=out.load_cycles,
-                      load_seconds=out.load_seconds)
+                      load_seconds=out.load_seconds, box_cull=box_cull)
     except compare.ResultError as e:
         raise FrameError(str(e)) from None
 

@@ -29,6 +29,7 @@ OPTION = {
     ("bench", "stress"): "--formats",
     ("bench", "ladder"): "--fraction",
     ("bench", "resources"): "--json",
+    ("bench", "skipping"): "--second-run",
 }
 
 

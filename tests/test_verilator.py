@@ -139,9 +139,9 @@ def test_build_key_follows_configuration_and_sources(tmp_path, monkeypatch):
     assert k != vl.build_key(TINY.replace(threads=4), **kw)
     assert k != vl.build_key(TINY, **{**kw, "mem_latency": 5})
     assert k != vl.build_key(TINY, **{**kw, "mem_words": 1 << 18})
-    # the frame's ray kinds, the kd-tree build and the quoted clock share one binary
-    assert k == vl.build_key(TINY.replace(shadows=False, reflect_depth=0, kd_leaf_size=8,
-                                          clock_mhz=100.0), **kw)
+    # shadow rays or not, the kd-tree build and the quoted clock share one binary
+    assert k == vl.build_key(TINY.replace(shadows=False, kd_leaf_size=8, clock_mhz=100.0), **kw)
+    assert k != vl.build_key(TINY.replace(rgs_lights=0, reflect_depth=0), **kw)   # eye-ray slave
     assert any(p.name == "traversal.py" for p in vl._sources())
     src = tmp_path / "unit.py"
     src.write_text("a = 1\n")
