@@ -6,9 +6,10 @@ point is cached and a second run computes nothing), the one-RTC threads bench, a
 sweep's own scaling measurement (a small spec with 1 and 2 workers, uncached); then writes
 the tables, each beside the paper's figures, and matplotlib plots into ``docs/img/``.
 
-The chip makes eye rays only so far: chip columns are eye-ray frames through the whole chip
-in Verilator (every ray checked against the golden model); the columns for shadow and
-reflection rays are the golden model's operation counts. Every column says which it is.
+The chip columns are eye-ray frames through the whole chip in Verilator (every ray checked
+against the golden model; the plan's chip specs set ``shadows = false``, ``reflect_depth = 0``,
+although the chip makes every ray kind); the columns for shadow and reflection rays are the
+golden model's operation counts. Every column says which it is.
 
 Run: ``saarcor results`` or ``python -m tb.results [--plan PLAN] [--out docs/results.md]
 [--img docs/img] [--workers 2] [--skip-threads] [--skip-scaling]`` (``make results``).
