@@ -193,6 +193,35 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
     columns named by ``COUNTERS`` — or, with ``record=True``, ``(hits, counters, events)``
     where ``events`` is the event log of every unit (``model.events.EVENT_DTYPE``; packets traced one
     after another, for RTL testbenches and memory-access traces; slower, for small runs)."""
+    if record:
+        hits, ctrs, rows = trace_rows(image, rays, cfg, ray_setup, box_cull)
+        return hits, ctrs, decode(rows)
+    args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
+    if len(rays):
+        trace_all(*args)
+    return out()
+
+
+def trace_rows(image, rays, cfg, ray_setup=None, box_cull: bool = True):
+    """:func:`trace` with the event log as the recording kernel writes it: ``(hits, counters,
+    rows)``, ``rows`` an int64 array ``(events, 8)`` (``model.events``: column 0 the kind, the
+    others by ``events._COLUMNS``), for consumers that read a few columns of a large log."""
+    args, ctrs, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
+    cap = max(1024, 24 * len(rays))
+    while True:
+        rec = np.zeros((cap, 8), np.int64)
+        rec_n = np.zeros(1, np.int64)
+        ctrs[:] = 0
+        if len(rays):
+            trace_recorded(*args, rec, rec_n)
+        if rec_n[0] <= cap:
+            return (*out(), rec[:rec_n[0]])
+        cap = int(rec_n[0])
+
+
+def _kernel_args(image, rays, cfg, ray_setup, box_cull):
+    """The tracing kernels' arguments (result arrays included), the counter array among them
+    and a function returning ``(hits, counters)`` once a kernel has filled them."""
     from .raygen import setup
     n = len(rays)
     sizes = np.diff(rays.pk_start)
@@ -214,21 +243,7 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
             image.depth, np.ascontiguousarray(rays.pk_start), org, dirn, rs.inv, rs.k, rs.s,
             rs.tnear, rs.tfar, rays.tmax.astype(np.float32), rays.anyhit.astype(np.bool_),
             hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
-    if not record:
-        if n:
-            trace_all(*args)
-        return Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs
-    cap = max(1024, 64 * n)
-    while True:
-        rec = np.zeros((cap, 8), np.int64)
-        rec_n = np.zeros(1, np.int64)
-        ctrs[:] = 0
-        if n:
-            trace_recorded(*args, rec, rec_n)
-        if rec_n[0] <= cap:
-            return (Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs,
-                    decode(rec[:rec_n[0]]))
-        cap = int(rec_n[0])
+    return args, ctrs, lambda: (Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs)
 
 
 def _ranges(start: np.ndarray, length: np.ndarray) -> np.ndarray:

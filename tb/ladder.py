@@ -458,7 +458,6 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
 
     from model.raygen import eye_rays
     from model.render import to_srgb8, write_rays_hits
-    from model.rtc import trace
     from model.timing import estimate_events, record_work
 
     from .sim import relative_performance, shade_eye_hits
@@ -471,9 +470,8 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
         print("sim: --stall/--mem-stall are not modelled by the estimate (no back-pressure, "
               "fixed memory latency)", file=sys.stderr)
     rays = eye_rays(scene.camera, width, height, cfg)
-    hits, ctrs = trace(prep.image, rays, cfg)
     work = record_work(prep.image, rays, cfg)
-    tot = work["totals"]
+    hits, tot = work["hits"], work["totals"]
     est = estimate_events(cfg, work)
     stats = {"scene": args.scene, "resolution": [width, height], "fidelity": args.fidelity,
              "estimate": True, "eye_only": True, "rays": {"eye": len(rays)},
