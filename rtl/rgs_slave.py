@@ -46,7 +46,9 @@ secondary packets go (they are complete only then).
 """
 from __future__ import annotations
 
-from amaranth.hdl import Array, Cat, Module, Mux, Signal
+from types import SimpleNamespace
+
+from amaranth.hdl import Array, Cat, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.memory import Memory
@@ -161,61 +163,90 @@ class Slave(wiring.Component):
             "rays_reflect": Out(COUNTER_BITS), "sec_busy": Out(COUNTER_BITS),
         })
 
+    # -- pieces both slaves are built from -------------------------------------------------------
+    def _eye(self, m: Module) -> EyeRays:
+        """The eye-ray generator, on the camera and scene-box registers."""
+        m.submodules.eye = eye = self.eye
+        for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi"):
+            m.d.comb += getattr(eye, k).eq(getattr(self, k))
+        return eye
+
+    def _slots(self, m: Module) -> SimpleNamespace:
+        """The RTC packet slots: ``free`` (mask), ``any``/``new`` (the lowest free one),
+        ``packet`` (each slot's eye packet id); ``take`` allocates ``new`` and ``release``
+        frees ``rel`` this cycle."""
+        NS = self.slots
+        s = SimpleNamespace(free=Signal(NS, init=(1 << NS) - 1), take=Signal(),
+                            release=Signal(), rel=Signal(range(NS)),
+                            packet=_regs(NS, PACKET_ID_BITS, "slot_packet"))
+        s.any, s.new = lowest(m, s.free, "slot")
+        m.d.sync += s.free.eq((s.free & ~Mux(s.take, 1 << s.new, 0))
+                              | Mux(s.release, 1 << s.rel, 0))
+        return s
+
+    def _admission(self, m: Module, eye: EyeRays, slot: Value, can_admit: Value) -> Signal:
+        """A tile from the master starts its eye rays as RTC packet ``slot`` while
+        ``can_admit``; returns the cycle's ``admit``."""
+        admit = Signal()
+        m.d.comb += [
+            eye.req.valid.eq(self.req.valid & can_admit),
+            self.req.ready.eq(eye.req.ready & can_admit),
+            eye.req.payload.tile_x.eq(self.req.payload.tile_x),
+            eye.req.payload.tile_y.eq(self.req.payload.tile_y),
+            eye.req.payload.packet.eq(slot),
+            admit.eq(self.req.valid & self.req.ready),
+        ]
+        return admit
+
+    def _result_stage(self, m: Module) -> SimpleNamespace:
+        """Stage B: the RTC's result registered (``valid``, ``res``); it moves on in a cycle
+        with ``adv``, which the caller drives."""
+        res = self.results
+        b = SimpleNamespace(valid=Signal(), res=Signal(RayResult(self.cfg)), adv=Signal())
+        m.d.comb += res.ready.eq(~b.valid | b.adv)
+        with m.If(res.ready):
+            m.d.sync += [b.valid.eq(res.valid), b.res.eq(res.payload)]
+        return b
+
+    def _host_out(self, m: Module) -> SyncFIFO:
+        """The host records: a 4-entry queue (the caller writes it) and the registered
+        ``out`` stream."""
+        m.submodules.outq = outq = SyncFIFO(width=SlaveResult(self.cfg).size, depth=4)
+        m.submodules.out_stage = ost = OutputStage(SlaveResult(self.cfg))
+        m.d.comb += [ost.i.valid.eq(outq.r_rdy), ost.i.payload.eq(outq.r_data),
+                     outq.r_en.eq(ost.i.ready)]
+        wiring.connect(m, ost.o, wiring.flipped(self.out))
+        return outq
+
     def elaborate_eye_only(self, m: Module) -> Module:
         """The slave without secondary-ray hardware (``cfg.secondary_rays`` false): tiles in,
         eye rays to the RTC, every result to the host. The same cycles as the whole slave on
         a frame with no lights and no reflections: admission, the RTC input and the result
-        path (a registered stage, the output queue and stage) are the same; an eye ray's
-        lane in its tile is its lane in the RTC packet, so no ray store is needed."""
-        cfg, NS = self.cfg, self.slots
-        sb = ceil_log2(NS)
-        m.submodules.eye = eye = self.eye
-        for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi"):
-            m.d.comb += getattr(eye, k).eq(getattr(self, k))
-        slot_free = Signal(NS, init=(1 << NS) - 1)
-        any_slot, new_slot = lowest(m, slot_free, "slot")
-        t_packet = _regs(NS, PACKET_ID_BITS, "slot_packet")
-        slot_release = Signal()
-        rel_slot = Signal(range(NS))
-        admit = Signal()
-        m.d.sync += slot_free.eq((slot_free & ~Mux(admit, 1 << new_slot, 0))
-                                 | Mux(slot_release, 1 << rel_slot, 0))
-        m.d.comb += [
-            eye.req.valid.eq(self.req.valid & any_slot),
-            self.req.ready.eq(eye.req.ready & any_slot),
-            eye.req.payload.tile_x.eq(self.req.payload.tile_x),
-            eye.req.payload.tile_y.eq(self.req.payload.tile_y),
-            eye.req.payload.packet.eq(new_slot),
-            admit.eq(self.req.valid & self.req.ready),
-        ]
+        path (a registered stage, the output queue and stage) are the same pieces; an eye
+        ray's lane in its tile is its lane in the RTC packet, so no ray store is needed."""
+        sb = ceil_log2(self.slots)
+        eye = self._eye(m)
+        slot = self._slots(m)
+        admit = self._admission(m, eye, slot.new, slot.any)
+        m.d.comb += slot.take.eq(admit)
         with m.If(admit):
-            m.d.sync += t_packet[new_slot].eq(self.req.payload.packet)
+            m.d.sync += slot.packet[slot.new].eq(self.req.payload.packet)
         m.d.comb += [self.rays.valid.eq(eye.o.valid),
                      self.rays.payload.eq(eye.o.payload.ray.as_value()),
                      eye.o.ready.eq(self.rays.ready)]
         with m.If(eye.o.valid & eye.o.ready):
             m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
-        res = self.results
-        b_valid = Signal()
-        b_res = Signal(RayResult(cfg))
-        b_adv = Signal()
-        m.d.comb += res.ready.eq(~b_valid | b_adv)
-        with m.If(res.ready):
-            m.d.sync += [b_valid.eq(res.valid), b_res.eq(res.payload)]
-        bslot = b_res.packet[:sb]
-        m.submodules.outq = outq = SyncFIFO(width=SlaveResult(cfg).size, depth=4)
-        m.d.comb += b_adv.eq(b_valid & outq.w_rdy)
-        rec = Signal(SlaveResult(cfg))
-        m.d.comb += [rec.packet.eq(t_packet[bslot]), rec.lane.eq(b_res.lane),
-                     rec.tri.eq(b_res.tri), rec.t.eq(b_res.t), rec.u.eq(b_res.u),
-                     rec.v.eq(b_res.v), outq.w_data.eq(rec), outq.w_en.eq(b_adv),
-                     rel_slot.eq(bslot), slot_release.eq(b_adv & b_res.last)]
-        m.submodules.out_stage = ost = OutputStage(SlaveResult(cfg))
-        m.d.comb += [ost.i.valid.eq(outq.r_rdy), ost.i.payload.eq(outq.r_data),
-                     outq.r_en.eq(ost.i.ready)]
-        wiring.connect(m, ost.o, wiring.flipped(self.out))
-        m.d.comb += self.idle.eq((slot_free == (1 << NS) - 1) & ~b_valid & ~outq.r_rdy &
-                                 ~self.out.valid)
+        b = self._result_stage(m)
+        outq = self._host_out(m)
+        bslot = b.res.packet[:sb]
+        rec = Signal(SlaveResult(self.cfg))
+        m.d.comb += [b.adv.eq(b.valid & outq.w_rdy),
+                     rec.packet.eq(slot.packet[bslot]), rec.lane.eq(b.res.lane),
+                     rec.tri.eq(b.res.tri), rec.t.eq(b.res.t), rec.u.eq(b.res.u),
+                     rec.v.eq(b.res.v), outq.w_data.eq(rec), outq.w_en.eq(b.adv),
+                     slot.rel.eq(bslot), slot.release.eq(b.adv & b.res.last)]
+        m.d.comb += self.idle.eq((slot.free == (1 << self.slots) - 1) & ~b.valid &
+                                 ~outq.r_rdy & ~self.out.valid)
         return m
 
     def elaborate(self, platform):
@@ -226,12 +257,10 @@ class Slave(wiring.Component):
         P, L, NS, NB = cfg.packet_size, cfg.rgs_lights, self.slots, self.buffers
         lb, sb, bb = lane_bits(cfg), ceil_log2(NS), max(1, ceil_log2(NB))
         w = fmt.width
-        m.submodules.eye = eye = self.eye
+        eye = self._eye(m)
         m.submodules.setup = setup = self.setup
         m.submodules.sec = sec = self.sec
         m.submodules.shd = shd = self.shd
-        for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi"):
-            m.d.comb += getattr(eye, k).eq(getattr(self, k))
         m.d.comb += [setup.box_lo.eq(self.box_lo), setup.box_hi.eq(self.box_hi)]
         K = Signal(range(L + 2))
         m.d.comb += K.eq(self.n_lights + 1)
@@ -240,16 +269,10 @@ class Slave(wiring.Component):
             return (self.n_lights != 0) | (depth < self.reflect_depth)
 
         # -- RTC packet slots and their table -------------------------------------------------------
-        slot_free = Signal(NS, init=(1 << NS) - 1)
-        any_slot, new_slot = lowest(m, slot_free, "slot")
-        t_packet = _regs(NS, PACKET_ID_BITS, "slot_packet")
+        slot = self._slots(m)
+        any_slot, new_slot, t_packet = slot.any, slot.new, slot.packet
         t_depth = _regs(NS, DEPTH_BITS, "slot_depth")
         t_sub = _regs(NS, SUB_BITS, "slot_sub")
-        slot_take = Signal()            # allocate new_slot this cycle
-        slot_release = Signal()         # free rel_slot this cycle
-        rel_slot = Signal(range(NS))
-        m.d.sync += slot_free.eq((slot_free & ~Mux(slot_take, 1 << new_slot, 0))
-                                 | Mux(slot_release, 1 << rel_slot, 0))
 
         # -- pending buffers: free, ready (with their packet's metadata), credits --------------------
         buf_free = Signal(NB, init=(1 << NB) - 1)
@@ -275,22 +298,14 @@ class Slave(wiring.Component):
 
         # -- admission of eye packets ---------------------------------------------------------------
         sender_busy = Signal()
-        admit = Signal()
         eye_spawns = spawns(0)
         can_admit = (any_slot & (~eye_spawns | (credits >= K)) & (buf_ready == 0) &
                      ~sender_busy)
-        m.d.comb += [
-            eye.req.valid.eq(self.req.valid & can_admit),
-            self.req.ready.eq(eye.req.ready & can_admit),
-            eye.req.payload.tile_x.eq(self.req.payload.tile_x),
-            eye.req.payload.tile_y.eq(self.req.payload.tile_y),
-            eye.req.payload.packet.eq(new_slot),
-            admit.eq(self.req.valid & self.req.ready),
-        ]
+        admit = self._admission(m, eye, new_slot, can_admit)
         credit_take = Signal(range(L + 2))     # reserved this cycle
         credit_back = Signal(range(NB + 1))    # returned this cycle
         with m.If(admit):
-            m.d.comb += [slot_take.eq(1), credit_take.eq(Mux(eye_spawns, K, 0))]
+            m.d.comb += [slot.take.eq(1), credit_take.eq(Mux(eye_spawns, K, 0))]
             m.d.sync += [t_packet[new_slot].eq(self.req.payload.packet),
                          t_depth[new_slot].eq(0), t_sub[new_slot].eq(0)]
 
@@ -314,7 +329,7 @@ class Slave(wiring.Component):
         start_send = Signal()
         m.d.comb += start_send.eq(~sender_busy & any_ready & any_slot)
         with m.If(start_send):
-            m.d.comb += slot_take.eq(1)
+            m.d.comb += slot.take.eq(1)
             with m.If(spawning):
                 m.d.comb += credit_take.eq(K)
             m.d.sync += [sender_busy.eq(1), s_buf.eq(rb), s_slot.eq(new_slot),
@@ -379,14 +394,10 @@ class Slave(wiring.Component):
 
         # -- results: store lookup (stage B), host record, contexts of spawning packets ------------
         res = self.results
-        b_valid = Signal()
-        b_res = Signal(RayResult(cfg))
-        b_adv = Signal()
+        b = self._result_stage(m)
+        b_valid, b_res, b_adv = b.valid, b.res, b.adv
         m.d.comb += [store_r.addr.eq(res.payload.packet[:sb] * P + res.payload.lane),
                      store_r.en.eq(res.ready)]
-        m.d.comb += res.ready.eq(~b_valid | b_adv)
-        with m.If(res.ready):
-            m.d.sync += [b_valid.eq(res.valid), b_res.eq(res.payload)]
         bslot = b_res.packet[:sb]
         sub, depth = t_sub[bslot], t_depth[bslot]
         hit = b_res.tri != (1 << TRI_ID_BITS) - 1
@@ -397,7 +408,7 @@ class Slave(wiring.Component):
                                      "last": 1, "packet": PACKET_ID_BITS, "depth": DEPTH_BITS,
                                      "t": w, "u": w, "v": w})
         m.submodules.ctx = ctxq = SyncFIFO(width=ctx_lay.size, depth=4 + cfg.cache_queue)
-        m.submodules.outq = outq = SyncFIFO(width=SlaveResult(cfg).size, depth=4)
+        outq = self._host_out(m)
         rq = self.shade.req
         need_ctx = b_valid & spawn_pkt
         ok = (outq.w_rdy & (~spawn_pkt | (ctxq.w_rdy & (~want_rec | rq.ready))))
@@ -415,11 +426,7 @@ class Slave(wiring.Component):
                      ctxq.w_data.eq(ctx), ctxq.w_en.eq(b_adv & need_ctx),
                      rq.valid.eq(b_valid & want_rec & outq.w_rdy & ctxq.w_rdy),
                      rq.payload.addr.eq(b_res.tri), rq.payload.tag.eq(0)]
-        m.d.comb += [rel_slot.eq(bslot), slot_release.eq(b_adv & b_res.last)]
-        m.submodules.out_stage = ost = OutputStage(SlaveResult(cfg))
-        m.d.comb += [ost.i.valid.eq(outq.r_rdy), ost.i.payload.eq(outq.r_data),
-                     outq.r_en.eq(ost.i.ready)]
-        wiring.connect(m, ost.o, wiring.flipped(self.out))
+        m.d.comb += [slot.rel.eq(bslot), slot.release.eq(b_adv & b_res.last)]
 
         # -- SecondaryPipe: a context (with its record, for a hit) per enabled cycle -----------------
         head = data.View(ctx_lay, ctxq.r_data)
@@ -533,6 +540,6 @@ class Slave(wiring.Component):
         m.d.sync += credits.eq(credits + credit_back - credit_take)
 
         # -- idle ------------------------------------------------------------------------------------
-        m.d.comb += self.idle.eq((slot_free == (1 << NS) - 1) & (credits == NB) & ~b_valid &
+        m.d.comb += self.idle.eq((slot.free == (1 << NS) - 1) & (credits == NB) & ~b_valid &
                                  ~outq.r_rdy & ~self.out.valid & ~sender_busy)
         return m
