@@ -142,7 +142,8 @@ class _Datapath(wiring.Component):
         self.latency = self._build(dry, dry=True)
 
     def _build(self, m: Module, dry: bool = False) -> int:
-        raise NotImplementedError
+        raise TypeError(f"{type(self).__name__}: a datapath defines _build(m, dry) (its "
+                        "stages; returns the latency)")
 
     def elaborate(self, platform):
         m = Module()
