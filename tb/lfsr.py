@@ -13,13 +13,19 @@ from amaranth.hdl import Cat, Module, Signal, Value
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-__all__ = ["LFSR", "lfsr_seeds", "sixteenths", "passes", "feed_from_memory", "sink_to",
-           "add_stall_args"]
+__all__ = ["LFSR", "lfsr_next", "lfsr_seeds", "sixteenths", "passes", "feed_from_memory",
+           "sink_to", "add_stall_args"]
 
 
 def lfsr_seeds(seed: int, n: int = 2) -> tuple[int, ...]:
     """``n`` LFSR seeds (never 0) for ``seed``: bubbles, back-pressure, then memory holds."""
     return tuple((seed * 40503 + j * 21011) % 65535 + 1 for j in range(n))
+
+
+def lfsr_next(value: int) -> int:
+    """The value after ``value`` of :class:`LFSR` (one enabled cycle), for benches outside
+    Amaranth that must follow the hardware's LFSR."""
+    return (value >> 1) | (((value ^ value >> 2 ^ value >> 3 ^ value >> 5) & 1) << 15)
 
 
 def sixteenths(rate: float, what: str = "rate") -> int:

@@ -166,13 +166,13 @@ class LFSRPattern:
     def __init__(self, q: int, seed: int):
         if not 0 <= q <= 15 or not 0 < seed < 1 << 16:
             raise ValueError(f"LFSRPattern: q={q} in 0..15, seed={seed} in 1..65535")
-        self.q, self.value, self.held = q, seed, []
+        from tb.lfsr import lfsr_next
+        self.q, self.value, self.held, self._next = q, seed, [], lfsr_next
 
     def __call__(self, cycle: int) -> bool:
         while cycle >= len(self.held):
-            r = self.value
-            self.held.append((r & 15) < self.q)
-            self.value = (r >> 1) | (((r ^ r >> 2 ^ r >> 3 ^ r >> 5) & 1) << 15)
+            self.held.append((self.value & 15) < self.q)
+            self.value = self._next(self.value)
         return self.held[cycle]
 
 
