@@ -41,9 +41,11 @@ SHADE_HEADER_WORDS = 8
 NORMAL_WORDS = 5              # 9 x binary32 per triangle + pad
 UV_WORDS = 3                  # 6 x binary32 per triangle
 MATERIAL_WORDS = 8            # 16 x 32 bits per material
-REC_WORDS = 7                 # slave record: face normal, 3 vertex normals, flags (13 x 32 bits)
-REC_BITS = 13 * 32
+REC_WORDS = 10                # slave record: face normal, 3 vertex normals, flags, material
+REC_BITS = 20 * 32            # (20 x 32 bits: see rec_material)
 REC_REFLECTIVE = 1            # flags bit 0: the material reflects (reflect > 0)
+REC_SHIN_SHIFT = 16           # flags bits 16..25: the Phong exponent (0..1023)
+SHIN_BITS = 10
 NO_TEXTURE = 0xFFFFFFFF
 
 MATERIAL_DTYPE = np.dtype([
@@ -86,6 +88,21 @@ def face_normals(tris: np.ndarray, fmt: FPFormat) -> np.ndarray:
     n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     return fmt.quantize(n)
+
+
+def rec_material(mats: np.ndarray, fmt: FPFormat) -> dict:
+    """The colour constants of materials ``mats`` (MATERIAL_DTYPE) as the slave records hold
+    them: ``kd`` = (1 - reflect) * diffuse and ``ks`` = (1 - reflect) * specular ((n, 3), the
+    light the surface itself sends back; the rest goes to the reflection ray), ``kr`` = reflect
+    ((n,)), each computed in float64 and rounded once to ``fmt``; ``shin`` = the Phong exponent
+    rounded to an integer and clipped to 0..1023 ((n,) int)."""
+    mats = np.asarray(mats)
+    keep = 1.0 - mats["reflect"].astype(np.float64)[:, None]
+    return {"kd": fmt.quantize(keep * mats["diffuse"].astype(np.float64)).astype(np.float32),
+            "ks": fmt.quantize(keep * mats["specular"].astype(np.float64)).astype(np.float32),
+            "kr": fmt.quantize(mats["reflect"].astype(np.float64)).astype(np.float32),
+            "shin": np.clip(np.rint(mats["shininess"].astype(np.float64)), 0,
+                            (1 << SHIN_BITS) - 1).astype(np.int64)}
 
 
 def image_size_words(n_nodes: int, n_list: int, n_tris: int) -> int:
@@ -314,14 +331,20 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
     for tw in texels:
         put(tw)
     n_texel_words = addr - texel_base
-    # the slave's records: face normal, vertex normals A, B, C (face normal when none), flags
+    # the slave's records: face normal, vertex normals A, B, C (face normal when none), flags,
+    # the material's colour constants
     rec = np.zeros((n_tris, 2 * REC_WORDS), "<u4")
     if n_tris:
         fn = face_normals(tris, fmt)
         rec[:, 0:3] = _f32_bits(fn)
         vn = np.repeat(fn[:, None, :], 3, axis=1) if shading.normals is None else shading.normals
         rec[:, 3:12] = q(vn).reshape(n_tris, 9)
-        rec[:, 12] = np.where(mats["reflect"][mat_id] > 0, REC_REFLECTIVE, 0)
+        mc = rec_material(mats, fmt)
+        rec[:, 12] = (np.where(mats["reflect"][mat_id] > 0, REC_REFLECTIVE, 0)
+                      | (mc["shin"][mat_id] << REC_SHIN_SHIFT).astype(np.uint32))
+        rec[:, 13:16] = _f32_bits(mc["kd"][mat_id])
+        rec[:, 16:19] = _f32_bits(mc["ks"][mat_id])
+        rec[:, 19] = _f32_bits(mc["kr"][mat_id])
     rec_base = put(rec.view("<u8").ravel())
     hdr[1] = _lohi(n_mat, n_tex)
     hdr[2] = _lohi(matid_base, normal_base)

@@ -18,7 +18,8 @@ from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
 from .rtc import COUNTERS, Hits, counter_totals, trace
-from .shading import AMBIENT, Shader, shading_data, surface_offset
+from .rgs import FIX_FRAC, hit_colours, light_colours
+from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
 KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
 CHUNK_PACKETS = 4096
@@ -75,6 +76,7 @@ class RenderResult:
     counters: dict                        # totals over every packet
     counters_by_kind: dict
     stats: dict = field(default_factory=dict)
+    colour: np.ndarray | None = None      # (H*W, 3) int64: the pixels' fixed-point sums
 
 
 @dataclass(frozen=True)
@@ -95,12 +97,17 @@ class Skip:
 
 
 def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
-           prepared: Prepared | None = None, skip: Skip = Skip()) -> RenderResult:
+           prepared: Prepared | None = None, skip: Skip = Skip(),
+           textures: bool = True) -> RenderResult:
+    """Render a frame: eye rays, shadow rays per light, reflections to ``cfg.reflect_depth``,
+    each ray's colour contribution as the RGS slave computes it (``model.shading``), summed per
+    pixel in fixed point. ``textures=False`` leaves textures out (the chip's colour: it has no
+    texture unit yet)."""
     t0 = time.perf_counter()
     prep = prepared or prepare(scene, cfg)
     t_build = time.perf_counter() - t0
     image = prep.image
-    shader = Shader(scene, cfg.fmt, eps=surface_offset(image.bounds))
+    shader = Shader(scene, cfg.fmt, eps=surface_offset(image.bounds), textures=textures)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -111,8 +118,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     all_rays, all_hits, all_ctrs = [], [], []
     skipped = [0]                          # packets not traced (empty tiles)
     n_samples = cfg.oversampling ** 2
-    color = np.zeros((width * height, 3), np.float32)
-    bg = np.asarray(scene.background, np.float32)
+    acc = np.zeros((width * height, 3), np.int64)     # fixed-point colour sums (FIX_FRAC)
 
     def run(rays: Rays):
         if bar is not None and len(rays) and rays.kind[0] != EYE:
@@ -137,39 +143,43 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         return hits
 
     rays = eye_rays(scene.camera, width, height, cfg)
-    weight = np.full(len(rays), 1.0 / n_samples, np.float32)
+    col = frame_colour_registers(scene, cfg.fmt, n_samples)
+    weight = np.full(len(rays), col["w_eye"], np.float32)
+    miss_col = np.broadcast_to(col["eye_miss"], (len(rays), 3))
+    E, M = cfg.fmt.em
     for depth in range(cfg.reflect_depth + 1):
         if len(rays) == 0:
             break
         hits = run(rays)
         hit = np.nonzero(hits.tri >= 0)[0]
         miss = np.nonzero(hits.tri < 0)[0]
-        np.add.at(color, rays.pixel[miss], bg * weight[miss, None])
+        np.add.at(acc, rays.pixel[miss], miss_col[miss])
         if hit.size == 0:
             break
         surf = shader.surface(rays, hit, hits.tri[hit], hits.t[hit], hits.u[hit], hits.v[hit])
-        mat, albedo = surf.mat, surf.albedo
-        local = AMBIENT * albedo
-        d = rays.dir[hit]
+        mat = surf.mat
+        rec = shader.rec
+        amb_c, wr, cmiss = hit_colours(surf.kd, rec["kr"][mat], col["amb"], col["bg"],
+                                       weight[hit], E, M)
+        np.add.at(acc, rays.pixel[hit], amb_c)
         for li, light in enumerate(scene.lights):
             srays, keep = shader.shadow_rays(rays, hit, surf, light,
                                              cull_behind=skip.lights_behind, light_index=li)
             if not skip.anyhit:
                 srays.anyhit = np.zeros(len(srays), bool)
-            lit = np.zeros(hit.size, np.float32)
-            if cfg.shadows and len(srays):
-                sh = run(srays)
-                lit[keep] = (sh.tri < 0).astype(np.float32)
-            else:
-                lit[keep] = 1.0
-            local += shader.phong(d, surf.n, albedo, mat, light, lit, surf.p0)
-        refl = shader.reflect[mat]
-        local *= (1 - refl)[:, None]
-        np.add.at(color, rays.pixel[hit], local * weight[hit, None])
+            if not len(srays):
+                continue
+            lc = light_colours(srays.dir, surf.n[keep], surf.r[keep], surf.kd[keep],
+                               rec["ks"][mat[keep]], rec["shin"][mat[keep]],
+                               np.tile(col["lights"][li], (len(srays), 1)),
+                               weight[hit[keep]], E, M)
+            lit = run(srays).tri < 0 if cfg.shadows else np.ones(len(srays), bool)
+            np.add.at(acc, srays.pixel[lit], lc[lit])
         if depth == cfg.reflect_depth:
             break
         rays, keep = shader.reflection_rays(rays, hit, surf, cull_matte=skip.nonreflective)
-        weight = weight[hit[keep]] * refl[keep]
+        weight = wr[keep]
+        miss_col = cmiss[keep]
     if bar is not None:
         bar.close()
     t_render = time.perf_counter() - t1
@@ -181,9 +191,9 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     for r, c in all_ctrs:
         name = KIND_NAMES[int(r.kind[0])] if len(r) else "eye"
         tot = counter_totals(c)
-        acc = by_kind.setdefault(name, {k: 0 for k in COUNTERS})
+        tot_k = by_kind.setdefault(name, {k: 0 for k in COUNTERS})
         for k in COUNTERS:
-            acc[k] = max(acc[k], tot[k]) if k == "max_stack" else acc[k] + tot[k]
+            tot_k[k] = max(tot_k[k], tot[k]) if k == "max_stack" else tot_k[k] + tot[k]
     totals = {k: (max(v[k] for v in by_kind.values()) if k == "max_stack"
                   else sum(v[k] for v in by_kind.values())) if by_kind else 0 for k in COUNTERS}
     kinds, counts = np.unique(rays_all.kind, return_counts=True)
@@ -213,7 +223,9 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         "render_seconds": round(t_render, 4),
         "rays_per_second": round(len(rays_all) / max(t_render, 1e-9), 1),
     }
-    return RenderResult(color.reshape(height, width, 3), rays_all, hits_all, totals, by_kind, stats)
+    img = (acc / float(1 << FIX_FRAC)).astype(np.float32)
+    return RenderResult(img.reshape(height, width, 3), rays_all, hits_all, totals, by_kind,
+                        stats, colour=acc)
 
 
 def to_srgb8(img: np.ndarray) -> np.ndarray:

@@ -59,7 +59,9 @@ import numpy as np
 from .fp import fadd, fdiv, fmax, fmin, fmul, flush_in, fsqrt, fsub, round_exact, sign_bit
 
 __all__ = ["sample_coord", "eye_ray", "ray_setup", "eye_packets", "packet_count", "setup_rays",
-           "dot3", "secondary", "secondary_rays", "shadow_dir", "shadow_rays"]
+           "dot3", "secondary", "secondary_rays", "shadow_dir", "shadow_rays", "FIX_FRAC",
+           "FIX_BITS", "to_fixed", "spec_pow", "light_colour", "hit_colour", "light_colours",
+           "hit_colours", "to_fixed_array"]
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
@@ -334,3 +336,141 @@ def shadow_rays(p0, g, light, point, E, M):
             D[i, a] = ds[a]
         cast[i] = c
     return D, cast
+
+
+# ---------------------------------------------------------------------------------------------
+# colour
+# ---------------------------------------------------------------------------------------------
+
+FIX_FRAC = 16            # a colour contribution as an unsigned fixed-point number: 16 fraction
+FIX_BITS = 24            # bits, 24 bits in all (0 .. 256 - 2**-16)
+FIX_MAX = (1 << FIX_BITS) - 1
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def to_fixed(x, E):
+    """``fixed``: a format value as a colour contribution: floor(x * 2**FIX_FRAC), 0 for a
+    NaN, a zero (denormals read as zero) or a negative value, FIX_MAX from 2**8 up (+inf)."""
+    x = flush_in(x, E)
+    if not x > _ZERO:
+        return np.int64(0)
+    v = np.float64(x) * np.float64(1 << FIX_FRAC)
+    if v >= np.float64(FIX_MAX + 1):
+        return np.int64(FIX_MAX)
+    return np.int64(np.floor(v))
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def spec_pow(x, k, E, M):
+    """``spec``: x ** k for the 10-bit exponent k, by squaring: acc = 1, p = x; for bit
+    i = 0..9: acc = acc * p if bit i of k is set; p = p * p (before bit i + 1)."""
+    acc = _ONE
+    p = x
+    for i in range(10):
+        if (k >> i) & 1:
+            acc = fmul(acc, p, E, M)
+        if i < 9:
+            p = fmul(p, p, E, M)
+    return acc
+
+
+@numba.njit(cache=True, error_model="numpy")
+def light_colour(ld, n, r, kd, ks, shin, lc, wt, E, M):
+    """The light one shadow ray brings if it reaches its light (Phong): ``ld`` the shadow
+    ray's direction (not unit for a point light), ``n`` the unit shading normal, ``r`` the
+    reflected direction, ``kd``, ``ks``, ``shin`` the material's record constants, ``lc`` the
+    light's colour, ``wt`` the hit ray's weight. Steps (the RTL's ``LightPipe``):
+
+    * ``il`` = 1 / sqrt(dot(ld, ld)), ``ir`` = 1 / sqrt(dot(r, r));
+    * ``ndl`` = max(dot(n, ld) * il, +0); ``rdl`` = max((dot(r, ld) * il) * ir, +0)
+      (max with +0 turns a NaN into +0);
+    * ``spec`` = :func:`spec_pow` (rdl, shin);
+    * per channel c: ((kd[c] * ndl) + (ks[c] * spec)) * (lc[c] * wt).
+
+    Returns (3,) float32."""
+    out = np.empty(3, np.float32)
+    il = fdiv(_ONE, fsqrt(dot3(ld[0], ld[1], ld[2], ld[0], ld[1], ld[2], E, M), E, M), E, M)
+    ir = fdiv(_ONE, fsqrt(dot3(r[0], r[1], r[2], r[0], r[1], r[2], E, M), E, M), E, M)
+    ndl = fmax(fmul(dot3(n[0], n[1], n[2], ld[0], ld[1], ld[2], E, M), il, E, M), _ZERO)
+    rdl = fmax(fmul(fmul(dot3(r[0], r[1], r[2], ld[0], ld[1], ld[2], E, M), il, E, M),
+                    ir, E, M), _ZERO)
+    spec = spec_pow(rdl, shin, E, M)
+    for c in range(3):
+        out[c] = fmul(fadd(fmul(kd[c], ndl, E, M), fmul(ks[c], spec, E, M), E, M),
+                      fmul(lc[c], wt, E, M), E, M)
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def hit_colour(kd, kr, amb, bg, wt, E, M):
+    """What a hit of an eye or reflection ray of weight ``wt`` adds by itself, and what its
+    reflection ray carries: ``ambient`` (kd[c] * amb) * wt; ``wr`` = wt * kr (the reflection
+    ray's weight); ``miss`` = bg[c] * wr (its colour if it leaves the scene). Returns
+    (ambient (3,), wr, miss (3,))."""
+    amb_c = np.empty(3, np.float32)
+    miss = np.empty(3, np.float32)
+    wr = fmul(wt, kr, E, M)
+    for c in range(3):
+        amb_c[c] = fmul(fmul(kd[c], amb, E, M), wt, E, M)
+        miss[c] = fmul(bg[c], wr, E, M)
+    return amb_c, wr, miss
+
+
+@numba.njit(cache=True, error_model="numpy")
+def light_colours(ld, n, r, kd, ks, shin, lc, wt, E, M):
+    """:func:`light_colour` then :func:`to_fixed` for every row (``ld``, ``n``, ``r``, ``kd``,
+    ``ks``, ``lc`` (N, 3), ``shin``, ``wt`` (N,)): (N, 3) int64 contributions."""
+    N = ld.shape[0]
+    out = np.empty((N, 3), np.int64)
+    a = np.empty(3, np.float32)
+    b = np.empty(3, np.float32)
+    c3 = np.empty(3, np.float32)
+    d = np.empty(3, np.float32)
+    e = np.empty(3, np.float32)
+    lf = np.empty(3, np.float32)
+    for i in range(N):
+        for k in range(3):
+            lf[k] = flush_in(lc[i, k], E)
+            a[k] = flush_in(ld[i, k], E)
+            b[k] = flush_in(n[i, k], E)
+            c3[k] = flush_in(r[i, k], E)
+            d[k] = flush_in(kd[i, k], E)
+            e[k] = flush_in(ks[i, k], E)
+        col = light_colour(a, b, c3, d, e, shin[i], lf, flush_in(wt[i], E), E, M)
+        for k in range(3):
+            out[i, k] = to_fixed(col[k], E)
+    return out
+
+
+@numba.njit(cache=True, error_model="numpy")
+def hit_colours(kd, kr, amb, bg, wt, E, M):
+    """:func:`hit_colour` for every row (``kd`` (N, 3), ``kr``, ``wt`` (N,); ``amb`` a format
+    value, ``bg`` (3,)): ambient (N, 3) int64 (fixed point), wr (N,) float32, miss (N, 3)
+    int64 (fixed point)."""
+    N = kd.shape[0]
+    amb_o = np.empty((N, 3), np.int64)
+    miss_o = np.empty((N, 3), np.int64)
+    wr_o = np.empty(N, np.float32)
+    k3 = np.empty(3, np.float32)
+    bf = np.empty(3, np.float32)
+    for k in range(3):
+        bf[k] = flush_in(bg[k], E)
+    am = flush_in(amb, E)
+    for i in range(N):
+        for k in range(3):
+            k3[k] = flush_in(kd[i, k], E)
+        a, wr, ms = hit_colour(k3, flush_in(kr[i], E), am, bf, flush_in(wt[i], E), E, M)
+        wr_o[i] = wr
+        for k in range(3):
+            amb_o[i, k] = to_fixed(a[k], E)
+            miss_o[i, k] = to_fixed(ms[k], E)
+    return amb_o, wr_o, miss_o
+
+
+@numba.njit(cache=True, error_model="numpy")
+def to_fixed_array(x, E):
+    """:func:`to_fixed` of every element of the 1-D float32 array ``x`` (int64)."""
+    out = np.empty(x.shape[0], np.int64)
+    for i in range(x.shape[0]):
+        out[i] = to_fixed(x[i], E)
+    return out

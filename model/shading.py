@@ -12,7 +12,17 @@ casts no ray: the point is unlit). The unit face normals are computed once on th
 rounded once per component: ``model.layout.face_normals``), as the memory image's slave
 records hold them.
 
-The colour (Phong, texture, accumulation) is plain float32 NumPy: it only makes the picture.
+The colour is the slave's format arithmetic too (``model/rgs.py``'s :func:`~model.rgs.hit_colour`
+and :func:`~model.rgs.light_colour`, each contribution then made a 24-bit fixed-point number,
+:func:`~model.rgs.to_fixed`): every eye or reflection ray carries a weight (1/oversampling² for
+an eye ray, the parent's weight times the material's reflectivity for a reflection ray) and the
+colour it adds if it leaves the scene (background times weight); a hit adds its ambient term;
+a shadow ray carries the Phong term of its light and adds it if it reaches the light. A pixel is
+the integer sum of its contributions, the same in any order. The material constants come from
+the slave records (``model.layout.rec_material``: kd and ks already scaled by 1 - reflect). A
+texture multiplies kd by its bilinearly filtered texel colour (float32, rounded once to the
+format): the chip has no texture unit yet, so its colour equals the model's with
+``textures=False``.
 """
 from __future__ import annotations
 
@@ -21,7 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .fp import FPFormat
-from .layout import MATERIAL_DTYPE, ShadingData, face_normals
+from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
 from .raygen import REFLECTION, SHADOW, Rays
 from .rgs import secondary_rays, shadow_rays
 
@@ -66,6 +76,20 @@ def bilinear(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
             + (at(y0 + 1, x0) * (1 - fx) + at(y0 + 1, x0 + 1) * fx) * fy)
 
 
+def frame_colour_registers(scene, fmt: FPFormat, n_samples: int = 1) -> dict:
+    """The slave's colour registers for a frame, as format values: ``amb`` (the ambient
+    factor), ``bg`` (3: the background), ``w_eye`` (an eye ray's weight, 1 / ``n_samples``),
+    ``lights`` ((L, 3): each light's colour), and ``eye_miss`` ((3,) int64: an eye ray's colour
+    if it misses, fixed(bg * w_eye) as :func:`~model.rgs.hit_colour` makes a reflection ray's)."""
+    from .rgs import to_fixed_array
+    bg = fmt.quantize(np.asarray(scene.background, np.float64)).astype(np.float32)
+    w_eye = np.float32(fmt.quantize(1.0 / n_samples))
+    lights = fmt.quantize(np.array([lt.color for lt in scene.lights], np.float64)
+                          .reshape(-1, 3)).astype(np.float32)
+    return {"amb": np.float32(fmt.quantize(float(AMBIENT))), "bg": bg, "w_eye": w_eye,
+            "lights": lights, "eye_miss": to_fixed_array(fmt.mul(bg, w_eye), fmt.em[0])}
+
+
 def surface_offset(bounds) -> float:
     """``eps`` of the secondary-ray origin: 1e-4 x the diagonal of the scene box ``bounds``
     ((2, 3): low and high corner; floored at 1e-10)."""
@@ -77,20 +101,24 @@ def surface_offset(bounds) -> float:
 class Surface:
     """What the slave computes from the hits of ``rays[sel]`` (format values, (n, 3) each):
     ``p0`` the secondary rays' origin, ``g`` the oriented face normal, ``n`` the shading
-    normal, ``r`` the reflected direction; ``mat`` material index, ``albedo`` float32 colour."""
+    normal, ``r`` the reflected direction; ``mat`` material index, ``albedo`` float32 colour
+    (diffuse times texture), ``kd`` the slave's diffuse constant (the record's kd, times the
+    texture colour in the format where textured and ``textures``)."""
     p0: np.ndarray
     g: np.ndarray
     n: np.ndarray
     r: np.ndarray
     mat: np.ndarray
     albedo: np.ndarray
+    kd: np.ndarray
 
 
 class Shader:
     """Surface data of a scene, indexed by the scene-order triangle id the RTC returns."""
 
-    def __init__(self, scene, fmt: FPFormat, eps: float):
+    def __init__(self, scene, fmt: FPFormat, eps: float, textures: bool = True):
         self.scene = scene
+        self.textures = textures
         self.fmt = fmt
         self.eps = np.float32(fmt.quantize(eps))
         kept = np.full(scene.n_scene_tris, -1, np.int64)
@@ -103,6 +131,7 @@ class Shader:
         self.specular = np.array([mm.specular for mm in m], np.float32).reshape(-1, 3)
         self.shininess = np.array([mm.shininess for mm in m], np.float32)
         self.reflect = np.array([mm.reflect for mm in m], np.float32)
+        self.rec = rec_material(shading_data(scene, fmt).materials, fmt)
 
     def surface(self, rays: Rays, sel: np.ndarray, tri: np.ndarray, t, u, v) -> Surface:
         """The slave's secondary-ray arithmetic (``model.rgs.secondary_rays``) and the
@@ -116,14 +145,18 @@ class Shader:
             self.face_n[k], self.vertex_n[k], self.eps, E, M)
         mat = self.scene.material[k]
         albedo = self.diffuse[mat].copy()
+        kd = self.rec["kd"][mat].copy()
         w = np.stack([1 - u - v, u, v], axis=1).astype(np.float32)
         for mi, mm in enumerate(self.scene.materials):
             if mm.texture is not None:
                 on = mat == mi
                 if on.any():
                     uv = np.einsum("nk,nkc->nc", w[on], self.scene.uv[k[on]])
-                    albedo[on] *= bilinear(mm.texture, uv)
-        return Surface(p0, g, n, r, mat, albedo)
+                    tex = bilinear(mm.texture, uv)
+                    albedo[on] *= tex
+                    if self.textures:
+                        kd[on] = self.fmt.mul(kd[on], self.fmt.quantize(tex))
+        return Surface(p0, g, n, r, mat, albedo, kd)
 
     def light_vector(self, light) -> tuple[np.ndarray, bool]:
         """The slave's light register: a point light's position or a parallel light's reversed
@@ -152,18 +185,20 @@ class Shader:
                           np.full(len(surf.r), np.inf, np.float32), REFLECTION)
 
     def phong(self, d, ns, albedo, mat, light, lit, p):
-        """Direct light from one light (zero where unlit/shadowed)."""
+        """Direct light from one light (zero where unlit/shadowed), in the precision of the
+        inputs (the float64 reference and the host's unshadowed preview): the terms of
+        ``model.rgs.light_colour`` without the weight and the 1 - reflect factor, with the
+        reflected direction made from ``d`` and ``ns``."""
         if light.kind == "point":
-            ldir = np.asarray(light.position, np.float32)[None, :] - p
+            ldir = np.asarray(light.position, p.dtype)[None, :] - p
         else:
-            ldir = -np.broadcast_to(np.asarray(light.direction, np.float32), p.shape)
+            ldir = -np.broadcast_to(np.asarray(light.direction, p.dtype), p.shape)
         ldir = ldir / np.maximum(np.linalg.norm(ldir, axis=1, keepdims=True), 1e-20)
-        col = np.asarray(light.color, np.float32)
+        col = np.asarray(light.color, p.dtype)
         ndl = np.clip(np.sum(ns * ldir, axis=1), 0, None)
-        view = -d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-20)
-        h = ldir + view
-        h /= np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-20)
-        spec = np.clip(np.sum(ns * h, axis=1), 0, None) ** self.shininess[mat]
+        r = d - 2 * np.sum(d * ns, axis=1, keepdims=True) * ns
+        r = r / np.maximum(np.linalg.norm(r, axis=1, keepdims=True), 1e-20)
+        spec = np.clip(np.sum(r * ldir, axis=1), 0, None) ** self.rec["shin"][mat]
         out = albedo * ndl[:, None] * col + self.specular[mat] * spec[:, None] * col
         return out * lit[:, None]
 

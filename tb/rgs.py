@@ -379,3 +379,56 @@ def run_shadow(hits: Hits, lights, point, fmt: FPFormat, *, latencies=None, seed
     ins, outs = shadow_ports(hits, np.asarray(lights, np.float64), np.asarray(point), fmt,
                              dut.tag_width)
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+
+
+@dataclass
+class ColourCases:
+    """Inputs of the slave's colour arithmetic (``model.rgs.light_colour``, ``hit_colour``), one
+    row per (hit, light): shadow direction ``ld``, shading normal ``n``, reflected direction
+    ``r``, record constants ``kd``, ``ks`` (N, 3), ``shin``, ``kr`` (N,), light colour ``lc``
+    (N, 3), ray weight ``wt`` (N,), registers ``amb`` and ``bg`` (3,)."""
+    ld: np.ndarray
+    n: np.ndarray
+    r: np.ndarray
+    kd: np.ndarray
+    ks: np.ndarray
+    shin: np.ndarray
+    kr: np.ndarray
+    lc: np.ndarray
+    wt: np.ndarray
+    amb: float
+    bg: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.wt)
+
+
+def colour_cases(fmt: FPFormat, n: int = 200, seed: int = 1) -> ColourCases:
+    """Random (hit, light) pairs plus edge cases: the light behind the shading normal (no
+    diffuse term), the reflection pointing at the light (the highlight's peak), a zero light
+    vector (the light on the surface: 1 / sqrt(0) = inf, NaN, clamped to 0), exponents 0, 1
+    and 1023, weights and colours large enough to saturate the fixed-point contribution, and
+    zero constants."""
+    rng = np.random.default_rng(seed)
+    q = fmt.quantize
+
+    def unit(x):
+        return x / np.linalg.norm(x, axis=-1, keepdims=True)
+    nn = unit(rng.normal(size=(n, 3)))
+    ld = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-2, 2, (n, 1))
+    r = rng.normal(size=(n, 3)) * 10.0 ** rng.uniform(-1, 1, (n, 1))
+    e = rng.integers(0, 8, n)
+    ld[e == 0] = -ld[e == 0] * np.sign(np.sum(ld[e == 0] * nn[e == 0], axis=1))[:, None]
+    ld[e == 1] = r[e == 1] * rng.uniform(0.5, 3, (int((e == 1).sum()), 1))
+    ld[e == 2] = 0.0
+    shin = rng.integers(0, 1024, n)
+    shin[e == 3] = rng.choice([0, 1, 1023], int((e == 3).sum()))
+    kd = rng.uniform(0, 1, (n, 3))
+    ks = rng.uniform(0, 1, (n, 3))
+    kd[e == 4] = 0.0
+    lc = rng.uniform(0, 2, (n, 3))
+    wt = rng.uniform(0, 1, n)
+    lc[e == 5] *= 400.0                        # saturates the 24-bit contribution
+    kr = rng.uniform(0, 1, n) * (rng.random(n) > 0.3)
+    return ColourCases(q(ld), q(nn), q(r), q(kd), q(ks), shin.astype(np.int64), q(kr), q(lc),
+                       q(wt), float(q(0.08)), q(np.array([0.2, 0.3, 300.0])))

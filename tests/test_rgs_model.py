@@ -312,3 +312,100 @@ def test_secondary_geometry_float64():
     want = d - 2 * np.sum(d * n, axis=1, keepdims=True) * n
     scale = np.linalg.norm(d, axis=1, keepdims=True)
     assert np.allclose(r / scale, want / scale, atol=1e-5)
+
+
+# ----------------------------------------------------------------------------------------------
+# colour
+# ----------------------------------------------------------------------------------------------
+
+def np_fixed(x: np.ndarray, fmt: FPFormat) -> np.ndarray:
+    """``to_fixed`` in float64 NumPy: floor(x * 2**16) on 0 < x < 256, 0 below (and NaN),
+    2**24 - 1 from 256 up."""
+    from model.rgs import FIX_BITS, FIX_FRAC
+    x = fmt.flush(np.asarray(x, np.float32)).astype(np.float64)
+    out = np.floor(np.where(x > 0, x, 0.0) * 2.0 ** FIX_FRAC)
+    return np.where(x >= 2.0 ** (FIX_BITS - FIX_FRAC), 2 ** FIX_BITS - 1, out).astype(np.int64)
+
+
+def np_colour(c, fmt: FPFormat):
+    """The colour steps (``model.rgs.light_colour``, ``hit_colour``) with FPFormat's
+    array operations: (light (N, 3), ambient (N, 3), wr (N,), miss (N, 3)) as fixed-point."""
+    add, mul, div, sqrt, mx = fmt.add, fmt.mul, fmt.div, fmt.sqrt, fmt.max
+
+    def dot(a, b):
+        return add(add(mul(a[:, 0], b[:, 0]), mul(a[:, 1], b[:, 1])), mul(a[:, 2], b[:, 2]))
+    one = np.ones(len(c), np.float32)
+    zero = np.zeros(len(c), np.float32)
+    il = div(one, sqrt(dot(c.ld, c.ld)))
+    ir = div(one, sqrt(dot(c.r, c.r)))
+    ndl = mx(mul(dot(c.n, c.ld), il), zero)
+    rdl = mx(mul(mul(dot(c.r, c.ld), il), ir), zero)
+    acc, p = one, rdl
+    for i in range(10):
+        acc = np.where((c.shin >> i) & 1 == 1, mul(acc, p), acc)
+        p = mul(p, p)
+    light = np.stack([mul(add(mul(c.kd[:, k], ndl), mul(c.ks[:, k], acc)),
+                          mul(c.lc[:, k], c.wt)) for k in range(3)], axis=1)
+    amb = np.full(len(c), c.amb, np.float32)
+    wr = mul(c.wt, c.kr)
+    ambient = np.stack([mul(mul(c.kd[:, k], amb), c.wt) for k in range(3)], axis=1)
+    miss = np.stack([mul(np.full(len(c), c.bg[k], np.float32), wr) for k in range(3)], axis=1)
+    return np_fixed(light, fmt), np_fixed(ambient, fmt), wr, np_fixed(miss, fmt)
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=str)
+def test_colour_matches_vectorized(fmt):
+    from model.rgs import hit_colours, light_colours
+    from tb.rgs import colour_cases
+    c = colour_cases(fmt, 3000, seed=21)
+    E, M = fmt.em
+    light = light_colours(c.ld, c.n, c.r, c.kd, c.ks, c.shin, c.lc, c.wt, E, M)
+    ambient, wr, miss = hit_colours(c.kd, c.kr, np.float32(c.amb), c.bg, c.wt, E, M)
+    w_light, w_amb, w_wr, w_miss = np_colour(c, fmt)
+    assert np.array_equal(light, w_light)
+    assert np.array_equal(ambient, w_amb)
+    assert same(fmt, wr, w_wr)
+    assert np.array_equal(miss, w_miss)
+    # the cases reach what they are for: saturation, zero light, full and empty highlights
+    assert (light == 2 ** 24 - 1).any() and (light == 0).any() and (miss > 0).any()
+
+
+def test_to_fixed_edges():
+    from model.rgs import FIX_MAX, to_fixed_array
+    fmt = FPFormat(8, 23)
+    x = np.array([np.nan, -0.0, 0.0, -1.0, 1e-40, 2.0 ** -16, 2.0 ** -17, 1.0,
+                  256.0 - 2.0 ** -15, 256.0, np.inf, -np.inf, 3.0 * 2.0 ** -17], np.float32)
+    want = [0, 0, 0, 0, 0, 1, 0, 1 << 16, FIX_MAX - 1, FIX_MAX, FIX_MAX, 0, 1]
+    assert to_fixed_array(x, 8).tolist() == want
+
+
+def test_spec_pow_exact_powers():
+    """x ** k by squaring on values whose powers are exact: 0.5 ** k = 2 ** -k while it is a
+    normal binary32 number (k <= 126), then 0 (flushed); 1 ** k = 1; x ** 0 = 1."""
+    from model.rgs import spec_pow
+    fn = numba.njit(lambda x, k: spec_pow(x, k, 8, 23))
+    for k in (0, 1, 2, 3, 100, 126, 127, 1023):
+        assert fn(np.float32(0.5), k) == (np.float32(2.0 ** -k) if k <= 126 else 0.0)
+        assert fn(np.float32(1.0), k) == 1.0
+    assert fn(np.float32(0.3), 0) == 1.0
+
+
+def test_render_colour_is_the_sum_of_its_contributions():
+    """The render's pixels against a float64 recomputation of the same Phong terms on the same
+    rays is the precision study's job; here: textures off changes only textured hits' pixels,
+    and the fixed-point sums are what the image shows."""
+    from model.render import render
+    from model.scene import load_scene
+    from pathlib import Path
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenes" / "cornell.toml")
+    cfg = Config()
+    a = render(scene, cfg, 16, 12)
+    b = render(scene, cfg, 16, 12, textures=False)
+    assert np.array_equal(a.image.reshape(-1, 3), (a.colour / 2.0 ** 16).astype(np.float32))
+    eye = a.rays.kind == 0
+    tri = a.hits.tri[eye]
+    textured = np.array([scene.materials[scene.material[t]].texture is not None if t >= 0
+                         else False for t in tri])
+    differ = np.any(a.colour != b.colour, axis=1)
+    assert differ.any()
+    assert not differ[a.rays.pixel[eye][~textured]].all()
