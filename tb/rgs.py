@@ -432,3 +432,53 @@ def colour_cases(fmt: FPFormat, n: int = 200, seed: int = 1) -> ColourCases:
     kr = rng.uniform(0, 1, n) * (rng.random(n) > 0.3)
     return ColourCases(q(ld), q(nn), q(r), q(kd), q(ks), shin.astype(np.int64), q(kr), q(lc),
                        q(wt), float(q(0.08)), q(np.array([0.2, 0.3, 300.0])))
+
+
+def light_ports(c: ColourCases, lights: np.ndarray, point: np.ndarray, fmt: FPFormat,
+                tag_width: int) -> tuple[dict, dict]:
+    """``LightPipe``'s port values for the colour cases ``c`` (the shadow ray made from
+    ``c.ld`` as origin offset: p0 = light - ld for a point light) and the model's outputs:
+    the shadow ray (``model.rgs.shadow_rays``), the light's, ambient and reflection-miss
+    contributions and the reflection weight (``model.rgs.light_colours``, ``hit_colours``)."""
+    from model.rgs import hit_colours, light_colours, shadow_rays
+    E, M = fmt.em
+    n = len(c)
+    light = fmt.quantize(np.asarray(lights, np.float64))[np.arange(n) % len(lights)]
+    pt = np.asarray(point, bool)[np.arange(n) % len(lights)]
+    p0 = fmt.quantize(np.where(pt[:, None], light.astype(np.float64) - c.ld, c.r))
+    g = c.n
+    dirs = np.empty((n, 3), np.float32)
+    cast = np.empty(n, bool)
+    for k in (False, True):
+        sel = pt == k
+        for li in np.unique(np.arange(n)[sel] % len(lights)):
+            rows = np.flatnonzero(sel & (np.arange(n) % len(lights) == li))
+            d, cs = shadow_rays(p0[rows], g[rows], light[rows[0]], k, E, M)
+            dirs[rows], cast[rows] = d, cs
+    col = light_colours(dirs, c.n, c.r, c.kd, c.ks, c.shin, c.lc, c.wt, E, M)
+    amb, wr, rmiss = hit_colours(c.kd, c.kr, np.float32(c.amb), c.bg, c.wt, E, M)
+    tag = [i % (1 << tag_width) for i in range(n)]
+    fix = lambda x: [sum(int(v) << (24 * k) for k, v in enumerate(row)) for row in x]  # noqa: E731
+    ins = {"p0": _pack_rows(fmt, p0), "g": _pack_rows(fmt, g), "light": _pack_rows(fmt, light),
+           "point": pt.astype(int).tolist(), "n": _pack_rows(fmt, c.n),
+           "r": _pack_rows(fmt, c.r), "kd": _pack_rows(fmt, c.kd), "ks": _pack_rows(fmt, c.ks),
+           "kr": _pack_rows(fmt, c.kr), "shin": c.shin.tolist(), "lc": _pack_rows(fmt, c.lc),
+           "wt": _pack_rows(fmt, c.wt), "amb": _pack_rows(fmt, np.full(n, c.amb, np.float32)),
+           "bg": _pack_rows(fmt, np.broadcast_to(c.bg, (n, 3))), "tag": tag}
+    outs = {"o_p0": _pack_rows(fmt, p0), "o_r": _pack_rows(fmt, c.r),
+            "dir": _pack_rows(fmt, dirs),
+            "tmax": _pack_rows(fmt, np.where(pt, 1.0, np.inf).astype(np.float32)),
+            "cast": cast.astype(int).tolist(), "col": fix(col), "amb_col": fix(amb),
+            "wr": _pack_rows(fmt, wr), "rmiss": fix(rmiss), "o_tag": tag}
+    return ins, outs
+
+
+def run_light(c: ColourCases, lights, point, fmt: FPFormat, *, latencies=None, seed: int = 0,
+              p_bubble: float = 0.2, p_stall: float = 0.2):
+    """Every colour case through ``LightPipe`` (light ``i % len(lights)`` for case i), every
+    output checked at its exact cycle against the model (``tb.common.FixedPipeRun``)."""
+    from rtl.rgs import LightPipe
+    from .common import run_fixed_pipe
+    dut = LightPipe(fmt, tag_width=max(1, len(c).bit_length()), latencies=latencies)
+    ins, outs = light_ports(c, lights, point, fmt, dut.tag_width)
+    return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)

@@ -372,7 +372,6 @@ def test_colour_matches_vectorized(fmt):
 
 def test_to_fixed_edges():
     from model.rgs import FIX_MAX, to_fixed_array
-    fmt = FPFormat(8, 23)
     x = np.array([np.nan, -0.0, 0.0, -1.0, 1e-40, 2.0 ** -16, 2.0 ** -17, 1.0,
                   256.0 - 2.0 ** -15, 256.0, np.inf, -np.inf, 3.0 * 2.0 ** -17], np.float32)
     want = [0, 0, 0, 0, 0, 1, 0, 1 << 16, FIX_MAX - 1, FIX_MAX, FIX_MAX, 0, 1]
