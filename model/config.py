@@ -53,8 +53,9 @@ class Config:
     oversampling: int = 1          # rays per pixel side: n x n rays on a regular sub-pixel grid
     shadows: bool = True           # every light casts shadows
     rgs_lights: int = 4            # light registers per RGS slave (the most lights a scene has)
-    shade_cache_kb: int = 16       # each RGS slave's cache of shading records (face and vertex
-                                   # normals, flags: 52 bytes a triangle)
+    shade_cache_kb: int = 20       # each RGS slave's cache of shading records (face and vertex
+                                   # normals, flags, colour constants: 80 bytes a triangle;
+                                   # 20 KB = 256 records)
 
     # --- memory interface (RTC-MI) -------------------------------------------------------------
     clock_mhz: float = 533.0       # chip clock

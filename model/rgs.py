@@ -47,6 +47,15 @@ Shadow ray toward one light (:func:`shadow_dir`): direction l - p0 (point light 
 or the light's reversed direction (parallel light, tmax inf; the host negates it); it is cast
 only if ``dot(g, direction) > 0`` (the light faces the surface).
 
+Colour (:func:`light_colour`, :func:`hit_colour`, the RTL's ``LightPipe``): a hit of an eye or
+reflection ray of weight wt adds its ambient term (kd * amb) * wt; its reflection ray gets the
+weight wr = wt * kr and carries bg * wr, added if it leaves the scene; its shadow ray toward
+light l carries the Phong term ((kd * ndl) + (ks * rdl ** shin)) * (lc * wt), with ndl and rdl
+the cosines of the light direction with the shading normal and with the reflected direction
+(each clamped at +0), added if it reaches the light. Each contribution becomes a 24-bit
+fixed-point number (:func:`to_fixed`: floor(x * 2**16), saturating); a pixel is their
+integer sum, the same in any order.
+
 Drivers: :func:`eye_packets` makes every packet (tile) of a frame in packet order, lanes in
 order; :func:`setup_rays` sets up an array of rays; :func:`secondary_rays` and
 :func:`shadow_rays` make the secondary rays of an array of hits.

@@ -19,10 +19,11 @@ each way, one memory request and one response per cycle for the whole chip).
 from __future__ import annotations
 
 from amaranth.hdl import Cat, Module
-from amaranth.lib import stream, wiring
+from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.config import Config
+from model.rgs import FIX_BITS
 
 from .bus import RoundRobinBus
 from .common import COUNTER_BITS
@@ -179,17 +180,20 @@ class Chip(wiring.Component):
     ``box_lo``/``box_hi``; the camera ``pos``, ``corner``, ``dx``, ``dy`` (format words, as
     ``model.raygen.eye_rays`` quantizes them for the sample image), ``width``/``height``
     (pixels), ``tiles_x``/``tiles_y`` (tiles of the sample image); ``eps``, ``lights``,
-    ``light_point``, ``n_lights``, ``reflect_depth`` (the slaves' secondary rays). ``start``
+    ``light_point``, ``n_lights``, ``reflect_depth`` (the slaves' secondary rays);
+    ``light_col``, ``amb``, ``bg``, ``w_eye``, ``eye_miss``, ``colour`` (the slaves' colour,
+    ``model.shading.frame_colour_registers``). ``start``
     (one cycle) renders a frame; ``busy`` is high from the cycle after ``start`` until every
     ray the frame spawned has finished and its result has left; ``done`` = not busy.
     ``results`` (Out stream, ``SlaveResult``): every ray's id (eye packet and lane, depth,
-    sub) and hit, in any order.
+    sub), hit and colour contribution, and the ambient records of the hits, in any order.
 
     Counters: ``cycles`` (busy cycles of the last frame), ``rays_in`` (rays into the RTCs),
-    ``results_out``, ``packets[s]`` (eye packets slave s got), per slave ``rays_eye``,
-    ``rays_shadow``, ``rays_reflect``, ``sec_busy`` (``slave_counters[s]``) and its shading
-    cache's ``shade_hits``/``shade_misses``, and :class:`RTCArray`'s (``rtc_counters``,
-    ``hits``, ``misses``, ``grants``, ``mem_reads``).
+    ``results_out`` (ray results; the ambient records are not counted), ``packets[s]`` (eye
+    packets slave s got), per slave ``rays_eye``, ``rays_shadow``, ``rays_reflect``,
+    ``sec_busy`` (``slave_counters[s]``) and its shading cache's
+    ``shade_hits``/``shade_misses``, and :class:`RTCArray`'s (``rtc_counters``, ``hits``,
+    ``misses``, ``grants``, ``mem_reads``).
     """
 
     SLAVE_COUNTERS = ("rays_eye", "rays_shadow", "rays_reflect", "sec_busy")
@@ -223,6 +227,9 @@ class Chip(wiring.Component):
             "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS),
             "eps": In(cfg.fmt.width), "lights": In(v3).array(L), "light_point": In(L),
             "n_lights": In(range(cfg.rgs_lights + 1)), "reflect_depth": In(DEPTH_BITS),
+            "light_col": In(v3).array(L), "amb": In(cfg.fmt.width), "bg": In(v3),
+            "w_eye": In(cfg.fmt.width), "eye_miss": In(data.ArrayLayout(FIX_BITS, 3)),
+            "colour": In(1),
             "results": Out(stream.Signature(SlaveResult(cfg))),
             "cycles": Out(COUNTER_BITS), "rays_in": Out(COUNTER_BITS),
             "results_out": Out(COUNTER_BITS),
@@ -267,9 +274,12 @@ class Chip(wiring.Component):
                 m.d.comb += [cache.base.eq(self.rec_base), self.shade_hits[s].eq(cache.hits),
                              self.shade_misses[s].eq(cache.misses)]
             for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi", "eps",
-                      "light_point", "n_lights", "reflect_depth"):
+                      "light_point", "n_lights", "reflect_depth", "amb", "bg", "w_eye",
+                      "eye_miss", "colour"):
                 m.d.comb += getattr(slave, k).eq(getattr(self, k))
             for a, b in zip(slave.lights, self.lights):
+                m.d.comb += a.eq(b)
+            for a, b in zip(slave.light_col, self.light_col):
                 m.d.comb += a.eq(b)
             wiring.connect(m, slave.rays, arr.rays[s])
             wiring.connect(m, arr.results[s], slave.results)
@@ -299,7 +309,7 @@ class Chip(wiring.Component):
 
         # -- frame control and counters ------------------------------------------------------------
         res = self.results
-        out_now = res.valid & res.ready
+        out_now = res.valid & res.ready & ~res.payload.shade     # ray results (not ambient)
         idle = Signal()
         m.d.comb += idle.eq(master.dispatched & ~master.queued &
                             Cat(*(sl.idle for sl in self.slaves)).all() & ~res.valid)

@@ -1,14 +1,18 @@
-"""The RGS slave: one per RTC; eye rays, the results of every ray, and the secondary rays.
+"""The RGS slave: one per RTC; eye rays, the results of every ray, secondary rays and colour.
 
 A slave takes packet requests (tiles) from the RGS master, makes their eye rays
 (:class:`~rtl.rgs.EyeRays`) and feeds them to its RTC; it takes every result back, reports it
 to the host, and for every hit of an eye or reflection ray makes the secondary rays in FP
-hardware (:class:`~rtl.rgs.SecondaryPipe`, :class:`~rtl.rgs.ShadowPipe`): one shadow ray per
+hardware (:class:`~rtl.rgs.SecondaryPipe`, :class:`~rtl.rgs.LightPipe`): one shadow ray per
 light that faces the surface (any-hit, tmax 1 for a point light), a reflection ray where the
 material reflects and the depth allows. The secondary rays of one source packet are packed
 into packets exactly as ``model.shading`` packs them (per light, and the reflections: the
 wanted hits of the source packet in lane order) and set up (:class:`~rtl.rgs.RaySetup`) for
-the same RTC.
+the same RTC. It computes the colour too (``model.shading``): every ray carries its weight and
+the contribution it makes if it misses (the background for an eye or reflection ray, its
+light's Phong term for a shadow ray, computed by ``LightPipe`` when the ray is made); a hit
+adds its ambient term as a record of its own. The host sums the contributions per pixel (in
+fixed point: the same in any order).
 
 Data paths::
 
@@ -16,16 +20,19 @@ Data paths::
                                                   ├─ RTC arbiter ─► RTC ─results─► store lookup
     pending buffers ─► sender ─► RaySetup ────────┘   (per packet)                      │
           ▲                                                                              ▼
-          └── builders ◄── ShadowPipe ◄── light loop ◄── SecondaryPipe ◄── shading cache (hits)
+          └── builders ◄── LightPipe ◄── light loop ◄── SecondaryPipe ◄── shading cache (hits)
+                              └─► ambient records ─► host records
 
 * **Ray store**: per RTC packet slot (``2 * threads`` slots; the slot is the packet id the RTC
   sees) and lane, the ray's origin, direction and lane in its eye packet; per slot the eye
   packet (tile), the depth and the kind (``sub``: 0 eye or reflection, 1 + l shadow ray of
   light l).
 * **Host record** (:func:`SlaveResult`) of every ray: eye packet and lane, depth, sub — the
-  ray's id — and its hit (triangle, t, u, v).
-* **Shading records** (``REC_BITS``: unit face normal, vertex normals, flags) come through the
-  slave's shading cache (a ``rtl.cache.Cache`` on the chip's bus), addressed by triangle.
+  ray's id — its hit (triangle, t, u, v) and its colour if it missed; and of every hit of an
+  eye or reflection ray, its ambient term.
+* **Shading records** (``REC_BITS``: unit face normal, vertex normals, flags, the material's
+  colour constants) come through the slave's shading cache (a ``rtl.cache.Cache`` on the
+  chip's bus), addressed by triangle.
 * **Pending buffers** (``buffers`` of ``packet_size`` rays: origin, direction, eye lane):
   secondary packets waiting for the RTC.
 
@@ -38,17 +45,22 @@ only while no secondary packet waits, and there are ``buffers >= 2 * (lights + 1
 waiting reflection packet always finds its own reservation once the packets ahead of it have
 finished.
 
+Every result of an eye or reflection ray goes through the shading path (context queue,
+SecondaryPipe, light loop, LightPipe), hit or miss, so that its packet's last token commits
+the packet's secondary packets; the ambient records are reserved at the light loop (a queue
+as deep as LightPipe's latency + 8, rounded up to a power of two), so LightPipe never stalls.
+
 Throughput: one ray into the RTC per cycle; one result per cycle; a hit takes
 ``max(1, lights)`` cycles of the light loop. Latency of a hit's secondary rays: the shading
 cache, :class:`~rtl.rgs.SecondaryPipe` (70 cycles at binary32 defaults), the light loop,
-:class:`~rtl.rgs.ShadowPipe` (12), then the whole source packet must be done before its
+:class:`~rtl.rgs.LightPipe` (75), then the whole source packet must be done before its
 secondary packets go (they are complete only then).
 """
 from __future__ import annotations
 
 from types import SimpleNamespace
 
-from amaranth.hdl import Array, Cat, Module, Mux, Signal, Value
+from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.memory import Memory
@@ -57,12 +69,12 @@ from amaranth.utils import ceil_log2
 
 from model.cache import CacheGeometry
 from model.config import Config, ConfigError
-from model.layout import REC_BITS, REC_REFLECTIVE, REC_WORDS
+from model.layout import REC_BITS, REC_REFLECTIVE, REC_SHIN_SHIFT, REC_WORDS, SHIN_BITS
+from model.rgs import FIX_BITS
 
 from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
 from .memport import MemReadPort
-from .rgs import (COORD_BITS, EyeRays, EyeRequest, RaySetup, SecondaryPipe, ShadowPipe,
-                  _fp_const)
+from .rgs import COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe, _fp_const
 from .rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
 
 __all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
@@ -98,14 +110,19 @@ def _regs(n: int, shape, name: str) -> Array:
 
 
 def SlaveResult(cfg: Config) -> data.StructLayout:
-    """A ray's result as the chip reports it: the ray's id — ``packet`` and ``lane`` of its eye
-    ray (the tile and the lane in it), ``depth`` (reflections before it), ``sub`` (0: eye or
-    reflection ray, 1 + l: shadow ray toward light l) — and its hit (``tri`` all ones on a
-    miss, t, u, v)."""
+    """A record the chip reports: with ``shade`` 0 a ray's result — the ray's id (``packet``
+    and ``lane`` of its eye ray: the tile and the lane in it; ``depth``: reflections before it;
+    ``sub``: 0 eye or reflection ray, 1 + l shadow ray toward light l), its hit (``tri`` all
+    ones on a miss, t, u, v) and ``col``, what it adds to its pixel (3 fixed-point channels,
+    ``model.rgs.to_fixed``: its colour if it misses — the background for an eye or reflection
+    ray, its light's Phong term for a shadow ray — else 0); with ``shade`` 1 the ambient term
+    of the hit of the eye or reflection ray (``packet``, ``lane``, ``depth``) in ``col`` (the
+    other fields 0). A pixel is the sum of the ``col`` of every record of its eye rays."""
     w = cfg.fmt.width
     return data.StructLayout({"packet": PACKET_ID_BITS, "lane": lane_bits(cfg),
                               "depth": DEPTH_BITS, "sub": SUB_BITS, "tri": TRI_ID_BITS,
-                              "t": w, "u": w, "v": w})
+                              "t": w, "u": w, "v": w,
+                              "col": data.ArrayLayout(FIX_BITS, 3), "shade": 1})
 
 
 class Slave(wiring.Component):
@@ -119,7 +136,12 @@ class Slave(wiring.Component):
     ``box_lo``, ``box_hi``, ``eps`` (secondary origins' offset), ``lights`` (``rgs_lights`` ×
     3 format words: a point light's position or a parallel light's reversed direction),
     ``light_point`` (bit l: light l is a point light), ``n_lights`` (lights in use),
-    ``reflect_depth``. ``idle``: nothing in flight. Counters: ``rays_eye``, ``rays_shadow``,
+    ``reflect_depth``; the colour registers ``light_col`` (each light's colour), ``amb`` (the
+    ambient factor), ``bg`` (the background), ``w_eye`` (an eye ray's weight), ``eye_miss``
+    (an eye ray's contribution if it misses: fixed(bg * w_eye), 3 fixed-point channels) —
+    ``model.shading.frame_colour_registers`` — and ``colour`` (1: the frame is shaded; 0: no
+    ambient records, and only packets that spawn rays take the shading path, as for a frame
+    of bare eye rays). ``idle``: nothing in flight. Counters: ``rays_eye``, ``rays_shadow``,
     ``rays_reflect`` (rays into the RTC by kind), ``sec_busy`` (cycles the light loop held a
     hit).
     """
@@ -138,10 +160,14 @@ class Slave(wiring.Component):
                 "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
             self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat)
+            # hit: a shadow ray is wanted (a hit, lights); rhit: the ray hit; first: the hit's
+            # first token; tlast: its last; last: the packet's last token; spawn: the packet
+            # reserved pending buffers
             self.shd_tag = data.StructLayout({
-                "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "last": 1,
+                "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "rhit": 1,
+                "refl": 1, "first": 1, "tlast": 1, "last": 1, "spawn": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-            self.shd = ShadowPipe(cfg.fmt, self.shd_tag.size, lat)
+            self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat)
             self.buffers = slave_buffers(cfg)
         else:
             self.buffers = 0
@@ -158,6 +184,8 @@ class Slave(wiring.Component):
             "box_lo": In(v3), "box_hi": In(v3), "eps": In(w),
             "lights": In(v3).array(max(1, L)), "light_point": In(max(1, L)),
             "n_lights": In(range(L + 1)), "reflect_depth": In(DEPTH_BITS),
+            "light_col": In(v3).array(max(1, L)), "amb": In(w), "bg": In(v3), "w_eye": In(w),
+            "eye_miss": In(data.ArrayLayout(FIX_BITS, 3)), "colour": In(1),
             "idle": Out(1),
             "rays_eye": Out(COUNTER_BITS), "rays_shadow": Out(COUNTER_BITS),
             "rays_reflect": Out(COUNTER_BITS), "sec_busy": Out(COUNTER_BITS),
@@ -208,13 +236,22 @@ class Slave(wiring.Component):
             m.d.sync += [b.valid.eq(res.valid), b.res.eq(res.payload)]
         return b
 
-    def _host_out(self, m: Module) -> SyncFIFO:
+    def _host_out(self, m: Module, other: SyncFIFO | None = None) -> SyncFIFO:
         """The host records: a 4-entry queue (the caller writes it) and the registered
-        ``out`` stream."""
+        ``out`` stream; with ``other`` (a second queue of records) the two take turns."""
         m.submodules.outq = outq = SyncFIFO(width=SlaveResult(self.cfg).size, depth=4)
         m.submodules.out_stage = ost = OutputStage(SlaveResult(self.cfg))
-        m.d.comb += [ost.i.valid.eq(outq.r_rdy), ost.i.payload.eq(outq.r_data),
-                     outq.r_en.eq(ost.i.ready)]
+        if other is None:
+            m.d.comb += [ost.i.valid.eq(outq.r_rdy), ost.i.payload.eq(outq.r_data),
+                         outq.r_en.eq(ost.i.ready)]
+        else:
+            turn = Signal()                  # 1: ``other`` goes first
+            use = other.r_rdy & (~outq.r_rdy | turn)
+            m.d.comb += [ost.i.valid.eq(outq.r_rdy | other.r_rdy),
+                         ost.i.payload.eq(Mux(use, other.r_data, outq.r_data)),
+                         outq.r_en.eq(ost.i.ready & ~use), other.r_en.eq(ost.i.ready & use)]
+            with m.If(ost.i.valid & ost.i.ready):
+                m.d.sync += turn.eq(~use)
         wiring.connect(m, ost.o, wiring.flipped(self.out))
         return outq
 
@@ -282,11 +319,15 @@ class Slave(wiring.Component):
         b_depth = _regs(NB, DEPTH_BITS, "buf_depth")
         b_packet = _regs(NB, PACKET_ID_BITS, "buf_packet")
         credits = Signal(range(NB + 1), init=NB)
-        entry = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb})
+        f3 = data.ArrayLayout(FIX_BITS, 3)
+        # a ray: origin, direction, lane in its eye packet, weight (eye and reflection rays),
+        # its contribution if it misses
+        entry = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb, "wt": w,
+                                   "col": f3})
         pend = Memory(shape=entry, depth=NB * P, init=[])
         m.submodules.pend = pend
-        pend_w_sh = pend.write_port()        # shadow rays (ShadowPipe output)
-        pend_w_rf = pend.write_port()        # reflection rays (light loop)
+        pend_w_sh = pend.write_port()        # shadow rays (LightPipe output)
+        pend_w_rf = pend.write_port()        # reflection rays (LightPipe output)
         pend_r = pend.read_port()
 
         # -- ray store ------------------------------------------------------------------------------
@@ -386,7 +427,8 @@ class Slave(wiring.Component):
         eo = eye.o.payload
         m.d.comb += [
             store_w_eye.addr.eq(eo.ray.packet[:sb] * P + eo.ray.lane),
-            store_w_eye.data.eq(Cat(self.pos.as_value(), eo.dir.as_value(), eo.ray.lane)),
+            store_w_eye.data.eq(Cat(self.pos.as_value(), eo.dir.as_value(), eo.ray.lane,
+                                    self.w_eye, self.eye_miss.as_value())),
             store_w_eye.en.eq(eye.o.valid & eye.o.ready),
         ]
         with m.If(eye.o.valid & eye.o.ready):
@@ -401,27 +443,32 @@ class Slave(wiring.Component):
         bslot = b_res.packet[:sb]
         sub, depth = t_sub[bslot], t_depth[bslot]
         hit = b_res.tri != (1 << TRI_ID_BITS) - 1
-        spawn_pkt = (sub == 0) & spawns(depth)
-        want_rec = spawn_pkt & hit
+        shade_pkt = (sub == 0) & (spawns(depth) | self.colour)   # eye and reflection rays
+        spawn_pkt = shade_pkt & spawns(depth)
+        want_rec = shade_pkt & hit
         stored = data.View(entry, store_r.data)
         ctx_lay = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb, "hit": 1,
                                      "last": 1, "packet": PACKET_ID_BITS, "depth": DEPTH_BITS,
-                                     "t": w, "u": w, "v": w})
+                                     "t": w, "u": w, "v": w, "wt": w, "spawn": 1})
         m.submodules.ctx = ctxq = SyncFIFO(width=ctx_lay.size, depth=4 + cfg.cache_queue)
-        outq = self._host_out(m)
+        # ambient records: as many as LightPipe can hold in flight, reserved at the light loop
+        amb_depth = 1 << ceil_log2(self.shd.latency + 8)
+        m.submodules.ambq = ambq = SyncFIFO(width=SlaveResult(cfg).size, depth=amb_depth)
+        outq = self._host_out(m, ambq)
         rq = self.shade.req
-        need_ctx = b_valid & spawn_pkt
-        ok = (outq.w_rdy & (~spawn_pkt | (ctxq.w_rdy & (~want_rec | rq.ready))))
+        need_ctx = b_valid & shade_pkt
+        ok = (outq.w_rdy & (~shade_pkt | (ctxq.w_rdy & (~want_rec | rq.ready))))
         m.d.comb += b_adv.eq(b_valid & ok)
         rec = Signal(SlaveResult(cfg))
         m.d.comb += [rec.packet.eq(t_packet[bslot]), rec.lane.eq(stored.lane),
                      rec.depth.eq(depth), rec.sub.eq(sub), rec.tri.eq(b_res.tri),
-                     rec.t.eq(b_res.t), rec.u.eq(b_res.u), rec.v.eq(b_res.v)]
+                     rec.t.eq(b_res.t), rec.u.eq(b_res.u), rec.v.eq(b_res.v),
+                     rec.col.eq(Mux(hit, 0, stored.col.as_value()))]
         ctx = Signal(ctx_lay)
         m.d.comb += [ctx.org.eq(stored.org), ctx.dir.eq(stored.dir), ctx.lane.eq(stored.lane),
                      ctx.hit.eq(hit), ctx.last.eq(b_res.last), ctx.packet.eq(t_packet[bslot]),
                      ctx.depth.eq(depth), ctx.t.eq(b_res.t), ctx.u.eq(b_res.u),
-                     ctx.v.eq(b_res.v)]
+                     ctx.v.eq(b_res.v), ctx.wt.eq(stored.wt), ctx.spawn.eq(spawn_pkt)]
         m.d.comb += [outq.w_data.eq(rec), outq.w_en.eq(b_adv),
                      ctxq.w_data.eq(ctx), ctxq.w_en.eq(b_adv & need_ctx),
                      rq.valid.eq(b_valid & want_rec & outq.w_rdy & ctxq.w_rdy),
@@ -439,6 +486,18 @@ class Slave(wiring.Component):
         rdata = resp.payload.data
         word = lambda i: from_binary32(fmt, rdata[32 * i:32 * i + 32])  # noqa: E731
         flags = rdata[32 * 12:32 * 13]
+        # the hit's colour inputs, beside SecondaryPipe (in order, at most its latency + 1 in
+        # flight): the record's material constants, the ray's weight, the packet's reservation
+        mat_lay = data.StructLayout({"kd": vec3(cfg), "ks": vec3(cfg), "kr": w,
+                                     "shin": SHIN_BITS, "wt": w, "spawn": 1})
+        m.submodules.matq = matq = SyncFIFO(width=mat_lay.size, depth=sec.latency + 2)
+        mat_in = Signal(mat_lay)
+        m.d.comb += [mat_in.kd.eq(Cat(word(13), word(14), word(15))),
+                     mat_in.ks.eq(Cat(word(16), word(17), word(18))), mat_in.kr.eq(word(19)),
+                     mat_in.shin.eq(flags[REC_SHIN_SHIFT:REC_SHIN_SHIFT + SHIN_BITS]),
+                     mat_in.wt.eq(head.wt), mat_in.spawn.eq(head.spawn),
+                     matq.w_data.eq(mat_in), matq.w_en.eq(feed)]
+        mat = data.View(mat_lay, matq.r_data)
         st = data.View(self.sec_tag, sec.tag)
         m.d.comb += [sec.i_valid.eq(feed), sec.org.eq(head.org), sec.dir.eq(head.dir),
                      sec.t.eq(head.t), sec.u.eq(head.u), sec.v.eq(head.v), sec.eps.eq(self.eps),
@@ -448,27 +507,37 @@ class Slave(wiring.Component):
                      st.refl.eq((flags & REC_REFLECTIVE) != 0), st.packet.eq(head.packet),
                      st.depth.eq(head.depth)]
 
-        # -- light loop: each SecondaryPipe output to ShadowPipe once per light (once if no hit) ----
+        # -- light loop: each SecondaryPipe output to LightPipe once per light (once if no hit) -----
         so = data.View(self.sec_tag, sec.o_tag)
         li = Signal(range(max(2, L)))
-        commit_wait = Signal()              # a packet's last token is in ShadowPipe
+        commit_wait = Signal()              # a packet's last token is in LightPipe
         tokens_last = Mux(so.hit & (self.n_lights != 0), li == self.n_lights - 1, 1)
-        loop_go = sec.o_valid & ~commit_wait
+        amb_tok = so.hit & (li == 0) & self.colour   # the token makes the hit's ambient record
+        amb_cnt = Signal(range(amb_depth + 1))   # ambient records reserved (in flight, queued)
+        loop_go = sec.o_valid & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth))
         take = loop_go & tokens_last
-        m.d.comb += sec_en.eq(~sec.o_valid | take)
+        m.d.comb += [sec_en.eq(~sec.o_valid | take), matq.r_en.eq(take)]
         with m.If(loop_go):
             m.d.sync += li.eq(Mux(tokens_last, 0, li + 1))
             m.d.sync += self.sec_busy.eq(self.sec_busy + 1)
         with m.If(take & so.last):
             m.d.sync += commit_wait.eq(1)
         tt = data.View(self.shd_tag, shd.tag)
+
+        def per_light(regs):                # light li's register (a complete read mux)
+            return Array([x.as_value() for x in regs] + [regs[0].as_value()] *
+                         ((1 << ceil_log2(max(2, L))) - L))[li] if L else 0
         m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(sec.p0), shd.g.eq(sec.g),
-                     shd.light.eq(Array([x.as_value() for x in self.lights] +
-                                        [self.lights[0].as_value()] *
-                                        ((1 << ceil_log2(max(2, L))) - L))[li] if L else 0),
+                     shd.light.eq(per_light(self.lights)),
                      shd.point.eq(self.light_point.bit_select(li, 1) if L else 0),
+                     shd.n.eq(sec.n), shd.r.eq(sec.r), shd.kd.eq(mat.kd), shd.ks.eq(mat.ks),
+                     shd.kr.eq(mat.kr), shd.shin.eq(mat.shin), shd.wt.eq(mat.wt),
+                     shd.lc.eq(per_light(self.light_col)), shd.amb.eq(self.amb),
+                     shd.bg.eq(self.bg),
                      tt.lane.eq(so.lane), tt.light.eq(li),
-                     tt.hit.eq(so.hit & (self.n_lights != 0)), tt.last.eq(take & so.last),
+                     tt.hit.eq(so.hit & (self.n_lights != 0)), tt.rhit.eq(so.hit),
+                     tt.refl.eq(so.refl), tt.first.eq(li == 0), tt.tlast.eq(tokens_last),
+                     tt.last.eq(take & so.last), tt.spawn.eq(mat.spawn),
                      tt.packet.eq(so.packet), tt.depth.eq(so.depth)]
 
         # -- builders: L shadow packets and the reflection packet of the current source packet -----
@@ -476,10 +545,10 @@ class Slave(wiring.Component):
         has = Signal(nbld)
         bbuf = _regs(nbld, bb, "bld_buf")
         bcnt = _regs(nbld, range(P + 1), "bld_count")
-        # reflection write (light loop, first token of a hit on a reflective surface)
-        rf_w = loop_go & (li == 0) & so.hit & so.refl & (so.depth < self.reflect_depth)
-        # shadow write (ShadowPipe output)
         ot = data.View(self.shd_tag, shd.o_tag)
+        # reflection write (LightPipe output, first token of a hit on a reflective surface)
+        rf_w = shd.o_valid & ot.first & ot.rhit & ot.refl & (ot.depth < self.reflect_depth)
+        # shadow write (LightPipe output)
         sh_w = shd.o_valid & ot.hit & shd.cast
         sh_b = ot.light               # the light's builder (as wide as the light index: the
                                       # register arrays' read muxes stay complete)
@@ -495,11 +564,20 @@ class Slave(wiring.Component):
                              Mux(need_sh, Mux(need_rf, 1 << f2, 1 << f1), 0))
         m.d.comb += [
             pend_w_rf.addr.eq(rf_buf * P + bcnt[L]), pend_w_rf.en.eq(rf_w),
-            pend_w_rf.data.eq(Cat(sec.p0.as_value(), sec.r.as_value(), so.lane)),
+            pend_w_rf.data.eq(Cat(shd.o_p0.as_value(), shd.o_r.as_value(), ot.lane, shd.wr,
+                                  shd.rmiss.as_value())),
             pend_w_sh.addr.eq(sh_buf * P + bcnt[sh_b]), pend_w_sh.en.eq(sh_w),
-            pend_w_sh.data.eq(Cat(shd.o_p0.as_value(), shd.dir.as_value(), ot.lane)),
+            pend_w_sh.data.eq(Cat(shd.o_p0.as_value(), shd.dir.as_value(), ot.lane,
+                                  Const(0, w), shd.col.as_value())),
         ]
-        # commit: the source packet's last token left ShadowPipe
+        # ambient record (LightPipe output, a hit's first token)
+        amb_rec = Signal(SlaveResult(cfg))
+        amb_w = shd.o_valid & ot.first & ot.rhit & self.colour
+        m.d.comb += [amb_rec.packet.eq(ot.packet), amb_rec.lane.eq(ot.lane),
+                     amb_rec.depth.eq(ot.depth), amb_rec.col.eq(shd.amb_col),
+                     amb_rec.shade.eq(1), ambq.w_data.eq(amb_rec), ambq.w_en.eq(amb_w)]
+        m.d.sync += amb_cnt.eq(amb_cnt + (loop_go & amb_tok) - (ambq.r_rdy & ambq.r_en))
+        # commit: the source packet's last token left LightPipe
         commit = shd.o_valid & ot.last
         new_has = Signal(nbld)
         m.d.comb += new_has.eq(has | Mux(rf_w, 1 << L, 0) | Mux(sh_w, 1 << sh_b, 0))
@@ -526,7 +604,7 @@ class Slave(wiring.Component):
                                  b_sub[buf].eq(0 if i == L else i + 1),
                                  b_depth[buf].eq(ot.depth + (1 if i == L else 0)),
                                  b_packet[buf].eq(ot.packet)]
-            m.d.comb += unused.eq(K - sum(new_has[i] for i in range(nbld)))
+            m.d.comb += unused.eq(Mux(ot.spawn, K - sum(new_has[i] for i in range(nbld)), 0))
             m.d.comb += committed.eq(Cat(*(
                 sum((new_has[i] & (Mux(has[i], bbuf[i], fresh(i)) == b)) for i in range(nbld))
                 != 0 for b in range(NB))))
@@ -540,6 +618,10 @@ class Slave(wiring.Component):
         m.d.sync += credits.eq(credits + credit_back - credit_take)
 
         # -- idle ------------------------------------------------------------------------------------
+        # results in the shading path (context queue, SecondaryPipe, light loop, LightPipe)
+        shading = Signal(range(NS * P + 1))
+        m.d.sync += shading.eq(shading + (b_adv & need_ctx) - (shd.o_valid & ot.tlast))
         m.d.comb += self.idle.eq((slot.free == (1 << NS) - 1) & (credits == NB) & ~b_valid &
-                                 ~outq.r_rdy & ~self.out.valid & ~sender_busy)
+                                 ~outq.r_rdy & ~self.out.valid & ~sender_busy &
+                                 (shading == 0) & (amb_cnt == 0))
         return m

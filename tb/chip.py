@@ -20,6 +20,7 @@ import numpy as np
 
 from model.config import Config
 from model.raygen import camera_registers, eye_rays
+from model.rgs import FIX_FRAC
 from model.rtc import counter_totals, trace
 from rtl.chip import Chip, counter_names
 from rtl.rtcmi import CACHES
@@ -41,7 +42,7 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
     chip's ports take them: format words as their bit patterns). With ``scene`` the slaves make
     its secondary rays (a shadow ray per light, if ``cfg.shadows``; reflections to
     ``cfg.reflect_depth``) from the image's slave records; without, eye rays only."""
-    from model.shading import Shader, surface_offset
+    from model.shading import Shader, frame_colour_registers, surface_offset
     fmt, n = cfg.fmt, cfg.oversampling
     sw, sh = width * n, height * n
     pos, corner, dx, dy = camera_registers(camera, width, height, cfg)
@@ -64,6 +65,9 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
             point |= int(pt) << li
     vecs += [[0, 0, 0]] * (max(1, cfg.rgs_lights) - len(vecs))
     eps = fmt.quantize(surface_offset(image.bounds))
+    col = frame_colour_registers(scene, fmt, n * n) if scene is not None else None
+    lcols = [bits(c) for c in col["lights"][:len(lights)]] if col is not None else []
+    lcols += [[0, 0, 0]] * (max(1, cfg.rgs_lights) - len(lcols))
     regs = {
         "node_base": image.node_base, "list_base": image.list_base,
         "tri_base": image.tri_base, "root": image.root, "rec_base": rec_base,
@@ -73,26 +77,61 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
         "tiles_x": -(-sw // cfg.tile_w), "tiles_y": -(-sh // cfg.tile_h),
         "eps": bits([eps])[0], "light_point": point, "n_lights": len(lights),
         "reflect_depth": depth,
+        "amb": bits([col["amb"]])[0] if col is not None else 0,
+        "bg": bits(col["bg"]) if col is not None else [0, 0, 0],
+        "w_eye": bits([col["w_eye"]])[0] if col is not None else 0,
+        "eye_miss": [int(x) for x in col["eye_miss"]] if col is not None else [0, 0, 0],
+        "colour": int(col is not None and cfg.secondary_rays),
     }
     for li, v in enumerate(vecs):
         regs[f"light{li}"] = v
+    for li, v in enumerate(lcols):
+        regs[f"lcol{li}"] = v
     return regs
 
 
 def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None):
     """What the chip must report for the frame of :func:`frame_registers`: ``(eye rays, every
-    ray with its id, their hits, the model's counter totals, the model's colour image or
-    None)``. With ``scene``: ``model.render.render``'s ray tree (the same rays in the same
-    packets as the slaves make them) and its image; without: ``model.rtc.trace`` of the eye
-    rays."""
+    ray with its id, their hits, the model's counter totals, the pixels' fixed-point colour
+    sums or None)``. With ``scene``: ``model.render.render``'s ray tree (the same rays in the
+    same packets as the slaves make them) and its colour without textures (the slaves have no
+    texture unit) — None where the chip makes no colour: eye-ray-only slaves, or a scene with
+    lights rendered without shadow rays (the slaves shade only with the lights they cast
+    shadow rays to); without ``scene``: ``model.rtc.trace`` of the eye rays."""
     eye = eye_rays(camera, width, height, cfg)
     if scene is None:
         hits, ctrs = trace(image, eye, cfg)
         return eye, eye, hits, counter_totals(ctrs), None
     from model.render import Prepared, render
     res = render(scene, cfg, width, height,
-                 prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False))
-    return eye, res.rays, res.hits, res.counters, res.image
+                 prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False),
+                 textures=False)
+    colour = res.colour if cfg.secondary_rays and (cfg.shadows or not scene.lights) else None
+    return eye, res.rays, res.hits, res.counters, colour
+
+
+def colour_mismatches(records: dict, eye, colour: np.ndarray) -> tuple[list, np.ndarray]:
+    """The chip's pixel colours (:func:`record_colour`) against the model's fixed-point sums
+    ``colour`` ((pixels, 3)): ``(pixel, "colour", chip, model)`` for every pixel that differs
+    (three 24-bit channels packed, red lowest) and the chip's image ((pixels, 3) float32)."""
+    got = record_colour(records, eye)
+    if got.shape[0] < colour.shape[0]:
+        got = np.concatenate([got, np.zeros((colour.shape[0] - got.shape[0], 3), np.int64)])
+    pack = lambda c: int(c[0]) | int(c[1]) << 24 | int(c[2]) << 48  # noqa: E731
+    bad = [(int(p), "colour", pack(got[p]), pack(colour[p]))
+           for p in np.flatnonzero(np.any(got != colour, axis=1))]
+    return bad, (got / float(1 << FIX_FRAC)).astype(np.float32)
+
+
+def record_colour(records: dict, eye) -> np.ndarray:
+    """The pixels' colour sums ((pixels, 3) int64) of the chip's records (every record adds its
+    ``col`` to the pixel of its eye ray: ``packet``, ``lane``)."""
+    pk = np.asarray(eye.pk_start, np.int64)
+    ray = pk[np.asarray(records["packet"], np.int64)] + np.asarray(records["lane"], np.int64)
+    out = np.zeros((int(eye.pixel.max()) + 1 if len(eye) else 0, 3), np.int64)
+    col = np.stack([np.asarray(records[f"col{c}"], np.int64) for c in range(3)], axis=1)
+    np.add.at(out, eye.pixel[ray], col)
+    return out
 
 
 @dataclass
@@ -107,7 +146,8 @@ class ChipRun:
     eye: object = None             # the frame's eye rays (model.raygen.Rays) the hits belong to
     frame_rays: object = None      # every ray of the frame (eye, shadow, reflection), with ids
     frame_hits: object = None      # the chip's hits of every ray
-    color: np.ndarray | None = None   # the golden model's image of the frame's rays (a scene)
+    color: np.ndarray | None = None   # the chip's colour image ((pixels, 3) float32 linear),
+                                      # where it makes one (golden_frame)
     build: object = None           # the Verilator binary (tb.verilator.FrameBuild), if any
     # counters every ``sample_every`` cycles: columns cycle, results, then chip_counter_names
     samples: np.ndarray | None = None
@@ -127,6 +167,7 @@ def const_values(cfg: Config, regs: dict, *, stall: float = 0.0, seed: int = 1,
             vals[k] = regs[k]
     for li in range(max(1, cfg.rgs_lights)):
         vals.update({f"light{li}_{i}": regs[f"light{li}"][i] for i in range(3)})
+        vals.update({f"lcol{li}_{i}": regs[f"lcol{li}"][i] for i in range(3)})
     return vals
 
 
@@ -178,7 +219,8 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                      desc="chip (Verilator)", names=names, allow_limit=True,
                      sample_every=sample_every)
     lay = SlaveResult(cfg)
-    records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
+    records = {name: _field(out.results, off, wd)
+               for name, off, wd in compare.record_fields(lay)}
     if out.status == 2:
         raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles,
                                golden.result()[1]))
@@ -207,11 +249,12 @@ def stuck(cfg: Config, rays, records: dict, c: dict, max_cycles: int, every=None
     ids = np.asarray(every.eye, np.int64)
     tile = np.searchsorted(rays.pk_start, ids, side="right") - 1
     sizes = np.bincount(tile, minlength=n)
-    got = np.bincount(np.asarray(records["packet"], np.int64), minlength=n)
+    ray_rec = np.asarray(records.get("shade", np.zeros(len(records["packet"]), np.int64))) == 0
+    got = np.bincount(np.asarray(records["packet"], np.int64)[ray_rec], minlength=n)
     missing = [int(p) for p in np.flatnonzero(got[:n] < sizes)]
     per_rtc = [f"RTC {r}: {c[f'packets{r}']} packets in, {c[f'rtc{r}_packets_done']} done"
                for r in range(cfg.rtcs)]
-    return (f"chip (Verilator): {len(records['packet'])} of {len(ids)} results after "
+    return (f"chip (Verilator): {int(ray_rec.sum())} of {len(ids)} results after "
             f"max_cycles={max_cycles}; packets never finished: {missing[:20]}; "
             f"{'; '.join(per_rtc)}; rays into the RTCs {c['rays_in']} (a deadlock, or raise "
             "the cycle limit)")
@@ -221,8 +264,10 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
             golden) -> ChipRun:
     """Compare result ``records`` (``SlaveResult`` fields) with the model's ``golden``
     (:func:`golden_frame`); counters ``c`` by :func:`chip_counter_names`."""
-    eye, rays, hits, model_totals, color = golden
-    by_ray = compare.results_by_id(records, rays, eye.pk_start)
+    eye, rays, hits, model_totals, colour = golden
+    shade = np.asarray(records["shade"]) == 1
+    by_ray = compare.results_by_id({k: np.asarray(v)[~shade] for k, v in records.items()},
+                                   rays, eye.pk_start)
     chip_hits = compare.hits_of(by_ray, cfg, image)
     counters = {"cycles": cycles, "rays_in": c["rays_in"], "results_out": c["results_out"],
                 "mem_reads": c["mem_reads"],
@@ -242,8 +287,12 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
     n_eye = len(eye)
     from model.rtc import Hits
     eye_hits = Hits(*(getattr(chip_hits, f)[:n_eye] for f in ("tri", "t", "u", "v")))
-    return ChipRun(cycles, seconds, len(rays), counters, model_totals,
-                   compare.result_mismatches(by_ray, compare.expected(hits, cfg, image)),
+    mismatches = compare.result_mismatches(by_ray, compare.expected(hits, cfg, image))
+    color = None
+    if colour is not None:
+        bad, color = colour_mismatches(records, eye, colour)
+        mismatches += bad
+    return ChipRun(cycles, seconds, len(rays), counters, model_totals, mismatches,
                    eye_hits, eye, rays, chip_hits, color=color)
 
 
@@ -301,8 +350,8 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
         raise AssertionError(f"chip frame: {len(got)} of {len(rays)} results after "
                              f"{max_cycles} cycles (deadlock?)")
     lay = SlaveResult(cfg)
-    records = {name: np.array([(v >> fld.offset) & ((1 << fld.width) - 1) for v in got],
-                              np.int64) for name, fld in lay}
+    records = {name: np.array([(v >> off) & ((1 << wd) - 1) for v in got], np.int64)
+               for name, off, wd in compare.record_fields(lay)}
     c = dict(zip(names, unpack(info["counters"])))
     run = _finish(cfg, image, records, info["cycles"], info["seconds"], c,
                   golden_frame(cfg, image, camera, width, height, scene))

@@ -18,7 +18,7 @@ __all__ = ["ChipFrame", "chip_consts", "chip_counter_names", "REGISTERS"]
 def chip_consts(cfg: Config) -> list[str]:
     """The constants :class:`ChipFrame` loads (``ld_sel`` = CONST, address = position): the
     chip's registers (three words for a vector: ``pos_0``, ``pos_1``, ``pos_2``; light l's
-    vector ``light{l}_0`` ...), then the result back-pressure (``stall_q``, sixteenths) and its
+    vector ``light{l}_0`` ..., its colour ``lcol{l}_0`` ...), then the result back-pressure (``stall_q``, sixteenths) and its
     LFSR seed, then the fraction of cycles the SDRAM model holds its responses
     (``mem_stall_q``) and that LFSR's seed."""
     names = []
@@ -26,13 +26,16 @@ def chip_consts(cfg: Config) -> list[str]:
         names += [f"{k}_{i}" for i in range(3)] if v else [k]
     for li in range(max(1, cfg.rgs_lights)):
         names += [f"light{li}_{i}" for i in range(3)]
+    for li in range(max(1, cfg.rgs_lights)):
+        names += [f"lcol{li}_{i}" for i in range(3)]
     return names + ["stall_q", "seed", "mem_stall_q", "mem_seed"]
 
 
 REGISTERS = {"node_base": 0, "list_base": 0, "tri_base": 0, "root": 0, "rec_base": 0,
              "box_lo": 1, "box_hi": 1, "pos": 1, "corner": 1, "dx": 1, "dy": 1, "width": 0,
              "height": 0, "tiles_x": 0, "tiles_y": 0, "eps": 0, "light_point": 0,
-             "n_lights": 0, "reflect_depth": 0}           # 1: a vector of 3 format words
+             "n_lights": 0, "reflect_depth": 0, "amb": 0, "bg": 1, "w_eye": 0,
+             "eye_miss": 1, "colour": 0}                  # 1: a vector of 3 words
 
 
 def chip_counter_names(cfg: Config) -> list[str]:
@@ -74,6 +77,9 @@ class _ChipRun(wiring.Component):
         for li, port in enumerate(chip.lights):
             for i in range(3):
                 m.d.comb += port[i].eq(c[f"light{li}_{i}"])
+        for li, port in enumerate(chip.light_col):
+            for i in range(3):
+                m.d.comb += port[i].eq(c[f"lcol{li}_{i}"])
         going = Signal()
         m.d.sync += going.eq(1)
         m.d.comb += [chip.start.eq(~going), t.finished_run.eq(going & chip.done)]

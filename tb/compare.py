@@ -26,7 +26,7 @@ import numpy as np
 from model.config import Config
 
 __all__ = ["FIELDS", "MISS", "COMPARED", "ResultError", "expected", "hits_of", "results_by_ray",
-           "results_by_id", "ray_ids", "result_mismatches", "counter_mismatches", "describe"]
+           "record_fields", "results_by_id", "ray_ids", "result_mismatches", "counter_mismatches", "describe"]
 
 FIELDS = ("tri", "t", "u", "v")
 MISS = (1 << 32) - 1            # the RTC's triangle id of a ray that hit nothing
@@ -101,6 +101,22 @@ def ray_ids(eye: np.ndarray, depth: np.ndarray, sub: np.ndarray) -> np.ndarray:
         np.asarray(sub, np.int64)
 
 
+def record_fields(layout) -> list[tuple[str, int, int]]:
+    """``(name, offset, width)`` of every field of a ``lib.data`` record layout, the elements of
+    an array field as ``name0``, ``name1``, ... (each at most 32 bits: ``tb.verilator._field``
+    reads them)."""
+    from amaranth.hdl import Shape
+    from amaranth.lib import data
+    out = []
+    for name, fld in layout:
+        if isinstance(fld.shape, data.ArrayLayout):
+            ew = Shape.cast(fld.shape.elem_shape).width
+            out += [(f"{name}{i}", fld.offset + i * ew, ew) for i in range(fld.shape.length)]
+        else:
+            out.append((name, fld.offset, fld.width))
+    return out
+
+
 def results_by_id(records: Mapping[str, np.ndarray], rays, eye_pk_start) -> dict:
     """Order the chip's result records by ray: ``records`` holds ``packet`` and ``lane`` (of
     the ray's eye ray), ``depth``, ``sub`` and each of :data:`FIELDS`; ``rays`` every ray of
@@ -153,6 +169,11 @@ def describe(mismatches: list, counters: dict | None = None, first: int = 10,
     from model.render import KIND_NAMES
     lines = [f"{len(mismatches)} result mismatches"]
     for r, f, a, b in mismatches[:first]:
+        if f == "colour":            # a pixel's colour sum: 3 x 24-bit channels, red lowest
+            ch = lambda v: tuple((v >> (24 * c)) & 0xFFFFFF for c in range(3))  # noqa: E731
+            lines.append(f"  pixel {r}: colour RTL {ch(a)}, model {ch(b)} (fixed point, "
+                         "2**-16 units)")
+            continue
         where = ""
         if rays is not None:
             pk = int(np.searchsorted(rays.pk_start, r, side="right") - 1)

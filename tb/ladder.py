@@ -85,6 +85,7 @@ def run_band(cfg: Config, image, camera, width: int, height: int, y0: int, rows:
     from model.rtc import counter_totals, trace
     from rtl.rgs_slave import SlaveResult
 
+    from . import compare
     from .chip import ChipRun, _finish, chip_blocks, chip_build, stuck
     from .chip_frame import chip_counter_names
     from .verilator import FrameError, _field, run_binary, write_blocks
@@ -103,7 +104,8 @@ def run_band(cfg: Config, image, camera, width: int, height: int, y0: int, rows:
                      len(rays), max_cycles=max_cycles, progress=False, log=log,
                      desc="chip band (Verilator)", names=names, allow_limit=True)
     lay = SlaveResult(cfg)
-    records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
+    records = {name: _field(out.results, off, wd)
+               for name, off, wd in compare.record_fields(lay)}
     if out.status == 2:
         raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles))
     if check:

@@ -1,18 +1,22 @@
 """``make sim``: a frame through the whole chip (``rtl/chip.py``), every ray checked.
 
-The chip renders the frame's eye rays: its RGS slaves make them in FP hardware from the camera
-registers, its RTCs trace them through their caches, the round-robin bus and the SDRAM model.
+The chip renders the frame: its RGS slaves make the eye rays in FP hardware from the camera
+registers and, from the results, the shadow and reflection rays and every pixel's colour; its
+RTCs trace the rays through their caches, the round-robin bus and the SDRAM model.
 The simulation runs in Verilator (default; the binary is built once per configuration and
 cached in ``build/verilator/``) or in Amaranth's simulator (``--backend amaranth``, small
-frames). Every ray's result (triangle, t, u, v bits) is compared with the golden model
-(``model.rtc.trace``): a mismatch exits with status 1 and names the rays.
+frames). Every ray's result (triangle, t, u, v bits) and every pixel's colour is compared
+with the golden model (``model.render``): a mismatch exits with status 1 and names the rays
+or pixels.
 
 Outputs in ``--out`` (default ``build/sim``):
 
-* ``image.png``: the chip's hits, shaded on the host (``model.shading``: ambient + Phong of
-  every light, textures). The chip's RGS makes no shadow or reflection rays yet, so the lights
-  are unshadowed and there are no reflections; the golden model's ``saarcor render`` /
-  ``python -m model render`` draws the full image.
+* ``image.png``: the chip's own colour: every pixel the sum of what its RGS slaves computed
+  for its rays (ambient, the Phong term of every light a shadow ray reached, reflections,
+  background; ``model.shading``), checked pixel for pixel against the golden model. The
+  slaves have no texture unit yet, so textured surfaces show their material colour
+  (``saarcor render`` draws textures). Where the chip makes no colour (eye-ray-only slaves,
+  ``--eye-only``, lights without shadow rays) the chip's hits are shaded on the host instead.
 * ``stats.json``: cycles, fps at ``clock_mhz``, the paper's relative performance (fps /
   fps_ideal), op counts, cache hit rates, memory traffic per SDRAM chip, unit and bus usage,
   mismatches, simulator speed and the whole configuration (see :func:`frame_stats`).
@@ -137,8 +141,8 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "wall_seconds": round(wall, 2),
         "build": {"built": bool(run.build and run.build.built),
                   "seconds": round(run.build.seconds, 1) if run.build else 0},
-        "image": ("the golden model's colour of the frame's rays (ambient + Phong, shadows, "
-                  "reflections; host float32), whose every hit the chip matched bit for bit"
+        "image": ("the chip's colour (ambient + Phong, shadows, reflections; no textures), "
+                  "equal to the golden model's pixel for pixel"
                   if run.color is not None and not run.mismatches else
                   "the chip's eye-ray hits shaded on the host (ambient + Phong, unshadowed)"),
         "config": cfg.to_dict(),
@@ -302,7 +306,7 @@ def main(argv=None) -> int:
     (out / "stats.json").write_text(json.dumps(stats, indent=1))
     from PIL import Image
     if r.color is not None and not r.mismatches:
-        color = r.color                 # the model's shading of exactly the chip's rays and hits
+        color = r.color                 # the chip's colour, checked against the model
     else:
         color = shade_eye_hits(scene, cfg, prep.image, r.eye, r.hits, w * h)
     Image.fromarray(to_srgb8(color.reshape(h, w, 3))).save(out / "image.png")

@@ -151,7 +151,7 @@ int main(int argc, char** argv) {
         uint32_t sel = u32(), addr = u32();
         uint64_t count = u64();
         if (count > (buf.size() - pos) / 8) need(count * 8, "block data");
-        uint64_t cap = sel == 0 ? cap_mem : sel == 1 ? cap_rays * 8 : sel == 2 ? 64 : 0;
+        uint64_t cap = sel == 0 ? cap_mem : sel == 1 ? cap_rays * 8 : sel == 2 ? 256 : 0;
         if (cap == 0) die(in_path.c_str(), "block with unknown target " + std::to_string(sel));
         if ((uint64_t)addr + count > cap)
             die(in_path.c_str(),

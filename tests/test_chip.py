@@ -31,8 +31,8 @@ def cornell(kd_cache):
 
 
 def check_frame(r, cfg, image, rays):
-    """Every ray bit-exact; every ray in and out once; the RTCs' counters add up to the
-    model's; the caches' and the memory's counters agree with each other. ``rays``: the eye
+    """Every ray bit-exact (and, where the chip makes colour, every pixel's colour); every ray
+    in and out once; the RTCs' counters add up to the model's; the caches' and the memory's counters agree with each other. ``rays``: the eye
     rays (the frame's other rays are ``r.frame_rays``, the model's)."""
     from model.raygen import EYE, REFLECTION, SHADOW
     c = r.counters
@@ -131,13 +131,15 @@ def test_chip_verilator_cornell_16x16(cornell):
 def test_chip_secondary_rays_in_amaranth_sim(cornell):
     """A 4x4 Cornell frame with its shadow rays (3 point lights) and reflections (the mirror
     sphere): the slaves make every secondary ray in FP hardware from the RTCs' results, and
-    every ray of the frame's ray tree is bit-exact with ``model.render``'s, found by its id."""
+    every ray of the frame's ray tree is bit-exact with ``model.render``'s, found by its id;
+    every pixel's colour, summed from the slaves' records, equals the model's."""
     from tb.chip import run_chip
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
     rays = eye_rays(scene.camera, 4, 4, cfg)
     r = run_chip(cfg, image, scene.camera, 4, 4, stall=0.25, seed=3, scene=scene)
     check_frame(r, cfg, image, rays)
+    assert r.color is not None                      # and every pixel's colour (check_frame)
     kinds = np.bincount(r.frame_rays.kind, minlength=3)
     assert kinds[1] > kinds[0] > 0                  # shadow rays toward every light
     name = "chip/cornell_4x4_scene_rtcs2"
@@ -159,6 +161,7 @@ def test_chip_secondary_rays_verilator(cornell):
     r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
                        scene=scene, progress=False, max_cycles=2_000_000)
     check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    assert r.color is not None and r.color.max() > 0
     rays = r.frame_rays
     assert (rays.kind == REFLECTION).any()
     assert ((rays.kind == SHADOW) & (rays.depth == 1)).any()     # shadow rays at reflection hits
@@ -217,3 +220,31 @@ def test_stall_bench_passes_and_can_fail(cornell, tmp_path):
     assert stall_bench(cfg, image, scene.camera, 8, 8, 2, path, max_cycles=200) == 1
     res = json.loads(path.read_text())
     assert len(res["failures"]) == 2 and "packets never finished" in res["failures"][0]["what"]
+
+
+def test_colour_check_finds_a_wrong_pixel():
+    """The chip's colour records summed per pixel against the model's sums: equal sums give
+    no mismatch, whatever the records' order; one channel off by one unit is named."""
+    from model.render import render
+    from tb.chip import colour_mismatches
+    cfg = TINY
+    scene = load_scene(ROOT / "scenes/cornell.toml")
+    res = render(scene, cfg, 8, 4, textures=False)
+    eye = eye_rays(scene.camera, 8, 4, cfg)
+    # records: one per pixel channel sum, split in two halves, shuffled
+    pk = np.searchsorted(eye.pk_start, np.arange(len(eye)), side="right") - 1
+    lane = np.arange(len(eye)) - eye.pk_start[pk]
+    half = res.colour[eye.pixel] // 2
+    rest = res.colour[eye.pixel] - half
+    recs = {"packet": np.concatenate([pk, pk]), "lane": np.concatenate([lane, lane])}
+    for c in range(3):
+        recs[f"col{c}"] = np.concatenate([half[:, c], rest[:, c]])
+    order = np.random.default_rng(1).permutation(2 * len(eye))
+    recs = {k: v[order] for k, v in recs.items()}
+    bad, img = colour_mismatches(recs, eye, res.colour)
+    assert bad == [] and np.array_equal(img, res.image.reshape(-1, 3))
+    recs["col1"][5] += 1
+    bad, _ = colour_mismatches(recs, eye, res.colour)
+    p = int(eye.pixel[eye.pk_start[recs["packet"][5]] + recs["lane"][5]])
+    assert [(b[0], b[1]) for b in bad] == [(p, "colour")]
+    assert bad[0][2] - bad[0][3] == 1 << 24

@@ -44,6 +44,7 @@ def run_chip(cfg, image, camera, width: int, height: int, sim: str, run_dir, *,
     checks ``mismatches`` (empty when the Verilog agrees with the model) and the counters."""
     from rtl.rgs_slave import SlaveResult
     from tb.chip import _finish, frame_registers, golden_frame
+    from tb.compare import record_fields
     from tb.chip_sdram import write_image
     from tb.lfsr import lfsr_seeds, sixteenths
 
@@ -75,8 +76,8 @@ def run_chip(cfg, image, camera, width: int, height: int, sim: str, run_dir, *,
         arrays, plusargs = {}, [f"+image={image_file.resolve()}"]
     r = run_bench("chip", b, run_dir, params=params, arrays=arrays, plusargs=plusargs)
     got = [int.from_bytes(row.tobytes(), "little") for row in r.arrays["results"]]
-    records = {k: np.array([(v >> f.offset) & ((1 << f.width) - 1) for v in got], np.int64)
-               for k, f in lay}
+    records = {k: np.array([(v >> off) & ((1 << wd) - 1) for v in got], np.int64)
+               for k, off, wd in record_fields(lay)}
     v = r.values["counters"]
     run = _finish(cfg, image, records, v["cycles"], r.values["seconds"], counters(cfg, v),
                   golden_frame(cfg, image, camera, width, height, scene))
@@ -88,13 +89,18 @@ def run_chip(cfg, image, camera, width: int, height: int, sim: str, run_dir, *,
 def register_ports(dut, regs: dict) -> dict[str, int]:
     """The host registers ``regs`` (``tb.chip.frame_registers``) as port values of ``dut``'s
     Verilog: a vector through its port's layout (three format words, the first in the low
-    bits); light l's vector is port ``lights__l``."""
+    bits); light l's vector is port ``lights__l``, its colour ``light_col__l``."""
     out = {}
     for name, value in regs.items():
-        light = re.fullmatch(r"light(\d+)", name)
-        port = dut.lights[int(light[1])] if light else getattr(dut, name)
-        out[f"lights__{light[1]}" if light else name] = (
-            port.shape().const(value).as_value().value if isinstance(value, list) else int(value))
+        light = re.fullmatch(r"(light|lcol)(\d+)", name)
+        if light:
+            array = "lights" if light[1] == "light" else "light_col"
+            port = getattr(dut, array)[int(light[2])]
+            name = f"{array}__{light[2]}"
+        else:
+            port = getattr(dut, name)
+        out[name] = (port.shape().const(value).as_value().value if isinstance(value, list)
+                     else int(value))
     return out
 
 
