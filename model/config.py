@@ -36,6 +36,12 @@ class Config:
     fp_add_latency: int = 0
     fp_mul_latency: int = 0
     fp_div_latency: int = 0
+    fp_cmp_latency: int = 0        # compare and min/max units (0: the default 1; 2 registers
+                                   # their inputs too)
+    # extra registers for a faster clock (docs/fpga.md): block-RAM reads registered before
+    # they feed arithmetic or control, the per-thread selects of the traversal control cut in
+    # two, the caches' lookup in two stages. False keeps every unit's cycle timing as it was.
+    fast_clock: bool = False
     tile_w: int = 8                # a packet is a tile_w x tile_h tile of eye rays
     tile_h: int = 8
 
@@ -73,7 +79,7 @@ class Config:
                      "cache_outstanding", "cache_line_words"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency"):
+        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency", "fp_cmp_latency"):
             if not 0 <= getattr(self, name) <= 64:
                 raise ConfigError(f"{name}={getattr(self, name)} must be in 0..64 (pipeline "
                                   "stages of that FP unit; 0 = the unit's default)")
@@ -134,9 +140,10 @@ class Config:
         return self.mem_chips * self.mem_chip_bits / 8 * self.clock_mhz * 1e6 / self.mem_clock_ratio
 
     def fp_latencies(self) -> dict:
-        """``{"add": n, "mul": n, "div": n}`` for the RTL's FP units; None = the unit's default."""
+        """``{"add": n, "mul": n, "div": n, "cmp": n}`` for the RTL's FP units (``cmp``: compare
+        and min/max); None = the unit's default."""
         return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
-                "div": self.fp_div_latency or None}
+                "div": self.fp_div_latency or None, "cmp": self.fp_cmp_latency or None}
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)

@@ -156,7 +156,12 @@ class TravSubunit(wiring.Component):
 
     ``ld_*``: write one lane's ray data and initial interval (the loader); ``ld_block`` says the
     datapath writes ``N`` this cycle (the loader must wait). ``rq_*``: read a lane's ``tfar``
-    (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid one cycle later.
+    (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later
+    (1; 2 with ``cfg.fast_clock``: the block-RAM outputs are registered).
+
+    Block-RAM outputs feed only registers: the ray read is registered before the axis pick,
+    the interval read is issued two stages before ``dist`` is valid and registered once.
+    ``cfg.fp_cmp_latency`` (default 1) sets the compare and min/max units' latency.
     """
 
     def __init__(self, cfg: Config, *, queue: int = 4):
@@ -171,8 +176,10 @@ class TravSubunit(wiring.Component):
         lat = cfg.fp_latencies()
         self.add = FPAdd(fmt) if lat["add"] is None else FPAdd(fmt, latency=lat["add"])
         self.mul = FPMul(fmt) if lat["mul"] is None else FPMul(fmt, latency=lat["mul"])
-        self.LAT = 2 + self.add.latency + self.mul.latency + 1   # issue -> write stage
+        self.cmp_lat = lat["cmp"] or 1     # compare and min/max units
+        self.LAT = 2 + self.add.latency + self.mul.latency + self.cmp_lat  # issue -> write stage
         self.STEP_LAT = self.LAT + 2      # step transfer -> verdict valid, minus active lanes
+        self.RQ_LAT = 2 if cfg.fast_clock else 1    # rq_* address -> rq_tfar, rq_anyhit
         super().__init__({
             "step": In(stream.Signature(step_layout(cfg))),
             "go": In(1, init=1), "can_start": Out(1),
@@ -199,10 +206,11 @@ class TravSubunit(wiring.Component):
         n_r, n_rq, n_w = nmem.read_port(), nmem.read_port(), nmem.write_port()
         s_r, s_rq, s_w = smem.read_port(), smem.read_port(), smem.write_port()
         m.submodules.add, m.submodules.mul = add, mul = self.add, self.mul
-        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=1)
-        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=1)
-        m.submodules.vmin = vmin = FPMinMax(fmt, latency=1)
-        m.submodules.vmax = vmax = FPMinMax(fmt, latency=1)
+        c = self.cmp_lat
+        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=c)
+        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=c)
+        m.submodules.vmin = vmin = FPMinMax(fmt, latency=c)
+        m.submodules.vmax = vmax = FPMinMax(fmt, latency=c)
 
         # ---- step queue and issue stage
         m.submodules.issue = iss = StepIssue(cfg, queue=self.queue)
@@ -241,18 +249,24 @@ class TravSubunit(wiring.Component):
         m.d.comb += [mul.a.eq(add.o), mul.b.eq(inv_d), mul.i_valid.eq(add.o_valid)]
         dist = mul.o
         kd = 2 + add.latency + mul.latency          # stage where dist is valid
-        assert kd == K - 1
-        # interval read issued one stage earlier, so it meets dist
-        m.d.comb += [n_r.addr.eq(Cat(st[kd - 1].lane, st[kd - 1].thread)),
-                     s_r.addr.eq(Cat(st[kd - 1].lane, st[kd - 1].sp, st[kd - 1].thread))]
-        iv = Mux(st[kd].cur, s_r.data, n_r.data)
+        assert kd == K - c
+        # interval read issued two stages earlier and registered, so it meets dist (the
+        # block RAM's output feeds only the slot mux and that register; no step of the same
+        # thread is in the pipeline, so reading a cycle earlier sees the same words)
+        m.d.comb += [n_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].thread)),
+                     s_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].sp, st[kd - 2].thread))]
+        iv = Signal(2 * w)
+        m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_r.data, n_r.data))
         tnear, tfar = iv[:w], iv[w:]
         m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
                      gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(st[kd].v),
                      vmin.a.eq(tfar), vmin.b.eq(dist), vmin.op.eq(0), vmin.i_valid.eq(st[kd].v),
                      vmax.a.eq(tnear), vmax.b.eq(dist), vmax.op.eq(1), vmax.i_valid.eq(st[kd].v)]
-        tnear_d, tfar_d = Signal(w), Signal(w)
-        m.d.sync += [tnear_d.eq(tnear), tfar_d.eq(tfar)]
+        tnear_d, tfar_d = tnear, tfar               # the interval, delayed to the write stage
+        for i in range(c):
+            tn, tf = Signal(w, name=f"tnear_d{i}"), Signal(w, name=f"tfar_d{i}")
+            m.d.sync += [tn.eq(tnear_d), tf.eq(tfar_d)]
+            tnear_d, tfar_d = tn, tf
         # ---- k=K: write near interval to N, far interval to S[sp]; collect the verdict
         sw = st[K]
         near, far = Signal(R), Signal(R)            # this step's lanes so far
@@ -288,8 +302,14 @@ class TravSubunit(wiring.Component):
                      ah_r.addr.eq(Cat(self.rq_lane, self.rq_thread))]
         cur_d = Signal()
         m.d.sync += cur_d.eq(self.rq_cur)
-        m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_rq.data, n_rq.data)[w:]),
-                     self.rq_anyhit.eq(ah_r.data)]
+        s_tfar, n_tfar, anyhit = s_rq.data[w:], n_rq.data[w:], ah_r.data
+        if self.RQ_LAT == 2:            # the block RAMs' outputs straight into registers
+            regs = Signal(w, name="rq_s_tfar"), Signal(w, name="rq_n_tfar"), Signal(name="rq_ah")
+            cur_dd = Signal()
+            m.d.sync += [regs[0].eq(s_tfar), regs[1].eq(n_tfar), regs[2].eq(anyhit),
+                         cur_dd.eq(cur_d)]
+            (s_tfar, n_tfar, anyhit), cur_d = regs, cur_dd
+        m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_tfar, n_tfar)), self.rq_anyhit.eq(anyhit)]
         return m
 
 
@@ -456,12 +476,17 @@ class Traversal(wiring.Component):
         for s in subs:
             m.d.comb += [s.rq_thread.eq(rs.thread), s.rq_lane.eq(r_loc),
                          s.rq_sp.eq(th.sp[rs.thread]), s.rq_cur.eq(th.cur[rs.thread])]
-        r_v, r_thread, r_lane, r_hit, r_t, r_last = (Signal(), Signal(cfg.thread_bits),
-                                                     Signal(lane_bits(cfg)), Signal(),
-                                                     Signal(fmt.width), Signal())
-        r_sub1 = Signal(range(max(2, k)))
-        m.d.sync += [r_v.eq(self.result.valid), r_thread.eq(rs.thread), r_lane.eq(rs.lane),
-                     r_hit.eq(rs.hit), r_t.eq(rs.t), r_last.eq(rs.last), r_sub1.eq(r_sub)]
+        # the result waits in registers for the sub-units' read (RQ_LAT cycles)
+        r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = (
+            self.result.valid, rs.thread, rs.lane, rs.hit, rs.t, rs.last, r_sub)
+        for i in range(subs[0].RQ_LAT):
+            regs = (Signal(name=f"r{i}_v"), Signal(cfg.thread_bits, name=f"r{i}_thread"),
+                    Signal(lane_bits(cfg), name=f"r{i}_lane"), Signal(name=f"r{i}_hit"),
+                    Signal(fmt.width, name=f"r{i}_t"), Signal(name=f"r{i}_last"),
+                    Signal(range(max(2, k)), name=f"r{i}_sub"))
+            m.d.sync += [a.eq(b) for a, b in zip(regs, (r_v, r_thread, r_lane, r_hit, r_t,
+                                                         r_last, r_sub1))]
+            r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = regs
         tfar = Array(s.rq_tfar for s in subs)[r_sub1]
         anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
         kill = r_hit & (anyhit | compare(fmt, r_t, tfar).le)

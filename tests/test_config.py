@@ -23,7 +23,7 @@ def test_units_take_latencies_and_sizes_from_config():
     base = Config(**SMALL)
     slow = base.replace(fp_add_latency=5, fp_mul_latency=4, int_tri_slots=16,
                         list_outstanding=4)
-    assert base.fp_latencies() == {"add": None, "mul": None, "div": None}
+    assert base.fp_latencies() == {"add": None, "mul": None, "div": None, "cmp": None}
     sub0, sub1 = TravSubunit(base), TravSubunit(slow)
     assert (sub0.add.latency, sub0.mul.latency) == (3, 3)
     assert (sub1.add.latency, sub1.mul.latency) == (5, 4)
