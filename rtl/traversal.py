@@ -634,7 +634,8 @@ class Traversal(wiring.Component):
     def _decide(self, m: Module, th: _Threads, order, st_w) -> Signal:
         """The oldest outstanding step, once every sub-unit's verdict is in: both children ->
         push the far one and go near; near only; far only; none ends the pass (as in
-        ``model.traversal.decide``). One cycle. Returns the signal that a step is decided."""
+        ``model.traversal.decide``). One cycle (two with ``cfg.fast_clock``: the queue heads
+        are registered first). Returns the signal that a step is decided (in its last cycle)."""
         subs = self.subunits
         dt = order.r_data
         dec = Signal()
@@ -647,18 +648,28 @@ class Traversal(wiring.Component):
         neg = th.octant[dt].bit_select(d_word.axis, 1)
         near_node = (d_word.index + neg)[:NODE_BITS]
         far_node = (d_word.index + 1 - neg)[:NODE_BITS]
+        n_any, f_any = mn.any(), mf.any()
+        if self.cfg.fast_clock:
+            # the verdict queues' heads and the thread's children go through registers; the
+            # thread's state is written a cycle later (no other engine touches a STEP thread)
+            vals = (dec, dt, mn, mf, n_any, f_any, near_node, far_node, d_sp)
+            regs = [Signal.like(Value.cast(v), name=f"dec_{n}") for v, n in zip(vals, (
+                "v", "thread", "near", "far", "near_any", "far_any", "near_node", "far_node",
+                "sp"))]
+            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
+            dec, dt, mn, mf, n_any, f_any, near_node, far_node, d_sp = regs
         with m.If(dec):
-            with m.If(mn.any() & mf.any()):
+            with m.If(n_any & f_any):
                 m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
                              st_w.en.eq(1)]
                 m.d.sync += [th.sp[dt].eq(d_sp + 1), th.node[dt].eq(near_node),
                              th.mask[dt].eq(mn), th.cur[dt].eq(0),
                              th.state[dt].eq(ThreadState.FETCH), self.pushes.eq(self.pushes + 1)]
-            with m.Elif(mn.any()):
+            with m.Elif(n_any):
                 m.d.sync += [th.node[dt].eq(near_node), th.mask[dt].eq(mn), th.cur[dt].eq(0),
                              th.state[dt].eq(ThreadState.FETCH)]
             with m.Else():
                 m.d.sync += [th.node[dt].eq(far_node), th.mask[dt].eq(mf), th.cur[dt].eq(1),
-                             th.state[dt].eq(Mux(mf.any(), ThreadState.FETCH,
+                             th.state[dt].eq(Mux(f_any, ThreadState.FETCH,
                                                  ThreadState.NEXTPASS))]
         return dec

@@ -84,6 +84,32 @@ def _cell_name(end: dict) -> str:
     return f"{end.get('cell', '?')}.{end.get('port', '?')}"
 
 
+def _short(cell: str, n: int = 70) -> str:
+    """A cell name cut after its first Yosys-derived suffix (``_LUT4_Z_...``)."""
+    cut = re.search(r"_(LUT4|PFUMX|L6MUX21|CCU2C|TRELLIS|DPR16X4|MULT18X18D|DP16KD)", cell)
+    cell = cell[:cut.start()] if cut else cell
+    return cell if len(cell) <= n else cell[:n] + "..."
+
+
+def path_steps(cp: dict) -> list[str]:
+    """A nextpnr critical path (``report.json``) as readable lines: cumulative ns, the step's
+    delay and type, the cell (driving cell of a routing step); a carry chain is one line."""
+    lines, total, carry = [], 0.0, None
+    for s in cp.get("path", []):
+        total += s.get("delay", 0)
+        kind = s.get("type")
+        cell = (s.get("to") if kind in ("logic", "setup") else s.get("from", {})) or {}
+        name, port = cell.get("cell", "?"), cell.get("port", "?")
+        if kind in ("logic", "routing") and "CCU2C" in name and port in ("FCI", "FCO"):
+            carry = (carry or 0) + 1       # ripple through a carry chain
+            continue
+        if carry:
+            lines.append(f"{'':>7}  carry chain, {carry} steps")
+            carry = None
+        lines.append(f"{total:7.2f}  {s.get('delay', 0):5.2f} {kind:<9} {_short(name)}.{port}")
+    return lines
+
+
 def parse_report(rep: dict) -> dict:
     """Fmax per clock, utilization and the critical path of a nextpnr ``--report`` JSON."""
     out = {"fmax": {}, "utilization": {}, "critical_paths": []}
@@ -280,9 +306,19 @@ def main(argv=None) -> None:
                     help="place and route the netlist of the earlier run LABEL again (same top "
                          "and options; skips export and synthesis)")
     ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
+    ap.add_argument("--path", metavar="LABEL",
+                    help="print the critical path of the earlier run LABEL, step by step")
     add_config_args(ap)
     args = ap.parse_args(argv)
     out = Path(args.out)
+    if args.path:
+        rep = out / args.path / "report.json"
+        if not rep.exists():
+            raise SystemExit(f"rtl.fpga: {rep} does not exist; place and route {args.path} first")
+        for cp in json.loads(rep.read_text()).get("critical_paths", []):
+            print(f"{cp.get('from')} -> {cp.get('to')}:")
+            print("\n".join(path_steps(cp)))
+        return
     if args.table:
         rep = out / "report.json"
         if not rep.exists():
