@@ -43,6 +43,7 @@ def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:
 def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signal]:
     """Round-robin: (any, first set bit of ``req`` at or after ``ptr``); len(req) a power of 2."""
     n = len(req)
+    assert n & (n - 1) == 0, f"rr_pick: {n} requests, not a power of two"
     if n == 1:
         return lowest(m, req, name)
     rot = Signal(n, name=f"{name}_rot")

@@ -256,7 +256,12 @@ class TravSubunit(wiring.Component):
         m.d.comb += [n_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].thread)),
                      s_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].sp, st[kd - 2].thread))]
         iv = Signal(2 * w)
-        m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_r.data, n_r.data))
+        if cfg.fast_clock:        # the block RAMs' outputs straight into registers
+            s_q, n_q = Signal(2 * w, reset_less=True), Signal(2 * w, reset_less=True)
+            m.d.sync += [s_q.eq(s_r.data), n_q.eq(n_r.data)]
+            m.d.comb += iv.eq(Mux(st[kd].cur, s_q, n_q))
+        else:
+            m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_r.data, n_r.data))
         tnear, tfar = iv[:w], iv[w:]
         m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
                      gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(st[kd].v),
@@ -522,10 +527,20 @@ class Traversal(wiring.Component):
         tb, db = cfg.thread_bits, max(1, ceil_log2(cfg.stack_depth))
         subs = self.subunits
         e_ptr = Signal(tb)
-        e_any, e_idx = rr_pick(m, th.in_state(ThreadState.HAVE_NODE) |
-                               th.in_state(ThreadState.POP) | th.in_state(ThreadState.NEXTPASS),
-                               e_ptr, "step")
         e_t = Signal(tb)
+        ctl_busy = Signal()                          # the engine works on thread e_t
+        waiting = (th.in_state(ThreadState.HAVE_NODE) | th.in_state(ThreadState.POP) |
+                   th.in_state(ThreadState.NEXTPASS))
+        if cfg.fast_clock:
+            # the pick is registered: made a cycle ahead from the threads waiting then, less
+            # the one being worked on (only this engine moves a thread out of those states,
+            # so a registered pick is still waiting when it is used)
+            busy_bit = Mux(ctl_busy, Const(1, T) << e_t, 0)
+            p_any, p_idx = rr_pick(m, (waiting & ~busy_bit)[:T], e_ptr, "step")
+            e_any, e_idx = Signal(name="step_any_q"), Signal(tb, name="step_pick_q")
+            m.d.sync += [e_any.eq(p_any), e_idx.eq(p_idx)]
+        else:
+            e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)
         e_word = Signal(node_layout())
         e_mask = Signal(L)
@@ -548,7 +563,15 @@ class Traversal(wiring.Component):
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]
         lo_oc_any, lo_oc = lowest(m, th.todo[e_t], "pass")
-        st_mask = st_r.data[NODE_BITS:]
+        fast = cfg.fast_clock
+        # the stack entry and the pass masks as read (fast_clock: the block RAMs' outputs
+        # straight into registers, used a cycle later: POP3, PASS3)
+        st_data, pm_data = st_r.data, pm_r.data
+        if fast:
+            st_data, pm_data = Signal.like(st_r.data, name="st_q", reset_less=True), \
+                Signal.like(pm_r.data, name="pm_q", reset_less=True)
+            m.d.sync += [st_data.eq(st_r.data), pm_data.eq(pm_r.data)]
+        st_mask = st_data[NODE_BITS:]
         popped = st_mask & ~th.term[e_t]
         m.submodules.leaf_out = lf = OutputStage(LeafRequest(cfg))
         wiring.connect(m, lf.o, wiring.flipped(self.leaf))
@@ -563,7 +586,6 @@ class Traversal(wiring.Component):
                 m.d.sync += self.sub_busy[j].eq(self.sub_busy[j] + 1)
 
         dec = self._decide(m, th, order, st_w)
-        ctl_busy = Signal()
         m.d.comb += ctl_busy.eq(1)
         with m.If(ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()):
             m.d.sync += self.busy.eq(self.busy + 1)
@@ -607,9 +629,12 @@ class Traversal(wiring.Component):
                     m.d.comb += st_r.addr.eq(Cat((e_sp - 1)[:db], e_t))
                     m.d.sync += e_sp.eq(e_sp - 1)
                     m.next = "POP2"
-            with m.State("POP2"):
+            if fast:
+                with m.State("POP2"):
+                    m.next = "POP3"
+            with m.State("POP3" if fast else "POP2"):
                 with m.If(popped.any()):
-                    m.d.sync += [th.node[e_t].eq(st_r.data[:NODE_BITS]), th.mask[e_t].eq(popped),
+                    m.d.sync += [th.node[e_t].eq(st_data[:NODE_BITS]), th.mask[e_t].eq(popped),
                                  th.sp[e_t].eq(e_sp), th.cur[e_t].eq(1),
                                  th.state[e_t].eq(ThreadState.FETCH)]
                     m.next = "IDLE"
@@ -624,8 +649,11 @@ class Traversal(wiring.Component):
                     m.d.sync += [e_oct.eq(lo_oc),
                                  th.todo[e_t].eq(th.todo[e_t] & ~(Const(1, 8) << lo_oc))]
                     m.next = "PASS2"
-            with m.State("PASS2"):
-                m.d.sync += [th.mask[e_t].eq(pm_r.data.word_select(e_oct, L)),
+            if fast:
+                with m.State("PASS2"):
+                    m.next = "PASS3"
+            with m.State("PASS3" if fast else "PASS2"):
+                m.d.sync += [th.mask[e_t].eq(pm_data.word_select(e_oct, L)),
                              th.node[e_t].eq(self.root), th.sp[e_t].eq(0), th.cur[e_t].eq(0),
                              th.octant[e_t].eq(e_oct), th.state[e_t].eq(ThreadState.FETCH),
                              self.passes.eq(self.passes + 1)]
