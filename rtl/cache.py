@@ -13,7 +13,7 @@ Pipeline::
                                MSHR + issue FIFO -> mem.req       |
                                mem.resp -> fill buffer -> data array -> [data read] -> port.resp
 
-* Latency: a hit 3 cycles (request accepted in cycle t, response valid in t+3) when nothing older
+* Latency: a hit 3 cycles (5 with ``fast``; request accepted in cycle t, response valid in t+3) when nothing older
   waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle. Responses come back **in
   request order** (a hit behind a miss waits for it), so tags are returned but never reordered.
 * Throughput: one lookup and one response per cycle; ``outstanding`` line fetches in flight;
@@ -46,11 +46,18 @@ __all__ = ["Cache"]
 class Cache(wiring.Component):
     """Non-blocking read-only cache; see the module docstring for latency and throughput.
 
-    Parameters: ``geom`` (:class:`model.cache.CacheGeometry`), ``tag_width`` (unit tags).
+    Parameters: ``geom`` (:class:`model.cache.CacheGeometry`), ``tag_width`` (unit tags),
+    ``fast`` (``Config.fast_clock``: registers for a faster clock, hit latency 5 instead of 3
+    (``hit_latency``): ``port.req.ready`` is a register (a skid register takes a request
+    while the lookup stalls), the tag row is read a stage before the compare and goes
+    straight into a register (the tag and data block RAMs' outputs feed only registers; a
+    tag write the read missed is forwarded), and the data word is registered before
+    ``port.resp``). The hit/miss sequence is the same either way.
     """
 
-    def __init__(self, geom: CacheGeometry, *, tag_width: int = 4):
-        self.geom = geom
+    def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
+        self.geom, self.fast = geom, fast
+        self.hit_latency = 5 if fast else 3
         g = geom
         self.mshr_bits = max(1, ceil_log2(g.outstanding))
         self.word_bits = max(1, ceil_log2(g.line_words))
@@ -80,22 +87,29 @@ class Cache(wiring.Component):
         tags = Memory(shape=W * entry + wb, depth=S, init=[])
         m.submodules.tags = tags
         twp = tags.write_port()
-        trp = tags.read_port(transparent_for=(twp,))
+        a = req.payload.addr
 
-        # --- S1 registers -----------------------------------------------------------------
+        # --- lookup stage S1: valid, the request's fields, its tag row; ``s1_go`` = it
+        # finishes this cycle -----------------------------------------------------------------
         s1_valid = Signal()
         s1_off, s1_set, s1_tag = Signal(ob), Signal(sb), Signal(tb)
         s1_utag = Signal(utag_bits)
-        s1_go = Signal()           # S1 finishes this cycle
+        s1_go = Signal()
         accept = Signal()
-        m.d.comb += [req.ready.eq(~s1_valid | s1_go), accept.eq(req.valid & req.ready)]
-        a = req.payload.addr
-        m.d.comb += [trp.addr.eq(a[ob:ob + sb]), trp.en.eq(req.ready)]
-        with m.If(req.ready):
-            m.d.sync += [s1_valid.eq(req.valid), s1_off.eq(a[:ob]), s1_set.eq(a[ob:ob + sb]),
-                         s1_tag.eq(a[ob + sb:]), s1_utag.eq(req.payload.tag)]
+        m.d.comb += accept.eq(req.valid & req.ready)
+        if not self.fast:
+            # the request is accepted while its row is read (transparent for the tag write)
+            trp = tags.read_port(transparent_for=(twp,))
+            m.d.comb += [req.ready.eq(~s1_valid | s1_go), trp.addr.eq(a[ob:ob + sb]),
+                         trp.en.eq(req.ready)]
+            with m.If(req.ready):
+                m.d.sync += [s1_valid.eq(req.valid), s1_off.eq(a[:ob]), s1_set.eq(a[ob:ob + sb]),
+                             s1_tag.eq(a[ob + sb:]), s1_utag.eq(req.payload.tag)]
+            row = trp.data
+        else:
+            row = self._fast_front(m, tags, twp, s1_valid, s1_go,
+                                   (s1_off, s1_set, s1_tag, s1_utag))
 
-        row = trp.data
         way_valid = [row[w * entry] for w in range(W)]
         way_tag = [row[w * entry + 1:(w + 1) * entry] for w in range(W)]
         rr = row[W * entry:]
@@ -223,19 +237,77 @@ class Cache(wiring.Component):
         h_pending = Cat(*[mshr_valid[i] & (mshr_set[i] == h_set) & (mshr_way[i] == h_way)
                           for i in range(O)]).any()
         m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
+        # o: the data read (the block RAM's output); fast: o2, that line in a register
         o_valid, o_off, o_utag = Signal(), Signal(ob), Signal(utag_bits)
+        if self.fast:
+            o2_valid, o2_off, o2_utag = Signal(), Signal(ob), Signal(utag_bits)
+            o2_line = Signal(len(drp.data), reset_less=True)
+            o_move = Signal()
+            m.d.comb += o_move.eq(~o2_valid | resp.ready)
+            with m.If(o_move):
+                m.d.sync += [o2_valid.eq(o_valid), o2_off.eq(o_off), o2_utag.eq(o_utag),
+                             o2_line.eq(drp.data)]
+            line, off, out_valid, out_utag = o2_line, o2_off, o2_valid, o2_utag
+        else:
+            o_move = resp.ready
+            line, off, out_valid, out_utag = drp.data, o_off, o_valid, o_utag
         pop = Signal()
-        m.d.comb += pop.eq(h_ready & (~o_valid | resp.ready))
+        m.d.comb += pop.eq(h_ready & (~o_valid | o_move))
         m.d.comb += [drp.addr.eq(Cat(h_way, h_set)), drp.en.eq(pop)]
         with m.If(pop):
             m.d.sync += [o_valid.eq(1), o_off.eq(Array(q_off)[q_head]),
                          o_utag.eq(Array(q_utag)[q_head]),
                          q_used.bit_select(q_head, 1).eq(0),
                          q_head.eq(Mux(q_head == Q - 1, 0, q_head + 1))]
-        with m.Elif(resp.ready):
+        with m.Elif(o_move):
             m.d.sync += o_valid.eq(0)
-        m.d.comb += [resp.valid.eq(o_valid),
-                     resp.payload.data.eq(drp.data.word_select(o_off, g.item_bits)
-                                          if ob else drp.data),
-                     resp.payload.tag.eq(o_utag)]
+        m.d.comb += [resp.valid.eq(out_valid),
+                     resp.payload.data.eq(line.word_select(off, g.item_bits) if ob else line),
+                     resp.payload.tag.eq(out_utag)]
         return m
+
+    def _fast_front(self, m: Module, tags, twp, s1_valid, s1_go, s1_fields) -> Signal:
+        """``fast``: request register (registered ``ready``, a skid register), stage S0 that
+        reads the tag row, and S1's tag row (the block RAM's output straight into a register,
+        a tag write the read missed forwarded). Returns S1's tag row."""
+        g, req = self.geom, self.port.req
+        ob, sb = g.offset_bits, g.set_bits
+        a = req.payload.addr
+        trp = tags.read_port()              # not transparent: writes are forwarded below
+        # skid register: takes a request while S0 holds; ready is its emptiness
+        k_valid = Signal()
+        k_addr, k_utag = Signal.like(a, name="k_addr"), Signal.like(req.payload.tag, name="k_utag")
+        m.d.comb += req.ready.eq(~k_valid)
+        # S0: the request whose row is being read; the row arrives in the next cycle
+        s0_valid = Signal()
+        s0_addr, s0_utag = Signal.like(a, name="s0_addr"), Signal.like(req.payload.tag, name="s0_utag")
+        s0_fwd, s0_row = Signal(), Signal(len(trp.data), name="s0_fwd_row")
+        s1_move = Signal()                  # S0 -> S1 this cycle
+        s0_load = Signal()
+        m.d.comb += [s1_move.eq(~s1_valid | s1_go), s0_load.eq(~s0_valid | s1_move)]
+        in_valid = k_valid | req.valid
+        in_addr = Mux(k_valid, k_addr, a)
+        in_utag = Mux(k_valid, k_utag, req.payload.tag)
+        in_set = in_addr[ob:ob + sb]
+        m.d.comb += [trp.addr.eq(in_set), trp.en.eq(s0_load)]
+        with m.If(s0_load):
+            m.d.sync += [s0_valid.eq(in_valid), s0_addr.eq(in_addr), s0_utag.eq(in_utag),
+                         s0_fwd.eq(twp.en & (twp.addr == in_set)), s0_row.eq(twp.data),
+                         k_valid.eq(0)]
+        with m.Elif(req.valid & req.ready):
+            m.d.sync += [k_valid.eq(1), k_addr.eq(a), k_utag.eq(req.payload.tag)]
+        # S1: the row as read, or the newest tag write to the set since the read
+        s1_off, s1_set, s1_tag, s1_utag = s1_fields
+        s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
+        s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
+        s0_set = s0_addr[ob:ob + sb]
+        w_now = twp.en & (twp.addr == s0_set)
+        with m.If(s1_move):
+            m.d.sync += [s1_valid.eq(s0_valid), s1_off.eq(s0_addr[:ob]), s1_set.eq(s0_set),
+                         s1_tag.eq(s0_addr[ob + sb:]), s1_utag.eq(s0_utag),
+                         s1_raw.eq(trp.data), s1_fwd.eq(s0_fwd | w_now),
+                         s1_fwd_row.eq(Mux(w_now, twp.data, s0_row))]
+        row = Signal(len(trp.data), name="s1_row")
+        m.d.comb += row.eq(Mux(s1_fwd, s1_fwd_row, s1_raw))
+        return row
+
