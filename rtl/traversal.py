@@ -119,18 +119,22 @@ class StepIssue(wiring.Component):
         act, d = self.active, self.cur
         rem = Signal(R)                     # lanes of the current step not issued yet
         has, lane0 = lowest(m, rem, "issue")
+        # ``last`` (at most one lane left) is a register, computed when rem is loaded or
+        # loses its lowest lane: the issue decision does not wait for the priority encoder
         last = self.last
-        m.d.comb += [self.has_lane.eq(has), self.lane.eq(lane0),
-                     last.eq(~(rem & ~(Const(1, R) << lane0)).any())]
+        at_most_one = lambda x: (x & (x - 1))[:R] == 0
+        rest = (rem & (rem - 1))[:R]        # rem without its lowest lane
+        m.d.comb += [self.has_lane.eq(has), self.lane.eq(lane0)]
         take = Signal()
         m.d.comb += [self.can_start.eq(q.r_rdy & (~act | last)),
                      take.eq(self.can_start & self.go), q.r_en.eq(take)]
         with m.If(take):
-            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask)]
+            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask),
+                         last.eq(at_most_one(head.mask))]
         with m.Elif(act & last):
             m.d.sync += act.eq(0)
         with m.Elif(act):
-            m.d.sync += rem.eq(rem & ~(Const(1, R) << lane0))
+            m.d.sync += [rem.eq(rest), last.eq(at_most_one(rest))]
         return m
 
 
@@ -414,7 +418,8 @@ class Traversal(wiring.Component):
 
     def _loader(self, m: Module, th: _Threads, pm_w) -> None:
         """``RayIn`` lanes into a free thread, one per cycle; each lane's octant goes into the
-        thread's pass masks (live rays only) and the passes to run into ``todo``."""
+        thread's pass masks (live rays only) and the passes to run into ``todo``
+        (``cfg.fast_clock``: each lane waits a cycle in an input register)."""
         cfg, L, k, subs = self.cfg, self.cfg.packet_size, self.cfg.trav_subunits, self.subunits
         ld_active = Signal()
         ld_thread = Signal(cfg.thread_bits)
@@ -424,30 +429,58 @@ class Traversal(wiring.Component):
         with m.If(~ld_active & free_any):
             m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx),
                          th.state[free_idx].eq(ThreadState.LOAD)]
-        p = self.rays.payload
+        rays = self.rays
+        live_in = compare(cfg.fmt, rays.payload.tnear, rays.payload.tfar).le
+        if cfg.fast_clock:
+            # the lane waits in an input register with its live bit, its lane and octant
+            # one-hot precomputed; a packet's lanes are taken while the loader has its thread
+            # (no lane of the next packet before this one's last lane is written)
+            valid, got_last = Signal(name="ld_in_valid"), Signal(name="ld_got_last")
+            p = Signal.like(rays.payload, name="ld_in")
+            live, lane_one = Signal(name="ld_in_live"), Signal(L, name="ld_in_lane_one")
+            oct_one = Signal(8, name="ld_in_oct_one")
+        else:
+            valid, p, live = rays.valid, rays.payload, live_in
+            lane_one, oct_one = Signal(L), Signal(8)
+            m.d.comb += [lane_one.eq(Const(1, L) << p.lane), oct_one.eq(Const(1, 8) << p.octant)]
         lane_sub, lane_loc = self._split_lane(m, p.lane, "ld")
         blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
-        m.d.comb += [self.rays.ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
-        take = self.rays.valid & self.rays.ready
-        live = compare(cfg.fmt, p.tnear, p.tfar).le
-        lane_bit, lane_one = Signal(L), Signal(L)
-        m.d.comb += [lane_one.eq(Const(1, L) << p.lane), lane_bit.eq(Mux(live, lane_one, 0))]
+        ready = Signal()                    # the loader writes the lane this cycle if valid
+        m.d.comb += [ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
+        take = valid & ready
+        if cfg.fast_clock:
+            m.d.comb += rays.ready.eq(ld_active & ~got_last & (~valid | ready))
+            with m.If(rays.valid & rays.ready):
+                m.d.sync += [valid.eq(1), p.eq(rays.payload), live.eq(live_in),
+                             lane_one.eq(Const(1, L) << rays.payload.lane),
+                             oct_one.eq(Const(1, 8) << rays.payload.octant),
+                             got_last.eq(rays.payload.last)]
+            with m.Elif(take):
+                m.d.sync += valid.eq(0)
+            with m.If(take & p.last):
+                m.d.sync += got_last.eq(0)
+        else:
+            m.d.comb += rays.ready.eq(ready)
+        # per octant: its lanes so far (acc) and whether it has any (acc_any)
+        acc_any = Signal(8)
         acc_new = [Signal(L, name=f"acc_new{o}") for o in range(8)]
         for o in range(8):
-            m.d.comb += acc_new[o].eq(acc[o] | Mux(p.octant == o, lane_bit, 0))
+            m.d.comb += acc_new[o].eq(acc[o] | Mux(oct_one[o] & live, lane_one, 0))
+        acc_any_new = acc_any | Mux(live, oct_one, 0)
         for j, s in enumerate(subs):
             m.d.comb += [s.ld_en.eq(take & (lane_sub == j)), s.ld_thread.eq(ld_thread),
                          s.ld_lane.eq(lane_loc), s.ld_org.eq(p.org), s.ld_inv.eq(p.inv),
                          s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
         m.d.comb += [pm_w.addr.eq(ld_thread), pm_w.data.eq(Cat(*acc_new))]
         with m.If(take):
-            m.d.sync += [th.packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one)]
+            m.d.sync += [th.packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one),
+                         acc_any.eq(acc_any_new)]
             m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
             with m.If(p.last):
                 m.d.comb += pm_w.en.eq(1)
                 m.d.sync += [ld_active.eq(0), th.state[ld_thread].eq(ThreadState.NEXTPASS),
                              acc_lanes.eq(0), th.lanes[ld_thread].eq(acc_lanes | lane_one),
-                             th.todo[ld_thread].eq(Cat(*(a.any() for a in acc_new))),
+                             th.todo[ld_thread].eq(acc_any_new), acc_any.eq(0),
                              th.term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
 
     def _fetcher(self, m: Module, th: _Threads) -> None:
@@ -457,7 +490,18 @@ class Traversal(wiring.Component):
                                                               len(req.payload.tag)))
         wiring.connect(m, out.o, wiring.flipped(req))
         f_ptr = Signal(self.cfg.thread_bits)
-        f_any, f_idx = rr_pick(m, th.in_state(ThreadState.FETCH), f_ptr, "fetch")
+        fetching = th.in_state(ThreadState.FETCH)
+        if self.cfg.fast_clock:
+            # the pick is registered: made a cycle ahead, less the thread whose request goes
+            # out then (only this engine moves a thread out of FETCH)
+            T = self.cfg.threads
+            f_any, f_idx = Signal(name="fetch_any_q"), Signal(self.cfg.thread_bits,
+                                                              name="fetch_pick_q")
+            sent = Mux(out.i.valid & out.i.ready, Const(1, T) << f_idx, 0)
+            p_any, p_idx = rr_pick(m, (fetching & ~sent)[:T], f_ptr, "fetch")
+            m.d.sync += [f_any.eq(p_any), f_idx.eq(p_idx)]
+        else:
+            f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
                      out.i.payload.addr.eq(self.node_base + th.node[f_idx])]
         with m.If(out.i.valid & out.i.ready):
@@ -473,7 +517,8 @@ class Traversal(wiring.Component):
     def _result_engine(self, m: Module, th: _Threads) -> None:
         """One ``LaneResult`` per cycle: the lane ends if it hit and is an any-hit ray or its
         hit lies in the cell (``t <= tfar``, tfar read from its sub-unit); the leaf's ``last``
-        result makes the thread pop."""
+        result makes the thread pop. Applied 1 + ``RQ_LAT`` cycles after the result arrives
+        (``cfg.fast_clock``: 2 + ``RQ_LAT``, the verdict registered)."""
         cfg, fmt, k, subs = self.cfg, self.cfg.fmt, self.cfg.trav_subunits, self.subunits
         rs = self.result.payload
         m.d.comb += self.result.ready.eq(1)
@@ -495,6 +540,12 @@ class Traversal(wiring.Component):
         tfar = Array(s.rq_tfar for s in subs)[r_sub1]
         anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
         kill = r_hit & (anyhit | compare(fmt, r_t, tfar).le)
+        if cfg.fast_clock:              # the verdict is registered before it is applied
+            vals = (r_v, kill, r_thread, r_lane, r_last)
+            regs = [Signal.like(Value.cast(v), name=f"rk_{n}") for v, n in zip(
+                vals, ("v", "kill", "thread", "lane", "last"))]
+            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
+            r_v, kill, r_thread, r_lane, r_last = regs
         with m.If(r_v):
             with m.If(kill):
                 m.d.sync += th.term[r_thread].eq(th.term[r_thread] |
@@ -562,8 +613,12 @@ class Traversal(wiring.Component):
         # synchronous sub-units start each step together; asynchronous ones start when free
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]
-        lo_oc_any, lo_oc = lowest(m, th.todo[e_t], "pass")
         fast = cfg.fast_clock
+        # the thread's octants to do and terminated lanes: fast_clock copies them at the pick
+        # (only this engine changes todo; term does not change while the thread pops)
+        e_todo, e_term = (Signal(8, name="e_todo"), Signal(L, name="e_term")) if fast else \
+            (th.todo[e_t], th.term[e_t])
+        lo_oc_any, lo_oc = lowest(m, e_todo, "pass")
         # the stack entry and the pass masks as read (fast_clock: the block RAMs' outputs
         # straight into registers, used a cycle later: POP3, PASS3)
         st_data, pm_data = st_r.data, pm_r.data
@@ -572,7 +627,7 @@ class Traversal(wiring.Component):
                 Signal.like(pm_r.data, name="pm_q", reset_less=True)
             m.d.sync += [st_data.eq(st_r.data), pm_data.eq(pm_r.data)]
         st_mask = st_data[NODE_BITS:]
-        popped = st_mask & ~th.term[e_t]
+        popped = st_mask & ~e_term
         m.submodules.leaf_out = lf = OutputStage(LeafRequest(cfg))
         wiring.connect(m, lf.o, wiring.flipped(self.leaf))
         m.d.comb += [lf.i.payload.thread.eq(e_t), lf.i.payload.first.eq(e_word.value),
@@ -598,6 +653,8 @@ class Traversal(wiring.Component):
                 with m.If(e_any):
                     m.d.sync += [e_t.eq(e_idx), e_kind.eq(th.state[e_idx]),
                                  e_word.eq(th.word[e_idx]), e_mask.eq(th.mask[e_idx]),
+                                 *([e_todo.eq(th.todo[e_idx]), e_term.eq(th.term[e_idx])]
+                                   if fast else []),
                                  e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
                                  e_ptr.eq(e_idx + 1)]
                     m.next = "DISPATCH"
@@ -647,7 +704,7 @@ class Traversal(wiring.Component):
                 with m.Else():
                     m.d.comb += pm_r.addr.eq(e_t)
                     m.d.sync += [e_oct.eq(lo_oc),
-                                 th.todo[e_t].eq(th.todo[e_t] & ~(Const(1, 8) << lo_oc))]
+                                 th.todo[e_t].eq(e_todo & ~(Const(1, 8) << lo_oc))]
                     m.next = "PASS2"
             if fast:
                 with m.State("PASS2"):

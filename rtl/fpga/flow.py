@@ -308,9 +308,20 @@ def main(argv=None) -> None:
     ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
     ap.add_argument("--path", metavar="LABEL",
                     help="print the critical path of the earlier run LABEL, step by step")
+    ap.add_argument("--estimate", metavar="LABEL",
+                    help="list the path classes of run LABEL's netlist estimated longer than "
+                         "the --freq period (seconds; no placement: rtl/fpga/paths.py)")
     add_config_args(ap)
     args = ap.parse_args(argv)
     out = Path(args.out)
+    if args.estimate:
+        from .paths import report
+        net = out / args.estimate / "fpga_top.json"
+        if not net.exists():
+            raise SystemExit(f"rtl.fpga: {net} does not exist; synthesize {args.estimate} "
+                             "first (--synth-only)")
+        print(report(net, period=1000.0 / args.freq))
+        return
     if args.path:
         rep = out / args.path / "report.json"
         if not rep.exists():
