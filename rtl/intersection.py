@@ -93,8 +93,8 @@ class IntersectPipe(wiring.Component):
     In: ``tri`` (9 format words: A, B, C), ``org`` (3), ``k`` (kx, ky, kz), ``s`` (Sx, Sy, Sz),
     ``tag`` (carried along unchanged), ``i_valid``, ``en``. Out after ``latency`` enabled cycles:
     ``o_valid``, ``hit`` (edge test passed and det != 0), ``t``, ``u``, ``v`` (zero when not
-    ``hit``, as the model returns them), ``o_tag``; ``pre_tag`` is the tag one stage earlier
-    (for a read that must land together with the result).
+    ``hit``, as the model returns them), ``o_tag``; ``pre_tag`` and ``pre2_tag`` are the tag
+    one and two stages earlier (for a read that must land together with the result).
 
     Operations (all rounded to the format, the model's order): 9 subs (vertices - origin), 9
     muls (Sx, Sy times the z of each vertex; Sz times it), 6 subs (shear), 6 muls + 3 subs (edge
@@ -121,7 +121,7 @@ class IntersectPipe(wiring.Component):
             "k": In(data.ArrayLayout(2, 3)), "s": In(data.ArrayLayout(w, 3)),
             "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
             "o_valid": Out(1), "hit": Out(1), "t": Out(w), "u": Out(w), "v": Out(w),
-            "o_tag": Out(tag_width), "pre_tag": Out(tag_width),
+            "o_tag": Out(tag_width), "pre_tag": Out(tag_width), "pre2_tag": Out(tag_width),
         })
         dry = Module()
         dry._MustUse__silence = True
@@ -184,6 +184,7 @@ class IntersectPipe(wiring.Component):
             self.o_valid.eq(sch.at(self.i_valid, 0, L)),
             self.o_tag.eq(sch.at(self.tag, 0, L)),
             self.pre_tag.eq(sch.at(self.tag, 0, L - 1)),
+            self.pre2_tag.eq(sch.at(self.tag, 0, L - 2)),
         ]
         return m, L
 
@@ -274,7 +275,10 @@ class IntersectionUnit(wiring.Component):
         m.submodules.best = best = Memory(shape=best_l, depth=depth, init=[])
         ray_w, best_w = rays.write_port(), best.write_port()
         ray_r = rays.read_port()
-        best_r = best.read_port(transparent_for=(best_w,))
+        # fast_clock: the best-hit read goes straight into a register, the stores it missed
+        # are forwarded (_best_hit); else the read port is transparent to the store
+        best_r = best.read_port() if self.cfg.fast_clock else \
+            best.read_port(transparent_for=(best_w,))
         out_r = best.read_port()
         slots = self._fetch(m)
         issued = self._issue(m, en, slots, ray_r)
@@ -378,23 +382,44 @@ class IntersectionUnit(wiring.Component):
         """Closest-hit update at the end of the pipeline (accept ``0 < t < best``), the ray
         store's writes, and the ``LaneResult`` after a leaf's last triangle. The best-hit read
         is presented one stage before the datapath's output; the read port is transparent to
-        the update's write, so back-to-back tests of one lane see each other."""
+        the update's write, so back-to-back tests of one lane see each other
+        (``cfg.fast_clock``: two stages before, registered, the last two stores forwarded)."""
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
-        pre = data.View(self.pipe_meta, pipe.pre_tag)
+        fast = self.cfg.fast_clock
+        pre = data.View(self.pipe_meta, pipe.pre2_tag if fast else pipe.pre_tag)
         m.d.comb += [best_r.addr.eq(self._addr(pre.thread, pre.lane)), best_r.en.eq(en)]
         o_meta = data.View(self.pipe_meta, pipe.o_tag)
-        old = best_r.data
         gt0 = Signal()
         lt_best = Signal()
-        m.d.comb += [gt0.eq(compare(fmt, Const(0, w), pipe.t).lt),
-                     lt_best.eq(compare(fmt, pipe.t, old.t).lt)]
+        m.d.comb += gt0.eq(compare(fmt, Const(0, w), pipe.t).lt)
         accept = Signal()
-        m.d.comb += accept.eq(pipe.o_valid & pipe.hit & gt0 & lt_best)
         store = Signal()
-        m.d.comb += store.eq(en & accept)
+        if fast:
+            # the lane's best hit (t, hit) as read two stages ago and registered, or as one of
+            # the last two stores (which that read missed) wrote it; one compare per candidate
+            o_addr = self._addr(o_meta.thread, o_meta.lane)
+            q_t, q_hit = Signal(w, name="best_q_t"), Signal(name="best_q_hit")
+            fw = [(Signal(name=f"st{i}_v"), Signal(len(o_addr), name=f"st{i}_addr"),
+                   Signal(w, name=f"st{i}_t")) for i in (1, 2)]
+            with m.If(en):
+                m.d.sync += [q_t.eq(best_r.data.t), q_hit.eq(best_r.data.hit),
+                             fw[1][0].eq(fw[0][0]), fw[1][1].eq(fw[0][1]), fw[1][2].eq(fw[0][2]),
+                             fw[0][0].eq(store), fw[0][1].eq(o_addr), fw[0][2].eq(pipe.t)]
+            match = [v & (a == o_addr) for v, a, _ in fw]
+            old_t = Mux(match[0], fw[0][2], Mux(match[1], fw[1][2], q_t))
+            old_hit = match[0] | match[1] | q_hit
+            lts = [compare(fmt, pipe.t, x).lt for x in (fw[0][2], fw[1][2], q_t)]
+            m.d.comb += lt_best.eq(Mux(match[0], lts[0], Mux(match[1], lts[1], lts[2])))
+        else:
+            old = best_r.data
+            old_t, old_hit = old.t, old.hit
+            m.d.comb += lt_best.eq(compare(fmt, pipe.t, old.t).lt)
+        m.d.comb += [accept.eq(pipe.o_valid & pipe.hit & gt0 & lt_best), store.eq(en & accept)]
 
         ray_in = self.ray_in
-        m.d.comb += ray_in.ready.eq(~store)
+        # a ray write waits while the store port may be busy (fast_clock: whenever the
+        # datapath's output is a hit, which is known a compare earlier than the store)
+        m.d.comb += ray_in.ready.eq(~(pipe.o_valid & pipe.hit) if fast else ~store)
         rp = ray_in.payload
         m.d.comb += [
             ray_w.addr.eq(self._addr(rp.thread, rp.ray.lane)),
@@ -416,15 +441,16 @@ class IntersectionUnit(wiring.Component):
         m.d.comb += [
             lo.valid.eq(pipe.o_valid & o_meta.tri_last),
             lo.payload.thread.eq(o_meta.thread), lo.payload.lane.eq(o_meta.lane),
-            lo.payload.hit.eq(accept | old.hit),
-            lo.payload.t.eq(Mux(accept, pipe.t, old.t)),
+            lo.payload.hit.eq(accept | old_hit),
+            lo.payload.t.eq(Mux(accept, pipe.t, old_t)),
             lo.payload.last.eq(o_meta.lane_last),
         ]
 
     def _readout(self, m: Module, out_r) -> None:
         """Final results of a finished packet: one ``RayResult`` per lane of the ``done``
         mask, in lane order, read from the best-hit store (the read port is the output
-        register: it advances when the output is empty or taken)."""
+        register: it advances when the output is empty or taken; ``cfg.fast_clock``: the read
+        is registered once more before the output)."""
         fmt, w, lanes = self.fmt, self.fmt.width, self.lanes
         done, res = self.done, self.result
         d_active = Signal()
@@ -433,7 +459,19 @@ class IntersectionUnit(wiring.Component):
         d_packet = Signal(PACKET_ID_BITS)
         _, d_lane = lowest(m, d_rem, "readout")
         adv = Signal()
-        m.d.comb += [adv.eq(~res.valid | res.ready), done.ready.eq(~d_active)]
+        hb = out_r.data
+        if self.cfg.fast_clock:
+            # the read lands in a register stage (r_*, the block RAM's output straight into
+            # hb_q) before the output
+            r_valid = Signal()
+            hb_q = Signal.like(out_r.data, name="readout_hb_q", reset_less=True)
+            o_lane, o_last, o_packet = (Signal(self.lane_bits), Signal(),
+                                        Signal(PACKET_ID_BITS))
+            move = ~res.valid | res.ready
+            m.d.comb += [adv.eq(~r_valid | move), done.ready.eq(~d_active)]
+        else:
+            m.d.comb += [adv.eq(~res.valid | res.ready), done.ready.eq(~d_active)]
+            r_valid = res.valid
         with m.If(done.valid & done.ready):
             m.d.sync += [d_active.eq(done.payload.mask != 0), d_rem.eq(done.payload.mask),
                          d_thread.eq(done.payload.thread), d_packet.eq(done.payload.packet)]
@@ -442,13 +480,17 @@ class IntersectionUnit(wiring.Component):
         r_last = Signal()
         r_packet = Signal(PACKET_ID_BITS)
         with m.If(adv):
-            m.d.sync += [res.valid.eq(d_active), r_lane.eq(d_lane), r_packet.eq(d_packet),
+            m.d.sync += [r_valid.eq(d_active), r_lane.eq(d_lane), r_packet.eq(d_packet),
                          r_last.eq((d_rem & (d_rem - 1)) == 0)]
             with m.If(d_active):
                 m.d.sync += d_rem.eq(d_rem & (d_rem - 1))
                 with m.If((d_rem & (d_rem - 1)) == 0):
                     m.d.sync += d_active.eq(0)
-        hb = out_r.data
+        if self.cfg.fast_clock:
+            with m.If(move):
+                m.d.sync += [res.valid.eq(r_valid), o_lane.eq(r_lane), o_last.eq(r_last),
+                             o_packet.eq(r_packet), hb_q.eq(out_r.data)]
+            hb, r_lane, r_last, r_packet = hb_q, o_lane, o_last, o_packet
         inf = Const(((1 << fmt.exp_bits) - 1) << fmt.frac_bits, w)
         m.d.comb += [
             res.payload.packet.eq(r_packet), res.payload.lane.eq(r_lane),
