@@ -329,6 +329,7 @@ class _Threads:
     def __init__(self, cfg: Config, packet_bits: int):
         T, L = cfg.threads, cfg.packet_size
         db = max(1, ceil_log2(cfg.stack_depth))
+        self.fast, self.tbits, self.state_writes = cfg.fast_clock, cfg.thread_bits, []
 
         def per_thread(shape, name, init=0):
             return Array(Value.cast(Signal(shape, name=f"{name}{t}", init=init))
@@ -349,6 +350,35 @@ class _Threads:
     def in_state(self, s: ThreadState) -> Value:
         """One bit per thread: the thread is in state ``s``."""
         return Cat(*(self.state[t] == s for t in range(self.T)))
+
+    def set_state(self, m: Module, thread: Value, value) -> None:
+        """``state[thread] = value`` at the next clock edge, in the caller's ``If`` context.
+
+        Each engine moves only threads in the states it owns, so no two engines set one
+        thread's state in one cycle; with ``fast`` the writes are therefore combined as an
+        AND-OR per thread (:meth:`finish`) instead of a chain of one priority mux per writer.
+        """
+        if not self.fast:
+            m.d.sync += self.state[thread].eq(value)
+            return
+        i = len(self.state_writes)
+        req = Signal(name=f"state_w{i}")
+        tgt = Signal(self.tbits, name=f"state_w{i}_thread")
+        val = Signal(ThreadState, name=f"state_w{i}_value")
+        m.d.comb += [req.eq(1), tgt.eq(thread), val.eq(value)]
+        self.state_writes.append((req, tgt, val))
+
+    def finish(self, m: Module) -> None:
+        """The combined state writes (``fast``)."""
+        for t in range(self.T):
+            hit = [Signal(name=f"state{t}_w{i}") for i in range(len(self.state_writes))]
+            m.d.comb += [h.eq(req & (tgt == t)) for h, (req, tgt, _) in
+                         zip(hit, self.state_writes)]
+            nxt = 0
+            for h, (_, _, val) in zip(hit, self.state_writes):
+                nxt = nxt | Mux(h, val.as_value(), 0)
+            with m.If(Cat(*hit).any()):
+                m.d.sync += self.state[t].eq(nxt)
 
 
 class Traversal(wiring.Component):
@@ -414,6 +444,8 @@ class Traversal(wiring.Component):
         self._result_engine(m, th)
         self._done_engine(m, th)
         self._control(m, th, stack.read_port(), stack.write_port(), pm_r)
+        if th.fast:
+            th.finish(m)
         return m
 
     def _loader(self, m: Module, th: _Threads, pm_w) -> None:
@@ -427,8 +459,8 @@ class Traversal(wiring.Component):
         acc_lanes = Signal(L)
         free_any, free_idx = lowest(m, th.in_state(ThreadState.FREE), "free")
         with m.If(~ld_active & free_any):
-            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx),
-                         th.state[free_idx].eq(ThreadState.LOAD)]
+            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx)]
+            th.set_state(m, free_idx, ThreadState.LOAD)
         rays = self.rays
         live_in = compare(cfg.fmt, rays.payload.tnear, rays.payload.tfar).le
         if cfg.fast_clock:
@@ -478,7 +510,8 @@ class Traversal(wiring.Component):
             m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
             with m.If(p.last):
                 m.d.comb += pm_w.en.eq(1)
-                m.d.sync += [ld_active.eq(0), th.state[ld_thread].eq(ThreadState.NEXTPASS),
+                th.set_state(m, ld_thread, ThreadState.NEXTPASS)
+                m.d.sync += [ld_active.eq(0),
                              acc_lanes.eq(0), th.lanes[ld_thread].eq(acc_lanes | lane_one),
                              th.todo[ld_thread].eq(acc_any_new), acc_any.eq(0),
                              th.term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
@@ -505,14 +538,15 @@ class Traversal(wiring.Component):
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
                      out.i.payload.addr.eq(self.node_base + th.node[f_idx])]
         with m.If(out.i.valid & out.i.ready):
-            m.d.sync += [th.state[f_idx].eq(ThreadState.WAIT_MEM), f_ptr.eq(f_idx + 1)]
+            m.d.sync += f_ptr.eq(f_idx + 1)
+            th.set_state(m, f_idx, ThreadState.WAIT_MEM)
         with m.If(req.valid & req.ready):
             m.d.sync += self.node_reads.eq(self.node_reads + 1)
         resp = self.node.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
-            m.d.sync += [th.word[resp.payload.tag].eq(resp.payload.data),
-                         th.state[resp.payload.tag].eq(ThreadState.HAVE_NODE)]
+            m.d.sync += th.word[resp.payload.tag].eq(resp.payload.data)
+            th.set_state(m, resp.payload.tag, ThreadState.HAVE_NODE)
 
     def _result_engine(self, m: Module, th: _Threads) -> None:
         """One ``LaneResult`` per cycle: the lane ends if it hit and is an any-hit ray or its
@@ -551,7 +585,7 @@ class Traversal(wiring.Component):
                 m.d.sync += th.term[r_thread].eq(th.term[r_thread] |
                                                  (Const(1, cfg.packet_size) << r_lane))
             with m.If(r_last):
-                m.d.sync += th.state[r_thread].eq(ThreadState.POP)
+                th.set_state(m, r_thread, ThreadState.POP)
 
     def _done_engine(self, m: Module, th: _Threads) -> None:
         """``PacketDone`` for a thread whose passes all ended; ``release`` frees the thread."""
@@ -563,12 +597,12 @@ class Traversal(wiring.Component):
                      out.i.payload.packet.eq(th.packet[d_idx]),
                      out.i.payload.mask.eq(th.lanes[d_idx])]
         with m.If(out.i.valid & out.i.ready):
-            m.d.sync += th.state[d_idx].eq(ThreadState.DRAIN)
+            th.set_state(m, d_idx, ThreadState.DRAIN)
         with m.If(dn.valid & dn.ready):
             m.d.sync += self.packets_done.eq(self.packets_done + 1)
         m.d.comb += self.release.ready.eq(1)
         with m.If(self.release.valid):
-            m.d.sync += th.state[self.release.payload].eq(ThreadState.FREE)
+            th.set_state(m, self.release.payload, ThreadState.FREE)
 
     def _control(self, m: Module, th: _Threads, st_r, st_w, pm_r) -> None:
         """The control engine (pick a thread, dispatch its step / leaf / pop / pass) and the
@@ -663,8 +697,8 @@ class Traversal(wiring.Component):
                     with m.If(e_word.axis != LEAF):
                         with m.If(room):
                             m.d.comb += disp.eq(1)
-                            m.d.sync += [self.trav_steps.eq(self.trav_steps + 1),
-                                         th.state[e_t].eq(ThreadState.STEP)]
+                            m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
+                            th.set_state(m, e_t, ThreadState.STEP)
                             m.next = "IDLE"
                     with m.Elif(e_word.index != 0):
                         m.next = "LEAF"
@@ -677,7 +711,7 @@ class Traversal(wiring.Component):
             with m.State("LEAF"):
                 m.d.comb += lf.i.valid.eq(1)
                 with m.If(lf.i.ready):
-                    m.d.sync += th.state[e_t].eq(ThreadState.WAIT_LEAF)
+                    th.set_state(m, e_t, ThreadState.WAIT_LEAF)
                     m.next = "IDLE"
             with m.State("POP"):
                 with m.If(e_sp == 0):
@@ -692,14 +726,14 @@ class Traversal(wiring.Component):
             with m.State("POP3" if fast else "POP2"):
                 with m.If(popped.any()):
                     m.d.sync += [th.node[e_t].eq(st_data[:NODE_BITS]), th.mask[e_t].eq(popped),
-                                 th.sp[e_t].eq(e_sp), th.cur[e_t].eq(1),
-                                 th.state[e_t].eq(ThreadState.FETCH)]
+                                 th.sp[e_t].eq(e_sp), th.cur[e_t].eq(1)]
+                    th.set_state(m, e_t, ThreadState.FETCH)
                     m.next = "IDLE"
                 with m.Else():
                     m.next = "POP"
             with m.State("PASS"):
                 with m.If(~lo_oc_any):
-                    m.d.sync += th.state[e_t].eq(ThreadState.DONE)
+                    th.set_state(m, e_t, ThreadState.DONE)
                     m.next = "IDLE"
                 with m.Else():
                     m.d.comb += pm_r.addr.eq(e_t)
@@ -712,8 +746,8 @@ class Traversal(wiring.Component):
             with m.State("PASS3" if fast else "PASS2"):
                 m.d.sync += [th.mask[e_t].eq(pm_data.word_select(e_oct, L)),
                              th.node[e_t].eq(self.root), th.sp[e_t].eq(0), th.cur[e_t].eq(0),
-                             th.octant[e_t].eq(e_oct), th.state[e_t].eq(ThreadState.FETCH),
-                             self.passes.eq(self.passes + 1)]
+                             th.octant[e_t].eq(e_oct), self.passes.eq(self.passes + 1)]
+                th.set_state(m, e_t, ThreadState.FETCH)
                 m.next = "IDLE"
 
     def _decide(self, m: Module, th: _Threads, order, st_w) -> Signal:
@@ -748,13 +782,12 @@ class Traversal(wiring.Component):
                 m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
                              st_w.en.eq(1)]
                 m.d.sync += [th.sp[dt].eq(d_sp + 1), th.node[dt].eq(near_node),
-                             th.mask[dt].eq(mn), th.cur[dt].eq(0),
-                             th.state[dt].eq(ThreadState.FETCH), self.pushes.eq(self.pushes + 1)]
+                             th.mask[dt].eq(mn), th.cur[dt].eq(0), self.pushes.eq(self.pushes + 1)]
+                th.set_state(m, dt, ThreadState.FETCH)
             with m.Elif(n_any):
-                m.d.sync += [th.node[dt].eq(near_node), th.mask[dt].eq(mn), th.cur[dt].eq(0),
-                             th.state[dt].eq(ThreadState.FETCH)]
+                m.d.sync += [th.node[dt].eq(near_node), th.mask[dt].eq(mn), th.cur[dt].eq(0)]
+                th.set_state(m, dt, ThreadState.FETCH)
             with m.Else():
-                m.d.sync += [th.node[dt].eq(far_node), th.mask[dt].eq(mf), th.cur[dt].eq(1),
-                             th.state[dt].eq(Mux(f_any, ThreadState.FETCH,
-                                                 ThreadState.NEXTPASS))]
+                m.d.sync += [th.node[dt].eq(far_node), th.mask[dt].eq(mf), th.cur[dt].eq(1)]
+                th.set_state(m, dt, Mux(f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
         return dec
