@@ -329,7 +329,7 @@ class _Threads:
     def __init__(self, cfg: Config, packet_bits: int):
         T, L = cfg.threads, cfg.packet_size
         db = max(1, ceil_log2(cfg.stack_depth))
-        self.fast, self.tbits, self.state_writes = cfg.fast_clock, cfg.thread_bits, []
+        self.fast, self.tbits, self.writes = cfg.fast_clock, cfg.thread_bits, {}
 
         def per_thread(shape, name, init=0):
             return Array(Value.cast(Signal(shape, name=f"{name}{t}", init=init))
@@ -351,34 +351,40 @@ class _Threads:
         """One bit per thread: the thread is in state ``s``."""
         return Cat(*(self.state[t] == s for t in range(self.T)))
 
-    def set_state(self, m: Module, thread: Value, value) -> None:
-        """``state[thread] = value`` at the next clock edge, in the caller's ``If`` context.
+    def set(self, m: Module, field: str, thread: Value, value) -> None:
+        """``field[thread] = value`` at the next clock edge, in the caller's ``If`` context.
 
-        Each engine moves only threads in the states it owns, so no two engines set one
-        thread's state in one cycle; with ``fast`` the writes are therefore combined as an
+        Each engine moves only the threads in the states it owns, so no two engines write one
+        thread's field in one cycle; with ``fast`` the writes are therefore combined as an
         AND-OR per thread (:meth:`finish`) instead of a chain of one priority mux per writer.
         """
+        reg = getattr(self, field)
         if not self.fast:
-            m.d.sync += self.state[thread].eq(value)
+            m.d.sync += reg[thread].eq(value)
             return
-        i = len(self.state_writes)
-        req = Signal(name=f"state_w{i}")
-        tgt = Signal(self.tbits, name=f"state_w{i}_thread")
-        val = Signal(ThreadState, name=f"state_w{i}_value")
+        writes = self.writes.setdefault(field, [])
+        i = len(writes)
+        req = Signal(name=f"{field}_w{i}")
+        tgt = Signal(self.tbits, name=f"{field}_w{i}_thread")
+        val = Signal.like(reg[0], name=f"{field}_w{i}_value")
         m.d.comb += [req.eq(1), tgt.eq(thread), val.eq(value)]
-        self.state_writes.append((req, tgt, val))
+        writes.append((req, tgt, val))
+
+    def set_state(self, m: Module, thread: Value, value) -> None:
+        self.set(m, "state", thread, value)
 
     def finish(self, m: Module) -> None:
-        """The combined state writes (``fast``)."""
-        for t in range(self.T):
-            hit = [Signal(name=f"state{t}_w{i}") for i in range(len(self.state_writes))]
-            m.d.comb += [h.eq(req & (tgt == t)) for h, (req, tgt, _) in
-                         zip(hit, self.state_writes)]
-            nxt = 0
-            for h, (_, _, val) in zip(hit, self.state_writes):
-                nxt = nxt | Mux(h, val.as_value(), 0)
-            with m.If(Cat(*hit).any()):
-                m.d.sync += self.state[t].eq(nxt)
+        """The combined writes (``fast``)."""
+        for field, writes in self.writes.items():
+            reg = getattr(self, field)
+            for t in range(self.T):
+                hit = [Signal(name=f"{field}{t}_w{i}") for i in range(len(writes))]
+                m.d.comb += [h.eq(req & (tgt == t)) for h, (req, tgt, _) in zip(hit, writes)]
+                nxt = 0
+                for h, (_, _, val) in zip(hit, writes):
+                    nxt = nxt | Mux(h, Value.cast(val), 0)
+                with m.If(Cat(*hit).any()):
+                    m.d.sync += reg[t].eq(nxt)
 
 
 class Traversal(wiring.Component):
@@ -725,8 +731,9 @@ class Traversal(wiring.Component):
                     m.next = "POP3"
             with m.State("POP3" if fast else "POP2"):
                 with m.If(popped.any()):
-                    m.d.sync += [th.node[e_t].eq(st_data[:NODE_BITS]), th.mask[e_t].eq(popped),
-                                 th.sp[e_t].eq(e_sp), th.cur[e_t].eq(1)]
+                    for f, v in (("node", st_data[:NODE_BITS]), ("mask", popped),
+                                 ("sp", e_sp), ("cur", 1)):
+                        th.set(m, f, e_t, v)
                     th.set_state(m, e_t, ThreadState.FETCH)
                     m.next = "IDLE"
                 with m.Else():
@@ -744,9 +751,10 @@ class Traversal(wiring.Component):
                 with m.State("PASS2"):
                     m.next = "PASS3"
             with m.State("PASS3" if fast else "PASS2"):
-                m.d.sync += [th.mask[e_t].eq(pm_data.word_select(e_oct, L)),
-                             th.node[e_t].eq(self.root), th.sp[e_t].eq(0), th.cur[e_t].eq(0),
-                             th.octant[e_t].eq(e_oct), self.passes.eq(self.passes + 1)]
+                m.d.sync += [th.octant[e_t].eq(e_oct), self.passes.eq(self.passes + 1)]
+                for f, v in (("mask", pm_data.word_select(e_oct, L)), ("node", self.root),
+                             ("sp", 0), ("cur", 0)):
+                    th.set(m, f, e_t, v)
                 th.set_state(m, e_t, ThreadState.FETCH)
                 m.next = "IDLE"
 
@@ -781,13 +789,16 @@ class Traversal(wiring.Component):
             with m.If(n_any & f_any):
                 m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
                              st_w.en.eq(1)]
-                m.d.sync += [th.sp[dt].eq(d_sp + 1), th.node[dt].eq(near_node),
-                             th.mask[dt].eq(mn), th.cur[dt].eq(0), self.pushes.eq(self.pushes + 1)]
+                m.d.sync += self.pushes.eq(self.pushes + 1)
+                for f, v in (("sp", d_sp + 1), ("node", near_node), ("mask", mn), ("cur", 0)):
+                    th.set(m, f, dt, v)
                 th.set_state(m, dt, ThreadState.FETCH)
             with m.Elif(n_any):
-                m.d.sync += [th.node[dt].eq(near_node), th.mask[dt].eq(mn), th.cur[dt].eq(0)]
+                for f, v in (("node", near_node), ("mask", mn), ("cur", 0)):
+                    th.set(m, f, dt, v)
                 th.set_state(m, dt, ThreadState.FETCH)
             with m.Else():
-                m.d.sync += [th.node[dt].eq(far_node), th.mask[dt].eq(mf), th.cur[dt].eq(1)]
+                for f, v in (("node", far_node), ("mask", mf), ("cur", 1)):
+                    th.set(m, f, dt, v)
                 th.set_state(m, dt, Mux(f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
         return dec
