@@ -74,6 +74,7 @@ CI_CASES = [
     ("add", E8M10, 0), ("add", E8M16, 5), ("sub", E4M3, 1),
     ("mul", E8M16, 1), ("mul", E8M10, 0), ("div", E8M10, 2), ("div", E4M3, 0),
     ("max", E8M16, 0), ("cmp", E4M3, 2), ("conv", E8M10, 0),
+    ("min", BINARY32, 3), ("max", E4M3, 3), ("cmp", BINARY32, 3),   # min/max: compare cut
 ]
 
 

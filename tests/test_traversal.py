@@ -47,7 +47,7 @@ def test_traversal_reuses_threads(kd_cache):
 
 # the deep settings of the FPGA build (docs/fpga.md): every FP unit and the compare units
 # deeper, block-RAM reads registered (fast_clock)
-DEEP = dict(fast_clock=True, fp_add_latency=7, fp_mul_latency=5, fp_cmp_latency=2)
+DEEP = dict(fast_clock=True, fp_add_latency=7, fp_mul_latency=5, fp_cmp_latency=3)
 
 
 def test_traversal_fast_clock_replays_model(kd_cache):
@@ -143,7 +143,7 @@ def test_subunit_classifies_like_model_at_fixed_latency(deep):
     lanes = [max(1, bin(s[4]).count("1")) for s in steps]     # an empty step takes one cycle
     # the first step was transferred in cycle 0 (the queue had room), the others queued
     # behind it: each verdict follows the previous one by the step's issue cycles
-    assert dut.STEP_LAT == (2 + 3 + 3 + 1 + 2 if not deep else 2 + 7 + 5 + 2 + 2)
+    assert dut.STEP_LAT == (2 + 3 + 3 + 1 + 2 if not deep else 2 + 7 + 5 + 3 + 2)
     assert got["at"][0] == lanes[0] + dut.STEP_LAT
     assert [b - a for a, b in zip(got["at"], got["at"][1:])] == lanes[1:]
     for (thread, axis, split, sp, mask, org, inv, tnear, tfar), (_, _, dist) in zip(steps, want):
