@@ -110,10 +110,14 @@ class Cache(wiring.Component):
             row = self._fast_front(m, tags, twp, s1_valid, s1_go,
                                    (s1_off, s1_set, s1_tag, s1_utag))
 
-        way_valid = [row[w * entry] for w in range(W)]
-        way_tag = [row[w * entry + 1:(w + 1) * entry] for w in range(W)]
         rr = row[W * entry:]
-        hit_vec = Cat(*[way_valid[w] & (way_tag[w] == s1_tag) for w in range(W)])
+        def hits(r):
+            return Cat(*[r[w * entry] & (r[w * entry + 1:(w + 1) * entry] == s1_tag)
+                         for w in range(W)])
+        if self.fast:       # compare both candidate rows, select the verdict
+            hit_vec = Mux(self._s1_fwd, hits(self._s1_fwd_row), hits(self._s1_raw))
+        else:
+            hit_vec = hits(row)
         hit = Signal()
         hit_way = Signal(wb)
         m.d.comb += hit.eq(hit_vec.any())
@@ -155,7 +159,24 @@ class Cache(wiring.Component):
                          for i in range(O)])
             return in_q.any() | in_f.any()
 
-        m.d.comb += s1_go.eq(s1_valid & ~q_full & (hit | (any_free & ~slot_busy(s1_set, victim))))
+        if self.fast:
+            # the victim slot's "busy" from registers: per way, computed a cycle ahead for the
+            # request then in S0 (which S1 takes next) and for S1's own (while it waits), plus
+            # the queue entry written in that cycle; a slot freed meanwhile costs one cycle
+            def busy_ways(set_):
+                return Cat(*(slot_busy(set_, w) for w in range(W)))
+            b0, b1 = Signal(W, name="busy_s0"), Signal(W, name="busy_s1")
+            fresh = Signal()                       # S1 was loaded in the last cycle
+            lw_v, lw_set, lw_way = Signal(), Signal(sb), Signal(wb)
+            m.d.sync += [b0.eq(busy_ways(self._s0_set)), b1.eq(busy_ways(s1_set)),
+                         fresh.eq(self._s1_move), lw_v.eq(s1_go), lw_set.eq(s1_set),
+                         lw_way.eq(way)]
+            last_w = Mux(lw_v & (lw_set == s1_set), Const(1, W) << lw_way, 0)[:W]
+            busy = (Mux(fresh, b0, b1) | last_w).bit_select(victim, 1) if W > 1 else \
+                Mux(fresh, b0, b1) | last_w
+        else:
+            busy = slot_busy(s1_set, victim)
+        m.d.comb += s1_go.eq(s1_valid & ~q_full & (hit | (any_free & ~busy)))
         m.d.comb += [self.lookup_valid.eq(s1_go), self.lookup_hit.eq(hit)]
 
         issue = SyncFIFO(width=self.mshr_bits, depth=O)
@@ -234,8 +255,14 @@ class Cache(wiring.Component):
         # --- output: head of the queue once its line is present -----------------------------
         h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
         h_ready = Signal()
-        h_pending = Cat(*[mshr_valid[i] & (mshr_set[i] == h_set) & (mshr_way[i] == h_way)
-                          for i in range(O)]).any()
+        def pending(set_, way_):
+            return Cat(*[mshr_valid[i] & (mshr_set[i] == set_) & (mshr_way[i] == way_)
+                         for i in range(O)]).any()
+        if self.fast:       # per queue entry in parallel, then select the head's
+            h_pending = Cat(*(pending(q_set[i], q_way[i]) for i in range(Q))).bit_select(
+                q_head, 1)
+        else:
+            h_pending = pending(h_set, h_way)
         m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
         # o: the data read (the block RAM's output); fast: o2, that line in a register
         o_valid, o_off, o_utag = Signal(), Signal(ob), Signal(utag_bits)
@@ -301,6 +328,7 @@ class Cache(wiring.Component):
         s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
         s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
         s0_set = s0_addr[ob:ob + sb]
+        self._s0_set, self._s1_move = s0_set, s1_move
         w_now = twp.en & (twp.addr == s0_set)
         with m.If(s1_move):
             m.d.sync += [s1_valid.eq(s0_valid), s1_off.eq(s0_addr[:ob]), s1_set.eq(s0_set),
@@ -309,5 +337,6 @@ class Cache(wiring.Component):
                          s1_fwd_row.eq(Mux(w_now, twp.data, s0_row))]
         row = Signal(len(trp.data), name="s1_row")
         m.d.comb += row.eq(Mux(s1_fwd, s1_fwd_row, s1_raw))
+        self._s1_fwd, self._s1_fwd_row, self._s1_raw = s1_fwd, s1_fwd_row, s1_raw
         return row
 
