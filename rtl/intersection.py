@@ -383,43 +383,28 @@ class IntersectionUnit(wiring.Component):
         store's writes, and the ``LaneResult`` after a leaf's last triangle. The best-hit read
         is presented one stage before the datapath's output; the read port is transparent to
         the update's write, so back-to-back tests of one lane see each other
-        (``cfg.fast_clock``: two stages before, registered, the last two stores forwarded)."""
+        (``cfg.fast_clock``: :meth:`_best_hit_fast`)."""
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
         fast = self.cfg.fast_clock
         pre = data.View(self.pipe_meta, pipe.pre2_tag if fast else pipe.pre_tag)
         m.d.comb += [best_r.addr.eq(self._addr(pre.thread, pre.lane)), best_r.en.eq(en)]
-        o_meta = data.View(self.pipe_meta, pipe.o_tag)
-        gt0 = Signal()
-        lt_best = Signal()
-        m.d.comb += gt0.eq(compare(fmt, Const(0, w), pipe.t).lt)
-        accept = Signal()
-        store = Signal()
         if fast:
-            # the lane's best hit (t, hit) as read two stages ago and registered, or as one of
-            # the last two stores (which that read missed) wrote it; one compare per candidate
-            o_addr = self._addr(o_meta.thread, o_meta.lane)
-            q_t, q_hit = Signal(w, name="best_q_t"), Signal(name="best_q_hit")
-            fw = [(Signal(name=f"st{i}_v"), Signal(len(o_addr), name=f"st{i}_addr"),
-                   Signal(w, name=f"st{i}_t")) for i in (1, 2)]
-            with m.If(en):
-                m.d.sync += [q_t.eq(best_r.data.t), q_hit.eq(best_r.data.hit),
-                             fw[1][0].eq(fw[0][0]), fw[1][1].eq(fw[0][1]), fw[1][2].eq(fw[0][2]),
-                             fw[0][0].eq(store), fw[0][1].eq(o_addr), fw[0][2].eq(pipe.t)]
-            match = [v & (a == o_addr) for v, a, _ in fw]
-            old_t = Mux(match[0], fw[0][2], Mux(match[1], fw[1][2], q_t))
-            old_hit = match[0] | match[1] | q_hit
-            lts = [compare(fmt, pipe.t, x).lt for x in (fw[0][2], fw[1][2], q_t)]
-            m.d.comb += lt_best.eq(Mux(match[0], lts[0], Mux(match[1], lts[1], lts[2])))
-        else:
-            old = best_r.data
-            old_t, old_hit = old.t, old.hit
-            m.d.comb += lt_best.eq(compare(fmt, pipe.t, old.t).lt)
-        m.d.comb += [accept.eq(pipe.o_valid & pipe.hit & gt0 & lt_best), store.eq(en & accept)]
+            self._best_hit_fast(m, en, best_r, best_w, ray_w)
+            return
+        o_meta = data.View(self.pipe_meta, pipe.o_tag)
+        old = best_r.data
+        accept, store = Signal(), Signal()
+        m.d.comb += [accept.eq(pipe.o_valid & pipe.hit & compare(fmt, Const(0, w), pipe.t).lt &
+                               compare(fmt, pipe.t, old.t).lt),
+                     store.eq(en & accept), self.ray_in.ready.eq(~store)]
+        self._ray_store_writes(m, store, pipe.o_valid, pipe.t, pipe.u, pipe.v, o_meta, accept,
+                               old.t, old.hit, best_w, ray_w)
 
+    def _ray_store_writes(self, m, store, valid, t, u, v, meta, accept, old_t, old_hit,
+                          best_w, ray_w) -> None:
+        """The ray store's writes, the best-hit store's write (the store of a better hit, else
+        a new ray's initial best) and the LaneResult, from the deciding stage's values."""
         ray_in = self.ray_in
-        # a ray write waits while the store port may be busy (fast_clock: whenever the
-        # datapath's output is a hit, which is known a compare earlier than the store)
-        m.d.comb += ray_in.ready.eq(~(pipe.o_valid & pipe.hit) if fast else ~store)
         rp = ray_in.payload
         m.d.comb += [
             ray_w.addr.eq(self._addr(rp.thread, rp.ray.lane)),
@@ -428,9 +413,9 @@ class IntersectionUnit(wiring.Component):
         ]
         with m.If(store):
             m.d.comb += [
-                best_w.addr.eq(self._addr(o_meta.thread, o_meta.lane)), best_w.en.eq(1),
-                best_w.data.t.eq(pipe.t), best_w.data.u.eq(pipe.u), best_w.data.v.eq(pipe.v),
-                best_w.data.tri.eq(o_meta.id), best_w.data.hit.eq(1),
+                best_w.addr.eq(self._addr(meta.thread, meta.lane)), best_w.en.eq(1),
+                best_w.data.t.eq(t), best_w.data.u.eq(u), best_w.data.v.eq(v),
+                best_w.data.tri.eq(meta.id), best_w.data.hit.eq(1),
             ]
         with m.Else():
             m.d.comb += [
@@ -439,12 +424,60 @@ class IntersectionUnit(wiring.Component):
             ]
         lo = self._lane_stage.i
         m.d.comb += [
-            lo.valid.eq(pipe.o_valid & o_meta.tri_last),
-            lo.payload.thread.eq(o_meta.thread), lo.payload.lane.eq(o_meta.lane),
+            lo.valid.eq(valid & meta.tri_last),
+            lo.payload.thread.eq(meta.thread), lo.payload.lane.eq(meta.lane),
             lo.payload.hit.eq(accept | old_hit),
-            lo.payload.t.eq(Mux(accept, pipe.t, old_t)),
-            lo.payload.last.eq(o_meta.lane_last),
+            lo.payload.t.eq(Mux(accept, t, old_t)),
+            lo.payload.last.eq(meta.lane_last),
         ]
+
+    def _best_hit_fast(self, m: Module, en: Value, best_r, best_w, ray_w) -> None:
+        """``cfg.fast_clock``: the closest-hit decision in two stages. Stage A (the datapath's
+        output) compares t with each candidate for the lane's best so far: the best-hit read
+        (issued two stages earlier, registered: it misses the last three stores) and those
+        three stores (the one being decided in stage B now, and the two before, in
+        registers). Stage B (a register stage) knows which of them stored, picks the newest
+        matching one's verdict, accepts and stores. The LaneResult leaves a cycle later than
+        without ``fast_clock``; a ray write waits while stage B holds a hit."""
+        fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
+        a_meta = data.View(self.pipe_meta, pipe.o_tag)
+        a_addr = self._addr(a_meta.thread, a_meta.lane)
+        q_t, q_hit = Signal(w, name="best_q_t"), Signal(name="best_q_hit")
+        # stage B registers
+        b_valid, b_hit, b_gt0 = Signal(name="b_valid"), Signal(name="b_hit"), Signal(name="b_gt0")
+        b_t, b_u, b_v = (Signal(w, name=f"b_{n}") for n in "tuv")
+        b_meta = Signal(self.pipe_meta, name="b_meta")
+        b_addr = Signal(len(a_addr), name="b_addr")
+        b_q_t, b_q_hit = Signal(w, name="b_q_t"), Signal(name="b_q_hit")
+        # the last three stores: (valid, address, t), newest first
+        st = [(Signal(name=f"st{i}_v"), Signal(len(a_addr), name=f"st{i}_addr"),
+               Signal(w, name=f"st{i}_t")) for i in (1, 2, 3)]
+        # stage A: one compare per candidate (B's op, st1, st2 as they are now; the read)
+        cands = [(Const(1), b_addr, b_t), st[0], st[1]]
+        lt_a = [compare(fmt, pipe.t, c[2]).lt for c in cands] + [compare(fmt, pipe.t, q_t).lt]
+        match_a = [c[0] & (c[1] == a_addr) for c in cands]
+        lt_q, match_q = Signal(4, name="b_lt"), Signal(3, name="b_match")
+        store = Signal()
+        with m.If(en):
+            m.d.sync += [q_t.eq(best_r.data.t), q_hit.eq(best_r.data.hit),
+                         b_valid.eq(pipe.o_valid), b_hit.eq(pipe.hit),
+                         b_gt0.eq(compare(fmt, Const(0, w), pipe.t).lt),
+                         b_t.eq(pipe.t), b_u.eq(pipe.u), b_v.eq(pipe.v), b_meta.eq(pipe.o_tag),
+                         b_addr.eq(a_addr), b_q_t.eq(q_t), b_q_hit.eq(q_hit),
+                         lt_q.eq(Cat(*lt_a)), match_q.eq(Cat(*match_a))]
+            m.d.sync += [st[0][0].eq(store), st[0][1].eq(b_addr), st[0][2].eq(b_t)]
+            for i in (1, 2):
+                m.d.sync += [a.eq(b) for a, b in zip(st[i], st[i - 1])]
+        # stage B: candidate i matched in A and stored (st1 = B's predecessor, now known)
+        mt = [match_q[0] & st[0][0], match_q[1], match_q[2]]
+        lt_best = Mux(mt[0], lt_q[0], Mux(mt[1], lt_q[1], Mux(mt[2], lt_q[2], lt_q[3])))
+        old_t = Mux(mt[0], st[0][2], Mux(mt[1], st[1][2], Mux(mt[2], st[2][2], b_q_t)))
+        old_hit = mt[0] | mt[1] | mt[2] | b_q_hit
+        accept = Signal()
+        m.d.comb += [accept.eq(b_valid & b_hit & b_gt0 & lt_best), store.eq(en & accept),
+                     self.ray_in.ready.eq(~(b_valid & b_hit))]
+        self._ray_store_writes(m, store, b_valid, b_t, b_u, b_v, b_meta, accept, old_t,
+                               old_hit, best_w, ray_w)
 
     def _readout(self, m: Module, out_r) -> None:
         """Final results of a finished packet: one ``RayResult`` per lane of the ``done``
