@@ -480,15 +480,19 @@ def golden_stack(cfg, cache_dir, layers: int = 10, rays_per_packet: int = 1,
     """A stack of ``layers`` parallel quads (two triangles each) facing rays from +z, listed
     far to near, and a few rays per packet: every test of a lane hits and is closer than the
     last, back to back when a packet has one ray (the best-hit read-after-write case).
-    ``near_first`` lists them near to far: every test after the first hits farther than the
-    best and must be rejected (a stale best-hit read would accept it)."""
+    ``near_first`` lists them near to far, each layer as two overlapping triangles that
+    both cover every ray: every test after the first hits at or beyond the best and must be
+    rejected, back to back (a stale best-hit read would accept it)."""
     from model.kdtree import build_kdtree
     from model.layout import build_image
     from tb.list import Golden
     quads = []
     for i in range(layers):
         z = float(-i)
-        quads += [[(-1, -1, z), (1, -1, z), (1, 1, z)], [(-1, -1, z), (1, 1, z), (-1, 1, z)]]
+        if near_first:
+            quads += [[(-3, -3, z), (3, -3, z), (0, 4, z)], [(3, 3, z), (-3, 3, z), (0, -4, z)]]
+        else:
+            quads += [[(-1, -1, z), (1, -1, z), (1, 1, z)], [(-1, -1, z), (1, 1, z), (-1, 1, z)]]
     # reversed: memory (and list) order runs from the farthest layer to the nearest
     tris = cfg.fmt.quantize(np.array(quads if near_first else quads[::-1],
                                      np.float64)).astype(np.float32)
