@@ -337,24 +337,48 @@ class IntersectionUnit(wiring.Component):
         the ray store is read. Returns the condition that a test issues this cycle."""
         fmt, lanes, pipe = self.fmt, self.lanes, self.pipe
         t_slot = Signal(self.slot_bits)
-        testing = Signal()                 # part of t_slot's mask is already issued
         rem = Signal(lanes)
-        ready_slot = s.alloc.bit_select(t_slot, 1) & s.got.bit_select(t_slot, 1)
-        cur = Signal(lanes)
-        m.d.comb += cur.eq(Mux(testing, rem, s.mask[t_slot]))
         go = Signal()
         issue = Signal()                   # a lane's test issues this cycle
-        m.d.comb += [go.eq(en & ready_slot), issue.eq(go & (cur != 0))]
-        _, lane = lowest(m, cur, "issue")
         rest = Signal(lanes)
-        m.d.comb += rest.eq(cur & (cur - 1))
-        with m.If(go):
-            m.d.sync += rem.eq(rest)
-            with m.If(rest == 0):
-                m.d.comb += s.alloc_clr.eq(1 << t_slot)
-                m.d.sync += [testing.eq(0), t_slot.eq(t_slot + 1)]
-            with m.Else():
-                m.d.sync += testing.eq(1)
+        if self.cfg.fast_clock:
+            # rem holds the current slot's lanes still to test as soon as the slot is
+            # allocated (rem_v), and ``last`` whether one is left: the issue decision reads
+            # only registers (the next slot's mask is loaded as the current one's last lane
+            # issues, so triangles follow each other without a gap)
+            rem_v, last = Signal(), Signal()
+            at_most_one = lambda x: (x & (x - 1))[:lanes] == 0
+            m.d.comb += [go.eq(en & rem_v & s.got.bit_select(t_slot, 1)), issue.eq(go),
+                         rest.eq(rem & (rem - 1))]
+            _, lane = lowest(m, rem, "issue")
+            nxt = (t_slot + 1)[:self.slot_bits]
+            with m.If(go):
+                with m.If(last):
+                    m.d.comb += s.alloc_clr.eq(1 << t_slot)
+                    m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.alloc.bit_select(nxt, 1)),
+                                 rem.eq(s.mask[nxt]), last.eq(at_most_one(s.mask[nxt]))]
+                with m.Else():
+                    m.d.sync += [rem.eq(rest), last.eq(at_most_one(rest))]
+            with m.Elif(~rem_v):
+                m.d.sync += [rem_v.eq(s.alloc.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
+                             last.eq(at_most_one(s.mask[t_slot]))]
+            lane_last = last
+        else:
+            testing = Signal()             # part of t_slot's mask is already issued
+            ready_slot = s.alloc.bit_select(t_slot, 1) & s.got.bit_select(t_slot, 1)
+            cur = Signal(lanes)
+            m.d.comb += cur.eq(Mux(testing, rem, s.mask[t_slot]))
+            m.d.comb += [go.eq(en & ready_slot), issue.eq(go & (cur != 0))]
+            _, lane = lowest(m, cur, "issue")
+            m.d.comb += rest.eq(cur & (cur - 1))
+            with m.If(go):
+                m.d.sync += rem.eq(rest)
+                with m.If(rest == 0):
+                    m.d.comb += s.alloc_clr.eq(1 << t_slot)
+                    m.d.sync += [testing.eq(0), t_slot.eq(t_slot + 1)]
+                with m.Else():
+                    m.d.sync += testing.eq(1)
+            lane_last = rest == 0
 
         tri = data.View(data.ArrayLayout(32, 9), s.item[t_slot][:9 * 32])
         s1_valid = Signal()
@@ -369,7 +393,7 @@ class IntersectionUnit(wiring.Component):
                 s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
                 s1_meta.id.eq(s.index[t_slot]),
                 s1_meta.tri_last.eq(s.last.bit_select(t_slot, 1)),
-                s1_meta.lane_last.eq(rest == 0),
+                s1_meta.lane_last.eq(lane_last),
             ]
         ray = ray_r.data
         m.d.comb += [
