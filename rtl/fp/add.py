@@ -21,22 +21,23 @@ class FPAdd(wiring.Component):
 
     Steps: unpack (order the operands by exponent), align (shift the smaller right by the
     exponent difference, keeping guard/round/sticky bits), add or subtract the significands
-    (on an exponent tie the difference's sign picks which way round),
+    (on an exponent tie the difference's sign picks which way round), count the leading zeros,
     normalize (leading-zero count and left shift), round (the RNE increment), pack (exponent
     carry, flush/overflow and special-value select).
 
-    Latency: ``latency`` cycles (default 3; 0 = combinational), registers placed at the 7 step
-    boundaries (input, after unpack, after align, after add, after normalize, after round,
-    output) by ``regs`` or, by default, output first, then after align, after normalize, after
-    unpack, after add, after round, input (so latencies 1-5 place them as before the round
-    boundary existed; 6 is the first to cut round and pack). Throughput: one operation per
+    Latency: ``latency`` cycles (default 3; 0 = combinational), registers placed at the 8 step
+    boundaries (input, after unpack, after align, after add, after the leading-zero count,
+    after normalize, after round, output) by ``regs`` or, by default, output first, then after
+    align, after normalize, after unpack, after add, after round, input, after the count (so
+    latencies 1-5 place them as before the round boundary existed; 6 is the first to cut
+    round and pack, 8 the first to cut normalize in two). Throughput: one operation per
     cycle in which ``en`` is 1; with ``en`` = 0 every register holds (``o``/``o_valid`` too).
 
     Ports: ``a``, ``b``, ``op``, ``i_valid``, ``en`` in; ``o``, ``o_valid`` out.
     """
 
-    BOUNDARIES = ("input", "unpack", "align", "add", "normalize", "round", "output")
-    ORDER = (6, 2, 4, 1, 3, 5, 0)
+    BOUNDARIES = ("input", "unpack", "align", "add", "count", "normalize", "round", "output")
+    ORDER = (7, 2, 5, 1, 3, 6, 0, 4)
 
     def __init__(self, fmt: FPFormat = BINARY32, latency: int = 3, regs: Sequence[int] | None = None):
         self.fmt = fmt
@@ -87,9 +88,12 @@ class FPAdd(wiring.Component):
                 v.big + v.small)
         v = st(s=s, exp=v.exp, sign=Mux(neg, v.small_sign, v.sign), zero_sign=v.zero_sign,
                nan=v.nan, inf=v.inf, inf_sign=v.inf_sign)
+        # -- count the leading zeros ---------------------------------------------------------
+        v = st(s=v.s, lz=lzc(m, v.s), exp=v.exp, sign=v.sign, zero_sign=v.zero_sign,
+               nan=v.nan, inf=v.inf, inf_sign=v.inf_sign)
         # -- normalize: leading one to the MSB; the sum's bit n is one binade above big's ----
         # hidden bit (bit n-1, exponent big_exp)
-        lz = lzc(m, v.s)
+        lz = v.lz
         norm = (v.s << lz)[:n + 1]
         exp = v.exp + 1 - lz                                  # signed, wide enough
         sign = Mux(v.s == 0, v.zero_sign, v.sign)             # exact zero: -0 only for -0 + -0
