@@ -304,6 +304,7 @@ class IntersectionUnit(wiring.Component):
                          for i in range(n_slots))
         s.index = Array(Signal(TRI_ID_BITS, name=f"s{i}_index") for i in range(n_slots))
         s.last = Signal(n_slots)
+        s.one = Signal(n_slots)
         s.alloc = alloc = Signal(n_slots)
         alloc_set, s.alloc_clr = Signal(n_slots), Signal(n_slots)
         m.d.sync += alloc.eq((alloc | alloc_set) & ~s.alloc_clr)
@@ -323,6 +324,8 @@ class IntersectionUnit(wiring.Component):
                 s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread), s.index[nxt].eq(p.tri),
                 s.last.bit_select(nxt, 1).eq(p.last),
             ]
+            if self.cfg.fast_clock:         # the mask has one lane (the issue stage's "last")
+                m.d.sync += s.one.bit_select(nxt, 1).eq((p.mask & (p.mask - 1))[:lanes] == 0)
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
@@ -356,12 +359,12 @@ class IntersectionUnit(wiring.Component):
                 with m.If(last):
                     m.d.comb += s.alloc_clr.eq(1 << t_slot)
                     m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.alloc.bit_select(nxt, 1)),
-                                 rem.eq(s.mask[nxt]), last.eq(at_most_one(s.mask[nxt]))]
+                                 rem.eq(s.mask[nxt]), last.eq(s.one.bit_select(nxt, 1))]
                 with m.Else():
                     m.d.sync += [rem.eq(rest), last.eq(at_most_one(rest))]
             with m.Elif(~rem_v):
                 m.d.sync += [rem_v.eq(s.alloc.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
-                             last.eq(at_most_one(s.mask[t_slot]))]
+                             last.eq(s.one.bit_select(t_slot, 1))]
             lane_last = last
         else:
             testing = Signal()             # part of t_slot's mask is already issued
