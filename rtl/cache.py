@@ -133,6 +133,7 @@ class Cache(wiring.Component):
         mshr_set = [Signal(sb, name=f"mshr{i}_set") for i in range(O)]
         mshr_way = [Signal(wb, name=f"mshr{i}_way") for i in range(O)]
         mshr_line = [Signal(g.addr_width - ob, name=f"mshr{i}_line") for i in range(O)]
+        mshr_addr = [Signal(g.mem_addr_width, name=f"mshr{i}_addr") for i in range(O)]
         mshr_cnt = [Signal(range(LW), name=f"mshr{i}_cnt") for i in range(O)]
         mshr_buf = [Signal(LW * WORD_BITS, name=f"mshr{i}_buf") for i in range(O)]
         free = Signal(range(O))
@@ -206,6 +207,8 @@ class Cache(wiring.Component):
             with m.If(s1_go & ~hit & (free == i)):
                 m.d.sync += [mshr_set[i].eq(s1_set), mshr_way[i].eq(victim),
                              mshr_line[i].eq(Cat(s1_set, s1_tag)), mshr_cnt[i].eq(0)]
+                if self.fast:       # the line's first word address, computed at allocation
+                    m.d.sync += mshr_addr[i].eq(self.base + Cat(s1_set, s1_tag) * LW)
 
         # --- issue: the line's words, one request per cycle -----------------------------------
         word = Signal(range(LW))
@@ -213,7 +216,8 @@ class Cache(wiring.Component):
         mreq = self.mem.req
         line = Array(mshr_line)[head_m]
         m.d.comb += [mreq.valid.eq(issue.r_rdy),
-                     mreq.payload.addr.eq(self.base + line * LW + word),
+                     mreq.payload.addr.eq(Array(mshr_addr)[head_m] + word if self.fast
+                                          else self.base + line * LW + word),
                      mreq.payload.tag.eq(Cat(head_m, word)[:len(mreq.payload.tag)])]
         m.d.comb += issue.r_en.eq(mreq.valid & mreq.ready & (word == LW - 1))
         with m.If(mreq.valid & mreq.ready):
