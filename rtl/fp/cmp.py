@@ -20,9 +20,14 @@ CompareLayout = data.StructLayout({"lt": 1, "le": 1, "equal": 1})
 def compare(fmt: FPFormat, a: Value, b: Value) -> SimpleNamespace:
     """IEEE order of two encodings (denormals read as zero): ``-0 == +0``, NaN unordered."""
     ua, ub = unpack(fmt, a), unpack(fmt, b)
-    # sign-magnitude order on the keys (exponent:fraction, denormals cleared): one magnitude
-    # comparator; a sign difference decides unless both are zeros
-    mlt, meq = ua.key < ub.key, ua.key == ub.key
+    # sign-magnitude order on the magnitudes (exponent:fraction, denormals read as zero): one
+    # comparator on the raw bits, started at once; a zero exponent field (zero or denormal)
+    # is settled beside it: two such are equal, one is below any other magnitude
+    E, M = fmt.exp_bits, fmt.frac_bits
+    ra, rb = Value.cast(a)[:E + M], Value.cast(b)[:E + M]
+    za, zb = ua.zero, ub.zero
+    mlt = Mux(za | zb, za & ~zb, ra < rb)
+    meq = Mux(za | zb, za & zb, ra == rb)
     mgt = ~mlt & ~meq
     ordered = ~ua.nan & ~ub.nan
     zeros = ua.zero & ub.zero
