@@ -242,7 +242,16 @@ class Cache(wiring.Component):
             with m.If(fire & (f_m == i)):
                 m.d.sync += [mshr_buf[i].eq(merged[i]), mshr_cnt[i].eq(mshr_cnt[i] + 1)]
         last = Signal()
-        m.d.comb += last.eq(fire & (Array(mshr_cnt)[f_m] == LW - 1))
+        if self.fast:       # per MSHR "the next word completes the line", kept in a register
+            nearly = Signal(O, name="mshr_last")
+            for i in range(O):
+                with m.If(s1_go & ~hit & (free == i)):
+                    m.d.sync += nearly[i].eq(LW == 1)
+                with m.Elif(fire & (f_m == i)):
+                    m.d.sync += nearly[i].eq(mshr_cnt[i] + 1 == LW - 1)
+            m.d.comb += last.eq(fire & nearly.bit_select(f_m, 1))
+        else:
+            m.d.comb += last.eq(fire & (Array(mshr_cnt)[f_m] == LW - 1))
         line_raw = Array(merged)[f_m]
         items = [line_raw[j * g.item_span:j * g.item_span + g.item_bits]
                  for j in range(g.line_items)]
