@@ -726,13 +726,21 @@ class Traversal(wiring.Component):
                     m.d.comb += st_r.addr.eq(Cat((e_sp - 1)[:db], e_t))
                     m.d.sync += e_sp.eq(e_sp - 1)
                     m.next = "POP2"
+            pop_node, pop_mask, pop_any = st_data[:NODE_BITS], popped, popped.any()
             if fast:
+                # POP2: the entry is read; POP3: its lanes still live, registered; POP4: used
                 with m.State("POP2"):
                     m.next = "POP3"
-            with m.State("POP3" if fast else "POP2"):
-                with m.If(popped.any()):
-                    for f, v in (("node", st_data[:NODE_BITS]), ("mask", popped),
-                                 ("sp", e_sp), ("cur", 1)):
+                regs = (Signal(NODE_BITS, name="pop_node"), Signal(L, name="pop_mask"),
+                        Signal(name="pop_any"))
+                with m.State("POP3"):
+                    m.d.sync += [r.eq(v) for r, v in zip(regs, (pop_node, pop_mask, pop_any))]
+                    m.next = "POP4"
+                pop_node, pop_mask, pop_any = regs
+            with m.State("POP4" if fast else "POP2"):
+                with m.If(pop_any):
+                    for f, v in (("node", pop_node), ("mask", pop_mask), ("sp", e_sp),
+                                 ("cur", 1)):
                         th.set(m, f, e_t, v)
                     th.set_state(m, e_t, ThreadState.FETCH)
                     m.next = "IDLE"
