@@ -304,7 +304,7 @@ class IntersectionUnit(wiring.Component):
                          for i in range(n_slots))
         s.index = Array(Signal(TRI_ID_BITS, name=f"s{i}_index") for i in range(n_slots))
         s.last = Signal(n_slots)
-        s.one = Signal(n_slots)
+        s.count = Array(Signal(range(lanes + 1), name=f"s{i}_count") for i in range(n_slots))
         s.alloc = alloc = Signal(n_slots)
         alloc_set, s.alloc_clr = Signal(n_slots), Signal(n_slots)
         m.d.sync += alloc.eq((alloc | alloc_set) & ~s.alloc_clr)
@@ -324,8 +324,8 @@ class IntersectionUnit(wiring.Component):
                 s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread), s.index[nxt].eq(p.tri),
                 s.last.bit_select(nxt, 1).eq(p.last),
             ]
-            if self.cfg.fast_clock:         # the mask has one lane (the issue stage's "last")
-                m.d.sync += s.one.bit_select(nxt, 1).eq((p.mask & (p.mask - 1))[:lanes] == 0)
+            if self.cfg.fast_clock:         # the mask's lane count (for the issue stage)
+                m.d.sync += s.count[nxt].eq(sum(p.mask[i] for i in range(lanes)))
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
@@ -346,11 +346,12 @@ class IntersectionUnit(wiring.Component):
         rest = Signal(lanes)
         if self.cfg.fast_clock:
             # rem holds the current slot's lanes still to test as soon as the slot is
-            # allocated (rem_v), and ``last`` whether one is left: the issue decision reads
+            # allocated (rem_v), ``left`` their number, ``last`` whether one is left (the
+            # TriRequest's lane count is taken with it): the issue decision reads
             # only registers (the next slot's mask is loaded as the current one's last lane
             # issues, so triangles follow each other without a gap)
             rem_v, last = Signal(), Signal()
-            at_most_one = lambda x: (x & (x - 1))[:lanes] == 0
+            left = Signal(range(lanes + 1))     # lanes in rem
             m.d.comb += [go.eq(en & rem_v & s.got.bit_select(t_slot, 1)), issue.eq(go),
                          rest.eq(rem & (rem - 1))]
             _, lane = lowest(m, rem, "issue")
@@ -359,12 +360,13 @@ class IntersectionUnit(wiring.Component):
                 with m.If(last):
                     m.d.comb += s.alloc_clr.eq(1 << t_slot)
                     m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.alloc.bit_select(nxt, 1)),
-                                 rem.eq(s.mask[nxt]), last.eq(s.one.bit_select(nxt, 1))]
+                                 rem.eq(s.mask[nxt]), left.eq(s.count[nxt]),
+                                 last.eq(s.count[nxt] == 1)]
                 with m.Else():
-                    m.d.sync += [rem.eq(rest), last.eq(at_most_one(rest))]
+                    m.d.sync += [rem.eq(rest), left.eq(left - 1), last.eq(left == 2)]
             with m.Elif(~rem_v):
                 m.d.sync += [rem_v.eq(s.alloc.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
-                             last.eq(s.one.bit_select(t_slot, 1))]
+                             left.eq(s.count[t_slot]), last.eq(s.count[t_slot] == 1)]
             lane_last = last
         else:
             testing = Signal()             # part of t_slot's mask is already issued
