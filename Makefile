@@ -2,8 +2,10 @@
 VENV  ?= .venv
 PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.setup-done
+# the `saarcor` command line (pyproject's [project.scripts]; `saarcor --help`)
+SAARCOR := $(VENV)/bin/saarcor
 SCENE ?= scenes/cornell.toml
-RES   ?= 256x192
+RES   ?= 128x96
 OUT   ?= build/sim
 
 .PHONY: setup test sim bench clean
@@ -19,36 +21,66 @@ TEST_JOBS ?= auto
 test: setup
 	$(PY) -m pytest -q -n $(TEST_JOBS)
 
-## make sim: render the default scene (golden model until the RTL chip exists)
+## make sim: a frame through the whole chip (RGS, RTCs, caches, bus, SDRAM model), every ray
+##   checked against the golden model -> $(OUT)/image.png, stats.json, usage.png, rays/hits.npz.
+##   make sim SCENE=scenes/office.toml RES=256x192 RTCS=2 THREADS=8 BACKEND=verilator|amaranth
+##            TRACE=wave.fst CONFIG="--trav-cache-kb 16 --mem-latency 30"
+##   EYE_ONLY=1: eye rays only (default: the slaves also make the shadow and reflection rays)
+RTCS    ?=
+THREADS ?=
+BACKEND ?= verilator
+TRACE   ?=
+EYE_ONLY ?=
+EYE_ONLY_FLAG := $(if $(EYE_ONLY),--eye-only)
 sim: setup
-	$(PY) -m model render $(SCENE) --res $(RES) --out $(OUT)
+	$(SAARCOR) sim --scene $(SCENE) --res $(RES) --out $(OUT) --backend $(BACKEND) \
+	    $(if $(RTCS),--rtcs $(RTCS)) $(if $(THREADS),--threads $(THREADS)) \
+	    $(if $(TRACE),--trace $(TRACE)) $(EYE_ONLY_FLAG) $(CONFIG)
 
 ## make bench: long sweeps and speed measurements, written to build/bench/
 BENCH_SCENE ?= scenes/office.toml
 # the golden model's speed against Embree: a real mesh if one is at hand (the README's figures
 # use the Stanford dragon), else the procedural terrain
 BENCH_MESH  ?= $(firstword $(wildcard $(SAARCOR_MESHES)/dragon.obj ../shared/meshes/dragon.obj))
+# the stall bench's small chip (2 RTCs, 1 KB caches: misses and evictions on every frame)
+CHIP_SMALL  ?= --rtcs 2 --threads 2 --tile-w 4 --tile-h 4 --trav-subunits 2 --trav-cache-kb 1 \
+	       --list-cache-kb 1 --int-cache-kb 9 --mem-latency 8
 bench: setup
 	mkdir -p build/bench
-	$(PY) -m model.bench --out build/bench $(if $(BENCH_MESH),--mesh $(BENCH_MESH))
-	$(PY) -m tb.bench_memory --scene $(BENCH_SCENE) --out build/bench
-	$(PY) -m tb.bench_threads --out build/bench
-	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
-	    --out build/bench --name threads_standard.json
-	$(PY) -m tb.bench_threads --scene scenes/office.toml --res 128x96 --tile 8x8 --subunits 4 \
-	    --mode async --out build/bench --name threads_standard_async.json
-	$(PY) -m tb.stress --out build/bench
+	$(SAARCOR) bench model --out build/bench $(if $(BENCH_MESH),--mesh $(BENCH_MESH))
+	$(SAARCOR) bench memory --scene $(BENCH_SCENE) --out build/bench
+	$(SAARCOR) bench threads --out build/bench
+	$(SAARCOR) bench threads --scene scenes/office.toml --res 128x96 --tile-w 8 --tile-h 8 \
+	    --trav-subunits 4 --out build/bench --name threads_standard.json
+	$(SAARCOR) bench threads --scene scenes/office.toml --res 128x96 --tile-w 8 --tile-h 8 \
+	    --trav-subunits 4 --trav-sync false --out build/bench --name threads_standard_async.json
+	$(SAARCOR) bench stress --out build/bench
+	$(SAARCOR) bench chip --res 256x192 --out build/bench $(EYE_ONLY_FLAG)
+	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 $(CHIP_SMALL) \
+	    --out build/bench $(EYE_ONLY_FLAG)
+	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench $(EYE_ONLY_FLAG)
+	$(SAARCOR) bench resources --json build/bench/resources.json
+	$(SAARCOR) bench skipping --scene scenes/office.toml --res 128x96 --rtl --second-run
+	$(SAARCOR) bench skipping --scene scenes/cornell.toml --res 128x96 --rtl
+	$(SAARCOR) bench skipping --scene scenes/game.toml --res 128x96 --elab
+	$(SAARCOR) bench ladder --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:
 	rm -rf build
 
+## make render SCENE=scenes/office.toml RES=1024x768: the golden model alone -> build/render/
+##   (image.png, stats.json, rays.npz, hits.npz; `saarcor render --help` for every option)
+RENDER_OUT ?= build/render
+render: setup
+	$(SAARCOR) render $(SCENE) --res $(RES) --out $(RENDER_OUT)
+
 ## make verilog TOP=rtc CONFIG="--threads 4 --trav-cache-kb 4": build/verilog/$(TOP).v
-##   (TOP: any of `python -m rtl.export --list`; CONFIG: any Config field as --option)
+##   (TOP: any of `saarcor verilog --list`; CONFIG: any Config field as --option)
 TOP    ?= rtc
 CONFIG ?=
 verilog: setup
-	$(PY) -m rtl.export --top $(TOP) $(CONFIG)
+	$(SAARCOR) verilog --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
 ##   (YoWASP Yosys + nextpnr, an hour or more on 2 cores; not in CI) -> build/fpga/report.json, README.md
@@ -58,6 +90,25 @@ FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 5 --fp-div-latency 29 --fp-cm
 FPGA_CONFIG ?= --threads 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8 $(FPGA_DEEP)
 fpga: setup
 	$(VENV)/bin/pip install -q -e ".[fpga]"
-	$(PY) -m rtl.fpga --top $(FPGA_TOP) $(FPGA_CONFIG)
+	$(SAARCOR) fpga --top $(FPGA_TOP) $(FPGA_CONFIG)
 
-.PHONY: verilog fpga
+.PHONY: render verilog fpga
+
+## make sweep SPEC=scenes/sweeps/rtcs.toml: a design-space sweep on Dask (configurations x scenes
+##   x resolutions, every point cached) -> build/sweep/<name>/results.csv (docs/sweep.md)
+##   SWEEP_ARGS="--workers 2 --scheduler tcp://host:8786 --max-cycles N"
+SPEC       ?= scenes/sweeps/rtcs.toml
+SWEEP_ARGS ?=
+sweep: setup
+	$(PY) -m tb.sweep $(SPEC) $(SWEEP_ARGS)
+
+.PHONY: sweep
+
+## make results: docs/results.md and docs/img/results_*.png, the paper's Section 5 tables beside
+##   ours, from the sweeps of scenes/sweeps/results/plan.toml (every point cached; the chip's
+##   Verilator binaries are built once per configuration). RESULTS_ARGS="--skip-threads"
+RESULTS_ARGS ?=
+results: setup
+	nice -n 10 $(SAARCOR) results $(RESULTS_ARGS)
+
+.PHONY: results

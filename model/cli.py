@@ -1,12 +1,12 @@
-"""Command line of the golden model: ``python -m model render SCENE [options]``."""
+"""Command line of the golden model: ``saarcor render SCENE [options]`` (or
+``python -m model render``)."""
 from __future__ import annotations
 
 import argparse
 import sys
 from pathlib import Path
 
-from .config import Config, ConfigError
-from .fp import FPFormat
+from .config import ConfigError
 
 
 def parse_res(text: str) -> tuple[int, int]:
@@ -20,47 +20,42 @@ def parse_res(text: str) -> tuple[int, int]:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    # every Config field as an option, generated from the dataclass in one place
+    from rtl.export import add_config_args
     p = argparse.ArgumentParser(prog="python -m model",
                                 description="SaarCOR golden model: bit-exact ray tracing of a "
                                             "scene in the hardware's arithmetic.")
     sub = p.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("render", help="render a scene; writes image.png, stats.json, rays.npz, "
                                       "hits.npz",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       description="Render a scene with the golden model; writes image.png, "
+                                   "stats.json, rays.npz and hits.npz to --out. The image and "
+                                   "counters depend on the configuration options --fmt, "
+                                   "--kd-*, --tile-w/--tile-h, --reflect-depth, --oversampling "
+                                   "and --shadows; the others size the chip and are only "
+                                   "recorded in stats.json.")
     r.add_argument("scene", help="a scene file (.toml, see docs/scenes.md) or a bare mesh "
                                  "(.obj .ply .stl .glb .off; the camera frames it, one light)")
     r.add_argument("--res", type=parse_res, default=(256, 192), metavar="WxH",
-                   help="image resolution in pixels")
+                   help="image resolution in pixels (default 256x192)")
     r.add_argument("--out", type=Path, default=Path("build/render"),
-                   help="output directory")
-    r.add_argument("--exp-bits", type=int, default=8, help="FP exponent width E")
-    r.add_argument("--frac-bits", type=int, default=23,
-                   help="FP fraction width M (10..23 for the precision study)")
-    r.add_argument("--reflect-depth", type=int, default=Config.reflect_depth,
-                   help="maximum reflection bounces (0: none)")
-    r.add_argument("--oversampling", type=int, default=1,
-                   help="n: n x n rays per pixel on a regular sub-pixel grid")
-    r.add_argument("--no-shadows", action="store_true", help="lights cast no shadow rays")
-    r.add_argument("--kd-depth", type=int, default=Config.kd_max_depth,
-                   help="maximum kd-tree depth d (sizes the traversal stack)")
-    r.add_argument("--leaf-size", type=int, default=Config.kd_leaf_size,
-                   help="make a kd-tree leaf at or below this many triangles")
-    r.add_argument("--tile", type=parse_res, default=(8, 8), metavar="WxH",
-                   help="packet tile (at most 64 rays)")
-    r.add_argument("--no-cache", action="store_true", help="don't read/write the kd-tree cache")
+                   help="output directory (default build/render)")
+    r.add_argument("--no-cache", action="store_true",
+                   help="don't read/write the kd-tree cache (~/.cache/saarcor/kdtree, or "
+                        "$SAARCOR_CACHE/kdtree)")
     r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    add_config_args(r)
     return p
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from rtl.export import config_from_args
+
     from .render import prepare, render, write_outputs
     from .scene import SceneError, load_scene
     try:
-        cfg = Config(fmt=FPFormat(args.exp_bits, args.frac_bits),
-                     reflect_depth=args.reflect_depth, oversampling=args.oversampling,
-                     shadows=not args.no_shadows, kd_max_depth=args.kd_depth,
-                     kd_leaf_size=args.leaf_size, tile_w=args.tile[0], tile_h=args.tile[1])
+        cfg = config_from_args(args)
     except (ConfigError, ValueError) as e:
         print(f"error: impossible configuration: {e}", file=sys.stderr)
         return 2

@@ -32,10 +32,12 @@ class Config:
     int_tri_slots: int = 8         # triangles the intersection unit holds (fetched ahead + tested)
     list_outstanding: int = 8      # list-word reads the list unit keeps in flight
     # pipeline stages of the RTL's FP units (0: the unit's default: add 3, mul 3, divider
-    # ceil((M+3)/4)+1 = 8 at binary32); more stages trade latency for clock rate (docs/fpga.md)
+    # ceil((M+3)/4)+1 = 8 at binary32, square root ceil((M+2)/4)+1 = 8); more stages trade
+    # latency for clock rate (docs/fpga.md)
     fp_add_latency: int = 0
     fp_mul_latency: int = 0
     fp_div_latency: int = 0
+    fp_sqrt_latency: int = 0
     fp_cmp_latency: int = 0        # compare and min/max units (0: the default 1; 2 registers
                                    # their inputs too)
     # extra registers for a faster clock (docs/fpga.md): block-RAM reads registered before
@@ -56,6 +58,9 @@ class Config:
     reflect_depth: int = 3         # maximum reflection bounces
     oversampling: int = 1          # rays per pixel side: n x n rays on a regular sub-pixel grid
     shadows: bool = True           # every light casts shadows
+    rgs_lights: int = 4            # light registers per RGS slave (the most lights a scene has)
+    shade_cache_kb: int = 16       # each RGS slave's cache of shading records (face and vertex
+                                   # normals, flags: 52 bytes a triangle)
 
     # --- memory interface (RTC-MI) -------------------------------------------------------------
     clock_mhz: float = 533.0       # chip clock
@@ -79,7 +84,8 @@ class Config:
                      "cache_outstanding", "cache_line_words"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency", "fp_cmp_latency"):
+        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency", "fp_sqrt_latency",
+                     "fp_cmp_latency"):
             if not 0 <= getattr(self, name) <= 64:
                 raise ConfigError(f"{name}={getattr(self, name)} must be in 0..64 (pipeline "
                                   "stages of that FP unit; 0 = the unit's default)")
@@ -89,8 +95,14 @@ class Config:
         if self.list_outstanding < 2 or not _pow2(self.list_outstanding):
             raise ConfigError(f"list_outstanding={self.list_outstanding} must be a power of two "
                               ">= 2")
-        if self.reflect_depth < 0:
-            raise ConfigError(f"reflect_depth={self.reflect_depth} must be >= 0")
+        if not 0 <= self.reflect_depth <= 15:
+            raise ConfigError(f"reflect_depth={self.reflect_depth} must be in 0..15 (the "
+                              "slave's 4-bit ray depth)")
+        if not 0 <= self.rgs_lights <= 14:
+            raise ConfigError(f"rgs_lights={self.rgs_lights} must be in 0..14 (light "
+                              "registers per RGS slave)")
+        if self.shade_cache_kb < 1:
+            raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
         if self.oversampling < 1:
             raise ConfigError(f"oversampling={self.oversampling} must be >= 1")
         if self.packet_size > 64:
@@ -132,6 +144,13 @@ class Config:
         return self.kd_max_depth
 
     @property
+    def secondary_rays(self) -> bool:
+        """Do the RGS slaves have the secondary-ray hardware (ray setup, the secondary and
+        shadow datapaths, pending buffers, shading caches)? Not when they hold no light and
+        make no reflection (``rgs_lights == 0 and reflect_depth == 0``): eye rays only."""
+        return self.rgs_lights > 0 or self.reflect_depth > 0
+
+    @property
     def thread_bits(self) -> int:
         return max(1, (self.threads - 1).bit_length())
 
@@ -140,10 +159,46 @@ class Config:
         return self.mem_chips * self.mem_chip_bits / 8 * self.clock_mhz * 1e6 / self.mem_clock_ratio
 
     def fp_latencies(self) -> dict:
-        """``{"add": n, "mul": n, "div": n, "cmp": n}`` for the RTL's FP units (``cmp``: compare
-        and min/max); None = the unit's default."""
+        """``{"add": n, "mul": n, "div": n, "sqrt": n, "cmp": n}`` for the RTL's FP units
+        (``cmp``: compare and min/max of the traversal and intersection units); None = the
+        unit's default."""
         return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
-                "div": self.fp_div_latency or None, "cmp": self.fp_cmp_latency or None}
+                "div": self.fp_div_latency or None, "sqrt": self.fp_sqrt_latency or None,
+                "cmp": self.fp_cmp_latency or None}
+
+    def for_scene(self, scene, image, width: int, height: int) -> "Config":
+        """The smallest chip of this configuration that renders ``scene`` at ``width x
+        height`` the same: the traversal stack as deep as the scene's kd-tree (``image``, its
+        memory image, built with this configuration: ``model.render.prepare``), as many light
+        registers as the scene casts shadows from, no reflections if no triangle reflects (so
+        for a scene without lights and mirrors no secondary-ray hardware:
+        :attr:`secondary_rays`). Rebuilding the
+        tree with the derived ``kd_max_depth`` gives the same tree (the limit was not
+        reached below it). Raises :class:`ConfigError` if the scene needs more than this
+        configuration provides (:meth:`check_scene`)."""
+        self.check_scene(scene, image, width, height)
+        need = scene_needs(scene, image, self)
+        return self.replace(kd_max_depth=max(1, need["stack_depth"]),
+                            rgs_lights=need["lights"], reflect_depth=need["reflect_depth"])
+
+    def check_scene(self, scene, image, width: int, height: int) -> None:
+        """Raise :class:`ConfigError` naming what ``scene`` (with its memory ``image``) at
+        ``width x height`` needs beyond this configuration."""
+        need = scene_needs(scene, image, self)
+        if need["stack_depth"] > self.stack_depth:
+            raise ConfigError(f"the scene's kd-tree is {need['stack_depth']} levels deep, the "
+                              f"traversal stack holds {self.stack_depth} (kd_max_depth="
+                              f"{self.kd_max_depth}): build the tree with this configuration "
+                              "or raise kd_max_depth")
+        if need["lights"] > self.rgs_lights:
+            raise ConfigError(f"the scene casts shadows from {need['lights']} lights, the RGS "
+                              f"slaves hold rgs_lights={self.rgs_lights}: raise rgs_lights "
+                              "(or turn shadows off)")
+        for name, n in (("width", width), ("height", height)):
+            if not 1 <= n * self.oversampling < 1 << COORD_BITS:
+                raise ConfigError(f"{name}={n} x oversampling {self.oversampling}: the RGS "
+                                  f"counts samples in {COORD_BITS} bits (1 .. "
+                                  f"{(1 << COORD_BITS) - 1})")
 
     def replace(self, **changes) -> "Config":
         return dataclasses.replace(self, **changes)
@@ -152,6 +207,35 @@ class Config:
         d = dataclasses.asdict(self)
         d["fmt"] = {"exp_bits": self.fmt.exp_bits, "frac_bits": self.fmt.frac_bits}
         return d
+
+    def hardware_dict(self) -> dict:
+        """:meth:`to_dict` without :data:`HOST_FIELDS`: what the elaborated hardware depends on
+        (a Verilator binary's cache key; one binary serves every value of the others)."""
+        return {k: v for k, v in self.to_dict().items() if k not in HOST_FIELDS}
+
+
+# Fields the RTL never reads: how the host builds the kd-tree, whether a frame asks for shadow
+# rays (the slaves' n_lights register, loaded per frame) and the clock the figures are quoted
+# at. (reflect_depth is loaded per frame too, but reflect_depth = 0 with rgs_lights = 0 builds
+# the eye-ray-only slave: secondary_rays.)
+HOST_FIELDS = ("kd_leaf_size", "kd_bins", "kd_cost_trav", "kd_cost_int", "shadows",
+               "clock_mhz")
+
+
+COORD_BITS = 16        # sample coordinates (and image sizes in samples) below 2**16
+
+
+def scene_needs(scene, image, cfg: Config) -> dict:
+    """What rendering ``scene`` (``image``: its memory image) with ``cfg`` uses of the chip:
+    ``stack_depth`` (the kd-tree's depth), ``lights`` (shadow-casting lights: 0 without
+    ``cfg.shadows``), ``reflect_depth`` (``cfg.reflect_depth``, 0 if no triangle's material
+    reflects)."""
+    import numpy as np
+    reflect = np.array([m.reflect for m in scene.materials], np.float64)
+    reflective = bool(len(scene.material) and (reflect[scene.material] > 0).any())
+    return {"stack_depth": int(image.depth),
+            "lights": len(scene.lights) if cfg.shadows else 0,
+            "reflect_depth": cfg.reflect_depth if reflective else 0}
 
 
 DEFAULT = Config()

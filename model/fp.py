@@ -9,7 +9,8 @@ layout (sign, biased exponent, fraction; exponent all-ones is inf/NaN). The hard
 * results are rounded to M+1 significant bits **as if the exponent were unbounded**, then a
   rounded magnitude below the smallest normal gives a signed zero and one above the largest
   finite gives a signed infinity (flush/overflow *after* rounding);
-* NaN: any NaN operand, inf-inf, 0*inf, 0/0, inf/inf give NaN (encoded canonically, see
+* NaN: any NaN operand, inf-inf, 0*inf, 0/0, inf/inf and the square root of a number below
+  zero give NaN (encoded canonically, see
   :meth:`FPFormat.to_bits`); x/0 gives a signed infinity; zero signs follow IEEE 754.
 * compare: IEEE (``-0 == +0``; every comparison with NaN is false);
 * ``min(a, b) = b if b < a or a is NaN else a`` and ``max(a, b) = b if b > a or a is NaN else a``:
@@ -25,7 +26,7 @@ the exact rounding only when that result is at or below the smallest normal (the
 IEEE gradual underflow and flush-after-rounding disagree).
 
 Two APIs over the same code:
-* scalar ``@njit`` functions ``fadd(a, b, E, M)`` ... for the compiled per-packet kernels;
+* scalar ``@njit`` functions ``fadd(a, b, E, M)``, ``fsqrt(a, E, M)`` ... for the compiled per-packet kernels;
 * :class:`FPFormat` methods ``fmt.add(a, b)`` ... vectorized over NumPy arrays (flush inputs).
 """
 from __future__ import annotations
@@ -138,6 +139,21 @@ def fdiv(a, b, E, M):
     return round_exact(np.float64(a) / np.float64(b), E, M)
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def fsqrt(a, E, M):
+    """sqrt(a): NaN for a NaN or a number below zero (-inf too), ±0 for ±0 (the sign kept, as
+    IEEE), +inf for +inf; otherwise correctly rounded (float64's sqrt is correctly rounded and
+    53 >= 2(M+1)+2, so rounding it once more to (E, M) is exact). Never flushes or overflows:
+    the exponent halves."""
+    if a != a or a < 0:
+        return np.float32(np.nan)
+    if a == 0:
+        return np.float32(a)
+    if E == 8 and M == 23:
+        return np.float32(np.sqrt(np.float32(a)))
+    return round_exact(np.sqrt(np.float64(a)), E, M)
+
+
 @numba.njit(cache=True, inline="always")
 def flt(a, b):
     return a < b
@@ -197,6 +213,11 @@ def _vmul(a, b, E, M):
 @numba.vectorize(_SIG2, cache=True)
 def _vdiv(a, b, E, M):
     return fdiv(flush_in(a, E), flush_in(b, E), E, M)
+
+
+@numba.vectorize(["float32(float32, int64, int64)"], cache=True)
+def _vsqrt(a, E, M):
+    return fsqrt(flush_in(a, E), E, M)
 
 
 @numba.vectorize(_SIG2, cache=True)
@@ -332,6 +353,9 @@ class FPFormat:
     def div(self, a, b):
         with np.errstate(divide="ignore", invalid="ignore"):   # x/0 = ±inf is defined
             return _vdiv(self._f(a), self._f(b), *self.em)
+
+    def sqrt(self, a):
+        return _vsqrt(self._f(a), *self.em)
 
     def min(self, a, b):
         return _vmin(self._f(a), self._f(b), *self.em)

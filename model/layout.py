@@ -8,7 +8,8 @@ documented bit by bit in ``docs/memory-format.md``::
     list_base       triangle list, 32-bit entries, two per word (low half first)
     tri_base        triangles, 5 words each (9 x binary32 vertices + 32-bit scene-order id)
     shade_base      shading data (own 8-word header, material ids, normals, UVs, materials,
-                    texture directory, RGBA8 texels)
+                    texture directory, RGBA8 texels, and the RGS slave's per-triangle records:
+                    face normal, vertex normals, flags)
 
 Every section starts at a multiple of 8 words. Floating-point values are binary32 bit patterns
 of values of the configured format (for M < 23 the low fraction bits are zero).
@@ -40,6 +41,9 @@ SHADE_HEADER_WORDS = 8
 NORMAL_WORDS = 5              # 9 x binary32 per triangle + pad
 UV_WORDS = 3                  # 6 x binary32 per triangle
 MATERIAL_WORDS = 8            # 16 x 32 bits per material
+REC_WORDS = 7                 # slave record: face normal, 3 vertex normals, flags (13 x 32 bits)
+REC_BITS = 13 * 32
+REC_REFLECTIVE = 1            # flags bit 0: the material reflects (reflect > 0)
 NO_TEXTURE = 0xFFFFFFFF
 
 MATERIAL_DTYPE = np.dtype([
@@ -72,6 +76,16 @@ def _pack_u32(vals: np.ndarray) -> np.ndarray:
 
 def _lohi(lo: int, hi: int) -> int:
     return (int(lo) & 0xFFFFFFFF) | (int(hi) & 0xFFFFFFFF) << 32
+
+
+def face_normals(tris: np.ndarray, fmt: FPFormat) -> np.ndarray:
+    """Unit normals (N, 3) of triangles ``tris`` (N, 3, 3), (B - A) x (C - A) normalized in
+    float64 and rounded once to ``fmt`` (a zero-area triangle gives a zero vector): the face
+    normals the slave records hold."""
+    t = np.asarray(tris, np.float64)
+    n = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return fmt.quantize(n)
 
 
 def image_size_words(n_nodes: int, n_list: int, n_tris: int) -> int:
@@ -190,7 +204,8 @@ class MemoryImage:
         return dict(magic_ok=h[0] == SHADE_MAGIC, n_materials=lo(h[1]), n_textures=hi(h[1]),
                     matid_base=lo(h[2]), normal_base=hi(h[2]), uv_base=lo(h[3]),
                     mat_base=hi(h[3]), texdir_base=lo(h[4]), texel_base=hi(h[4]),
-                    has_normals=bool(h[5] & 1), has_uvs=bool(h[5] & 2), n_texel_words=hi(h[5]))
+                    has_normals=bool(h[5] & 1), has_uvs=bool(h[5] & 2), n_texel_words=hi(h[5]),
+                    rec_base=lo(h[6]), rec_words=hi(h[6]))
 
 
 def decode_node(word: int) -> tuple:
@@ -220,8 +235,10 @@ def _check(name: str, value: int, bits: int, fix: str) -> None:
                           f"(max {(1 << bits) - 1}); {fix}")
 
 
-def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: FPFormat):
-    """Words of the shading section starting at word address ``base``."""
+def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: FPFormat,
+                     tris: np.ndarray | None = None):
+    """Words of the shading section starting at word address ``base`` (``tris``: the quantized
+    triangles, for the records' face normals)."""
     hdr = np.zeros(SHADE_HEADER_WORDS, np.uint64)
     hdr[0] = SHADE_MAGIC
     if shading is None:
@@ -297,11 +314,21 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
     for tw in texels:
         put(tw)
     n_texel_words = addr - texel_base
+    # the slave's records: face normal, vertex normals A, B, C (face normal when none), flags
+    rec = np.zeros((n_tris, 2 * REC_WORDS), "<u4")
+    if n_tris:
+        fn = face_normals(tris, fmt)
+        rec[:, 0:3] = _f32_bits(fn)
+        vn = np.repeat(fn[:, None, :], 3, axis=1) if shading.normals is None else shading.normals
+        rec[:, 3:12] = q(vn).reshape(n_tris, 9)
+        rec[:, 12] = np.where(mats["reflect"][mat_id] > 0, REC_REFLECTIVE, 0)
+    rec_base = put(rec.view("<u8").ravel())
     hdr[1] = _lohi(n_mat, n_tex)
     hdr[2] = _lohi(matid_base, normal_base)
     hdr[3] = _lohi(uv_base, mat_base)
     hdr[4] = _lohi(texdir_base, texel_base)
     hdr[5] = _lohi((shading.normals is not None) | (shading.uvs is not None) << 1, n_texel_words)
+    hdr[6] = _lohi(rec_base, REC_WORDS)
     return np.concatenate(parts)
 
 
@@ -342,7 +369,7 @@ def build_image(tris: np.ndarray, tree: KdTree, cfg: Config, tri_id: np.ndarray 
     list_base = node_base + _align(n_nodes)
     tri_base = list_base + _align((n_list + 1) // 2)
     shade_base = tri_base + _align(TRI_WORDS * n_tris)
-    shade = _shading_section(shading, n_tris, shade_base, fmt)
+    shade = _shading_section(shading, n_tris, shade_base, fmt, tris)
     total = shade_base + shade.size
     _check("image size in words", total, ADDR_BITS, "the scene needs more than 32 GB")
 

@@ -10,6 +10,9 @@ Packets: the image (times the oversampling factor) is cut into ``tile_w x tile_h
 tile's rays are one packet (partial tiles at the right/bottom edge give smaller packets).
 Ray setup computes the read-only per-ray data the RTC units keep: ``inv``, the shear constants
 ``k``/``s`` of the watertight test, and the interval ``[tnear, tfar]`` clipped to the scene box.
+
+The per-ray arithmetic of both is ``model/rgs.py``'s kernels (the RTL's operation order,
+``docs/rgs.md``); this module is the host side around them (camera, packets, arrays).
 """
 from __future__ import annotations
 
@@ -19,6 +22,7 @@ import numpy as np
 
 from .config import Config
 from .fp import FPFormat
+from .rgs import eye_packets, packet_count, setup_rays
 
 EYE, SHADOW, REFLECTION, REFRACTION = 0, 1, 2, 3
 
@@ -33,10 +37,22 @@ class Rays:
     pixel: np.ndarray            # (N,) int32: y * width + x of the pixel the ray contributes to
     pk_start: np.ndarray         # (P + 1,) int64
     anyhit: np.ndarray = field(default=None)   # (N,) bool: any hit ends the ray (shadow rays)
+    # the ray's id in its frame (what the chip reports): the eye ray it descends from (index in
+    # eye-ray order), its depth (reflections before it) and, for a shadow ray, its light
+    eye: np.ndarray = field(default=None)      # (N,) int64; default: the ray's own index
+    depth: np.ndarray = field(default=None)    # (N,) uint8; default 0
+    light: np.ndarray = field(default=None)    # (N,) int16: light index, -1 for no shadow ray
 
     def __post_init__(self):
+        n = self.org.shape[0]
         if self.anyhit is None:
             self.anyhit = self.kind == SHADOW
+        if self.eye is None:
+            self.eye = np.arange(n, dtype=np.int64)
+        if self.depth is None:
+            self.depth = np.zeros(n, np.uint8)
+        if self.light is None:
+            self.light = np.full(n, -1, np.int16)
 
     def __len__(self) -> int:
         return self.org.shape[0]
@@ -75,7 +91,10 @@ class Rays:
         return Rays(np.concatenate([p.org for p in parts]), np.concatenate([p.dir for p in parts]),
                     np.concatenate([p.tmax for p in parts]), np.concatenate([p.kind for p in parts]),
                     np.concatenate([p.pixel for p in parts]), np.concatenate(starts),
-                    np.concatenate([p.anyhit for p in parts]))
+                    np.concatenate([p.anyhit for p in parts]),
+                    np.concatenate([p.eye for p in parts]),
+                    np.concatenate([p.depth for p in parts]),
+                    np.concatenate([p.light for p in parts]))
 
 
 def empty_rays() -> Rays:
@@ -100,33 +119,31 @@ def camera_basis(position, look_at, up, fov_y: float, width: int, height: int):
     return pos, corner, dx, dy
 
 
+def camera_registers(camera, width: int, height: int, cfg: Config):
+    """Host side: the camera registers of the RGS slave (``rtl/rgs.py`` ``EyeRays``) for a
+    ``width x height`` image: ``pos``, ``corner``, ``dx``, ``dy`` (float32 format values),
+    :func:`camera_basis` of the sample image (``cfg.oversampling`` times the size) quantized."""
+    n = cfg.oversampling
+    basis = camera_basis(camera.position, camera.look_at, camera.up, camera.fov_y,
+                         width * n, height * n)
+    return tuple(cfg.fmt.quantize(v) for v in basis)
+
+
 def eye_rays(camera, width: int, height: int, cfg: Config) -> Rays:
-    """Eye rays for a ``width x height`` image with ``cfg.oversampling``² rays per pixel."""
+    """Eye rays for a ``width x height`` image with ``cfg.oversampling``² rays per pixel, made
+    by ``model.rgs.eye_packets`` (the RTL's ``EyeRays``) from :func:`camera_registers`."""
     fmt = cfg.fmt
     n = cfg.oversampling
     sw, sh = width * n, height * n
-    pos, corner, dx, dy = camera_basis(camera.position, camera.look_at, camera.up, camera.fov_y,
-                                       sw, sh)
-    pos, corner, dx, dy = (fmt.quantize(v) for v in (pos, corner, dx, dy))
+    pos, corner, dx, dy = camera_registers(camera, width, height, cfg)
     tw, th = cfg.tile_w, cfg.tile_h
-    # sample coordinates in packet order: tiles row-major, lanes row-major inside a tile
-    ty, tx, ly, lx = np.meshgrid(np.arange(-(-sh // th)), np.arange(-(-sw // tw)),
-                                 np.arange(th), np.arange(tw), indexing="ij")
-    sx = (tx * tw + lx).ravel()
-    sy = (ty * th + ly).ravel()
-    inside = (sx < sw) & (sy < sh)
-    tile = (ty * (-(-sw // tw)) + tx).ravel()[inside]
-    sx, sy = sx[inside], sy[inside]
-    px = fmt.quantize(sx + 0.5)
-    py = fmt.quantize(sy + 0.5)
-    d = np.empty((sx.size, 3), np.float32)
-    for a in range(3):
-        d[:, a] = fmt.add(fmt.add(corner[a], fmt.mul(px, dx[a])), fmt.mul(py, dy[a]))
+    total = sw * sh
+    d = np.empty((total, 3), np.float32)
+    pixel = np.empty(total, np.int32)
+    pk_start = np.empty(packet_count(sw, sh, tw, th) + 1, np.int64)
+    eye_packets(sw, sh, tw, th, n, width, corner, dx, dy, d, pixel, pk_start, *fmt.em)
     org = np.broadcast_to(pos, d.shape).astype(np.float32)
-    counts = np.bincount(tile, minlength=-(-sw // tw) * -(-sh // th))
-    pk_start = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
-    pixel = ((sy // n) * width + (sx // n)).astype(np.int32)
-    return Rays(org, d, np.full(sx.size, np.inf, np.float32), np.zeros(sx.size, np.uint8),
+    return Rays(org, d, np.full(total, np.inf, np.float32), np.zeros(total, np.uint8),
                 pixel, pk_start)
 
 
@@ -138,34 +155,58 @@ class RaySetup:
     s: np.ndarray        # (N, 3) float32: Sx, Sy, Sz
     tnear: np.ndarray    # (N,) float32
     tfar: np.ndarray     # (N,) float32
+    octant: np.ndarray = None   # (N,) int64: direction sign bits x | y << 1 | z << 2
 
 
-def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat) -> RaySetup:
-    """Ray setup in the format's arithmetic (vectorized over rays)."""
-    d, o = rays.dir, rays.org
-    one = np.float32(1.0)
-    inv = np.stack([fmt.div(one, d[:, a]) for a in range(3)], axis=1)
-    kz = np.argmax(np.abs(d), axis=1)          # first axis of largest |d| (ties: lowest axis)
-    kx = (kz + 1) % 3
-    ky = (kx + 1) % 3
-    dz = d[np.arange(len(d)), kz]
-    swap = dz < 0
-    kx, ky = np.where(swap, ky, kx), np.where(swap, kx, ky)
-    idx = np.arange(len(d))
-    s = np.stack([fmt.div(d[idx, kx], dz), fmt.div(d[idx, ky], dz), fmt.div(one, dz)], axis=1)
-    lo = bounds[0].astype(np.float32)
-    hi = bounds[1].astype(np.float32)
-    tnear = np.zeros(len(d), np.float32)
-    tfar = rays.tmax.astype(np.float32).copy()
-    for a in range(3):
-        with np.errstate(invalid="ignore"):
-            t0 = fmt.mul(fmt.sub(lo[a], o[:, a]), inv[:, a])
-            t1 = fmt.mul(fmt.sub(hi[a], o[:, a]), inv[:, a])
-        # 0 * inf = NaN: d[a] = ±0 and the origin on a face plane of the box; the ray lies in
-        # that plane, inside the closed slab, so this axis does not clip it
-        flat = np.isnan(t0) | np.isnan(t1)
-        t0 = np.where(flat, np.float32(-np.inf), t0)
-        t1 = np.where(flat, np.float32(np.inf), t1)
-        tnear = fmt.max(tnear, fmt.min(t0, t1))
-        tfar = fmt.min(tfar, fmt.max(t0, t1))
-    return RaySetup(inv, np.stack([kx, ky, kz], axis=1).astype(np.int64), s, tnear, tfar)
+def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat, box_cull: bool = True) -> RaySetup:
+    """Ray setup in the format's arithmetic: ``model.rgs.ray_setup`` on every ray (the RTL's
+    ``RaySetupPipe``; steps in ``model/rgs.py`` and ``docs/rgs.md``).
+
+    A ray whose interval clipped to the scene box is empty (``not tnear <= tfar``) starts
+    inactive: it never enters traversal (the box cull). ``box_cull=False`` is the setup without
+    the cull, only to measure what it saves: such a ray gets its unclipped interval
+    ``[0, tmax]`` and goes through traversal like any other; the rays that meet the box keep
+    their clipped interval."""
+    n = len(rays)
+    inv = np.empty((n, 3), np.float32)
+    s = np.empty((n, 3), np.float32)
+    k = np.empty((n, 3), np.int64)
+    tnear = np.empty(n, np.float32)
+    tfar = np.empty(n, np.float32)
+    octant = np.empty(n, np.int64)
+    b = np.asarray(bounds, np.float32)
+    setup_rays(np.ascontiguousarray(rays.org, np.float32),
+               np.ascontiguousarray(rays.dir, np.float32),
+               np.ascontiguousarray(rays.tmax, np.float32), b[0].copy(), b[1].copy(),
+               inv, k, s, tnear, tfar, octant, *fmt.em)
+    if not box_cull:
+        miss = box_misses(tnear, tfar)
+        tnear[miss] = 0.0
+        tfar[miss] = fmt.quantize(rays.tmax[miss].astype(np.float64))
+    return RaySetup(inv, k, s, tnear, tfar, octant)
+
+
+def box_misses(tnear: np.ndarray, tfar: np.ndarray) -> np.ndarray:
+    """The rays the box cull stops: an empty (or NaN) clipped interval, the traversal's
+    ``not tnear <= tfar`` (``model.traversal.start_packet``)."""
+    return ~(tnear <= tfar)
+
+
+def live_packets(rays: Rays, rs: RaySetup) -> np.ndarray:
+    """Per packet: does any of its rays meet the scene box? A packet with none does no
+    traversal step; an RGS that skips empty tiles need not send it at all."""
+    live = (~box_misses(rs.tnear, rs.tfar)).astype(np.int64)
+    counts = np.add.reduceat(live, rays.pk_start[:-1]) if len(rays) else np.zeros(0, np.int64)
+    return (counts > 0) & (np.diff(rays.pk_start) > 0)
+
+
+def select_packets(rays: Rays, keep: np.ndarray) -> tuple[Rays, np.ndarray]:
+    """The packets ``keep`` (bool per packet) of ``rays``, in order; also the indices of their
+    rays in ``rays``."""
+    keep = np.asarray(keep, bool)
+    sizes = np.diff(rays.pk_start)
+    idx = np.flatnonzero(np.repeat(keep, sizes))
+    pk = np.r_[0, np.cumsum(sizes[keep])].astype(np.int64)
+    sub = Rays(rays.org[idx], rays.dir[idx], rays.tmax[idx], rays.kind[idx], rays.pixel[idx],
+               pk, rays.anyhit[idx], rays.eye[idx], rays.depth[idx], rays.light[idx])
+    return sub, idx

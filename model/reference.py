@@ -206,12 +206,12 @@ def render64(ref: Reference, width: int, height: int, reflect_depth: int = 3,
         if hit.size == 0:
             break
 
-        # Shader.surface's shading normal, material and albedo (its p and ng are discarded)
+        # Shader.surface's shading normal, material and albedo (its ray origins are discarded)
         d32 = d.astype(np.float32)
         rays32 = SimpleNamespace(dir=d32, org=np.zeros_like(d32))
-        _, _, ns, mat, albedo = shader.surface(rays32, hit, tri[hit], t[hit].astype(np.float32),
-                                               u[hit].astype(np.float32),
-                                               v[hit].astype(np.float32))
+        surf = shader.surface(rays32, hit, tri[hit], t[hit].astype(np.float32),
+                              u[hit].astype(np.float32), v[hit].astype(np.float32))
+        ns, mat, albedo = surf.n, surf.mat, surf.albedo
         dh = d[hit]
         p = org[hit] + t[hit, None] * dh
         ng = fn[shader.kept[tri[hit]]]

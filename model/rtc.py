@@ -183,44 +183,67 @@ class Hits:
     v: np.ndarray        # (N,) float32
 
 
-def trace(image, rays, cfg, ray_setup=None, record: bool = False):
+def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool = True):
     """Trace every packet of ``rays`` through ``image``.
+
+    ``box_cull=False``: rays that miss the scene box traverse anyway (``model.raygen.setup``;
+    only to measure what the cull saves).
 
     Returns ``(hits, counters)`` — counters an int64 array ``(n_packets, N_COUNTERS)``,
     columns named by ``COUNTERS`` — or, with ``record=True``, ``(hits, counters, events)``
     where ``events`` is the event log of every unit (``model.events.EVENT_DTYPE``; packets traced one
     after another, for RTL testbenches and memory-access traces; slower, for small runs)."""
+    if record:
+        hits, ctrs, rows = trace_rows(image, rays, cfg, ray_setup, box_cull)
+        return hits, ctrs, decode(rows)
+    args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
+    if len(rays):
+        trace_all(*args)
+    return out()
+
+
+def trace_rows(image, rays, cfg, ray_setup=None, box_cull: bool = True):
+    """:func:`trace` with the event log as the recording kernel writes it: ``(hits, counters,
+    rows)``, ``rows`` an int64 array ``(events, 8)`` (``model.events``: column 0 the kind, the
+    others by ``events._COLUMNS``), for consumers that read a few columns of a large log."""
+    args, ctrs, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
+    cap = max(1024, 24 * len(rays))
+    while True:
+        rec = np.zeros((cap, 8), np.int64)
+        rec_n = np.zeros(1, np.int64)
+        ctrs[:] = 0
+        if len(rays):
+            trace_recorded(*args, rec, rec_n)
+        if rec_n[0] <= cap:
+            return (*out(), rec[:rec_n[0]])
+        cap = int(rec_n[0])
+
+
+def _kernel_args(image, rays, cfg, ray_setup, box_cull):
+    """The tracing kernels' arguments (result arrays included), the counter array among them
+    and a function returning ``(hits, counters)`` once a kernel has filled them."""
     from .raygen import setup
     n = len(rays)
     sizes = np.diff(rays.pk_start)
     if sizes.size and sizes.max() > 64:
         raise ValueError(f"a packet has {sizes.max()} rays; at most 64 (the active mask width)")
-    rs = ray_setup if ray_setup is not None else setup(rays, image.bounds, cfg.fmt)
+    rs = ray_setup if ray_setup is not None else setup(rays, image.bounds, cfg.fmt, box_cull)
     hit_t = np.empty(n, np.float32)
     hit_tri = np.empty(n, np.int32)
     hit_u = np.empty(n, np.float32)
     hit_v = np.empty(n, np.float32)
     ctrs = np.zeros((rays.n_packets, N_COUNTERS), np.int64)
     E, M = cfg.fmt.em
+    # C-contiguous whatever the caller's layout (eye rays' origins are Fortran-ordered, a
+    # chunk of them neither): numba compiles a kernel per array layout, so one layout keeps
+    # one compiled (and cached) kernel for every call
+    org = np.ascontiguousarray(rays.org, np.float32)
+    dirn = np.ascontiguousarray(rays.dir, np.float32)
     args = (image.data, image.node_base, image.list_base, image.tri_base, image.root,
-            image.depth, rays.pk_start, rays.org, rays.dir, rs.inv, rs.k, rs.s,
+            image.depth, np.ascontiguousarray(rays.pk_start), org, dirn, rs.inv, rs.k, rs.s,
             rs.tnear, rs.tfar, rays.tmax.astype(np.float32), rays.anyhit.astype(np.bool_),
             hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
-    if not record:
-        if n:
-            trace_all(*args)
-        return Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs
-    cap = max(1024, 64 * n)
-    while True:
-        rec = np.zeros((cap, 8), np.int64)
-        rec_n = np.zeros(1, np.int64)
-        ctrs[:] = 0
-        if n:
-            trace_recorded(*args, rec, rec_n)
-        if rec_n[0] <= cap:
-            return (Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs,
-                    decode(rec[:rec_n[0]]))
-        cap = int(rec_n[0])
+    return args, ctrs, lambda: (Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs)
 
 
 def _ranges(start: np.ndarray, length: np.ndarray) -> np.ndarray:

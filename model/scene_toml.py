@@ -16,7 +16,9 @@ from . import scene_geometry as geo
 from .scene_data import (DEFAULT_BACKGROUND, Camera, Light, Material, Scene, SceneError,
                          auto_camera, finish_pieces, grey_material, load_mesh_file)
 
-TOP_KEYS = ("name", "background", "camera", "light", "material", "object")
+TOP_KEYS = ("name", "background", "camera", "light", "material", "object", "base")
+# what a scene with ``base = "other.toml"`` may set itself: the view and the lighting
+VIEW_KEYS = ("name", "background", "camera", "light", "base")
 CAMERA_KEYS = ("position", "look_at", "up", "fov")
 LIGHT_KEYS = {"point": ("kind", "position", "color", "intensity"),
               "parallel": ("kind", "direction", "color", "intensity")}
@@ -333,22 +335,47 @@ class _Builder:
                     self.object(p, f"{label} > part {i}", world, mat, depth + 1)
 
 
-def load_toml(path: Path) -> Scene:
-    """Parse and validate a TOML scene; see ``docs/scenes.md``."""
+def _read_doc(path: Path) -> dict:
     try:
         with open(path, "rb") as f:
-            doc = tomllib.load(f)
+            return tomllib.load(f)
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{path}: TOML syntax error: {e}; fix the syntax there") from None
     except OSError as e:
         raise SceneError(f"{path}: cannot read the file: {e}") from e
+
+
+def _with_base(doc: dict, path: Path) -> tuple[dict, Path]:
+    """A view of another scene: ``base = "other.toml"`` takes that file's materials and
+    objects (their paths relative to it); this file's name, background, camera and lights
+    replace the base's. Returns the merged document and the file its geometry comes from."""
+    r = _Reader(doc, str(path), VIEW_KEYS)       # materials or objects here: an error
+    base = path.parent / r.str("base")
+    if base.suffix.lower() != ".toml":
+        raise r.err("base", f"must name a TOML scene, got {base.name!r}")
+    if not base.is_file():
+        raise r.err("base", f"file {base} does not exist; check the path")
+    bdoc = _read_doc(base)
+    if "base" in bdoc:
+        raise SceneError(f"{base}: a base scene may not have a base itself (used by {path})")
+    merged = {k: v for k, v in bdoc.items() if k != "name"}
+    merged.update({k: v for k, v in doc.items() if k != "base"})
+    return merged, base
+
+
+def load_toml(path: Path) -> Scene:
+    """Parse and validate a TOML scene; see ``docs/scenes.md``."""
+    doc = _read_doc(path)
+    geo_path = path
+    if isinstance(doc, dict) and "base" in doc:
+        doc, geo_path = _with_base(doc, path)
     top = _Reader(doc, str(path), TOP_KEYS)
     name = top.str("name", default=path.stem)
     background = top.vec("background", default=DEFAULT_BACKGROUND, lo=0.0)
 
     materials: list[Material] = []
     for i, m in enumerate(top.list_of_tables("material")):
-        mat = _material(m, f"{path}: material {i}", path.parent)
+        mat = _material(m, f"{geo_path}: material {i}", geo_path.parent)
         if any(x.name == mat.name for x in materials):
             raise SceneError(f"{path}: material {i}: name {mat.name!r} is defined twice; "
                              "material names must be unique")
@@ -357,12 +384,12 @@ def load_toml(path: Path) -> Scene:
 
     camera = _camera(doc["camera"], f"{path}: [camera]") if top.has("camera") else None
 
-    b = _Builder(path, materials)
+    b = _Builder(geo_path, materials)
     objects = top.list_of_tables("object")
     if not objects:
         raise SceneError(f"{path}: the scene has no [[object]] tables; add at least one")
     for i, o in enumerate(objects):
-        b.object(o, f"{path}: object {i}", np.eye(4), None, 0)
+        b.object(o, f"{geo_path}: object {i}", np.eye(4), None, 0)
     if not b.pieces:
         raise SceneError(f"{path}: the scene has no triangles; add objects")
     tris, ids, n, mat, uv, normals, ndeg = finish_pieces(b.pieces)

@@ -1,33 +1,52 @@
 """Shading (the RGS slave, golden model): Phong-like with one bilinearly filtered texture.
 
-Colour arithmetic is plain float32 NumPy (it only makes the picture). Everything that becomes a
-ray — hit points, shadow and reflection rays — is computed with the hardware format's
-operations, so the RTL traces exactly the rays the model traces.
+Everything that becomes a ray is the hardware's format arithmetic, in the RTL's order:
+``model/rgs.py``'s :func:`~model.rgs.secondary` makes, from a hit, the secondary rays' origin
+``p0 = (p + eps*g) - eps*w`` (g the unit face normal turned toward the incoming ray, w the unit
+incoming direction, ``eps = 1e-4 x`` the scene box diagonal: off the surface and back along the
+ray, so a secondary ray neither hits its own triangle nor starts on a neighbouring wall at a
+corner), the shading normal n (the vertex normals interpolated with u, v, normalized, turned to
+g's side) and the reflected direction ``d - 2 (d.n) n``; :func:`~model.rgs.shadow_dir` makes a
+shadow ray per light that faces the surface (a light behind the surface, as seen from the ray,
+casts no ray: the point is unlit). The unit face normals are computed once on the host (float64,
+rounded once per component: ``model.layout.face_normals``), as the memory image's slave
+records hold them.
 
-Secondary rays leave the surface from ``p' = (p + eps*n) - eps*w`` (n the geometric normal
-turned to the side the ray came from, w the unit incoming direction, ``eps = 1e-4 x`` the scene
-box diagonal): away from the surface and back along the incoming ray, so they neither hit their
-own triangle nor start on a neighbouring wall at a corner. A light behind the surface (as seen from the ray) casts no ray: the point is unlit.
+The colour (Phong, texture, accumulation) is plain float32 NumPy: it only makes the picture.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
 from .fp import FPFormat
+from .layout import MATERIAL_DTYPE, ShadingData, face_normals
 from .raygen import REFLECTION, SHADOW, Rays
+from .rgs import secondary_rays, shadow_rays
 
 AMBIENT = np.float32(0.08)
 
 
-def dot3(fmt: FPFormat, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(a.x*b.x + a.y*b.y) + a.z*b.z in the format."""
-    return fmt.add(fmt.add(fmt.mul(a[:, 0], b[:, 0]), fmt.mul(a[:, 1], b[:, 1])),
-                   fmt.mul(a[:, 2], b[:, 2]))
-
-
-def axpy(fmt: FPFormat, s: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """y + s*x per component in the format (s per ray)."""
-    return np.stack([fmt.add(y[:, a], fmt.mul(s, x[:, a])) for a in range(3)], axis=1)
+def shading_data(scene, fmt: FPFormat) -> ShadingData:
+    """The scene's materials, per-triangle material ids, vertex normals, texture coordinates
+    and textures (RGBA8) as the memory image holds them (``model.layout.ShadingData``)."""
+    mats = np.zeros(len(scene.materials), MATERIAL_DTYPE)
+    textures = []
+    for i, mm in enumerate(scene.materials):
+        mats[i]["diffuse"] = mm.diffuse
+        mats[i]["specular"] = mm.specular
+        mats[i]["shininess"] = mm.shininess
+        mats[i]["reflect"] = mm.reflect
+        mats[i]["ior"] = 1.0
+        mats[i]["texture"] = -1
+        if mm.texture is not None:
+            t = np.asarray(mm.texture, np.uint8)
+            textures.append(np.concatenate([t, np.full(t.shape[:2] + (1,), 255, np.uint8)], 2))
+            mats[i]["texture"] = len(textures) - 1
+    return ShadingData(mat_id=np.asarray(scene.material), materials=mats,
+                       normals=np.asarray(scene.normals), uvs=np.asarray(scene.uv),
+                       textures=textures)
 
 
 def bilinear(tex: np.ndarray, uv: np.ndarray) -> np.ndarray:
@@ -54,6 +73,19 @@ def surface_offset(bounds) -> float:
     return 1e-4 * max(float(np.linalg.norm(b[1] - b[0])), 1e-6)
 
 
+@dataclass
+class Surface:
+    """What the slave computes from the hits of ``rays[sel]`` (format values, (n, 3) each):
+    ``p0`` the secondary rays' origin, ``g`` the oriented face normal, ``n`` the shading
+    normal, ``r`` the reflected direction; ``mat`` material index, ``albedo`` float32 colour."""
+    p0: np.ndarray
+    g: np.ndarray
+    n: np.ndarray
+    r: np.ndarray
+    mat: np.ndarray
+    albedo: np.ndarray
+
+
 class Shader:
     """Surface data of a scene, indexed by the scene-order triangle id the RTC returns."""
 
@@ -64,76 +96,60 @@ class Shader:
         kept = np.full(scene.n_scene_tris, -1, np.int64)
         kept[scene.tri_id] = np.arange(len(scene.tri_id))
         self.kept = kept
-        tris = fmt.quantize(scene.tris)
-        e1 = tris[:, 1] - tris[:, 0]
-        e2 = tris[:, 2] - tris[:, 0]
-        n = np.cross(e1.astype(np.float64), e2.astype(np.float64))
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        self.face_n = fmt.quantize(n)
+        self.face_n = face_normals(fmt.quantize(scene.tris), fmt)
+        self.vertex_n = fmt.quantize(scene.normals)
         m = scene.materials
         self.diffuse = np.array([mm.diffuse for mm in m], np.float32).reshape(-1, 3)
         self.specular = np.array([mm.specular for mm in m], np.float32).reshape(-1, 3)
         self.shininess = np.array([mm.shininess for mm in m], np.float32)
         self.reflect = np.array([mm.reflect for mm in m], np.float32)
 
-    def surface(self, rays: Rays, sel: np.ndarray, tri: np.ndarray, t, u, v):
-        """Hit point (format), oriented geometric normal (format), shading normal, albedo."""
-        fmt = self.fmt
+    def surface(self, rays: Rays, sel: np.ndarray, tri: np.ndarray, t, u, v) -> Surface:
+        """The slave's secondary-ray arithmetic (``model.rgs.secondary_rays``) and the
+        albedo for the hits ``tri``, ``t``, ``u``, ``v`` of rays ``rays[sel]``."""
         k = self.kept[tri]
-        d = rays.dir[sel]
-        p = axpy(fmt, t, d, rays.org[sel])
-        ng = self.face_n[k]
-        flip = dot3(fmt, ng, d) > 0
-        ng = np.where(flip[:, None], -ng, ng).astype(np.float32)
-        w = np.stack([1 - u - v, u, v], axis=1).astype(np.float32)
-        ns = np.einsum("nk,nkc->nc", w, self.scene.normals[k]).astype(np.float32)
-        ns /= np.maximum(np.linalg.norm(ns, axis=1, keepdims=True), 1e-20)
-        ns = np.where((np.sum(ns * ng, axis=1) < 0)[:, None], -ns, ns)
+        E, M = self.fmt.em
+        p0, g, n, r = secondary_rays(
+            np.ascontiguousarray(rays.org[sel], np.float32),
+            np.ascontiguousarray(rays.dir[sel], np.float32),
+            np.asarray(t, np.float32), np.asarray(u, np.float32), np.asarray(v, np.float32),
+            self.face_n[k], self.vertex_n[k], self.eps, E, M)
         mat = self.scene.material[k]
         albedo = self.diffuse[mat].copy()
+        w = np.stack([1 - u - v, u, v], axis=1).astype(np.float32)
         for mi, mm in enumerate(self.scene.materials):
             if mm.texture is not None:
                 on = mat == mi
                 if on.any():
                     uv = np.einsum("nk,nkc->nc", w[on], self.scene.uv[k[on]])
                     albedo[on] *= bilinear(mm.texture, uv)
-        return p, ng, ns, mat, albedo
+        return Surface(p0, g, n, r, mat, albedo)
 
-    def offset(self, p, ng, d):
-        """Origin of a secondary ray: (p + eps*n) - eps*w (format arithmetic)."""
-        fmt = self.fmt
-        w = d.astype(np.float64)
-        w = fmt.quantize(w / np.maximum(np.linalg.norm(w, axis=1, keepdims=True), 1e-300))
-        return np.stack([fmt.sub(fmt.add(p[:, a], fmt.mul(self.eps, ng[:, a])),
-                                 fmt.mul(self.eps, w[:, a])) for a in range(3)], axis=1)
-
-    def shadow_rays(self, src: Rays, sel, p0, ng, light,
-                    cull_behind: bool = True) -> tuple[Rays, np.ndarray]:
-        """One shadow ray per lit-side hit; packets follow the source packets.
-        Returns the rays and, per ray, the index into ``sel`` it came from."""
-        fmt = self.fmt
+    def light_vector(self, light) -> tuple[np.ndarray, bool]:
+        """The slave's light register: a point light's position or a parallel light's reversed
+        direction, in the format; and whether it is a point light."""
         if light.kind == "point":
-            lp = fmt.quantize(light.position)
-            d = np.stack([fmt.sub(lp[a], p0[:, a]) for a in range(3)], axis=1)
-            tmax = np.ones(len(d), np.float32)
-        else:
-            d = np.broadcast_to(fmt.quantize(-np.asarray(light.direction, np.float64)),
-                                p0.shape).astype(np.float32)
-            tmax = np.full(len(d), np.inf, np.float32)
-        facing = dot3(fmt, ng, d) > 0
+            return self.fmt.quantize(light.position), True
+        return self.fmt.quantize(-np.asarray(light.direction, np.float64)), False
+
+    def shadow_rays(self, src: Rays, sel, surf: Surface, light, cull_behind: bool = True,
+                    light_index: int = 0) -> tuple[Rays, np.ndarray]:
+        """One shadow ray per hit whose surface faces ``light`` (light ``light_index`` of the
+        scene); packets follow the source packets. Returns the rays and, per ray, the index
+        into ``sel`` it came from."""
+        vec, point = self.light_vector(light)
+        d, facing = shadow_rays(surf.p0, surf.g, vec, point, *self.fmt.em)
+        tmax = np.full(len(d), 1.0 if point else np.inf, np.float32)
         if not cull_behind:
             facing = np.ones(len(d), bool)
-        return _packetize(src, sel, facing, p0, d, tmax, SHADOW)
+        return _packetize(src, sel, facing, surf.p0, d, tmax, SHADOW, light=light_index)
 
-    def reflection_rays(self, src: Rays, sel, p0, ns, mat,
+    def reflection_rays(self, src: Rays, sel, surf: Surface,
                         cull_matte: bool = True) -> tuple[Rays, np.ndarray]:
-        fmt = self.fmt
-        d = src.dir[sel]
-        ns = fmt.quantize(ns)
-        two_dn = fmt.mul(np.float32(2.0), dot3(fmt, d, ns))
-        r = np.stack([fmt.sub(d[:, a], fmt.mul(two_dn, ns[:, a])) for a in range(3)], axis=1)
-        want = self.reflect[mat] > 0 if cull_matte else np.ones(len(r), bool)
-        return _packetize(src, sel, want, p0, r, np.full(len(r), np.inf, np.float32), REFLECTION)
+        """One reflection ray per hit on a reflective material (``reflect > 0``)."""
+        want = self.reflect[surf.mat] > 0 if cull_matte else np.ones(len(surf.r), bool)
+        return _packetize(src, sel, want, surf.p0, surf.r,
+                          np.full(len(surf.r), np.inf, np.float32), REFLECTION)
 
     def phong(self, d, ns, albedo, mat, light, lit, p):
         """Direct light from one light (zero where unlit/shadowed)."""
@@ -152,12 +168,19 @@ class Shader:
         return out * lit[:, None]
 
 
-def _packetize(src: Rays, sel: np.ndarray, want: np.ndarray, org, d, tmax, kind):
-    """Keep rays where ``want``; a secondary packet = the wanted rays of one source packet."""
+def _packetize(src: Rays, sel: np.ndarray, want: np.ndarray, org, d, tmax, kind,
+               light: int = -1):
+    """Keep rays where ``want``; a secondary packet = the wanted rays of one source packet, in
+    lane order (the RGS slave packs them the same way). Shadow rays keep their source ray's
+    depth, reflection rays add one; both keep its eye ray."""
     keep = np.nonzero(want)[0]
     src_packet = np.searchsorted(src.pk_start, sel[keep], side="right") - 1
     counts = np.bincount(src_packet, minlength=src.n_packets)
     pk_start = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
+    parent = sel[keep]
+    depth = src.depth[parent] + (1 if kind == REFLECTION else 0)
     rays = Rays(org[keep].astype(np.float32), d[keep].astype(np.float32), tmax[keep],
-                np.full(len(keep), kind, np.uint8), src.pixel[sel[keep]], pk_start)
+                np.full(len(keep), kind, np.uint8), src.pixel[parent], pk_start,
+                eye=src.eye[parent], depth=depth.astype(np.uint8),
+                light=np.full(len(keep), light, np.int16))
     return rays, keep

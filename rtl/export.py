@@ -111,7 +111,8 @@ class RTCTop(wiring.Component):
 def _fp(kind: str) -> Callable:
     def make(cfg: Config, latency: int | None):
         from . import fp
-        cls = {"add": fp.FPAdd, "mul": fp.FPMul, "div": fp.FPDiv, "cmp": fp.FPCompare,
+        cls = {"add": fp.FPAdd, "mul": fp.FPMul, "div": fp.FPDiv, "sqrt": fp.FPSqrt,
+               "cmp": fp.FPCompare,
                "minmax": fp.FPMinMax, "conv": fp.FPFromInt}[kind]
         kw = {} if latency is None else {"latency": latency}
         return cls(cfg.fmt, **kw)
@@ -153,6 +154,7 @@ TOPS: dict[str, tuple[Callable, str]] = {
     "fp_add": (_fp("add"), "FP adder/subtractor (rtl/fp/add.py)"),
     "fp_mul": (_fp("mul"), "FP multiplier (rtl/fp/mul.py)"),
     "fp_div": (_fp("div"), "FP divider (rtl/fp/div.py)"),
+    "fp_sqrt": (_fp("sqrt"), "FP square root (rtl/fp/sqrt.py)"),
     "fp_cmp": (_fp("cmp"), "FP compare (rtl/fp/cmp.py)"),
     "fp_minmax": (_fp("minmax"), "FP min/max (rtl/fp/cmp.py)"),
     "fp_conv": (_fp("conv"), "int -> FP (rtl/fp/conv.py)"),
@@ -166,8 +168,13 @@ TOPS: dict[str, tuple[Callable, str]] = {
     "intersect_pipe": (_pipe, "intersection datapath (rtl/intersection.py IntersectPipe)"),
     "intersection": (_unit(".intersection", "IntersectionUnit"),
                      "intersection unit (rtl/intersection.py)"),
+    "ray_setup": (_unit(".rgs", "RaySetup"), "ray setup, stream in/out (rtl/rgs.py RaySetup)"),
+    "rgs_eye": (_unit(".rgs", "EyeRays"),
+                "RGS slave eye rays + ray setup, packet requests in (rtl/rgs.py EyeRays)"),
     "rtc_core": (_unit(".rtc", "RTC"), "the RTC, three memory ports (rtl/rtc.py)"),
     "rtc": (lambda cfg, latency: RTCTop(cfg), "one RTC + RTC-MI (3 caches) + bus, one memory port"),
+    "chip": (_unit(".chip", "Chip"), "the chip: RGS + cfg.rtcs RTCs with RTC-MIs + bus, one "
+             "memory port (rtl/chip.py)"),
     "rtc_nocache": (lambda cfg, latency: RTCTop(cfg, caches=False),
                     "one RTC + bus (no caches), one memory port"),
 }
@@ -221,6 +228,16 @@ def config_from_args(args: argparse.Namespace) -> Config:
     if args.fmt:
         changes["fmt"] = parse_fmt(args.fmt)
     return Config(**changes)
+
+
+def config_and_res(args: argparse.Namespace, prog: str) -> tuple[Config, int, int]:
+    """The :class:`Config` (:func:`config_from_args`) and the ``--res`` width and height of a
+    command line; a bad value exits naming it (``prog: ...``)."""
+    from model.cli import parse_res
+    try:
+        return (config_from_args(args), *parse_res(args.res))
+    except (ConfigError, argparse.ArgumentTypeError) as e:
+        raise SystemExit(f"{prog}: {e}")
 
 
 def main(argv=None) -> None:

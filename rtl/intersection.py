@@ -25,9 +25,9 @@ from model.config import Config
 from model.fp import FPFormat
 
 from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
-from .fp import FPAdd, FPDiv, FPMul
 from .fp.cmp import compare
 from .fp.common import unpack
+from .fp.schedule import Schedule as _Schedule
 from .memport import MemReadPort
 from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, PacketDone, RayIn,
                           RayResult, TriRequest, lane_bits)
@@ -38,49 +38,6 @@ __all__ = ["IntersectPipe", "IntersectionUnit", "RayWrite"]
 def RayWrite(cfg: Config) -> data.StructLayout:
     """A ray written into the unit's local store: the RTC's ``RayIn`` and the thread it runs in."""
     return data.StructLayout({"thread": cfg.thread_bits, "ray": RayIn(cfg)})
-
-
-class _Schedule:
-    """Builds a fixed-latency datapath: each value carries the cycle it is ready in; an
-    operation waits for its latest operand, the others go through (shared) delay registers."""
-
-    UNITS = {"add": FPAdd, "sub": FPAdd, "mul": FPMul, "div": FPDiv}
-
-    def __init__(self, m: Module, en: Value, fmt: FPFormat, latencies: dict, dry: bool = False):
-        self.m, self.en, self.fmt, self.lat, self.dry = m, en, fmt, latencies, dry
-        self.taps: dict[int, list[Signal]] = {}
-        self.n = 0
-
-    def at(self, value, t0: int, t: int) -> Value:
-        """``value`` (ready at cycle ``t0``) as seen at cycle ``t >= t0``."""
-        value = Value.cast(value)
-        if isinstance(value, Const) or t == t0:
-            return value
-        chain = self.taps.setdefault(id(value), [value])     # chain[0] keeps id() unique
-        while len(chain) <= t - t0:
-            prev = chain[-1]
-            reg = Signal.like(prev, name=f"dly{self.n}", reset_less=True)
-            self.n += 1
-            with self.m.If(self.en):
-                self.m.d.sync += reg.eq(prev)
-            chain.append(reg)
-        return chain[t - t0]
-
-    def op(self, kind: str, a: tuple, b: tuple, name: str) -> tuple:
-        """``(value, ready cycle)`` of ``a kind b``; operands are ``(value, ready cycle)``."""
-        t = max(a[1], b[1])
-        out = Signal(self.fmt.width, name=name)
-        if self.dry:
-            return out, t + self.lat[kind]
-        unit = self.UNITS[kind](self.fmt, latency=self.lat[kind])
-        assert unit.latency == self.lat[kind]
-        self.m.submodules[name] = unit
-        self.m.d.comb += [unit.a.eq(self.at(a[0], a[1], t)), unit.b.eq(self.at(b[0], b[1], t)),
-                          unit.en.eq(self.en)]
-        if kind in ("add", "sub"):
-            self.m.d.comb += unit.op.eq(kind == "sub")
-        self.m.d.comb += out.eq(unit.o)
-        return out, t + unit.latency
 
 
 def _pick(v, k):
@@ -216,7 +173,11 @@ class IntersectionUnit(wiring.Component):
     ``done`` (In stream, ``PacketDone``) / ``result`` (Out stream, ``RayResult``): read out
         the final hit of every lane of ``mask`` in lane order, labelled with ``packet``
         (tri = all ones and t = +inf on a miss). Send ``done`` only after the packet's last
-        ``LaneResult`` was taken.
+        ``LaneResult`` was taken. ``done`` is taken as soon as the previous packet's last
+        result is in the output register, so the next packet's readout follows without a gap.
+    ``release`` (Out stream, thread id): the thread of a packet whose last ``RayResult`` was
+        taken in this cycle (valid for that one cycle: the consumer must always be ready); its
+        rays and best hits may be overwritten from the next cycle on.
     Counters (Out, 32 bits): ``int_ops`` (rays tested), ``tris`` (triangles fetched),
     ``busy`` (cycles with a triangle held or a test in flight).
 
@@ -254,6 +215,7 @@ class IntersectionUnit(wiring.Component):
             "lane_out": Out(stream.Signature(LaneResult(cfg))),
             "done": In(stream.Signature(PacketDone(cfg))),
             "result": Out(stream.Signature(RayResult(cfg))),
+            "release": Out(stream.Signature(cfg.thread_bits)),
             "int_ops": Out(COUNTER_BITS), "tris": Out(COUNTER_BITS),
             "busy": Out(COUNTER_BITS),
         })
@@ -541,18 +503,23 @@ class IntersectionUnit(wiring.Component):
         r_lane = Signal(self.lane_bits)
         r_last = Signal()
         r_packet = Signal(PACKET_ID_BITS)
+        r_thread = Signal(self.cfg.thread_bits)
         with m.If(adv):
             m.d.sync += [r_valid.eq(d_active), r_lane.eq(d_lane), r_packet.eq(d_packet),
-                         r_last.eq((d_rem & (d_rem - 1)) == 0)]
+                         r_thread.eq(d_thread), r_last.eq((d_rem & (d_rem - 1)) == 0)]
             with m.If(d_active):
                 m.d.sync += d_rem.eq(d_rem & (d_rem - 1))
                 with m.If((d_rem & (d_rem - 1)) == 0):
                     m.d.sync += d_active.eq(0)
         if self.cfg.fast_clock:
+            o_thread = Signal(self.cfg.thread_bits)
             with m.If(move):
                 m.d.sync += [res.valid.eq(r_valid), o_lane.eq(r_lane), o_last.eq(r_last),
-                             o_packet.eq(r_packet), hb_q.eq(out_r.data)]
-            hb, r_lane, r_last, r_packet = hb_q, o_lane, o_last, o_packet
+                             o_packet.eq(r_packet), o_thread.eq(r_thread), hb_q.eq(out_r.data)]
+            hb, r_lane, r_last, r_packet, r_thread = hb_q, o_lane, o_last, o_packet, o_thread
+        # the thread goes with its last result: by then `done` may hold the next packet
+        m.d.comb += [self.release.valid.eq(res.valid & res.ready & r_last),
+                     self.release.payload.eq(r_thread)]
         inf = Const(((1 << fmt.exp_bits) - 1) << fmt.frac_bits, w)
         m.d.comb += [
             res.payload.packet.eq(r_packet), res.payload.lane.eq(r_lane),

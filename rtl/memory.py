@@ -55,6 +55,36 @@ def chip_of(addr, chips: int):
     return out
 
 
+def _storage(image, addr_width: int, *, load: bool, depth: int | None, store, who: str):
+    """The words a simulation memory holds: ``store`` (an object with ``Memory``'s ``depth``,
+    ``read_port()`` and ``write_port()``, filled through the load port), an empty ``Memory``
+    of ``depth`` words (``image=None``, filled through the load port) or a ``Memory``
+    initialised with ``image``."""
+    if store is not None:
+        if image is not None or not load:
+            raise ValueError(f"{who} store=...: pass image=None and load=True (the store "
+                             "starts empty and is filled through the load port)")
+        if store.depth > (1 << addr_width):
+            raise ValueError(f"{who} store of {store.depth} words needs more than "
+                             f"addr_width={addr_width} address bits; widen the port")
+        return store
+    if image is None:
+        if depth is None or depth < 1:
+            raise ValueError(f"{who} without an image needs depth=<words> (>= 1)")
+        depth = 1 << max(1, ceil_log2(depth))
+        if depth > (1 << addr_width):
+            raise ValueError(f"{who} depth={depth} words needs more than "
+                             f"addr_width={addr_width} address bits; widen the port")
+        return Memory(shape=WORD_BITS, depth=depth, init=[])
+    return image_memory(image, addr_width)
+
+
+def _load_port(m: Module, top, mem) -> None:
+    """``top``'s load port (``ld_en``, ``ld_addr``, ``ld_data``) writes ``mem``."""
+    wr = mem.write_port()
+    m.d.comb += [wr.addr.eq(top.ld_addr), wr.data.eq(top.ld_data), wr.en.eq(top.ld_en)]
+
+
 class IdealMemory(wiring.Component):
     """Memory with a fixed latency and a request queue.
 
@@ -65,6 +95,10 @@ class IdealMemory(wiring.Component):
     Parameters: ``image`` (uint64 words), ``addr_width``, ``tag_width``, ``latency`` (>= 2 cycles),
     ``queue`` (requests in flight, default ``latency + 1``).
     Counters: ``reads`` (words delivered).
+
+    ``hold`` (input, default 0): while high the memory answers nothing (the head response
+    waits), so a testbench driving it from an LFSR turns the fixed latency into a random one,
+    order kept; requests back up into the queue and then stall at the port.
 
     With ``load=True`` the memory also has a write port for filling it before use (one word per
     cycle: ``ld_en``, ``ld_addr``, ``ld_data``; word written at the clock edge, not affected by
@@ -85,30 +119,15 @@ class IdealMemory(wiring.Component):
         self.queue = latency + 1 if queue is None else queue
         if self.queue < 1:
             raise ValueError(f"IdealMemory queue={queue} must be >= 1")
-        if store is not None:
-            if image is not None or not load:
-                raise ValueError("IdealMemory store=...: pass image=None and load=True (the "
-                                 "store starts empty and is filled through the load port)")
-            if store.depth > (1 << addr_width):
-                raise ValueError(f"IdealMemory store of {store.depth} words needs more than "
-                                 f"addr_width={addr_width} address bits; widen the port")
-            self._mem = store
-        elif image is None:
-            if depth is None or depth < 1:
-                raise ValueError("IdealMemory without an image needs depth=<words> (>= 1)")
-            depth = 1 << max(1, ceil_log2(depth))
-            if depth > (1 << addr_width):
-                raise ValueError(f"IdealMemory depth={depth} words needs more than "
-                                 f"addr_width={addr_width} address bits; widen the port")
-            self._mem = Memory(shape=WORD_BITS, depth=depth, init=[])
-        else:
-            self._mem = image_memory(image, addr_width)
+        self._mem = _storage(image, addr_width, load=load, depth=depth, store=store,
+                             who="IdealMemory")
         self.depth = self._mem.depth
         self.load = load
         ports = {
             "port": In(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
                                    tag_width=tag_width)),
             "reads": Out(COUNTER_BITS),
+            "hold": In(1),
         }
         if load:
             ports.update({"ld_en": In(1), "ld_addr": In(addr_width), "ld_data": In(WORD_BITS)})
@@ -121,9 +140,7 @@ class IdealMemory(wiring.Component):
         req, resp = self.port.req, self.port.resp
         tag_width = len(req.payload.tag)
         if self.load:
-            wr = mem.write_port()
-            m.d.comb += [wr.addr.eq(self.ld_addr), wr.data.eq(self.ld_data),
-                         wr.en.eq(self.ld_en)]
+            _load_port(m, self, mem)
 
         inflight = Signal(range(self.queue + 1))
         accept = req.valid & req.ready
@@ -146,10 +163,10 @@ class IdealMemory(wiring.Component):
         m.d.comb += [
             fifo.w_en.eq(rd_valid),
             fifo.w_data.eq(Cat(rd.data, rd_tag)),
-            resp.valid.eq(fifo.r_rdy),
+            resp.valid.eq(fifo.r_rdy & ~self.hold),
             resp.payload.data.eq(fifo.r_data[:WORD_BITS]),
             resp.payload.tag.eq(fifo.r_data[WORD_BITS:]),
-            fifo.r_en.eq(resp.ready),
+            fifo.r_en.eq(resp.ready & ~self.hold),
         ]
         with m.If(deliver):
             m.d.sync += self.reads.eq(self.reads + 1)
@@ -171,11 +188,20 @@ class SDRAMMemory(wiring.Component):
 
     Counters (per chip, ``Out`` arrays): ``words`` (words read), ``busy`` (cycles the data bus is
     occupied); ``cycles`` (cycles since reset).
+
+    ``hold`` (input, default 0): while high no response leaves (due words wait, chips stop
+    starting accesses once their in-flight queues fill): a testbench driving it from an LFSR
+    adds random latency to every word, the order among chips changing with it.
+
+    The words are read when they are answered (one read port, combinational: the model needs
+    no more than one read a cycle). ``load``, ``depth`` and ``store`` as for
+    :class:`IdealMemory` (a load port ``ld_en``, ``ld_addr``, ``ld_data``).
     """
 
     def __init__(self, image, *, addr_width: int, tag_width: int, chips: int = 4,
                  chip_bits: int = 16, clock_ratio: int = 4, latency: int = 20,
-                 chip_queue: int = 4):
+                 chip_queue: int = 4, load: bool = False, depth: int | None = None,
+                 store=None):
         if chips < 1 or chips & (chips - 1):
             raise ValueError(f"SDRAMMemory chips={chips}: must be a power of two (1, 2, 4, 8) "
                              "for the XOR-fold address hash")
@@ -188,14 +214,20 @@ class SDRAMMemory(wiring.Component):
         self.burst = WORD_BITS // chip_bits * clock_ratio
         # words in flight per chip: enough to cover latency + burst at one start per burst
         self.inflight = -(-(latency + self.burst) // self.burst) + 1
-        self._mem = image_memory(image, addr_width)
-        super().__init__({
+        self._mem = _storage(image, addr_width, load=load, depth=depth, store=store,
+                             who="SDRAMMemory")
+        self.depth, self.load = self._mem.depth, load
+        ports = {
             "port": In(MemReadPort(addr_width=addr_width, data_width=WORD_BITS,
                                    tag_width=tag_width)),
             "words": Out(COUNTER_BITS).array(chips),
             "busy": Out(COUNTER_BITS).array(chips),
             "cycles": Out(COUNTER_BITS),
-        })
+            "hold": In(1),
+        }
+        if load:
+            ports.update({"ld_en": In(1), "ld_addr": In(addr_width), "ld_data": In(WORD_BITS)})
+        super().__init__(ports)
 
     def elaborate(self, platform):
         m = Module()
@@ -203,6 +235,9 @@ class SDRAMMemory(wiring.Component):
         req, resp = self.port.req, self.port.resp
         tag_width = len(req.payload.tag)
         n, bits = self.chips, self.chips.bit_length() - 1
+        rd = mem.read_port(domain="comb")
+        if self.load:
+            _load_port(m, self, mem)
 
         now = Signal(COUNTER_BITS)
         phase = Signal(range(self.clock_ratio))
@@ -218,14 +253,14 @@ class SDRAMMemory(wiring.Component):
                 fold = fold ^ g
             m.d.comb += chip.eq(fold)
 
-        entry_bits = WORD_BITS + tag_width + COUNTER_BITS
-        due_heads, due_tags, due_data, pops = [], [], [], []
+        aw = len(addr)
+        entry_bits = aw + tag_width + COUNTER_BITS
+        due_heads, due_tags, due_addr, pops = [], [], [], []
         queue_ready = []
         for c in range(n):
             q = SyncFIFO(width=len(addr) + tag_width, depth=self.chip_queue)
             f = SyncFIFO(width=entry_bits, depth=self.inflight)
             m.submodules[f"queue{c}"], m.submodules[f"flight{c}"] = q, f
-            rd = mem.read_port()
             queue_ready.append(q.w_rdy)
             m.d.comb += [q.w_data.eq(Cat(addr, req.payload.tag)),
                          q.w_en.eq(req.valid & (chip == c))]
@@ -235,7 +270,7 @@ class SDRAMMemory(wiring.Component):
             start = Signal(name=f"start{c}")
             pop = Signal(name=f"pop{c}")
             m.d.comb += start.eq(q.r_rdy & (busy == 0) & (phase == 0) & (count < self.inflight))
-            m.d.comb += [q.r_en.eq(start), rd.addr.eq(q.r_data[:len(addr)]), rd.en.eq(1)]
+            m.d.comb += q.r_en.eq(start)
             with m.If(start):
                 m.d.sync += [busy.eq(self.burst - 1), self.words[c].eq(self.words[c] + 1)]
             with m.Elif(busy != 0):
@@ -244,19 +279,20 @@ class SDRAMMemory(wiring.Component):
                 m.d.sync += self.busy[c].eq(self.busy[c] + 1)
             m.d.sync += count.eq(count + start - pop)
 
-            # one cycle later the memory word is there: record it with its due time
-            s_valid, s_tag, s_due = Signal(), Signal(tag_width), Signal(COUNTER_BITS)
-            m.d.sync += [s_valid.eq(start), s_tag.eq(q.r_data[len(addr):]),
+            # the access, with its due time, goes in flight one cycle later
+            s_valid, s_addr, s_tag = Signal(), Signal(aw), Signal(tag_width)
+            s_due = Signal(COUNTER_BITS)
+            m.d.sync += [s_valid.eq(start), s_addr.eq(q.r_data[:aw]), s_tag.eq(q.r_data[aw:]),
                          s_due.eq(now + self.latency + self.burst)]
-            m.d.comb += [f.w_en.eq(s_valid), f.w_data.eq(Cat(rd.data, s_tag, s_due))]
+            m.d.comb += [f.w_en.eq(s_valid), f.w_data.eq(Cat(s_addr, s_tag, s_due))]
 
-            head_due = f.r_data[WORD_BITS + tag_width:]
+            head_due = f.r_data[aw + tag_width:]
             due = Signal(name=f"due{c}")
             m.d.comb += due.eq(f.r_rdy & ((now - head_due)[COUNTER_BITS - 1] == 0))
             m.d.comb += f.r_en.eq(pop)
             due_heads.append(due)
-            due_data.append(f.r_data[:WORD_BITS])
-            due_tags.append(f.r_data[WORD_BITS:WORD_BITS + tag_width])
+            due_addr.append(f.r_data[:aw])
+            due_tags.append(f.r_data[aw:aw + tag_width])
             pops.append(pop)
 
         m.d.comb += req.ready.eq(Array(queue_ready)[chip])
@@ -276,11 +312,11 @@ class SDRAMMemory(wiring.Component):
                         with m.Elif(due_heads[c]):
                             m.d.comb += sel.eq(c)
         m.d.comb += any_due.eq(Cat(*due_heads).any())
-        m.d.comb += [resp.valid.eq(any_due),
-                     resp.payload.data.eq(Array(due_data)[sel]),
+        m.d.comb += [resp.valid.eq(any_due & ~self.hold), rd.addr.eq(Array(due_addr)[sel]),
+                     resp.payload.data.eq(rd.data),
                      resp.payload.tag.eq(Array(due_tags)[sel])]
         for c in range(n):
-            m.d.comb += pops[c].eq(resp.ready & any_due & (sel == c))
+            m.d.comb += pops[c].eq(resp.valid & resp.ready & (sel == c))
         with m.If(resp.valid & resp.ready):
             m.d.sync += prio.eq(Mux(sel == n - 1, 0, sel + 1))
         return m

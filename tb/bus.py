@@ -20,7 +20,66 @@ from rtl.bus import RoundRobinBus
 from .common import as_dict, run
 from .memory import random_memory
 
-__all__ = ["BusRun", "run_bus", "SystemRun", "run_system"]
+__all__ = ["GrantCheck", "Outstanding", "BusRun", "run_bus", "SystemRun", "run_system"]
+
+
+class GrantCheck:
+    """The bus's grant rules, cycle by cycle (:meth:`step` with every input's request
+    ``valid`` and ``ready``): at most one grant per cycle, and round robin: while a requester
+    keeps ``valid`` high, at most N-1 grants go to others. Breaks are collected in
+    ``violations`` (raise them after the run: an exception inside a simulation leaves the other
+    testbenches dangling); ``grants`` counts the grants per requester, ``max_wait`` the most
+    grants to others while one requester waited."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.waited = [0] * n
+        self.grants = [0] * n
+        self.max_wait = 0
+        self.violations: list[str] = []
+
+    def step(self, cycle: int, valid, ready) -> None:
+        n = self.n
+        granted = [k for k in range(n) if valid[k] and ready[k]]
+        if len(granted) > 1:
+            self.violations.append(f"cycle {cycle}: {len(granted)} grants in one cycle {granted}")
+        for k in range(n):
+            if k in granted:
+                self.waited[k] = 0
+                self.grants[k] += 1
+            elif valid[k]:
+                self.waited[k] += len(granted)
+                self.max_wait = max(self.max_wait, self.waited[k])
+                if self.waited[k] == n:
+                    self.violations.append(f"cycle {cycle}: requester {k} waited "
+                                           f"{self.waited[k]} grants (> N-1 = {n - 1}): round "
+                                           "robin is unfair")
+            else:
+                self.waited[k] = 0
+
+
+class Outstanding:
+    """Requester ``i``'s reads in flight (tag -> word address): every response must answer one
+    of them, with the word at its address in ``image``."""
+
+    def __init__(self, i: int, image):
+        self.i, self.image, self.tags = i, image, {}
+
+    def free(self, tag: int) -> bool:
+        return tag not in self.tags
+
+    def sent(self, tag: int, addr: int) -> None:
+        self.tags[tag] = addr
+
+    def received(self, tag: int, data: int) -> None:
+        i = self.i
+        assert tag in self.tags, (
+            f"requester {i} got a response with tag {tag} it is not waiting for "
+            f"(outstanding {sorted(self.tags)}): misrouted or duplicated")
+        addr = self.tags.pop(tag)
+        assert data == int(self.image[addr]), (
+            f"requester {i}, tag {tag}: data {data:#x} is not word {addr} "
+            f"({int(self.image[addr]):#x})")
 
 
 @dataclass
@@ -40,9 +99,9 @@ def run_bus(n: int, n_reqs: int, *, tag_width: int = 2, seed: int = 0, idle: flo
                                                  dtype=np.uint64)
     addr_width = max(1, (len(image) - 1).bit_length())
     dut = RoundRobinBus(n, addr_width=addr_width, tag_width=tag_width, policy=policy)
-    outstanding = [dict() for _ in range(n)]       # tag -> address, per requester
+    outstanding = [Outstanding(i, image) for i in range(n)]
     received = [0] * n
-    waits = {"max": 0}
+    check = GrantCheck(n)
     counters = {}
     done = [False] * n
 
@@ -52,7 +111,7 @@ def run_bus(n: int, n_reqs: int, *, tag_width: int = 2, seed: int = 0, idle: flo
         async def source(ctx):
             sent = 0
             while sent < n_reqs:
-                free = [t for t in range(1 << tag_width) if t not in outstanding[i]]
+                free = [t for t in range(1 << tag_width) if outstanding[i].free(t)]
                 if not free or rng.random() < idle:
                     ctx.set(port.req.valid, 0)
                     await ctx.tick()
@@ -62,7 +121,7 @@ def run_bus(n: int, n_reqs: int, *, tag_width: int = 2, seed: int = 0, idle: flo
                 ctx.set(port.req.payload, {"addr": addr, "tag": tag})
                 ctx.set(port.req.valid, 1)
                 await ctx.tick().until(port.req.ready)
-                outstanding[i][tag] = addr
+                outstanding[i].sent(tag, addr)
                 sent += 1
             ctx.set(port.req.valid, 0)
 
@@ -73,13 +132,7 @@ def run_bus(n: int, n_reqs: int, *, tag_width: int = 2, seed: int = 0, idle: flo
                 _, _, v, p = await ctx.tick().sample(port.resp.valid, port.resp.payload)
                 if v and ready:
                     p = as_dict(p)
-                    assert p["tag"] in outstanding[i], (
-                        f"requester {i} got a response with tag {p['tag']} it is not waiting "
-                        f"for (outstanding {sorted(outstanding[i])}): misrouted or duplicated")
-                    addr = outstanding[i].pop(p["tag"])
-                    assert p["data"] == int(image[addr]), (
-                        f"requester {i}, tag {p['tag']}: data {p['data']:#x} is not word "
-                        f"{addr} ({int(image[addr]):#x})")
+                    outstanding[i].received(p["tag"], p["data"])
                     received[i] += 1
             ctx.set(port.resp.ready, 0)
             done[i] = True
@@ -90,33 +143,11 @@ def run_bus(n: int, n_reqs: int, *, tag_width: int = 2, seed: int = 0, idle: flo
                 counters["cycles"] = ctx.get(dut.cycles)
         return source, sink
 
-    violations = []
-
     async def monitor(ctx):
-        # violations are collected and raised after the run: an exception inside the
-        # simulation would leave the other testbenches' coroutines dangling
-        waited = [0] * n                            # grants to others since k raised valid
-        grants_seen = [0] * n
         sig = [s for p in dut.inputs for s in (p.req.valid, p.req.ready)]
         cycle = 0
         async for _, _, *vals in ctx.tick().sample(*sig):
-            valid, ready = vals[0::2], vals[1::2]
-            granted = [k for k in range(n) if valid[k] and ready[k]]
-            if len(granted) > 1:
-                violations.append(f"cycle {cycle}: {len(granted)} grants in one cycle {granted}")
-            for k in range(n):
-                if k in granted:
-                    waited[k] = 0
-                    grants_seen[k] += 1
-                elif valid[k]:
-                    waited[k] += len(granted)
-                    waits["max"] = max(waits["max"], waited[k])
-                    if waited[k] == n:
-                        violations.append(f"cycle {cycle}: requester {k} waited {waited[k]} "
-                                          f"grants (> N-1 = {n - 1}): round robin is unfair")
-                else:
-                    waited[k] = 0
-            counters["grants_seen"] = grants_seen
+            check.step(cycle, vals[0::2], vals[1::2])
             cycle += 1
 
     tbs = [tb for i in range(n) for tb in requester(i)]
@@ -124,13 +155,13 @@ def run_bus(n: int, n_reqs: int, *, tag_width: int = 2, seed: int = 0, idle: flo
         monitor,
         lambda ctx: random_memory(ctx, dut.mem, image, rng, max_delay=max_delay,
                                   stall=mem_stall)])
-    assert not violations, "; ".join(violations[:5])
+    assert not check.violations, "; ".join(check.violations[:5])
     assert received == [n_reqs] * n, f"responses received per requester: {received}"
-    assert all(not o for o in outstanding), "requests left without a response"
+    assert all(not o.tags for o in outstanding), "requests left without a response"
     assert counters["grants"] == [n_reqs] * n, f"grant counters {counters['grants']}"
-    assert counters["grants_seen"] == [n_reqs] * n, f"grants seen {counters['grants_seen']}"
+    assert check.grants == [n_reqs] * n, f"grants seen {check.grants}"
     assert counters["req_cycles"] == counters["resp_cycles"] == n * n_reqs, counters
-    return BusRun(per_requester=received, max_wait=waits["max"], grants=counters["grants"],
+    return BusRun(per_requester=received, max_wait=check.max_wait, grants=counters["grants"],
                   cycles=counters["cycles"])
 
 

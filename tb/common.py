@@ -16,13 +16,14 @@ from __future__ import annotations
 import inspect
 import random
 from pathlib import Path
-from typing import Any, Iterable
+from typing import Any, Iterable, NamedTuple
 
 from amaranth.lib import data
 from amaranth.sim import Simulator
 
-__all__ = ["drive", "drain", "watch", "as_dict", "run", "synth_check", "synth_check_verilog",
-           "StreamTimeout"]
+__all__ = ["drive", "drain", "watch", "as_dict", "run", "run_fixed_pipe", "FixedPipeRun",
+           "synth_check",
+           "synth_check_verilog", "StreamTimeout"]
 
 
 class StreamTimeout(AssertionError):
@@ -143,6 +144,71 @@ def run(dut, *testbenches, background=(), vcd: str | None = None) -> None:
             sim.run()
     else:
         sim.run()
+
+
+class FixedPipeRun(NamedTuple):
+    cycles: int
+    outputs: int                  # outputs taken (o_valid in an enabled cycle)
+    mismatches: list              # one text per wrong o_valid or output value
+
+
+def run_fixed_pipe(dut, inputs: dict, expected: dict, *, seed: int = 0, p_bubble: float = 0.2,
+                   p_stall: float = 0.2, describe=None) -> FixedPipeRun:
+    """Drive a bare fixed-latency datapath (``i_valid``, ``en`` in, ``o_valid`` out, latency
+    ``dut.latency`` enabled cycles) with random bubbles and stalls and compare every output at
+    its exact cycle.
+
+    ``inputs``: port name -> one int per item (lib.data ports packed, element 0 lowest; in a
+    bubble every port but ``tag`` gets random bits, ``tag`` 0); ``expected``: output port
+    name -> one int per item; ``describe(item)``: text appended to a mismatch (the item's
+    inputs, say). Returns the cycles, the outputs taken and the mismatches, each naming the
+    cycle, the item and the port."""
+    from collections import deque
+    names = list(inputs)
+    n = len(inputs[names[0]])
+    L = dut.latency
+    assert L >= 1, "run_fixed_pipe: a combinational datapath (latency 0) has no pipeline to drive"
+    rnd = random.Random(seed)
+    ports = {k: getattr(dut, k) for k in (*names, *expected)}
+    ports = {k: (p.as_value() if hasattr(p, "as_value") else p) for k, p in ports.items()}
+    mismatches: list = []
+    stats = {"outputs": 0}
+
+    async def bench(ctx):
+        pipe = deque([None] * L)
+        i = cycle = 0
+        while i < n or any(x is not None for x in pipe):
+            en = rnd.random() >= p_stall
+            valid = i < n and rnd.random() >= p_bubble
+            for k in names:
+                ctx.set(ports[k], inputs[k][i] if valid else
+                        0 if k == "tag" else rnd.getrandbits(len(ports[k])))
+            ctx.set(dut.i_valid, valid)
+            ctx.set(dut.en, en)
+            head = pipe[-1]
+            o_valid = ctx.get(dut.o_valid)
+            if o_valid != (head is not None):
+                mismatches.append(f"cycle {cycle}: o_valid={o_valid}, expected "
+                                  f"{int(head is not None)}")
+            if head is not None:
+                stats["outputs"] += int(en)
+                for k, want in expected.items():
+                    got = ctx.get(ports[k])
+                    if got != want[head]:
+                        mismatches.append(f"cycle {cycle}, item #{head}: {k} = {got:#x}, "
+                                          f"expected {want[head]:#x}"
+                                          + (f"; {describe(head)}" if describe else ""))
+            if en:
+                pipe.pop()
+                pipe.appendleft(i if valid else None)
+                if valid:
+                    i += 1
+            await ctx.tick()
+            cycle += 1
+        stats["cycles"] = cycle
+
+    run(dut, bench)
+    return FixedPipeRun(stats["cycles"], stats["outputs"], mismatches)
 
 
 def synth_check(component, name: str = "top") -> str:

@@ -7,9 +7,12 @@ t, u, v per result, in any order) and their counters as a dict:
 * :func:`expected`: the model's :class:`model.rtc.Hits` as the RTC reports them (the triangle's
   index in the memory image, a miss as all ones; t, u, v as bit patterns of the configured FP
   format).
+* :func:`hits_of`: the inverse of :func:`expected`: results by ray -> :class:`model.rtc.Hits`
+  (scene-order triangle ids, float32 carriers), the golden model's own result format.
 * :func:`results_by_ray`: result records -> one value per ray, by ray id
   (``rays.pk_start[packet] + lane``); a result that is not a ray of the input, a ray reported
-  twice and a ray never reported raise :class:`ResultError`.
+  twice and a ray never reported raise :class:`ResultError`. :func:`results_by_id` does the
+  same for the chip's records, whose id is (eye packet and lane, depth, sub).
 * :func:`result_mismatches`: every (ray, field, rtl, model) that differs, bit for bit.
 * :func:`counter_mismatches`: the RTC counters of :data:`COMPARED` against the model's totals.
 * :func:`describe`: the first mismatches in words, for an assertion message.
@@ -22,8 +25,8 @@ import numpy as np
 
 from model.config import Config
 
-__all__ = ["FIELDS", "MISS", "COMPARED", "ResultError", "expected", "results_by_ray",
-           "result_mismatches", "counter_mismatches", "describe"]
+__all__ = ["FIELDS", "MISS", "COMPARED", "ResultError", "expected", "hits_of", "results_by_ray",
+           "results_by_id", "ray_ids", "result_mismatches", "counter_mismatches", "describe"]
 
 FIELDS = ("tri", "t", "u", "v")
 MISS = (1 << 32) - 1            # the RTC's triangle id of a ray that hit nothing
@@ -49,6 +52,15 @@ def expected(hits, cfg: Config, image) -> dict[str, np.ndarray]:
     return want
 
 
+def hits_of(got: Mapping[str, np.ndarray], cfg: Config, image):
+    """The hardware's results by ray (:func:`results_by_ray`) as :class:`model.rtc.Hits`:
+    triangle by scene-order id (-1 for a miss), t, u, v decoded from the format's bits."""
+    from model.rtc import Hits
+    tri = np.asarray(got["tri"], np.int64)
+    tri = image.scene_ids(np.where(tri == MISS, -1, tri))
+    return Hits(tri, *(cfg.fmt.from_bits(np.asarray(got[f], np.int64)) for f in FIELDS[1:]))
+
+
 def results_by_ray(records: Mapping[str, np.ndarray], rays) -> dict[str, np.ndarray]:
     """Order result records by ray id. ``records`` holds equal-length integer arrays
     ``packet``, ``lane`` and each of :data:`FIELDS`; returns ``{field: array over rays}``."""
@@ -64,6 +76,12 @@ def results_by_ray(records: Mapping[str, np.ndarray], rays) -> dict[str, np.ndar
         j = int(np.flatnonzero(bad)[0])
         raise ResultError(f"result {j}: packet {packet[j]} lane {lane[j]} is not a ray of the "
                           f"input ({rays.n_packets} packets)")
+    return _place(records, ray, n)
+
+
+def _place(records: Mapping[str, np.ndarray], ray: np.ndarray, n: int) -> dict:
+    """``records`` (results for rays ``ray``) as one value per ray 0..n-1; each ray exactly
+    once."""
     seen = np.bincount(ray, minlength=n)
     if (seen != 1).any():
         r = int(np.flatnonzero(seen != 1)[0])
@@ -74,6 +92,41 @@ def results_by_ray(records: Mapping[str, np.ndarray], rays) -> dict[str, np.ndar
         got[f] = np.empty(n, np.int64)
         got[f][ray] = np.asarray(records[f], np.int64)
     return got
+
+
+def ray_ids(eye: np.ndarray, depth: np.ndarray, sub: np.ndarray) -> np.ndarray:
+    """One integer per ray from its id: eye ray index, depth (< 16), sub (< 16: 0 eye or
+    reflection ray, 1 + l shadow ray of light l)."""
+    return (np.asarray(eye, np.int64) * 16 + np.asarray(depth, np.int64)) * 16 + \
+        np.asarray(sub, np.int64)
+
+
+def results_by_id(records: Mapping[str, np.ndarray], rays, eye_pk_start) -> dict:
+    """Order the chip's result records by ray: ``records`` holds ``packet`` and ``lane`` (of
+    the ray's eye ray), ``depth``, ``sub`` and each of :data:`FIELDS`; ``rays`` every ray of
+    the frame with its id (``Rays.eye``, ``depth``, ``light``); ``eye_pk_start`` the eye
+    rays' packet starts. Unknown, repeated and missing rays raise :class:`ResultError`."""
+    pk = np.asarray(eye_pk_start, np.int64)
+    packet = np.asarray(records["packet"], np.int64)
+    lane = np.asarray(records["lane"], np.int64)
+    ok = (packet >= 0) & (packet < len(pk) - 1)
+    p = np.where(ok, packet, 0)
+    eye = pk[p] + lane
+    ok &= (lane >= 0) & (eye < pk[p + 1])
+    got_id = ray_ids(eye, records["depth"], records["sub"])
+    want_id = ray_ids(rays.eye, rays.depth, np.asarray(rays.light, np.int64) + 1)
+    order = np.argsort(want_id, kind="stable")
+    pos = np.searchsorted(want_id[order], got_id)
+    pos = np.minimum(pos, len(order) - 1) if len(order) else pos
+    found = ok & (len(order) > 0)
+    if len(order):
+        found &= want_id[order][pos] == got_id
+    if not found.all():
+        j = int(np.flatnonzero(~found)[0])
+        raise ResultError(f"result {j}: eye packet {packet[j]} lane {lane[j]} depth "
+                          f"{records['depth'][j]} sub {records['sub'][j]} is no ray of the "
+                          f"frame ({len(rays)} rays)")
+    return _place(records, order[pos], len(rays))
 
 
 def result_mismatches(got: Mapping[str, np.ndarray],
@@ -93,10 +146,19 @@ def counter_mismatches(counters: Mapping[str, int], model: Mapping[str, int]) ->
     return {k: (counters[k], model[v]) for k, v in COMPARED.items() if counters[k] != model[v]}
 
 
-def describe(mismatches: list, counters: dict | None = None, first: int = 10) -> str:
-    """The first ``first`` result mismatches (and any counter mismatch) as text."""
+def describe(mismatches: list, counters: dict | None = None, first: int = 10,
+             rays=None) -> str:
+    """The first ``first`` result mismatches (and any counter mismatch) as text; with
+    ``rays`` (:class:`model.raygen.Rays`) each ray's pixel, kind and packet too."""
+    from model.render import KIND_NAMES
     lines = [f"{len(mismatches)} result mismatches"]
-    lines += [f"  ray {r}: {f} RTL {a:#x}, model {b:#x}" for r, f, a, b in mismatches[:first]]
+    for r, f, a, b in mismatches[:first]:
+        where = ""
+        if rays is not None:
+            pk = int(np.searchsorted(rays.pk_start, r, side="right") - 1)
+            where = (f" (pixel {int(rays.pixel[r])}, {KIND_NAMES[int(rays.kind[r])]}, "
+                     f"packet {pk} lane {r - int(rays.pk_start[pk])})")
+        lines.append(f"  ray {r}{where}: {f} RTL {a:#x}, model {b:#x}")
     if counters:
         lines.append(f"counters differ (rtc, model): {counters}")
     return "\n".join(lines)

@@ -18,10 +18,10 @@ import numpy as np
 from amaranth.sim import Simulator
 
 from model.fp import FPFormat
-from rtl.fp import FPAdd, FPCompare, FPDiv, FPFromInt, FPMinMax, FPMul
+from rtl.fp import FPAdd, FPCompare, FPDiv, FPFromInt, FPMinMax, FPMul, FPSqrt
 from tb.fp_vectors import corner_pairs
 
-UNITS = ("add", "sub", "mul", "div", "cmp", "min", "max", "conv")
+UNITS = ("add", "sub", "mul", "div", "sqrt", "cmp", "min", "max", "conv")
 
 
 @dataclass
@@ -114,7 +114,7 @@ def simulate(dut, inputs: dict[str, np.ndarray], expected: np.ndarray, *, seed: 
 def make_unit(kind: str, fmt: FPFormat, latency=None, regs=None, **kw):
     """The RTL unit for ``kind`` (one of UNITS); ``latency=None`` takes the unit's default."""
     cls = {"add": FPAdd, "sub": FPAdd, "mul": FPMul, "div": FPDiv, "cmp": FPCompare,
-           "min": FPMinMax, "max": FPMinMax, "conv": FPFromInt}[kind]
+           "min": FPMinMax, "max": FPMinMax, "conv": FPFromInt, "sqrt": FPSqrt}[kind]
     args = dict(kw)
     if latency is not None:
         args["latency"] = latency
@@ -136,6 +136,8 @@ def expected(kind: str, fmt: FPFormat, a: np.ndarray, b: np.ndarray | None = Non
                 | fmt.eq(a, b).astype(np.uint32) << 2)
     if kind == "conv":
         return fmt.to_bits(fmt.from_fixed(a, frac_bits))
+    if kind == "sqrt":
+        return fmt.to_bits(fmt.sqrt(a))
     return fmt.to_bits(getattr(fmt, kind)(a, b))
 
 
@@ -155,15 +157,27 @@ def run_random(kind: str, fmt: FPFormat, n: int, *, latency=None, regs=None, see
                p_bubble: float = 0.25, p_stall: float = 0.25, **kw) -> SimResult:
     """About ``n`` corner-case and random operations (tb.fp_vectors.corner_pairs) with random
     bubbles and stalls."""
+    dut, ins, exp = random_case(kind, fmt, n, seed=seed, latency=latency, regs=regs, **kw)
+    return simulate(dut, ins, exp, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+
+
+def random_case(kind: str, fmt: FPFormat, n: int, *, seed: int = 0, latency=None, regs=None,
+                **kw):
+    """The unit and about ``n`` corner-case and random operations for it: ``(unit, port values,
+    expected outputs)`` (also what the cocotb bench, ``tb/cocotb/fp.py``, drives)."""
     rng = np.random.default_rng(seed)
     dut = make_unit(kind, fmt, latency, regs, **kw)
     if kind == "conv":
         ins, exp = conv_inputs(dut, n, rng)
+    elif kind == "sqrt":
+        a, b = corner_pairs(fmt, n, rng)
+        a = rng.permutation(np.concatenate([a, np.abs(b)]))
+        ins, exp = {"a": fmt.to_bits(a)}, expected("sqrt", fmt, a)
     else:
         a, b = corner_pairs(fmt, n, rng)
         perm = rng.permutation(a.size)
         ins, exp = pair_inputs(kind, fmt, a[perm], b[perm], rng)
-    return simulate(dut, ins, exp, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+    return dut, ins, exp
 
 
 def conv_inputs(dut: FPFromInt, n: int, rng: np.random.Generator):
@@ -187,9 +201,12 @@ def run_exhaustive(kind: str, fmt: FPFormat, *, latency=1, **kw) -> SimResult:
     """Every operand pair of a tiny format, one per cycle (no bubbles or stalls: the random
     runs test the flow control)."""
     n = 1 << fmt.width
+    dut = make_unit(kind, fmt, latency, **kw)
+    if kind == "sqrt":                               # one operand: every encoding
+        bits = np.arange(n, dtype=np.uint32)
+        return simulate(dut, {"a": bits}, expected("sqrt", fmt, fmt.from_bits(bits)))
     A, B = np.meshgrid(np.arange(n, dtype=np.uint32), np.arange(n, dtype=np.uint32), indexing="ij")
     a, b = fmt.from_bits(A.ravel()), fmt.from_bits(B.ravel())
-    dut = make_unit(kind, fmt, latency, **kw)
     ins = {"a": A.ravel(), "b": B.ravel()}          # raw encodings: denormal and NaN payloads too
     op = None
     if kind in ("add", "sub", "min", "max"):
@@ -205,7 +222,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description="Amaranth simulation speed of the FP unit testbenches")
     ap.add_argument("--fmt", default="E8M23")
     ap.add_argument("-n", type=int, default=3000, help="about this many operations per unit")
-    ap.add_argument("--units", default="add,mul,div,cmp,min,conv")
+    ap.add_argument("--units", default="add,mul,div,sqrt,cmp,min,conv")
     ap.add_argument("--exhaustive", action="store_true", help="also the E4M3 exhaustive runs")
     args = ap.parse_args(argv)
     m = re.fullmatch(r"E(\d+)M(\d+)", args.fmt)

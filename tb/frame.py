@@ -14,13 +14,15 @@ Load port (one 64-bit word per cycle while ``ld_valid``; ``ld_sel`` picks the ta
 1 (RAYS)   the ray memory: ray slot ``ld_addr >> 3``, 64-bit chunk ``ld_addr & 7`` of the
            ``RayIn`` bits (low chunk first); slot ``r`` feeds the ``r``-th lane transfer
 2 (CONST)  constant ``ld_addr`` of :data:`CONSTS` (node_base, list_base, tri_base, root,
-           rays, idle and stall in 1/16, the two LFSR seeds)
+           rays, idle and stall in 1/16, the two LFSR seeds, mem_stall in 1/16 and the
+           seeds of the node, list and tri memories' hold LFSRs)
 =========  ============================================================================
 
 After ``start`` (one cycle) the RTC and its memories leave reset (they are held in reset until
 then, so the run is cycle for cycle :class:`tb.rtc.RTCSelfTest`'s from reset): the ray memory
 feeds ``rays`` lanes in slot order, an LFSR makes input bubbles (``idle``/16 of the cycles
-before a transfer) and another result back-pressure (``stall``/16). Every result transfer
+before a transfer) and another result back-pressure (``stall``/16); one LFSR per memory holds
+its responses in ``mem_stall``/16 of the cycles (a random, in-order latency). Every result transfer
 shows on ``res_valid`` / ``res_data`` (``RayResult`` bits, zero-padded to a multiple of 32);
 ``finished`` rises in the cycle after the last of ``rays`` results, ``cycles`` counts the
 RTC's cycles since start, ``counters`` is the concatenation of :data:`counter_names` (32 bits
@@ -49,7 +51,7 @@ __all__ = ["RTCFrame", "VerilogMemory", "CONSTS", "SEL_IMAGE", "SEL_RAYS", "SEL_
 
 SEL_IMAGE, SEL_RAYS, SEL_CONST = 0, 1, 2
 CONSTS = ("node_base", "list_base", "tri_base", "root", "rays", "idle_q", "stall_q",
-          "seed0", "seed1")
+          "seed0", "seed1", "mem_stall_q", "seed2", "seed3", "seed4")
 MEMS = ("node", "list", "tri")
 
 
@@ -64,10 +66,38 @@ def ray_chunks(cfg: Config) -> int:
     return -(-RayIn(cfg).size // 64)
 
 
-def result_bits(cfg: Config) -> int:
-    """Width of ``res_data``: ``RayResult`` rounded up to 32 bits, at least 96 (so that a C++
-    main reads it as a ``VlWide`` whatever the format)."""
-    return max(96, -(-RayResult(cfg).size // 32) * 32)
+def result_bits(cfg: Config, layout=None) -> int:
+    """Width of ``res_data``: the result ``layout`` (default ``RayResult``) rounded up to 32
+    bits, at least 96 (so that a C++ main reads it as a ``VlWide`` whatever the format)."""
+    size = (RayResult(cfg) if layout is None else layout).size
+    return max(96, -(-size // 32) * 32)
+
+
+def frame_signature(cfg: Config, counters: int, result_layout=None) -> dict:
+    """The ports of a Verilator frame top (:class:`RTCFrame`, ``tb.chip_frame.ChipFrame``):
+    what ``tb/verilator_main.cpp`` drives and reads; ``counters`` 32-bit counter fields;
+    ``res_data`` holds a ``result_layout`` (default ``RayResult``)."""
+    return {
+        "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
+        "start": In(1),
+        "res_valid": Out(1), "res_data": Out(result_bits(cfg, result_layout)),
+        "finished": Out(1), "running": Out(1),
+        "cycles": Out(COUNTER_BITS), "results": Out(COUNTER_BITS),
+        "counters": Out(COUNTER_BITS * counters),
+        "cap_mem_words": Out(32), "cap_ray_slots": Out(32),
+    }
+
+
+def load_consts_and_start(m: Module, top, consts) -> Signal:
+    """In a frame top: constant ``k`` of ``consts`` into ``top.const[name]`` when the load port
+    writes address ``k`` with ``ld_sel`` = CONST; returns ``run``, set by ``start``."""
+    for k, name in enumerate(consts):
+        with m.If(top.ld_valid & (top.ld_sel == SEL_CONST) & (top.ld_addr == k)):
+            m.d.sync += top.const[name].eq(top.ld_data)
+    run = Signal()
+    with m.If(top.start):
+        m.d.sync += run.eq(1)
+    return run
 
 
 class VerilogMemory(Elaboratable):
@@ -127,7 +157,9 @@ class _Run(Elaboratable):
         drive_header(m, rtc, c)
 
         # feeder: ray slot i -> rays, LFSR bubbles (as RTCSelfTest)
-        bubbles, backpressure = (lfsr.value for lfsr in t.lfsr)
+        bubbles, backpressure, *holds = (lfsr.value for lfsr in t.lfsr)
+        for mem, hold in zip(t.mems.values(), holds):
+            m.d.comb += mem.hold.eq(~passes(hold, c["mem_stall_q"]))
         feed_from_memory(m, rtc.rays, t.ray_rd, c["rays"], passes(bubbles, c["idle_q"]))
 
         # sink: LFSR back-pressure, every transfer on res_valid / res_data
@@ -178,18 +210,11 @@ class RTCFrame(wiring.Component):
                              "chunks; the ray load address has room for 8")
         self.ray_mem = store(64 * self.chunks, self.ray_slots)
         self.names = counter_names(cfg)
-        super().__init__({
-            "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
-            "start": In(1),
-            "res_valid": Out(1), "res_data": Out(result_bits(cfg)),
-            "finished": Out(1), "running": Out(1),
-            "cycles": Out(COUNTER_BITS), "results": Out(COUNTER_BITS),
-            "counters": Out(COUNTER_BITS * len(self.names)),
-            "cap_mem_words": Out(32), "cap_ray_slots": Out(32),
-        })
+        super().__init__(frame_signature(cfg, len(self.names)))
         # loaded constants: registers that reset does not touch
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True) for name in CONSTS}
-        self.lfsr = [LFSR(loadable=True) for _ in range(2)]      # bubbles, back-pressure
+        # bubbles, back-pressure, then the holds of the node, list and tri memories
+        self.lfsr = [LFSR(loadable=True) for _ in range(2 + len(MEMS))]
 
     def elaborate(self, platform):
         m = Module()
@@ -204,14 +229,8 @@ class RTCFrame(wiring.Component):
         m.d.comb += [wr.addr.eq(addr[3:]), wr.data.eq(data.replicate(self.chunks)),
                      wr.en.eq(_chunk_enable(self.ld_valid & (sel == SEL_RAYS), addr[:3],
                                             self.chunks))]
-        for k, name in enumerate(CONSTS):
-            with m.If(self.ld_valid & (sel == SEL_CONST) & (addr == k)):
-                m.d.sync += self.const[name].eq(data)
-
         # start: leave reset; the LFSRs hold their seeds until then
-        run = Signal()
-        with m.If(self.start):
-            m.d.sync += run.eq(1)
+        run = load_consts_and_start(m, self, CONSTS)
         for j, lfsr in enumerate(self.lfsr):
             m.submodules[f"lfsr{j}"] = lfsr
             m.d.comb += [lfsr.en.eq(run), lfsr.seed.eq(self.const[f"seed{j}"])]

@@ -14,7 +14,6 @@ import dataclasses
 
 import random
 import time
-from collections import deque
 from dataclasses import dataclass, field
 
 import numba
@@ -168,6 +167,19 @@ def _pack(fmt: FPFormat, x: np.ndarray) -> list[int]:
     return [int(v) for v in out]
 
 
+def pipe_ports(tests: PipeTests, fmt: FPFormat, tag_width: int) -> tuple[dict, dict]:
+    """The datapath's port values per test (ints; arrays packed as the ports carry them,
+    element 0 in the low bits): inputs ``tri``, ``org``, ``k``, ``s``, ``tag`` (the test's index
+    modulo ``2**tag_width``) and the model's outputs ``o_tag``, ``hit``, ``t``, ``u``, ``v``."""
+    tri, org, s = _pack(fmt, tests.tri), _pack(fmt, tests.org), _pack(fmt, tests.s)
+    k = [int(a) | int(b) << 2 | int(c) << 4 for a, b, c in tests.k]
+    tag = [i % (1 << tag_width) for i in range(len(tests))]
+    hit = tests.hit.astype(int).tolist()
+    t, u, v = (fmt.to_bits(x).astype(np.int64).tolist() for x in (tests.t, tests.u, tests.v))
+    return ({"tri": tri, "org": org, "k": k, "s": s, "tag": tag},
+            {"o_tag": tag, "hit": hit, "t": t, "u": u, "v": v})
+
+
 @dataclass
 class PipeRun:
     tests: int
@@ -186,62 +198,19 @@ def run_pipe(tests: PipeTests, fmt: FPFormat, *, seed: int = 0, p_bubble: float 
              p_stall: float = 0.2, latencies: dict | None = None) -> PipeRun:
     """Drive ``tests`` through the datapath and compare every output at its exact cycle
     (latency ``L`` enabled cycles after its input) with the model; returns the mismatches."""
+    from .common import run_fixed_pipe
     n = len(tests)
     dut = IntersectPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
-    L = dut.latency
-    tri, org, s = _pack(fmt, tests.tri), _pack(fmt, tests.org), _pack(fmt, tests.s)
-    k = [int(a) | int(b) << 2 | int(c) << 4 for a, b, c in tests.k]
-    hit = tests.hit.astype(int).tolist()
-    tb, ub, vb = (fmt.to_bits(x).astype(np.int64).tolist() for x in (tests.t, tests.u, tests.v))
-    rnd = random.Random(seed)
-    w = fmt.width
-    stats = {"outputs": 0}
-    mismatches: list = []
+    ins, outs = pipe_ports(tests, fmt, dut.tag_width)
 
-    async def bench(ctx):
-        pipe = deque([None] * L)
-        i = cycle = 0
-        while i < n or any(x is not None for x in pipe):
-            en = rnd.random() >= p_stall
-            valid = i < n and rnd.random() >= p_bubble
-            if valid:
-                vals = (tri[i], org[i], k[i], s[i], i)
-            else:
-                vals = (rnd.getrandbits(9 * w), rnd.getrandbits(3 * w), rnd.getrandbits(6),
-                        rnd.getrandbits(3 * w), 0)
-            for port, x in zip((dut.tri, dut.org, dut.k, dut.s, dut.tag), vals):
-                ctx.set(port.as_value() if hasattr(port, "as_value") else port, x)
-            ctx.set(dut.i_valid, valid)
-            ctx.set(dut.en, en)
-            head = pipe[-1]
-            o_valid = ctx.get(dut.o_valid)
-            if o_valid != (head is not None):
-                mismatches.append(f"IntersectPipe: cycle {cycle}: o_valid={o_valid}, expected "
-                                  f"{int(head is not None)}")
-            if head is not None:
-                stats["outputs"] += int(en)
-                got = (ctx.get(dut.o_tag), ctx.get(dut.hit), ctx.get(dut.t), ctx.get(dut.u),
-                       ctx.get(dut.v))
-                want = (head, hit[head], tb[head], ub[head], vb[head])
-                if got != want:
-                    mismatches.append(
-                        f"IntersectPipe: cycle {cycle}, test #{head}: (tag, hit, t, u, v) = "
-                        f"{tuple(hex(x) for x in got)}, model {tuple(hex(x) for x in want)}; "
-                        f"tri={tests.tri[head].tolist()} org={tests.org[head].tolist()} "
-                        f"k={tests.k[head].tolist()} s={tests.s[head].tolist()}")
-            if en:
-                pipe.pop()
-                pipe.appendleft(i if valid else None)
-                if valid:
-                    i += 1
-            await ctx.tick()
-            cycle += 1
-        stats["cycles"] = cycle
-
+    def describe(i):
+        return (f"tri={tests.tri[i].tolist()} org={tests.org[i].tolist()} "
+                f"k={tests.k[i].tolist()} s={tests.s[i].tolist()}")
     t0 = time.perf_counter()
-    run(dut, bench)
-    return PipeRun(n, stats["cycles"], time.perf_counter() - t0, L, stats["outputs"],
-                   mismatches)
+    r = run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall,
+                       describe=describe)
+    return PipeRun(n, r.cycles, time.perf_counter() - t0, dut.latency, r.outputs,
+                   [f"IntersectPipe: {x}" for x in r.mismatches])
 
 
 # ---- the whole unit ---------------------------------------------------------------------------
@@ -274,7 +243,7 @@ class IntBench(wiring.Component):
         self.tri_base = image.tri_base
         sig = self.unit.signature.members
         members = {k: sig[k] for k in ("ray_in", "tri_in", "lane_out", "done", "result",
-                                       "int_ops", "tris", "busy")}
+                                       "release", "int_ops", "tris", "busy")}
         members["words"] = Out(32)
         super().__init__(members)
 
@@ -286,7 +255,7 @@ class IntBench(wiring.Component):
         wiring.connect(m, r.mem, mem.port)
         for name in ("ray_in", "tri_in", "done"):
             wiring.connect(m, wiring.flipped(getattr(self, name)), getattr(u, name))
-        for name in ("lane_out", "result"):
+        for name in ("lane_out", "result", "release"):
             wiring.connect(m, getattr(u, name), wiring.flipped(getattr(self, name)))
         m.d.comb += [r.base.eq(self.tri_base), self.words.eq(mem.reads)]
         for name in ("int_ops", "tris", "busy"):
@@ -379,6 +348,16 @@ def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
     return UnitStreams(rays, tris, ints, lanes, done, results, int_ops, leaves)
 
 
+def unit_counters(s: UnitStreams, g, whole: bool) -> list[tuple[str, int]]:
+    """``(counter, expected value)`` of the unit after the streams ``s``: ``int_ops`` (one per
+    ``EV_INT``), ``tris`` (one triangle fetched per ``TriRequest``) and, for ``whole`` (every
+    leaf of ``g``), the model's own ``int_ops``."""
+    want = [("int_ops", s.int_ops), ("tris", len(s.tris))]
+    if whole:
+        want.append(("int_ops", int(g.counters.sum(axis=0)[C["int_ops"]])))
+    return want
+
+
 @dataclass
 class UnitRun:
     int_ops: int
@@ -403,7 +382,7 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
     dut = IntBench(g.cfg, g.image, latency=latency, tri_slots=tri_slots, cache=cache)
     rng = random.Random(seed)
     pipe = dut.unit.pipe
-    ints, lanes, results, info = [], [], [], {}
+    ints, lanes, results, released, info = [], [], [], [], {}
 
     async def source(ctx):
         await drive(ctx, dut.ray_in, s.rays)
@@ -425,8 +404,11 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
         await watch(ctx, pipe.o_valid & pipe.en, pipe.o_tag, pipe.hit, pipe.t, pipe.u, pipe.v,
                     out=ints)
 
+    async def releases(ctx):
+        await watch(ctx, dut.release.valid, dut.release.payload, out=released)
+
     t0 = time.perf_counter()
-    run(dut, source, sink, readout, background=[monitor])
+    run(dut, source, sink, readout, background=[monitor, releases])
     seconds = time.perf_counter() - t0
     meta = dut.unit.pipe_meta
     bad: list = []
@@ -446,12 +428,17 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
     for name, got, want in streams:
         if len(got) != len(want):
             bad.append(f"{name}s: {len(got)}, model {len(want)}")
-    want_ctr = [("int_ops", s.int_ops), ("tris", len(s.tris))]
+    # each packet's thread is released in the cycle its last RayResult is taken
+    last_cycles = [c for c, p in results if p["last"]]
+    want_rel = list(zip(last_cycles, [d["thread"] for d in s.done]))
+    if released != want_rel:
+        bad.append(f"releases (cycle, thread) {released[:8]}..., want {want_rel[:8]}... "
+                   "(the thread of each packet with its last result)")
+    want_ctr = unit_counters(s, g, whole=max_leaves is None)
     if not cache:                   # a cache reads a triangle's words only on a miss
         want_ctr.append(("words", 5 * len(s.tris)))
-    if max_leaves is None and not cache:    # the whole image: the model's own counters too
-        tot = g.counters.sum(axis=0)
-        want_ctr += [("int_ops", int(tot[C["int_ops"]])), ("words", int(tot[C["int_reads"]]))]
+        if max_leaves is None:      # the whole image: the model's own word count too
+            want_ctr.append(("words", int(g.counters.sum(axis=0)[C["int_reads"]])))
     for k, w in want_ctr:
         if info[k] != w:
             bad.append(f"counter {k}: {info[k]}, model {w}")

@@ -13,12 +13,19 @@ from amaranth.hdl import Cat, Module, Signal, Value
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-__all__ = ["LFSR", "lfsr_seeds", "sixteenths", "passes", "feed_from_memory", "sink_to"]
+__all__ = ["LFSR", "lfsr_next", "lfsr_seeds", "sixteenths", "passes", "feed_from_memory",
+           "sink_to", "add_stall_args"]
 
 
-def lfsr_seeds(seed: int) -> tuple[int, int]:
-    """The two LFSR seeds (never 0) for ``seed``: bubbles, back-pressure."""
-    return tuple((seed * 40503 + j * 21011) % 65535 + 1 for j in range(2))
+def lfsr_seeds(seed: int, n: int = 2) -> tuple[int, ...]:
+    """``n`` LFSR seeds (never 0) for ``seed``: bubbles, back-pressure, then memory holds."""
+    return tuple((seed * 40503 + j * 21011) % 65535 + 1 for j in range(n))
+
+
+def lfsr_next(value: int) -> int:
+    """The value after ``value`` of :class:`LFSR` (one enabled cycle), for benches outside
+    Amaranth that must follow the hardware's LFSR."""
+    return (value >> 1) | (((value ^ value >> 2 ^ value >> 3 ^ value >> 5) & 1) << 15)
 
 
 def sixteenths(rate: float, what: str = "rate") -> int:
@@ -85,3 +92,16 @@ def sink_to(m: Module, stream, ready: Value) -> Value:
     condition ``valid & ready``."""
     m.d.comb += stream.ready.eq(ready)
     return stream.valid & stream.ready
+
+
+def add_stall_args(ap, memory: str) -> None:
+    """``--stall``, ``--mem-stall`` and ``--seed`` of a frame's command line (``memory``: what
+    holds its responses under ``--mem-stall``, for the help)."""
+    ap.add_argument("--stall", type=float, default=0.0,
+                    help="fraction of cycles the results are back-pressured (0 .. 15/16; "
+                         "default 0)")
+    ap.add_argument("--mem-stall", type=float, default=0.0,
+                    help=f"fraction of cycles {memory} holds its responses, making the memory "
+                         "latency random (0 .. 15/16; default 0)")
+    ap.add_argument("--seed", type=int, default=1,
+                    help="seed of the LFSRs of the random stimulus (default 1)")

@@ -78,6 +78,26 @@ def leaf_stream(g: Golden) -> tuple[list[dict], list[dict]]:
     return leaves, tris
 
 
+def first_leaves(leaves: list, tris: list, n: int) -> tuple[list, list]:
+    """The first ``n`` leaves of a :func:`leaf_stream` and their ``TriRequest`` s."""
+    leaves = leaves[:n]
+    return leaves, tris[:sum(lf["count"] for lf in leaves)]
+
+
+def check_counters(counters: dict, g: Golden, leaves: list, tris: list, whole: bool) -> None:
+    """The unit's ``list_ops`` and ``words`` after ``leaves``: one op per entry, the list words
+    the leaves touch (``model.list.list_words``) and, for ``whole`` (every leaf of ``g``), the
+    model's own totals. AssertionError on a difference."""
+    from model.list import list_words
+    want_words = sum(list_words(lf["first"], lf["count"]) for lf in leaves)
+    assert counters["list_ops"] == len(tris), (counters, len(tris))
+    assert counters["words"] == want_words, (counters, want_words)
+    if whole:
+        tot = g.counters.sum(axis=0)
+        assert counters["list_ops"] == tot[C["list_ops"]], (counters, tot[C["list_ops"]])
+        assert counters["words"] == tot[C["list_reads"]], (counters, tot[C["list_reads"]])
+
+
 class ListBench(wiring.Component):
     """The list unit with a simulation memory on its port (ports of the unit passed through)."""
 
@@ -134,10 +154,7 @@ def run_list(g: Golden, *, seed: int = 0, idle: float = 0.3, stall: float = 0.3,
     only ``g.cfg`` and ``g.image`` are read)."""
     leaves, want = leaf_stream(g) if streams is None else streams
     if max_leaves is not None:
-        leaves = leaves[:max_leaves]
-        want = want[:sum(lf["count"] for lf in leaves)]
-    from model.list import list_words
-    want_words = sum(list_words(lf["first"], lf["count"]) for lf in leaves)
+        leaves, want = first_leaves(leaves, want, max_leaves)
     dut = ListBench(g.cfg, g.image, latency=latency, outstanding=outstanding, sdram=sdram)
     rng = random.Random(seed)
     got, counters = [], {}
@@ -165,12 +182,7 @@ def run_list(g: Golden, *, seed: int = 0, idle: float = 0.3, stall: float = 0.3,
             raise AssertionError(f"list unit: TriRequest #{i} at cycle {cycle}: {p}, "
                                  f"model {w}")
     assert len(got) == len(want)
-    assert counters["list_ops"] == len(want), (counters, len(want))
-    assert counters["words"] == want_words, (counters, want_words)
-    if max_leaves is None and streams is None:
-        tot = g.counters.sum(axis=0)
-        assert counters["list_ops"] == tot[C["list_ops"]]
-        assert counters["words"] == tot[C["list_reads"]]
+    check_counters(counters, g, leaves, want, whole=max_leaves is None and streams is None)
     return ListRun(len(leaves), len(want), counters["cycles"], seconds, counters["words"],
                    counters["busy"], [tag for _, tag in tags])
 

@@ -103,12 +103,10 @@ def shadow_error(scene, prep, cfg: Config, rays: Rays, hits, ref: Reference) -> 
     sel = np.nonzero(hits.tri >= 0)[0]
     if sel.size == 0 or not scene.lights:
         return {"rays": 0}
-    p, ng, _, _, _ = shader.surface(rays, sel, hits.tri[sel], hits.t[sel], hits.u[sel],
-                                    hits.v[sel])
-    p0 = shader.offset(p, ng, rays.dir[sel])
+    surf = shader.surface(rays, sel, hits.tri[sel], hits.t[sel], hits.u[sel], hits.v[sel])
     org, dirn, tmax, parent = [], [], [], []
     for light in scene.lights:
-        s, keep = shader.shadow_rays(rays, sel, p0, ng, light)
+        s, keep = shader.shadow_rays(rays, sel, surf, light)
         org.append(s.org), dirn.append(s.dir), tmax.append(s.tmax)
         parent.append(hits.tri[sel[keep]])
     org, dirn, tmax, parent = (np.concatenate(x) for x in (org, dirn, tmax, parent))
@@ -332,8 +330,9 @@ def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(
         description="Precision study: image/ray error, FP-unit cost and run time per format.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--scenes", nargs="*", default=[str(p) for p in sorted(
-        (ROOT / "scenes").glob("*.toml"))], help="scene files (TOML or meshes)")
+    ap.add_argument("--scenes", nargs="*", default=[str(ROOT / "scenes" / f"{n}.toml") for n in
+                                                    ("conference", "cornell", "office", "terrain")],
+                    help="scene files (TOML or meshes); default: the four small shipped scenes")
     ap.add_argument("--meshes", default=None,
                     help="directory with the real meshes (teapot, bunny, spot, cruiser, f-16, "
                          "dragon, nefertiti .obj); missing ones are skipped with a message")

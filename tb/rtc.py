@@ -70,10 +70,10 @@ def read_counters(ctx, rtc) -> dict:
 
 
 def finish(run_cls, image, rays, cfg: Config, records, *, cycles: int, seconds: float,
-           counters: dict, **extra) -> RTCRun:
+           counters: dict, box_cull: bool = True, **extra) -> RTCRun:
     """Compare result ``records`` (:func:`tb.compare.results_by_ray`) with the model; a
     ``run_cls`` (:class:`RTCRun` or a subclass) with the counters and every mismatch."""
-    hits, ctrs = trace(image, rays, cfg)
+    hits, ctrs = trace(image, rays, cfg, box_cull=box_cull)
     got = compare.results_by_ray(records, rays)
     return run_cls(cycles, seconds, len(rays), counters, counter_totals(ctrs),
                    compare.result_mismatches(got, expected(hits, cfg, image)), **extra)
@@ -114,11 +114,16 @@ class RTCSelfTest:
     for Verilator): a ray ROM feeds every lane, a sink takes the results and stores each at
     ``packet * lanes + lane``; ``finished`` rises after the last result. With ``idle`` /
     ``stall`` (multiples of 1/16) LFSRs (``tb/lfsr.py``) make random input bubbles / result
-    back-pressure. ``build()`` returns the Amaranth module."""
+    back-pressure; with ``mem_stall`` one LFSR per memory holds its responses (``hold`` of
+    :class:`~rtl.memory.IdealMemory`) in that fraction of the cycles, so every memory port sees
+    a random latency (responses in order, as from a cache). ``build()`` returns the Amaranth
+    module."""
 
     def __init__(self, image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
-                 stall: float = 0.0, seed: int = 1, device: Callable = rtc_sim):
+                 stall: float = 0.0, seed: int = 1, device: Callable = rtc_sim,
+                 mem_stall: float = 0.0):
         self.idle_q, self.stall_q = sixteenths(idle, "idle"), sixteenths(stall, "stall")
+        self.mem_stall_q = sixteenths(mem_stall, "mem_stall")
         self.seed = seed
         from rtl.rtc_streams import RayIn, RayResult
         self.cfg, self.rays = cfg, rays
@@ -146,9 +151,14 @@ class RTCSelfTest:
         wr = out.write_port()
         got = Signal(range(self.n + 1))
         self.finished = Signal()
-        s0, s1 = lfsr_seeds(self.seed)
+        mems = getattr(self.sim, "mems", {})
+        s0, s1, *sm = lfsr_seeds(self.seed, 2 + len(mems))
         m.submodules.bubbles = bubbles = LFSR(s0)
         m.submodules.backpressure = backpressure = LFSR(s1)
+        if self.mem_stall_q:
+            for (name, mem), s in zip(mems.items(), sm):
+                m.submodules[f"hold_{name}"] = h = LFSR(s)
+                m.d.comb += mem.hold.eq(~passes(h.value, self.mem_stall_q))
         feed_from_memory(m, dut.rays, rom.read_port(domain="comb"), self.n,
                          passes(bubbles.value, self.idle_q))
         res = dut.results
@@ -163,13 +173,13 @@ class RTCSelfTest:
 
 def run_rtc_free(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
                  stall: float = 0.0, seed: int = 1, max_cycles: int = 10_000_000,
-                 device: Callable = rtc_sim) -> RTCRun:
+                 device: Callable = rtc_sim, mem_stall: float = 0.0) -> RTCRun:
     """Run :class:`RTCSelfTest` in Amaranth's simulator until every result is out; compare
     with the model like :func:`run_rtc`."""
     from amaranth.lib import data
     from amaranth.sim import Simulator
     st = RTCSelfTest(image, rays, cfg, mem_latency=mem_latency, idle=idle, stall=stall,
-                     seed=seed, device=device)
+                     seed=seed, device=device, mem_stall=mem_stall)
     top = st.build()
     rtc = st.sim.rtc
     sim = Simulator(top)

@@ -1,8 +1,10 @@
 """What skipping unneeded work saves: golden-model counters (and RTC cycles in Verilator) with
 each of the renderer's skips (``model.render.Skip``) turned off in turn, rays and packets that
-never enter traversal, and the kd-tree disk cache. Writes ``build/bench/skipping.json``.
+never enter traversal, the chip built for the scene (``Config.for_scene``: resources, Verilator
+build and run), and what a second run reuses (kd-tree cache, Verilator binaries). Writes
+``build/bench/skipping.json``.
 
-    python -m tb.skipping [--scene scenes/office.toml] [--res 128x96] [--rtl]
+    python -m tb.skipping [--scene scenes/office.toml] [--res 128x96] [--rtl] [--elab]
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config
-from model.raygen import SHADOW, Rays, eye_rays, setup
+from model.raygen import SHADOW, Rays, eye_rays, live_packets, select_packets, setup
 from model.render import Skip, prepare, render
 from model.scene import load_scene
 
@@ -29,7 +31,8 @@ def _counters(res) -> dict:
 
 
 def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = False,
-            log=sys.stderr) -> dict:
+            elab: bool = False, log=None) -> dict:
+    log = sys.stderr if log is None else log
     scene = load_scene(scene_path)
     out: dict = {"scene": str(scene_path), "resolution": [width, height],
                  "config": {"reflect_depth": cfg.reflect_depth, "tile": [cfg.tile_w, cfg.tile_h]}}
@@ -44,12 +47,15 @@ def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = F
                            "kdtree_build_s": prep.build_seconds, "from_cache": prep.from_cache}
     base = render(scene, cfg, width, height, prepared=prep)
     out["all_skips"] = _counters(base)
-    for name in ("anyhit", "lights_behind", "nonreflective"):
+    for name in ("anyhit", "lights_behind", "nonreflective", "box_cull"):
         res = render(scene, cfg, width, height, prepared=prep, skip=Skip(**{name: False}))
         c = _counters(res)
         out[f"without_{name}"] = c
         out[f"saved_by_{name}"] = {k: c[k] - out["all_skips"][k] for k in KEYS}
         print(f"{name}: {out[f'saved_by_{name}']}", file=log)
+    res = render(scene, cfg, width, height, prepared=prep, skip=Skip(empty_tiles=True))
+    out["with_empty_tiles"] = {**_counters(res), "packets": res.stats["packets"],
+                               "packets_skipped": res.stats["packets_skipped"]}
     # rays that miss the scene box start inactive; packets with no live ray do no traversal
     rays = eye_rays(scene.camera, width, height, cfg)
     rs = setup(rays, prep.image.bounds, cfg.fmt)
@@ -76,7 +82,119 @@ def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = F
             cyc["anyhit" if anyhit else "closest_hit"] = {"cycles": run.cycles,
                                                           "int_ops": run.model["int_ops"]}
         out["rtl_shadow_rays_32x24"] = {"rays": int(len(sel)), **cyc}
+        out["rtl_eye_rays_64x48"] = rtl_box_cull(scene, tiny, 64, 48, log)
+    if elab:
+        out["elaboration"] = elaboration(scene, cfg, log=log)
     return out
+
+
+def _rtc_run(image, rays, cfg: Config, box_cull: bool = True) -> dict:
+    import tb.verilator as vl
+    t = time.perf_counter()
+    run = vl.run_frame(image, rays, cfg, mem_latency=4, progress=False, box_cull=box_cull)
+    wall = time.perf_counter() - t
+    if run.mismatches or run.counter_mismatches():
+        raise AssertionError(f"RTC and model disagree: {run.mismatches[:4]} "
+                             f"{run.counter_mismatches()}")
+    return {"rays": int(len(rays)), "packets": int(rays.n_packets), "cycles": run.cycles,
+            "trav_ops": run.counters["trav_ops"], "int_ops": run.counters["int_ops"],
+            "binary_built": run.build.built, "build_s": round(run.build.seconds, 1),
+            "wall_s": round(wall, 2), "sim_s": round(run.seconds, 2)}
+
+
+def rtl_box_cull(scene, cfg: Config, width: int, height: int, log) -> dict:
+    """The eye rays of a ``width x height`` frame on one RTC in Verilator (every ray and
+    counter checked against the model): with the box cull, without it, and with the packets
+    of empty tiles left out. The first run builds (or finds) the binary, the others reuse it."""
+    prep = prepare(scene, cfg)
+    rays = eye_rays(scene.camera, width, height, cfg)
+    out = {"culled": _rtc_run(prep.image, rays, cfg)}
+    print(f"RTC eye rays, box cull: {out['culled']}", file=log)
+    out["not_culled"] = _rtc_run(prep.image, rays, cfg, box_cull=False)
+    print(f"RTC eye rays, no box cull: {out['not_culled']}", file=log)
+    keep = live_packets(rays, setup(rays, prep.image.bounds, cfg.fmt))
+    live, _ = select_packets(rays, keep)
+    out["empty_tiles_skipped"] = _rtc_run(prep.image, live, cfg)
+    print(f"RTC eye rays, empty tiles skipped: {out['empty_tiles_skipped']}", file=log)
+    return out
+
+
+def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None) -> dict:
+    """The small chip (1 RTC of 2 threads, 1 KB caches) as configured and built for the scene
+    (``Config.for_scene``): FP units, flip-flop and memory bits from the netlist
+    (``tb.resources``), the Verilator build and a ``width x height`` frame (every ray checked
+    against the model)."""
+    from tb.chip import run_chip_frame
+    from tb.resources import chip_resources
+    log = sys.stderr if log is None else log
+    small = base.replace(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2,
+                         trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9, mem_latency=8)
+    prep = prepare(scene, small)
+    fit = small.for_scene(scene, prep.image, width, height)
+    out: dict = {"frame": [width, height]}
+    for name, cfg in (("as_configured", small), ("for_scene", fit)):
+        r = chip_resources(cfg)
+        row = {"config": {k: getattr(cfg, k) for k in ("kd_max_depth", "rgs_lights",
+                                                      "reflect_depth", "secondary_rays")},
+               "fp_units": r["totals"]["fp_units"], "fp_units_by_kind": r["fp_units"],
+               "flipflop_bits": r["totals"]["flipflop_bits"],
+               "memory_bits": r["totals"]["memory_bits"], "elaborate_s": r["seconds"]}
+        runs = []
+        for _ in range(2):              # the second run finds the binary built by the first
+            t = time.perf_counter()
+            run = run_chip_frame(cfg, prep.image, scene.camera, width, height, scene=scene,
+                                 progress=False, log=log)
+            wall = time.perf_counter() - t
+            if run.mismatches:
+                raise AssertionError(f"{name}: chip and model disagree: {run.mismatches[:4]}")
+            runs.append({"binary_built": run.build.built, "build_s": round(run.build.seconds, 1),
+                         "wall_s": round(wall, 2), "cycles": run.cycles,
+                         "sim_s": round(run.seconds, 3), "rays": run.rays})
+        row["verilator"] = runs
+        out[name] = row
+        print(f"elaboration {name}: {row}", file=log, flush=True)
+    # the builder splits down to kd_max_depth, so a shallower stack means a shallower tree:
+    # the stack's memory bits against the work of a frame (the golden model's eye rays)
+    trade = []
+    for depth in (12, 16, 20, fit.kd_max_depth):
+        cfg = fit.replace(kd_max_depth=depth)
+        with tempfile.TemporaryDirectory() as cache:
+            p = prepare(scene, cfg, cache_dir=cache)
+        res = render(scene, cfg.replace(reflect_depth=0, shadows=False), 64, 48, prepared=p)
+        r = chip_resources(cfg)
+        trade.append({"kd_max_depth": depth, "tree_depth": int(p.image.depth),
+                      "memory_bits": r["totals"]["memory_bits"],
+                      "flipflop_bits": r["totals"]["flipflop_bits"],
+                      **{k: int(res.counters[k]) for k in KEYS}})
+        print(f"stack depth {trade[-1]}", file=log, flush=True)
+    out["stack_depth_64x48_eye"] = trade
+    return out
+
+
+def second_run(scene_path: str, width: int, height: int, log=None) -> dict:
+    """``python -m model render`` twice with an empty cache directory (``SAARCOR_CACHE``):
+    the first run compiles the model's numba kernels and builds the kd-tree, the second finds
+    both cached."""
+    import os
+    import subprocess
+    log = sys.stderr if log is None else log
+    root = Path(__file__).resolve().parents[1]
+    runs = []
+    with tempfile.TemporaryDirectory() as cache, tempfile.TemporaryDirectory() as out:
+        env = {**os.environ, "SAARCOR_CACHE": cache}
+        env.pop("SAARCOR_NUMBA_CACHE_FIXED", None)
+        for _ in range(2):
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-m", "model", "render", str(scene_path), "--res",
+                            f"{width}x{height}", "--out", out, "--quiet"], env=env, cwd=root,
+                           check=True)
+            st = json.loads((Path(out) / "stats.json").read_text())
+            runs.append({"wall_s": round(time.perf_counter() - t, 1),
+                         "kdtree_from_cache": st["kdtree_from_cache"],
+                         "kdtree_build_s": st["build_seconds"],
+                         "render_s": st["render_seconds"]})
+            print(f"model render run {len(runs)}: {runs[-1]}", file=log, flush=True)
+    return {"resolution": [width, height], "first": runs[0], "second": runs[1]}
 
 
 def main(argv=None) -> int:
@@ -84,14 +202,24 @@ def main(argv=None) -> int:
     ap.add_argument("--scene", default="scenes/office.toml")
     ap.add_argument("--res", default="128x96", help="WxH (default 128x96)")
     ap.add_argument("--rtl", action="store_true",
-                    help="also measure shadow-ray cycles on the RTC in Verilator (32x24)")
+                    help="also measure on the RTC in Verilator: shadow-ray cycles (32x24) and "
+                         "eye rays with and without the box cull and empty tiles (64x48)")
+    ap.add_argument("--elab", action="store_true",
+                    help="also the small chip as configured against the chip built for the "
+                         "scene (Config.for_scene): resources, Verilator build and a 16x16 "
+                         "frame")
     ap.add_argument("--out", default="build/bench")
+    ap.add_argument("--second-run", action="store_true",
+                    help="also render the scene twice with an empty cache directory (numba "
+                         "kernels and kd-tree built, then reused)")
     args = ap.parse_args(argv)
     try:
         w, h = (int(x) for x in args.res.lower().split("x"))
     except ValueError:
         ap.error(f"--res {args.res!r}: expected WxH, e.g. 128x96")
-    res = measure(args.scene, w, h, Config(), rtl=args.rtl)
+    res = measure(args.scene, w, h, Config(), rtl=args.rtl, elab=args.elab)
+    if args.second_run:
+        res["second_run"] = second_run(args.scene, w, h)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     path = out / "skipping.json"

@@ -489,7 +489,8 @@ def self_intersection(mesh, cfg: Config, n: int = 4000, seed: int = 0, scale: fl
 FORMATS = ((8, 23), (8, 16), (8, 12))
 
 
-def bench(n_max: int, formats, meshes: dict, log=sys.stderr) -> dict:
+def bench(n_max: int, formats, meshes: dict, log=None) -> dict:
+    log = sys.stderr if log is None else log
     from model.fp import FPFormat
     out: dict = {"formats": [f"E{e}M{m}" for e, m in formats]}
     t0 = time.perf_counter()

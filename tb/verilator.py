@@ -39,10 +39,11 @@ from rtl.tools import ToolMissing, tool
 
 from . import compare
 from .frame import CONSTS, SEL_CONST, SEL_IMAGE, SEL_RAYS, counter_names, ray_chunks
-from .lfsr import lfsr_seeds, sixteenths
+from .lfsr import add_stall_args, lfsr_seeds, sixteenths
 from .rtc import RTCRun, finish
 
-__all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "read_output", "run_frame", "main"]
+__all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "write_blocks",
+           "read_samples", "read_output", "run_binary", "run_frame", "main"]
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_ROOT = ROOT / "build" / "verilator"
@@ -55,7 +56,7 @@ FLAGS = ["--cc", "--exe", "--build", "-j", "2", "-Wno-WIDTH", "-Wno-fatal",
          "-MAKEFLAGS", "CFG_CXXFLAGS_PCH_I=-include",
          "-MAKEFLAGS", "CFG_CXXFLAGS_STD=-std=gnu++17",
          "-MAKEFLAGS", "CFG_LDLIBS_THREADS=-pthread"]
-MIN_MEM_WORDS = 1 << 17           # office (124 k words) and Cornell share a binary
+MIN_MEM_WORDS = 1 << 19           # office (272 k words) and Cornell share a binary
 MIN_RAY_SLOTS = 1 << 16           # up to 256x256 rays (4 MB of ray memory)
 IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
 
@@ -73,11 +74,24 @@ def _pow2(n: int, least: int) -> int:
 def _sources() -> list[Path]:
     return (sorted((ROOT / "rtl").rglob("*.py")) +
             [ROOT / "model" / n for n in ("config.py", "fp.py", "cache.py")] +
-            [Path(__file__).with_name(n) for n in ("frame.py", "lfsr.py")] + [MAIN_CPP, MEM_V])
+            [Path(__file__).with_name(n) for n in ("frame.py", "lfsr.py", "chip_frame.py")] +
+            [MAIN_CPP, MEM_V])
+
+
+def _frame_top(top: str, cfg: Config, mem_words: int, ray_slots: int, mem_latency: int):
+    """The simulation top ``top`` ('rtc': :class:`tb.frame.RTCFrame`, one RTC on ideal
+    memories; 'chip': :class:`tb.chip_frame.ChipFrame`, the whole chip on the SDRAM model)."""
+    if top == "rtc":
+        from .frame import RTCFrame
+        return RTCFrame(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency)
+    if top == "chip":
+        from .chip_frame import ChipFrame
+        return ChipFrame(cfg, mem_words=mem_words)
+    raise ValueError(f"frame top {top!r}: 'rtc' or 'chip'")
 
 
 def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
-              trace: bool = False) -> str:
+              trace: bool = False, top: str = "rtc") -> str:
     """Hash of everything the binary depends on (configuration, sizes, flags, sources)."""
     import amaranth
     try:
@@ -86,7 +100,8 @@ def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
     except Exception:
         vl = "unknown"
     h = hashlib.sha256()
-    h.update(json.dumps({"cfg": cfg.to_dict(), "mem_words": mem_words, "ray_slots": ray_slots,
+    h.update(json.dumps({"top": top, "cfg": cfg.hardware_dict(), "mem_words": mem_words,
+                         "ray_slots": ray_slots,
                          "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
                          "amaranth": amaranth.__version__, "verilator": vl},
                         sort_keys=True).encode())
@@ -108,13 +123,15 @@ class FrameBuild:
 
 def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_RAY_SLOTS,
           mem_latency: int = 20, trace: bool | str = False, root: Path | str = BUILD_ROOT,
-          log=sys.stderr) -> FrameBuild:
-    """Export ``RTCFrame`` and compile it with Verilator, or reuse the cached binary.
+          log=None, top: str = "rtc") -> FrameBuild:
+    """Export ``RTCFrame`` (``top="chip"``: ``tb.chip_frame.ChipFrame``) and compile it with
+    Verilator, or reuse the cached binary.
 
-    ``mem_words`` / ``ray_slots`` are rounded up to powers of two (at least 2^17 words and
+    ``mem_words`` / ``ray_slots`` are rounded up to powers of two (at least 2^19 words and
     2^16 rays, so small scenes and frames up to 256x256 share one binary). Safe against
     concurrent builds (file lock).
     """
+    log = sys.stderr if log is None else log
     mem_words, ray_slots = _pow2(mem_words, MIN_MEM_WORDS), _pow2(ray_slots, MIN_RAY_SLOTS)
     if trace not in (False, "fst", "vcd"):
         raise ValueError(f"trace={trace!r}: False, 'fst' or 'vcd'")
@@ -122,7 +139,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         raise ConfigError(f"memory latency {mem_latency}: must be >= 2 cycles (IdealMemory)")
     exe = tool("verilator")
     key = build_key(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency,
-                    trace=trace)
+                    trace=trace, top=top)
     root = Path(root)
     d = root / key
     binary = d / "obj_dir" / "Vframe"
@@ -138,12 +155,12 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         t0 = time.perf_counter()
         from amaranth.back import verilog
 
-        from .frame import RTCFrame
-        print(f"tb.verilator: exporting RTCFrame ({cfg.threads} threads, {cfg.trav_subunits} "
-              f"sub-units, {cfg.tile_w}x{cfg.tile_h} packets, {mem_words} words, {ray_slots} "
-              f"ray slots) -> {d}", file=log, flush=True)
-        top = RTCFrame(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency)
-        (d / f"{TOP}.v").write_text(verilog.convert(top, name=TOP))
+        what = f"{cfg.rtcs} RTCs" if top == "chip" else f"{ray_slots} ray slots"
+        print(f"tb.verilator: exporting the {top} frame ({cfg.threads} threads, "
+              f"{cfg.trav_subunits} sub-units, {cfg.tile_w}x{cfg.tile_h} packets, {mem_words} "
+              f"words, {what}) -> {d}", file=log, flush=True)
+        design = _frame_top(top, cfg, mem_words, ray_slots, mem_latency)
+        (d / f"{TOP}.v").write_text(verilog.convert(design, name=TOP))
         shutil.copy(MAIN_CPP, d / MAIN_CPP.name)
         shutil.copy(MEM_V, d / MEM_V.name)
         t1 = time.perf_counter()
@@ -161,7 +178,8 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
             raise RuntimeError(f"Verilator build failed (exit {p.returncode}) in {d}; "
                                f"command: {' '.join(cmd)}\n{(p.stdout + p.stderr)[-4000:]}")
         secs = time.perf_counter() - t0
-        stamp.write_text(json.dumps({"export_s": round(t1 - t0, 1), "build_s": round(secs, 1),
+        stamp.write_text(json.dumps({"top": top, "export_s": round(t1 - t0, 1),
+                                     "build_s": round(secs, 1),
                                      "config": cfg.to_dict(), "mem_words": mem_words,
                                      "ray_slots": ray_slots, "mem_latency": mem_latency,
                                      "trace": trace}, indent=1))
@@ -169,15 +187,15 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         return FrameBuild(binary, d, True, secs, mem_words, ray_slots)
 
 
-def ray_words(image, rays, cfg: Config) -> np.ndarray:
+def ray_words(image, rays, cfg: Config, box_cull: bool = True) -> np.ndarray:
     """The ``RayIn`` bits of every lane (as ``RTCSelfTest`` makes them) as 64-bit chunks,
-    ``(rays, ray_chunks(cfg))`` uint64, low chunk first."""
+    ``(rays, ray_chunks(cfg))`` uint64, low chunk first (``box_cull``: ``model.raygen.setup``)."""
     from model.raygen import setup
     from rtl.rtc_streams import RayIn
 
     from .traversal import ray_payloads
     lay = RayIn(cfg)
-    rs = setup(rays, image.bounds, cfg.fmt)
+    rs = setup(rays, image.bounds, cfg.fmt, box_cull)
     chunks = ray_chunks(cfg)
     out = np.zeros((len(rays), chunks), np.uint64)
     r = 0
@@ -190,21 +208,28 @@ def ray_words(image, rays, cfg: Config) -> np.ndarray:
 
 
 def write_input(path: Path | str, image, rays, cfg: Config, *, idle: float = 0.0,
-                stall: float = 0.0, seed: int = 1) -> None:
+                stall: float = 0.0, seed: int = 1, mem_stall: float = 0.0,
+                box_cull: bool = True) -> None:
     """Write the load records for ``Vframe`` (format: ``tb/verilator_main.cpp``)."""
     idle_q, stall_q = sixteenths(idle, "idle"), sixteenths(stall, "stall")
     if len(rays) == 0:
         raise ValueError("no rays to trace")
-    s0, s1 = lfsr_seeds(seed)
+    s0, s1, s2, s3, s4 = lfsr_seeds(seed, 5)
     consts = {"node_base": image.node_base, "list_base": image.list_base,
               "tri_base": image.tri_base, "root": image.root, "rays": len(rays),
-              "idle_q": idle_q, "stall_q": stall_q, "seed0": s0, "seed1": s1}
-    rw = ray_words(image, rays, cfg)
+              "idle_q": idle_q, "stall_q": stall_q, "seed0": s0, "seed1": s1,
+              "mem_stall_q": sixteenths(mem_stall, "mem_stall"), "seed2": s2, "seed3": s3,
+              "seed4": s4}
+    rw = ray_words(image, rays, cfg, box_cull)
     slots = np.zeros((len(rays), 8), np.uint64)       # ray r, chunk c at load address 8r + c
     slots[:, :rw.shape[1]] = rw
-    blocks = [(SEL_IMAGE, 0, np.asarray(image.data, np.uint64)),
-              (SEL_RAYS, 0, slots.ravel()),
-              (SEL_CONST, 0, np.array([consts[n] for n in CONSTS], np.uint64))]
+    write_blocks(path, [(SEL_IMAGE, 0, np.asarray(image.data, np.uint64)),
+                        (SEL_RAYS, 0, slots.ravel()),
+                        (SEL_CONST, 0, np.array([consts[n] for n in CONSTS], np.uint64))])
+
+
+def write_blocks(path: Path | str, blocks) -> None:
+    """Write ``(sel, addr, uint64 words)`` load blocks as the binary's input file."""
     with open(path, "wb") as f:
         f.write(IN_MAGIC + struct.pack("<Q", len(blocks)))
         for sel, addr, words in blocks:
@@ -221,9 +246,27 @@ class FrameOutput:
     load_cycles: int
     seconds: float             # CPU seconds of the run loop (after the load)
     load_seconds: float
+    samples: np.ndarray | None = None   # (k, 2 + counters): cycle, results, counters
 
 
-def read_output(path: Path | str, cfg: Config) -> FrameOutput:
+def read_samples(path: Path | str, names: list[str]) -> np.ndarray:
+    """The binary's ``--samples`` file as a ``(k, 2 + len(names))`` int64 array: run cycle,
+    results so far, then the counters in ``names`` order."""
+    raw = Path(path).read_bytes()
+    if raw[:8] != b"RTCSMP1\0":
+        raise FrameError(f"{path}: not a samples file")
+    ctr_words = struct.unpack_from("<I", raw, 8)[0]
+    row = 16 + 4 * ctr_words
+    body = raw[16:]
+    k = len(body) // row
+    rows = np.frombuffer(body[:k * row], np.uint8).reshape(k, row)
+    head = rows[:, :16].copy().view("<u8").astype(np.int64)
+    ctr = rows[:, 16:].copy().view("<u4").astype(np.int64)[:, :len(names)]
+    return np.concatenate([head, ctr], axis=1)
+
+
+def read_output(path: Path | str, cfg: Config, names: list[str] | None = None) -> FrameOutput:
+    """Parse the binary's output file; ``names``: the counters (default the RTC frame's)."""
     raw = Path(path).read_bytes()
     if raw[:8] != OUT_MAGIC or len(raw) < 64:
         raise FrameError(f"{path}: not an RTCFrame output file")
@@ -235,7 +278,7 @@ def read_output(path: Path | str, cfg: Config) -> FrameOutput:
         raise FrameError(f"{path}: {body.size} words after the header, expected "
                          f"{n} x {res_words} + {ctr_words}")
     res = body[:n * res_words].reshape(n, res_words)
-    names = counter_names(cfg)
+    names = counter_names(cfg) if names is None else names
     if ctr_words * 32 < 32 * len(names):
         raise FrameError(f"{path}: {ctr_words} counter words, the configuration has "
                          f"{len(names)} counters (binary built for another configuration?)")
@@ -251,10 +294,66 @@ def _field(words: np.ndarray, offset: int, width: int) -> np.ndarray:
     return (v & np.uint64((1 << width) - 1)).astype(np.int64)
 
 
+def add_trace_args(ap) -> None:
+    """``--trace FILE`` and ``--trace-from CYCLE`` of a frame's command line."""
+    ap.add_argument("--trace", metavar="FILE",
+                    help="write a waveform of every signal: FST, or VCD if the name ends in "
+                         ".vcd (Verilator: a separate, slower tracing binary; for short runs or "
+                         "with --trace-from)")
+    ap.add_argument("--trace-from", type=int, default=0, metavar="CYCLE",
+                    help="Verilator: start the waveform at this run cycle (default 0: from "
+                         "the load on)")
+
+
 def _trace_kind(path) -> bool | str:
     if path is None:
         return False
     return "vcd" if str(path).endswith(".vcd") else "fst"
+
+
+def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
+               trace_file=None, trace_from: int = 0, progress: bool = True, log=None,
+               desc: str = "frame", names: list[str] | None = None,
+               allow_limit: bool = False, sample_every: int = 0) -> FrameOutput:
+    """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
+    ``n`` results; return its parsed output (``names``: its counters). ``trace_file`` gets
+    the waveform from run cycle ``trace_from`` on (0: the load as well). ``sample_every``:
+    the counters every that many cycles (``FrameOutput.samples``). A run that hits
+    ``max_cycles`` raises :class:`FrameError` (``allow_limit``: returns it, status 2, for the
+    caller to say what is stuck)."""
+    log = sys.stderr if log is None else log
+    from tqdm import tqdm
+    with tempfile.TemporaryDirectory(prefix="frame") as tmp:
+        fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
+        fsmp = Path(tmp) / "samples.bin"
+        write(fin)
+        cmd = [str(b.binary), str(fin), str(fout), "--max-cycles", str(max_cycles),
+               "--progress", "20000"]
+        if trace_file is not None:
+            cmd += ["--trace", str(Path(trace_file).resolve()), "--trace-from", str(trace_from)]
+        if sample_every:
+            cmd += ["--samples", str(fsmp), "--sample-every", str(sample_every)]
+        other = []
+        with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
+                tqdm(total=n, unit="ray", desc=desc, disable=not progress, file=log) as bar:
+            for line in p.stderr:
+                parts = line.split()
+                if len(parts) == 3 and parts[0] == "progress":
+                    bar.update(int(parts[2]) - bar.n)
+                    bar.set_postfix(cycles=int(parts[1]), refresh=False)
+                else:
+                    other.append(line.rstrip())
+            rc = p.wait()
+        if rc == 1 or not fout.exists():
+            raise FrameError(f"{b.binary} failed (exit {rc}): " + " / ".join(other[-5:]))
+        out = read_output(fout, cfg, names)
+        if sample_every:
+            out.samples = read_samples(fsmp, names if names is not None else counter_names(cfg))
+    if out.status == 2 and not allow_limit:
+        raise FrameError(f"{desc}: {len(out.results)} of {n} results after the cycle limit "
+                         f"max_cycles={max_cycles} (deadlock? else raise max_cycles / "
+                         "--max-cycles)")
+    return out
 
 
 @dataclass
@@ -265,14 +364,19 @@ class VerilatorRun(RTCRun):
 
 
 def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 0.0,
-              stall: float = 0.0, seed: int = 1, max_cycles: int = 100_000_000,
-              trace_file: str | Path | None = None, progress: bool = True,
-              mem_words: int | None = None, ray_slots: int | None = None,
-              build_root: Path | str = BUILD_ROOT, log=sys.stderr) -> VerilatorRun:
+              stall: float = 0.0, seed: int = 1, mem_stall: float = 0.0,
+              max_cycles: int = 100_000_000,
+              trace_file: str | Path | None = None, trace_from: int = 0,
+              progress: bool = True, mem_words: int | None = None, ray_slots: int | None = None,
+              build_root: Path | str = BUILD_ROOT, log=None,
+              box_cull: bool = True) -> VerilatorRun:
     """Trace ``rays`` through ``image`` on one RTC in Verilator and compare every ray with the
     golden model (``model.rtc.trace``), as :func:`tb.rtc.run_rtc_free` does in pysim (same
-    bubbles and back-pressure for the same ``seed``, so the same cycle count)."""
-    from tqdm import tqdm
+    bubbles and back-pressure for the same ``seed``, so the same cycle count). ``mem_stall``:
+    the fraction of cycles each memory holds its responses (random, in-order latency).
+    ``box_cull=False``: rays that miss the scene box enter traversal too (``model.raygen.setup``;
+    the host makes the rays' setup, so the RTC runs unchanged)."""
+    log = sys.stderr if log is None else log
 
     from rtl.rtc_streams import RayResult
     n = len(rays)
@@ -288,32 +392,11 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
                          f"ray slots (ray_slots={rsl}): pass ray_slots >= {n} (or leave it out)")
     b = build(cfg, mem_words=mw, ray_slots=rsl, mem_latency=mem_latency,
               trace=_trace_kind(trace_file), root=build_root, log=log)
-    with tempfile.TemporaryDirectory(prefix="rtcframe") as tmp:
-        fin, fout = Path(tmp) / "in.bin", Path(tmp) / "out.bin"
-        write_input(fin, image, rays, cfg, idle=idle, stall=stall, seed=seed)
-        cmd = [str(b.binary), str(fin), str(fout), "--max-cycles", str(max_cycles),
-               "--progress", "20000"]
-        if trace_file is not None:
-            cmd += ["--trace", str(Path(trace_file).resolve())]
-        other = []
-        with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
-                tqdm(total=n, unit="ray", desc="RTC (Verilator)", disable=not progress,
-                     file=log) as bar:
-            for line in p.stderr:
-                parts = line.split()
-                if len(parts) == 3 and parts[0] == "progress":
-                    bar.update(int(parts[2]) - bar.n)
-                    bar.set_postfix(cycles=int(parts[1]), refresh=False)
-                else:
-                    other.append(line.rstrip())
-            rc = p.wait()
-        if rc == 1 or not fout.exists():
-            raise FrameError(f"{b.binary} failed (exit {rc}): " + " / ".join(other[-5:]))
-        out = read_output(fout, cfg)
-    if out.status == 2:
-        raise FrameError(f"RTC frame: {len(out.results)} of {n} results after the cycle limit "
-                         f"max_cycles={max_cycles} (deadlock? else raise max_cycles / "
-                         "--max-cycles)")
+    out = run_binary(b, lambda f: write_input(f, image, rays, cfg, idle=idle, stall=stall,
+                                              seed=seed, mem_stall=mem_stall,
+                                              box_cull=box_cull),
+                     cfg, n, max_cycles=max_cycles, trace_file=trace_file,
+                     trace_from=trace_from, progress=progress, log=log, desc="RTC (Verilator)")
 
     lay = RayResult(cfg)
     records = {name: _field(out.results, fld.offset, fld.width) for name, fld in lay}
@@ -322,7 +405,7 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
     try:
         return finish(VerilatorRun, image, rays, cfg, records, cycles=out.cycles,
                       seconds=out.seconds, counters=c, build=b, load_cycles=out.load_cycles,
-                      load_seconds=out.load_seconds)
+                      load_seconds=out.load_seconds, box_cull=box_cull)
     except compare.ResultError as e:
         raise FrameError(str(e)) from None
 
@@ -330,7 +413,7 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
 # --- CLI ------------------------------------------------------------------------------------
 
 def main(argv=None) -> int:
-    from rtl.export import add_config_args, config_from_args
+    from rtl.export import add_config_args, config_and_res
     ap = argparse.ArgumentParser(
         prog="python -m tb.verilator",
         description="Trace a frame of eye rays through one RTC (rtl/rtc.py) in Verilator and "
@@ -347,15 +430,10 @@ def main(argv=None) -> int:
     ap.add_argument("--idle", type=float, default=0.0,
                     help="fraction of cycles without a ray offered (0 .. 15/16, in steps of "
                          "1/16; default 0)")
-    ap.add_argument("--stall", type=float, default=0.0,
-                    help="fraction of cycles the results are back-pressured (0 .. 15/16; "
-                         "default 0)")
-    ap.add_argument("--seed", type=int, default=1, help="LFSR seed for --idle/--stall")
+    add_stall_args(ap, "each memory (in order, as behind a cache)")
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles (default 100000000)")
-    ap.add_argument("--trace", metavar="OUT.fst",
-                    help="write a waveform of every signal: FST, or VCD if the name ends in "
-                         ".vcd (builds a separate, slower tracing binary; for short runs)")
+    add_trace_args(ap)
     ap.add_argument("--json", metavar="OUT.json", help="write the figures as JSON")
     ap.add_argument("--build-dir", default=str(BUILD_ROOT),
                     help="where binaries are cached (default build/verilator)")
@@ -364,13 +442,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     add_config_args(ap)
     args = ap.parse_args(argv)
-    try:
-        cfg = config_from_args(args)
-        w, h = (int(x) for x in args.res.lower().split("x"))
-    except ConfigError as e:
-        raise SystemExit(f"tb.verilator: {e}")
-    except ValueError:
-        raise SystemExit(f"tb.verilator: --res {args.res!r}: write WxH, e.g. 64x48")
+    cfg, w, h = config_and_res(args, "tb.verilator")
     latency = args.latency if args.latency is not None else cfg.mem_latency
     if not Path(args.scene).exists():
         raise SystemExit(f"tb.verilator: scene {args.scene!r} not found (try scenes/*.toml)")
@@ -378,13 +450,13 @@ def main(argv=None) -> int:
     image, rays = small_case(args.scene, w, h, cfg, args.kd_cache)
     try:
         r = run_frame(image, rays, cfg, mem_latency=latency, idle=args.idle, stall=args.stall,
-                      seed=args.seed, max_cycles=args.max_cycles, trace_file=args.trace,
-                      progress=not args.quiet, build_root=args.build_dir)
+                      seed=args.seed, mem_stall=args.mem_stall, max_cycles=args.max_cycles, trace_file=args.trace,
+                      trace_from=args.trace_from, progress=not args.quiet, build_root=args.build_dir)
     except (ToolMissing, FrameError, ValueError, ConfigError) as e:
         raise SystemExit(f"tb.verilator: {e}")
     cm = r.counter_mismatches()
     res = {"scene": args.scene, "res": [w, h], "mem_latency": latency, "idle": args.idle,
-           "stall": args.stall, "seed": args.seed, "config": cfg.to_dict(), "rays": r.rays,
+           "stall": args.stall, "mem_stall": args.mem_stall, "seed": args.seed, "config": cfg.to_dict(), "rays": r.rays,
            "packets": rays.n_packets, "cycles": r.cycles, "sim_cpu_s": round(r.seconds, 3),
            "cycles_per_s": round(r.cycles_per_s), "load_cycles": r.load_cycles,
            "load_cpu_s": round(r.load_seconds, 3), "built": r.build.built,

@@ -1,6 +1,10 @@
 // C++ main for the Verilator build of tb/frame.py's RTCFrame (driven by tb/verilator.py).
 //
-//   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE]   (FILE: FST or VCD, as built)
+//   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE] [--trace-from C]
+//   [--samples FILE --sample-every N]
+//   (FILE: FST or VCD, as built; C: first run cycle written to it, default 0 = load included)
+// SAMPLES (little-endian): "RTCSMP1\0", u32 ctr_words, u32 0, then every N run cycles (and
+//   once at the end) a row: u64 cycle, u64 results so far, ctr_words x u32 counters.
 //
 // IN (little-endian): "RTCIN01\0", u64 blocks, then per block: u32 sel, u32 addr, u64 count,
 //   count x u64 words (written through the load port at ld_addr = addr, addr + 1, ...).
@@ -43,10 +47,11 @@ struct Sim {
     Trace* tfp = nullptr;
 #endif
     uint64_t time = 0;
+    bool tracing = true;       // false until --trace-from's cycle
 
     void dump() {
 #if VM_TRACE
-        if (tfp) tfp->dump(time);
+        if (tfp && tracing) tfp->dump(time);
 #endif
         time++;
     }
@@ -68,18 +73,22 @@ static void put_wide(std::vector<uint32_t>& out, const W& w, size_t words) {
 
 int main(int argc, char** argv) {
     if (argc < 3) {
-        std::fprintf(stderr, "usage: %s IN OUT [--max-cycles N] [--progress N] [--trace F.fst]\n",
-                     argv[0]);
+        std::fprintf(stderr, "usage: %s IN OUT [--max-cycles N] [--progress N] [--trace F.fst] "
+                     "[--trace-from CYCLE]\n", argv[0]);
         return 1;
     }
     std::string in_path = argv[1], out_path = argv[2], trace_path;
-    uint64_t max_cycles = 100000000ull, progress = 65536;
+    uint64_t max_cycles = 100000000ull, progress = 65536, trace_from = 0, sample_every = 0;
+    std::string samples_path;
     for (int i = 3; i < argc; i++) {
         std::string a = argv[i];
         if (i + 1 >= argc) die("arguments", a + " needs a value");
         if (a == "--max-cycles") max_cycles = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--progress") progress = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--trace") trace_path = argv[++i];
+        else if (a == "--trace-from") trace_from = std::strtoull(argv[++i], nullptr, 10);
+        else if (a == "--samples") samples_path = argv[++i];
+        else if (a == "--sample-every") sample_every = std::strtoull(argv[++i], nullptr, 10);
         else die("arguments", "unknown option " + a);
     }
     if (progress == 0) progress = ~0ull;
@@ -127,6 +136,7 @@ int main(int argc, char** argv) {
                        "(python -m tb.verilator --trace FILE)");
 #endif
     Vframe* top = s.top;
+    s.tracing = trace_from == 0;
     top->ld_valid = 0;
     top->start = 0;
     top->rst = 1;
@@ -141,7 +151,7 @@ int main(int argc, char** argv) {
         uint32_t sel = u32(), addr = u32();
         uint64_t count = u64();
         if (count > (buf.size() - pos) / 8) need(count * 8, "block data");
-        uint64_t cap = sel == 0 ? cap_mem : sel == 1 ? cap_rays * 8 : sel == 2 ? 16 : 0;
+        uint64_t cap = sel == 0 ? cap_mem : sel == 1 ? cap_rays * 8 : sel == 2 ? 64 : 0;
         if (cap == 0) die(in_path.c_str(), "block with unknown target " + std::to_string(sel));
         if ((uint64_t)addr + count > cap)
             die(in_path.c_str(),
@@ -168,6 +178,24 @@ int main(int argc, char** argv) {
 
     const size_t res_words = sizeof(top->res_data) / sizeof(top->res_data[0]);
     const size_t ctr_words = sizeof(top->counters) / sizeof(top->counters[0]);
+    FILE* smp = nullptr;
+    std::vector<uint32_t> row;
+    auto sample = [&](uint64_t cyc, uint64_t res) {
+        if (!smp) return;
+        uint64_t head[2] = {cyc, res};
+        row.clear();
+        put_wide(row, top->counters, ctr_words);
+        std::fwrite(head, 8, 2, smp);
+        std::fwrite(row.data(), 4, row.size(), smp);
+    };
+    if (!samples_path.empty()) {
+        if (sample_every == 0) die("--samples", "needs --sample-every N (N >= 1)");
+        smp = std::fopen(samples_path.c_str(), "wb");
+        if (!smp) die(samples_path.c_str(), "cannot create the samples file");
+        uint32_t h[2] = {(uint32_t)ctr_words, 0};
+        std::fwrite("RTCSMP1\0", 1, 8, smp);
+        std::fwrite(h, 4, 2, smp);
+    }
     std::vector<uint32_t> results;
     uint64_t n_results = 0, cycles = 0, next_progress = progress;
     uint32_t status = 0;
@@ -175,6 +203,7 @@ int main(int argc, char** argv) {
     while (true) {
         top->clk = 0;
         top->eval();
+        if (cycles == trace_from) s.tracing = true;
         if (top->finished) break;
         if (cycles >= max_cycles) {
             status = 2;
@@ -189,6 +218,7 @@ int main(int argc, char** argv) {
         top->eval();
         s.dump();
         cycles++;
+        if (smp && cycles % sample_every == 0) sample(cycles, n_results);
         if (cycles >= next_progress) {
             std::fprintf(stderr, "progress %llu %llu\n", (unsigned long long)cycles,
                          (unsigned long long)n_results);
@@ -197,6 +227,10 @@ int main(int argc, char** argv) {
         }
     }
     double run_s = double(std::clock() - c0) / CLOCKS_PER_SEC;
+    if (smp) {
+        sample(cycles, n_results);
+        std::fclose(smp);
+    }
     std::fprintf(stderr, "progress %llu %llu\n", (unsigned long long)cycles,
                  (unsigned long long)n_results);
     if (status == 2)

@@ -28,6 +28,16 @@ ROOT = Path(__file__).resolve().parents[1]
 SHARED_MESHES = Path(os.environ.get("SAARCOR_MESHES") or
                      ROOT.parent / "shared" / "meshes").resolve()
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))
+# shipped scenes of the paper's sizes (0.28 to 3.6 M triangles): loading one and building its
+# kd-tree takes from seconds to a minute or two, so the tests that take every scene run these
+# only with the slow tests
+LARGE_SCENES = {"building", "conference_large", "outdoor", "outdoor_above", "ship", "ship_lit"}
+
+
+def scene_params(paths=SCENES):
+    """``paths`` as pytest parameters, the large scenes marked slow."""
+    return [pytest.param(p, id=p.stem, marks=[pytest.mark.slow] if p.stem in LARGE_SCENES else [])
+            for p in paths]
 
 needs_shared_meshes = pytest.mark.skipif(
     not SHARED_MESHES.is_dir(),

@@ -51,8 +51,12 @@ class ExactFormat:
         num = n << max(0, M - e)
         den = d << max(0, e - M)
         k, r = divmod(num, den)                       # k in [2**M, 2**(M+1))
-        if 2 * r > den or (2 * r == den and k & 1):
-            k += 1
+        return self.encode(s, e, k + (2 * r > den or (2 * r == den and k & 1)))
+
+    def encode(self, s: int, e: int, k: int) -> int:
+        """Sign ``s`` and the rounded value ``k * 2**(e - M)`` (``k`` in [2**M, 2**(M+1)], the
+        top end from a rounding carry): renormalise, then flush to zero or overflow to inf."""
+        M = self.M
         if k == 1 << (M + 1):
             k >>= 1
             e += 1
@@ -110,6 +114,27 @@ class ExactFormat:
         if vb == 0:
             return self.nan_bits if va == 0 else self.inf(s)
         return self.round(s, va / vb)
+
+    def sqrt(self, a: int) -> int:
+        """Square root, correctly rounded: the integer square root gives the truncated
+        significand, and comparing 4*X with (2k+1)**2 (exact integers) decides the rounding."""
+        from math import isqrt
+        ka, sa, va = self.decode(a)
+        if ka == NAN or (sa and not (ka == FIN and va == 0)):
+            return self.nan_bits                      # NaN, or below zero (-inf included)
+        if ka == INF:
+            return self.inf(0)
+        if va == 0:
+            return self.zero(sa)
+        M = self.M
+        ev = va.numerator.bit_length() - va.denominator.bit_length()
+        if va < Fraction(2) ** ev:
+            ev -= 1                                   # 2**ev <= va < 2**(ev+1)
+        e = ev // 2                                   # 2**e <= sqrt(va) < 2**(e+1)
+        x = va * Fraction(4) ** (M - e)               # sqrt(x) in [2**M, 2**(M+1))
+        k = isqrt(x.numerator // x.denominator)
+        four_x, mid = 4 * x, (2 * k + 1) ** 2
+        return self.encode(0, e, k + (four_x > mid or (four_x == mid and k & 1)))
 
     # -- compare, min, max (documented rules of model/fp.py) -----------------------------------
     def value(self, bits: int) -> float:

@@ -13,7 +13,8 @@ SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
 @pytest.mark.parametrize("field,value", [
     ("fp_add_latency", -1), ("fp_mul_latency", 65), ("fp_div_latency", -3),
     ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
-    ("list_outstanding", 1)])
+    ("list_outstanding", 1), ("fp_sqrt_latency", 65), ("rgs_lights", 15), ("reflect_depth", 16),
+    ("shade_cache_kb", 0)])
 def test_bad_rtl_parameters_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         Config(**{field: value})
@@ -23,7 +24,9 @@ def test_units_take_latencies_and_sizes_from_config():
     base = Config(**SMALL)
     slow = base.replace(fp_add_latency=5, fp_mul_latency=4, int_tri_slots=16,
                         list_outstanding=4)
-    assert base.fp_latencies() == {"add": None, "mul": None, "div": None, "cmp": None}
+    assert base.fp_latencies() == {"add": None, "mul": None, "div": None, "sqrt": None,
+                                   "cmp": None}
+    assert slow.replace(fp_sqrt_latency=11).fp_latencies()["sqrt"] == 11
     sub0, sub1 = TravSubunit(base), TravSubunit(slow)
     assert (sub0.add.latency, sub0.mul.latency) == (3, 3)
     assert (sub1.add.latency, sub1.mul.latency) == (5, 4)
@@ -35,3 +38,27 @@ def test_units_take_latencies_and_sizes_from_config():
     assert ListUnit(slow).outstanding == 4 and ListUnit(base).outstanding == 8
     for u in (sub0, sub1, i0, i1):
         u._MustUse__silence = True
+
+
+def test_host_fields_are_not_read_by_the_hardware():
+    """A Verilator binary is shared across values of ``HOST_FIELDS`` (its key leaves them out),
+    so no RTL source, simulation top or Config property the RTL reads may use them."""
+    import ast
+    import inspect
+    import re
+    from pathlib import Path
+    from model.config import HOST_FIELDS
+    root = Path(__file__).resolve().parent.parent
+    files = sorted((root / "rtl").rglob("*.py")) + [root / "tb" / n for n in (
+        "frame.py", "chip_frame.py", "lfsr.py")]
+    read = set()
+    for p in files:
+        read |= set(re.findall(r"cfg\.(\w+)", p.read_text()))
+    assert {"threads", "stack_depth", "fp_latencies"} <= read
+    assert not read & set(HOST_FIELDS), read & set(HOST_FIELDS)
+    for node in ast.walk(ast.parse(inspect.getsource(Config))):     # properties the RTL reads
+        if isinstance(node, ast.FunctionDef) and node.name in read:
+            used = {a.attr for a in ast.walk(node) if isinstance(a, ast.Attribute)}
+            assert not used & set(HOST_FIELDS), (node.name, used & set(HOST_FIELDS))
+    d = Config().hardware_dict()
+    assert not set(HOST_FIELDS) & set(d) and {"rtcs", "fmt", "kd_max_depth"} <= set(d)

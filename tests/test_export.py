@@ -29,8 +29,8 @@ VLT = ROOT / "rtl" / "saarcor.vlt"
 # small but complete: every unit, caches in a few KB, a 4-level stack
 SMALL = Config(threads=2, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9,
                kd_max_depth=4, fmt=FPFormat(8, 10))
-UNITS = ["fp_add", "fp_mul", "fp_div", "fp_cmp", "fp_minmax", "fp_conv", "cache_trav",
-         "cache_list", "cache_int", "bus", "memif", "list", "traversal"]
+UNITS = ["fp_add", "fp_mul", "fp_div", "fp_sqrt", "fp_cmp", "fp_minmax", "fp_conv", "cache_trav",
+         "cache_list", "cache_int", "bus", "memif", "list", "traversal", "ray_setup", "rgs_eye"]
 # the intersection unit, its datapath and the bare RTC are inside "rtc"; exported alone in
 # test_big_units_export (slow: ~20 s each)
 
@@ -56,7 +56,7 @@ def exported(tmp_path_factory):
 
 def test_every_top_is_listed_and_builds():
     assert set(UNITS) | {"rtc", "rtc_core", "rtc_nocache", "intersection",
-                         "intersect_pipe"} == set(ex.TOPS)
+                         "intersect_pipe", "chip"} == set(ex.TOPS)
 
 
 @pytest.mark.parametrize("top", UNITS + ["rtc"])
@@ -261,3 +261,19 @@ def test_rtc_top_matches_model(caches, fast, kd_cache, monkeypatch):
     assert r.mismatches == []
     assert r.counter_mismatches() == {}
     assert r.counters["int_ops"] > 0
+
+
+@pytest.mark.filterwarnings("ignore:.*created but never used")
+def test_chip_top_lint_clean(tmp_path):
+    """``make verilog TOP=chip``: the whole chip (2 RTCs, their RTC-MIs, the RGS, the bus)
+    exports with one memory port and lints clean; Yosys reads it."""
+    cfg = SMALL.replace(rtcs=2)
+    path = ex.export("chip", cfg, tmp_path)
+    p = lint(path, "chip")
+    out = p.stdout + p.stderr
+    assert p.returncode == 0 and "%Warning" not in out and "%Error" not in out, out[-3000:]
+    text = path.read_text()
+    assert "mem__req__valid" in text and "results__valid" in text
+    assert "rtc0" in text and "rtc1" in text and "slave1" in text
+    p = yosys_read([path])
+    assert p.returncode == 0, (p.stdout + p.stderr)[-3000:]

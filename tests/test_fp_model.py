@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from model.fp import (FPFormat, BINARY32, fadd, fsub, fmul, fdiv, flt, fle, feq, fmin, fmax)
+from model.fp import (FPFormat, BINARY32, fadd, fsub, fmul, fdiv, fsqrt, flt, fle, feq, fmin,
+                      fmax)
 from tb.fp_vectors import corner_pairs, special_values
 from tests.fp_exact import ExactFormat
 
@@ -55,6 +56,42 @@ def test_e4m3_exhaustive_arith(op):
 def test_small_formats_exhaustive_arith(em, op):
     fmt = FPFormat(*em)
     check_against_exact(fmt, [op], *all_pairs(fmt))
+
+
+@pytest.mark.parametrize("em", [(4, 3), (2, 1), (5, 4), (6, 5), (5, 10)])
+def test_sqrt_exhaustive(em):
+    """Every encoding of small formats (NaN payloads, denormals, -0, negatives, inf) against
+    the exact reference."""
+    fmt = FPFormat(*em)
+    ex = ExactFormat(*em)
+    bits = np.arange(1 << fmt.width, dtype=np.uint32)
+    got = fmt.to_bits(fmt.sqrt(fmt.from_bits(bits)))
+    want = np.array([ex.sqrt(int(b)) for b in bits], dtype=np.uint32)
+    idx = np.flatnonzero(got != want)
+    assert idx.size == 0, f"{fmt} sqrt: {idx.size} mismatches, first (a, model, exact): " \
+        f"{[(hex(bits[i]), hex(got[i]), hex(want[i])) for i in idx[:5]]}"
+
+
+@pytest.mark.parametrize("fmt", [BINARY32, FPFormat(8, 16), FPFormat(8, 10)], ids=str)
+def test_sqrt_exact_wide(fmt):
+    """Wide formats: every significand pattern near a rounding tie and random values of every
+    binade, against the exact reference (and numpy's float32 sqrt for binary32)."""
+    rng = np.random.default_rng(5)
+    ex = ExactFormat(*fmt.em)
+    a, _ = corner_pairs(fmt, 3000, rng)
+    M = fmt.frac_bits
+    k = rng.integers(1 << M, 1 << (M + 1), 2000).astype(np.float64)
+    e = rng.integers(-20, 20, k.size)
+    near_tie = fmt.quantize((k + 0.5) ** 2 * np.exp2(2.0 * (e - M)) * rng.choice([1, 2], k.size))
+    bits = fmt.to_bits(np.concatenate([a, special_values(fmt), near_tie,
+                                       np.nextafter(near_tie, np.float32(0))]))
+    got = fmt.to_bits(fmt.sqrt(fmt.from_bits(bits)))
+    want = np.array([ex.sqrt(int(b)) for b in bits], dtype=np.uint32)
+    assert np.array_equal(got, want), np.flatnonzero(got != want)[:5]
+    if fmt == BINARY32:
+        x = fmt.from_bits(bits)
+        with np.errstate(invalid="ignore"):
+            assert np.array_equal(fmt.to_bits(np.sqrt(x)), got)
 
 
 @pytest.mark.parametrize("em", [(4, 3), (2, 1)])
@@ -292,7 +329,7 @@ def test_quantize_exact(fmt):
 @numba.njit
 def _scalar_loop(a, b, E, M):
     n = a.size
-    out = np.empty((5, n), np.float32)
+    out = np.empty((6, n), np.float32)
     cmp = np.empty((3, n), np.bool_)
     for i in range(n):
         out[0, i] = fadd(a[i], b[i], E, M)
@@ -300,6 +337,7 @@ def _scalar_loop(a, b, E, M):
         out[2, i] = fmul(a[i], b[i], E, M)
         out[3, i] = fdiv(a[i], b[i], E, M)
         out[4, i] = fmin(a[i], b[i]) if i % 2 else fmax(a[i], b[i])
+        out[5, i] = fsqrt(a[i], E, M)
         cmp[0, i] = flt(a[i], b[i])
         cmp[1, i] = fle(a[i], b[i])
         cmp[2, i] = feq(a[i], b[i])
@@ -314,6 +352,7 @@ def test_scalar_kernels_equal_vectorized(fmt):
     for row, op in zip(out[:4], OPS):
         assert np.array_equal(fmt.to_bits(row), fmt.to_bits(getattr(fmt, op)(a, b))), op
     assert np.array_equal(fmt.to_bits(out[4]), mm)
+    assert np.array_equal(fmt.to_bits(out[5]), fmt.to_bits(fmt.sqrt(a)))
     for row, op in zip(cmp, ("lt", "le", "eq")):
         assert np.array_equal(row, getattr(fmt, op)(a, b)), op
 

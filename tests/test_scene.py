@@ -22,7 +22,19 @@ SHIPPED = [
     ("conference.toml", 20_000, 300_000, 2, {"point"}),
     ("terrain.toml", 50_000, 200_000, 1, {"parallel"}),
     ("office.toml", 2_000, 60_000, 3, {"point"}),
+    # the paper's classes at its sizes (Table 1: 34 772, 33 952, ... triangles), within 10 %
+    ("game.toml", 31_300, 38_250, 0, set()),
+    ("office_large.toml", 30_550, 37_350, 3, {"point"}),
+    ("conference_large.toml", 253_800, 310_200, 2, {"point"}),
+    ("building.toml", 1_359_000, 1_661_000, 0, set()),
+    ("outdoor.toml", 1_920_000, 2_347_000, 1, {"parallel"}),
+    ("outdoor_above.toml", 1_920_000, 2_347_000, 1, {"parallel"}),
+    ("ship.toml", 3_273_000, 4_001_000, 0, set()),
+    ("ship_lit.toml", 3_273_000, 4_001_000, 2, {"parallel", "point"}),
 ]
+# loading one of these takes 10-20 s: with the slow tests
+LARGE = {"conference_large.toml", "building.toml", "outdoor.toml", "outdoor_above.toml",
+         "ship.toml", "ship_lit.toml"}
 
 
 def write(tmp_path: Path, name: str, text: str) -> Path:
@@ -65,7 +77,8 @@ def check_invariants(s: Scene) -> None:
 # shipped scenes
 # ------------------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("fname,lo,hi,nlights,kinds", SHIPPED)
+@pytest.mark.parametrize("fname,lo,hi,nlights,kinds", [
+    pytest.param(*x, marks=[pytest.mark.slow] if x[0] in LARGE else [], id=x[0]) for x in SHIPPED])
 def test_shipped_scene_loads(fname, lo, hi, nlights, kinds):
     s = load_scene(SCENES / fname)
     check_invariants(s)
@@ -439,3 +452,49 @@ def test_scene_error_is_value_error():
     assert {"kind", "position", "direction", "color"} <= set(Light.__dataclass_fields__)
     assert {"diffuse", "specular", "shininess", "reflect", "texture"} <= set(
         Material.__dataclass_fields__)
+
+
+# ------------------------------------------------------------------------------------------
+# a view of another scene (base = "other.toml")
+# ------------------------------------------------------------------------------------------
+
+BASE = ('name = "b"\n[camera]\nposition = [0.0, 0.0, 5.0]\nlook_at = [0.0, 0.0, 0.0]\n'
+        '[[light]]\nkind = "point"\nposition = [0.0, 3.0, 0.0]\n'
+        '[[material]]\nname = "m"\ndiffuse = [0.2, 0.4, 0.6]\n'
+        '[[object]]\nmesh = "meshes/two.obj"\nmaterial = "m"\n'
+        '[[object]]\nsphere = { subdivisions = 1 }\n')
+
+
+def test_view_of_a_base_scene(tmp_path):
+    """The view has the base's triangles and materials (its paths relative to the base) and
+    its own name, camera and lights; what it does not set comes from the base."""
+    (tmp_path / "meshes").mkdir()
+    write(tmp_path / "meshes", "two.obj", TWO_TRIS)
+    base = load_scene(write(tmp_path, "base.toml", BASE))
+    (tmp_path / "views").mkdir()
+    v = load_scene(write(tmp_path / "views", "above.toml",
+                         'base = "../base.toml"\n[camera]\nposition = [0.0, 9.0, 1.0]\n'
+                         'look_at = [0.0, 0.0, 0.0]\n[[light]]\nkind = "parallel"\n'
+                         'direction = [0.0, -1.0, 0.0]\n'))
+    check_invariants(v)
+    assert np.array_equal(v.tris, base.tris) and np.array_equal(v.material, base.material)
+    assert [m.name for m in v.materials] == [m.name for m in base.materials]
+    assert v.name == "above" and np.allclose(v.camera.position, [0, 9, 1])
+    assert [l.kind for l in v.lights] == ["parallel"]
+    same = load_scene(write(tmp_path / "views", "same.toml", 'base = "../base.toml"\n'))
+    assert np.allclose(same.camera.position, base.camera.position)
+    assert [l.kind for l in same.lights] == ["point"]
+
+
+@pytest.mark.parametrize("view,pattern", [
+    ('base = "base.toml"\n[[object]]\nbox = { size = 1.0 }\n',
+     r"unknown key 'object'; allowed keys: name, background, camera, light, base"),
+    ('base = "nothere.toml"\n', r"'base'.* does not exist"),
+    ('base = "m.obj"\n', r"'base' must name a TOML scene"),
+    ('base = "chain.toml"\n', r"a base scene may not have a base itself"),
+])
+def test_bad_view(tmp_path, view, pattern):
+    write(tmp_path, "base.toml", BOX)
+    write(tmp_path, "chain.toml", 'base = "base.toml"\n')
+    with pytest.raises(SceneError, match=pattern):
+        load_scene(write(tmp_path, "v.toml", view))

@@ -5,6 +5,7 @@ from .conv import FPFromInt
 from .div import FPDiv
 from .mul import FPMul
 from .pipe import Stager, placement
+from .sqrt import FPSqrt
 
-__all__ = ["FPAdd", "FPMul", "FPDiv", "FPCompare", "FPMinMax", "FPFromInt", "CompareLayout",
+__all__ = ["FPAdd", "FPMul", "FPDiv", "FPCompare", "FPMinMax", "FPFromInt", "FPSqrt", "CompareLayout",
            "Stager", "placement"]

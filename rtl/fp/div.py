@@ -9,7 +9,7 @@ from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
 from .common import canonical_nan, pack, round_inc, special, unpack
-from .pipe import Stager, check_regs, placement, unit_ports
+from .pipe import Stager, digit_regs, unit_ports
 
 __all__ = ["FPDiv"]
 
@@ -39,19 +39,7 @@ class FPDiv(wiring.Component):
                  regs: Sequence[int] | None = None):
         self.fmt = fmt
         self.qbits = fmt.frac_bits + 3
-        self.BOUNDARIES = ("input", "unpack", *(f"q{i}" for i in range(self.qbits)), "round",
-                           "output")
-        nb = len(self.BOUNDARIES)
-        default = -(-self.qbits // 4) + 1
-        if latency is None:
-            latency = default
-        if regs is None:
-            cut = isinstance(latency, int) and latency > default
-            spread = placement(latency - cut, nb - 1)     # over every boundary but "round"
-            regs = spread[:-1] + ((spread[-1], 1) if cut else (0, spread[-1]))
-            self.regs = regs
-        else:
-            self.regs = check_regs(regs, nb, "FPDiv", self.BOUNDARIES)
+        self.BOUNDARIES, self.regs = digit_regs("FPDiv", self.qbits, latency, regs)
         self.latency = sum(self.regs)
         super().__init__(unit_ports(fmt.width, fmt.width, b=In(fmt.width)))
 

@@ -47,6 +47,26 @@ def check_regs(regs: Sequence[int], n_boundaries: int, unit: str, names: Sequenc
     return regs
 
 
+def digit_regs(unit: str, qbits: int, latency: int | None, regs: Sequence[int] | None
+               ) -> tuple[tuple[str, ...], tuple[int, ...]]:
+    """Boundaries and register placement of a digit-recurrence unit (divider, square root):
+    boundaries input, unpack, one after each of ``qbits`` result bits, round, output. Default
+    latency ``ceil(qbits/4) + 1`` (four result bits a stage plus the output register); up to
+    it the registers are spread evenly over every boundary but "round", above it one goes
+    after round and the rest are spread that way. ``regs`` (one count per boundary) overrides.
+    Returns (boundary names, registers per boundary)."""
+    names = ("input", "unpack", *(f"q{i}" for i in range(qbits)), "round", "output")
+    nb = len(names)
+    if regs is not None:
+        return names, check_regs(regs, nb, unit, names)
+    default = -(-qbits // 4) + 1
+    if latency is None:
+        latency = default
+    cut = isinstance(latency, int) and latency > default
+    spread = placement(latency - cut, nb - 1)             # over every boundary but "round"
+    return names, spread[:-1] + ((spread[-1], 1) if cut else (0, spread[-1]))
+
+
 class Stager:
     """Places registers at a unit's boundaries, in order, as the unit's steps are built.
 

@@ -1,0 +1,336 @@
+"""The RGS slave's ray generation (golden model): eye rays and ray setup as compiled kernels.
+
+Every operation is one of ``model/fp.py``'s scalar format operations (rounded to (E, M)), in
+the order of the RTL (``rtl/rgs.py``: ``EyeRays``, ``RaySetupPipe``); the step names below are
+the RTL's signal names and ``docs/rgs.md``'s. ``model/raygen.py``'s ``eye_rays`` and ``setup``
+run these kernels, so the arithmetic is defined here once.
+
+Eye ray of sample (sx, sy) (:func:`eye_ray`):
+
+* ``sample``: px = (2*sx + 1) * 2**-1 rounded once to the format (= ``fmt.quantize(sx + 0.5)``,
+  the RTL's ``FPFromInt(frac_bits=1)``), py likewise;
+* ``mul_x``: px * dx[a]; ``mul_y``: py * dy[a];
+* ``add_x``: corner[a] + px*dx[a]; ``add_y``: (corner[a] + px*dx[a]) + py*dy[a] = d[a].
+
+Ray setup of one ray (:func:`ray_setup`; operands are read as the hardware reads them:
+denormal encodings are signed zeros, see :func:`setup_rays`):
+
+* ``inv``: inv[a] = 1 / d[a] (x / ±0 = ±inf);
+* ``axes``: kz = the first axis of largest |d| (a NaN counts as largest; the RTL compares the
+  exponent:fraction keys), kx = (kz + 1) % 3, ky = (kx + 1) % 3, swapped when d[kz] < 0;
+* ``shear``: s = (d[kx] / d[kz], d[ky] / d[kz], inv[kz]) (Sz = 1/dz *is* inv[kz]: one divider);
+* ``slab``: t0[a] = (lo[a] - o[a]) * inv[a], t1[a] = (hi[a] - o[a]) * inv[a];
+* ``flat``: if t0[a] or t1[a] is NaN (0 * inf: d[a] = ±0 and the origin on a face plane of the
+  box; the ray lies in that plane, inside the closed slab), t0[a] = -inf, t1[a] = +inf;
+* ``order``: near[a] = min(t0[a], t1[a]), far[a] = max(t0[a], t1[a]);
+* ``clip``: tnear = max(max(max(+0, near[0]), near[1]), near[2]),
+  tfar = min(min(min(tmax, far[0]), far[1]), far[2]);
+* ``octant``: the sign bits of d, x | y << 1 | z << 2 (-0 counts as negative, as the
+  traversal's ``sign_bit``).
+
+Secondary rays from a hit (:func:`secondary`, the RTL's ``SecondaryPipe``): the ray's origin o
+and direction d, the hit's t, u, v, the triangle's unit face normal n_f and vertex normals
+n_A, n_B, n_C (memory image), ``eps`` (a register):
+
+* ``hit``: p[a] = o[a] + t*d[a];
+* ``face``: g = -n_f if dot(n_f, d) > 0 else n_f (the face normal turned toward the ray);
+* ``dir_norm``: w = d * (1 / sqrt(dot(d, d))) (the unit incoming direction);
+* ``offset``: p0[a] = (p[a] + eps*g[a]) - eps*w[a] (every secondary ray's origin: off the
+  surface and back along the ray);
+* ``normal``: b = (1 - u) - v; s[a] = (b*n_A[a] + u*n_B[a]) + v*n_C[a];
+  n = s * (1 / sqrt(dot(s, s))), or g where dot(s, s) = 0; turned to g's side:
+  n = -n if dot(n, g) < 0;
+* ``reflect``: k = 2 * dot(d, n); r[a] = d[a] - k*n[a];
+
+with dot(a, b) = (a0*b0 + a1*b1) + a2*b2. Negation flips the sign bit (a NaN stays NaN).
+Shadow ray toward one light (:func:`shadow_dir`): direction l - p0 (point light at l, tmax 1)
+or the light's reversed direction (parallel light, tmax inf; the host negates it); it is cast
+only if ``dot(g, direction) > 0`` (the light faces the surface).
+
+Drivers: :func:`eye_packets` makes every packet (tile) of a frame in packet order, lanes in
+order; :func:`setup_rays` sets up an array of rays; :func:`secondary_rays` and
+:func:`shadow_rays` make the secondary rays of an array of hits.
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from .fp import fadd, fdiv, fmax, fmin, fmul, flush_in, fsqrt, fsub, round_exact, sign_bit
+
+__all__ = ["sample_coord", "eye_ray", "ray_setup", "eye_packets", "packet_count", "setup_rays",
+           "dot3", "secondary", "secondary_rays", "shadow_dir", "shadow_rays"]
+
+_ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
+_INF = np.float32(np.inf)
+
+
+@numba.njit(cache=True, inline="always")
+def sample_coord(s, E, M):
+    """``sample``: the integer sample coordinate ``s`` to its centre ``s + 0.5`` in the format,
+    one rounding of ``(2*s + 1) * 2**-1`` (exact in float64 for ``s < 2**52``)."""
+    return round_exact(np.float64(2 * s + 1) * 0.5, E, M)
+
+
+@numba.njit(cache=True, inline="always")
+def eye_ray(sx, sy, corner, dx, dy, E, M):
+    """The direction ``(d0, d1, d2)`` of the eye ray through sample (sx, sy):
+    ``d[a] = (corner[a] + px*dx[a]) + py*dy[a]``, every operation rounded."""
+    px = sample_coord(sx, E, M)
+    py = sample_coord(sy, E, M)
+    d0 = fadd(fadd(corner[0], fmul(px, dx[0], E, M), E, M), fmul(py, dy[0], E, M), E, M)
+    d1 = fadd(fadd(corner[1], fmul(px, dx[1], E, M), E, M), fmul(py, dy[1], E, M), E, M)
+    d2 = fadd(fadd(corner[2], fmul(px, dx[2], E, M), E, M), fmul(py, dy[2], E, M), E, M)
+    return d0, d1, d2
+
+
+@numba.njit(cache=True, inline="always")
+def _larger(a, b):
+    """|d| order of the axis choice: ``a`` beats the current best ``b`` (ties keep ``b``; a NaN
+    is larger than every number, the first NaN stays)."""
+    return a > b or (a != a and b == b)
+
+
+@numba.njit(cache=True, inline="always")
+def _pick(v0, v1, v2, k):
+    if k == 0:
+        return v0
+    if k == 1:
+        return v1
+    return v2
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _slab(lo, hi, o, inv, E, M):
+    """``slab``, ``flat`` and ``order`` of one axis: (near, far)."""
+    t0 = fmul(fsub(lo, o, E, M), inv, E, M)
+    t1 = fmul(fsub(hi, o, E, M), inv, E, M)
+    if t0 != t0 or t1 != t1:
+        t0 = -_INF
+        t1 = _INF
+    return fmin(t0, t1), fmax(t0, t1)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def ray_setup(org, dirn, tmax, lo, hi, r, inv, k, s, tnear, tfar, octant, E, M):
+    """Set up ray ``r`` (row ``r`` of ``org``/``dirn``, ``tmax[r]``) against the box
+    ``[lo, hi]``: writes ``inv[r]``, ``k[r]`` (kx, ky, kz), ``s[r]``, ``tnear[r]``, ``tfar[r]``,
+    ``octant[r]`` (the module docstring's steps, in order)."""
+    d0, d1, d2 = dirn[r, 0], dirn[r, 1], dirn[r, 2]
+    # inv
+    i0 = fdiv(_ONE, d0, E, M)
+    i1 = fdiv(_ONE, d1, E, M)
+    i2 = fdiv(_ONE, d2, E, M)
+    # axes
+    kz = 0
+    best = abs(d0)
+    if _larger(abs(d1), best):
+        kz = 1
+        best = abs(d1)
+    if _larger(abs(d2), best):
+        kz = 2
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    dz = _pick(d0, d1, d2, kz)
+    if dz < _ZERO:
+        kx, ky = ky, kx
+    # shear
+    s[r, 0] = fdiv(_pick(d0, d1, d2, kx), dz, E, M)
+    s[r, 1] = fdiv(_pick(d0, d1, d2, ky), dz, E, M)
+    s[r, 2] = _pick(i0, i1, i2, kz)
+    # slab, flat, order
+    n0, f0 = _slab(lo[0], hi[0], org[r, 0], i0, E, M)
+    n1, f1 = _slab(lo[1], hi[1], org[r, 1], i1, E, M)
+    n2, f2 = _slab(lo[2], hi[2], org[r, 2], i2, E, M)
+    # clip
+    tnear[r] = fmax(fmax(fmax(_ZERO, n0), n1), n2)
+    tfar[r] = fmin(fmin(fmin(tmax[r], f0), f1), f2)
+    inv[r, 0] = i0
+    inv[r, 1] = i1
+    inv[r, 2] = i2
+    k[r, 0] = kx
+    k[r, 1] = ky
+    k[r, 2] = kz
+    octant[r] = sign_bit(d0) | (sign_bit(d1) << 1) | (sign_bit(d2) << 2)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def setup_rays(org, dirn, tmax, lo, hi, inv, k, s, tnear, tfar, octant, E, M):
+    """:func:`ray_setup` for every ray. The operands are first read as the hardware reads
+    format words (denormal encodings as signed zeros; the vectorized ``FPFormat`` operations do
+    the same), so any float32 input gives the hardware's answer."""
+    n = org.shape[0]
+    lo_f = np.empty(3, np.float32)
+    hi_f = np.empty(3, np.float32)
+    for a in range(3):
+        lo_f[a] = flush_in(lo[a], E)
+        hi_f[a] = flush_in(hi[a], E)
+    o = np.empty((n, 3), np.float32)
+    d = np.empty((n, 3), np.float32)
+    t = np.empty(n, np.float32)
+    for r in range(n):
+        for a in range(3):
+            o[r, a] = flush_in(org[r, a], E)
+            d[r, a] = flush_in(dirn[r, a], E)
+        t[r] = flush_in(tmax[r], E)
+    for r in range(n):
+        ray_setup(o, d, t, lo_f, hi_f, r, inv, k, s, tnear, tfar, octant, E, M)
+
+
+@numba.njit(cache=True)
+def packet_count(sw, sh, tw, th):
+    """Packets (tiles) of a ``sw x sh`` sample image in ``tw x th`` tiles."""
+    return ((sw + tw - 1) // tw) * ((sh + th - 1) // th)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def eye_packets(sw, sh, tw, th, n, width, corner, dx, dy, dirn, pixel, pk_start, E, M):
+    """Every eye ray of a ``sw x sh`` sample image (``n x n`` samples per pixel of a
+    ``width``-pixel-wide image) in packet order: tiles of ``tw x th`` samples row-major, lanes
+    row-major inside a tile; a tile at the right/bottom edge holds only the samples inside the
+    image. Writes ``dirn`` (N, 3), ``pixel`` (N,: y * width + x of the sample's pixel) and
+    ``pk_start`` (P + 1,). The RTL's ``EyeRays`` makes one packet per request in this lane
+    order."""
+    tiles_x = (sw + tw - 1) // tw
+    tiles_y = (sh + th - 1) // th
+    r = 0
+    for ty in range(tiles_y):
+        y0 = ty * th
+        ht = min(th, sh - y0)
+        for tx in range(tiles_x):
+            x0 = tx * tw
+            wt = min(tw, sw - x0)
+            pk_start[ty * tiles_x + tx] = r
+            for ly in range(ht):
+                sy = y0 + ly
+                row = (sy // n) * width
+                for lx in range(wt):
+                    sx = x0 + lx
+                    d0, d1, d2 = eye_ray(sx, sy, corner, dx, dy, E, M)
+                    dirn[r, 0] = d0
+                    dirn[r, 1] = d1
+                    dirn[r, 2] = d2
+                    pixel[r] = row + sx // n
+                    r += 1
+    pk_start[tiles_x * tiles_y] = r
+
+
+# ---------------------------------------------------------------------------------------------
+# secondary rays
+# ---------------------------------------------------------------------------------------------
+
+_TWO = np.float32(2.0)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def dot3(a0, a1, a2, b0, b1, b2, E, M):
+    """``dot``: (a0*b0 + a1*b1) + a2*b2, every operation rounded."""
+    return fadd(fadd(fmul(a0, b0, E, M), fmul(a1, b1, E, M), E, M), fmul(a2, b2, E, M), E, M)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _unit(x0, x1, x2, E, M):
+    """x * (1 / sqrt(dot(x, x))) per component, and dot(x, x)."""
+    q = dot3(x0, x1, x2, x0, x1, x2, E, M)
+    r = fdiv(_ONE, fsqrt(q, E, M), E, M)
+    return fmul(x0, r, E, M), fmul(x1, r, E, M), fmul(x2, r, E, M), q
+
+
+@numba.njit(cache=True, error_model="numpy")
+def secondary(o, d, t, u, v, nf, nv, eps, E, M):
+    """The module docstring's steps for one hit: ``o``, ``d``, ``nf`` (3,), ``nv`` (3, 3) vertex
+    normals A, B, C. Returns (p0, g, n, r), each a (3,) float32 array."""
+    p0 = np.empty(3, np.float32)
+    g = np.empty(3, np.float32)
+    n = np.empty(3, np.float32)
+    r = np.empty(3, np.float32)
+    # face
+    flip = dot3(nf[0], nf[1], nf[2], d[0], d[1], d[2], E, M) > _ZERO
+    for a in range(3):
+        g[a] = -nf[a] if flip else nf[a]
+    # dir_norm
+    w0, w1, w2, _ = _unit(d[0], d[1], d[2], E, M)
+    # hit, offset
+    w = (w0, w1, w2)
+    for a in range(3):
+        p = fadd(o[a], fmul(t, d[a], E, M), E, M)
+        p0[a] = fsub(fadd(p, fmul(eps, g[a], E, M), E, M), fmul(eps, w[a], E, M), E, M)
+    # normal
+    b = fsub(fsub(_ONE, u, E, M), v, E, M)
+    s = np.empty(3, np.float32)
+    for a in range(3):
+        s[a] = fadd(fadd(fmul(b, nv[0, a], E, M), fmul(u, nv[1, a], E, M), E, M),
+                    fmul(v, nv[2, a], E, M), E, M)
+    n0, n1, n2, q = _unit(s[0], s[1], s[2], E, M)
+    if q == _ZERO:
+        n0, n1, n2 = g[0], g[1], g[2]
+    if dot3(n0, n1, n2, g[0], g[1], g[2], E, M) < _ZERO:
+        n0, n1, n2 = -n0, -n1, -n2
+    n[0], n[1], n[2] = n0, n1, n2
+    # reflect
+    k = fmul(_TWO, dot3(d[0], d[1], d[2], n0, n1, n2, E, M), E, M)
+    for a in range(3):
+        r[a] = fsub(d[a], fmul(k, n[a], E, M), E, M)
+    return p0, g, n, r
+
+
+@numba.njit(cache=True, error_model="numpy")
+def secondary_rays(org, dirn, t, u, v, nf, nv, eps, E, M):
+    """:func:`secondary` for every hit (rows of ``org``, ``dirn`` (N, 3), ``t``, ``u``, ``v``
+    (N,), ``nf`` (N, 3), ``nv`` (N, 3, 3)); operands read as the hardware reads format words.
+    Returns ``p0``, ``g``, ``n``, ``r``, each (N, 3)."""
+    N = org.shape[0]
+    P0 = np.empty((N, 3), np.float32)
+    G = np.empty((N, 3), np.float32)
+    NS = np.empty((N, 3), np.float32)
+    R = np.empty((N, 3), np.float32)
+    o = np.empty(3, np.float32)
+    d = np.empty(3, np.float32)
+    f = np.empty(3, np.float32)
+    nn = np.empty((3, 3), np.float32)
+    e = flush_in(eps, E)
+    for i in range(N):
+        for a in range(3):
+            o[a] = flush_in(org[i, a], E)
+            d[a] = flush_in(dirn[i, a], E)
+            f[a] = flush_in(nf[i, a], E)
+            for c in range(3):
+                nn[c, a] = flush_in(nv[i, c, a], E)
+        p0, g, n, r = secondary(o, d, flush_in(t[i], E), flush_in(u[i], E), flush_in(v[i], E),
+                                f, nn, e, E, M)
+        for a in range(3):
+            P0[i, a] = p0[a]
+            G[i, a] = g[a]
+            NS[i, a] = n[a]
+            R[i, a] = r[a]
+    return P0, G, NS, R
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def shadow_dir(p0, g, light, point, E, M):
+    """The shadow ray toward one light from origin ``p0`` with oriented face normal ``g``:
+    (direction (3,), cast). ``light``: the point light's position (``point``) or the parallel
+    light's reversed direction."""
+    ds = np.empty(3, np.float32)
+    for a in range(3):
+        ds[a] = fsub(light[a], p0[a], E, M) if point else light[a]
+    return ds, dot3(g[0], g[1], g[2], ds[0], ds[1], ds[2], E, M) > _ZERO
+
+
+@numba.njit(cache=True, error_model="numpy")
+def shadow_rays(p0, g, light, point, E, M):
+    """:func:`shadow_dir` for every row of ``p0``, ``g`` (N, 3): directions (N, 3) and the
+    facing test (N,) bool."""
+    N = p0.shape[0]
+    D = np.empty((N, 3), np.float32)
+    cast = np.empty(N, np.bool_)
+    lf = np.empty(3, np.float32)
+    for a in range(3):
+        lf[a] = flush_in(light[a], E)
+    for i in range(N):
+        ds, c = shadow_dir(p0[i], g[i], lf, point, E, M)
+        for a in range(3):
+            D[i, a] = ds[a]
+        cast[i] = c
+    return D, cast

@@ -1,0 +1,315 @@
+"""The SaarCOR chip: ``cfg.rtcs`` ray tracing cores, each behind its RTC-MI, on one memory bus.
+
+:class:`RTCArray` is the ray-tracing half of the chip (the paper's Figure 2 without the RGS):
+``cfg.rtcs`` × (:class:`~rtl.rtc.RTC` + :class:`~rtl.rtcmi.RTCMI`), the 3 × ``rtcs`` caches on
+one :class:`~rtl.bus.RoundRobinBus` (requester ``3 * r + c``: cache c = trav, list, int of RTC
+r) to a single 64-bit memory read port ``mem`` (the memory controller's: in simulation
+:class:`~rtl.memory.SDRAMMemory`, ``mem_chips`` SDRAM chips with XOR address hashing at the
+``mem_clock_ratio`` clock ratio; on an FPGA the board's controller).
+
+Ports: ``rays[r]`` / ``results[r]`` (the RTCs' ``RayIn`` / ``RayResult`` streams), ``mem``,
+image constants ``node_base``, ``list_base``, ``tri_base``, ``root``; counters per RTC
+(``rtc_counters[r]``: the RTC's ``COUNTERS`` and ``sub_busy`` packed, see
+:func:`counter_names`), ``hits[3 * r + c]``, ``misses[3 * r + c]``, ``grants[3 * r + c]``
+(memory words the cache read), ``mem_reads``.
+
+Latency and throughput are the RTCs' and caches' (a cache hit 3 cycles; one bus register
+each way, one memory request and one response per cycle for the whole chip).
+"""
+from __future__ import annotations
+
+from amaranth.hdl import Cat, Module
+from amaranth.lib import stream, wiring
+from amaranth.lib.wiring import In, Out
+
+from model.config import Config
+
+from .bus import RoundRobinBus
+from .common import COUNTER_BITS
+from .memport import WORD_BITS, MemReadPort, connect_tags
+from .rtc import COUNTERS, RTC
+from .rtc_streams import RayIn, RayResult
+from .rtcmi import CACHES, RTCMI
+from .traversal import NODE_BITS
+
+__all__ = ["RTCArray", "counter_names"]
+
+
+def counter_names(cfg: Config) -> list[str]:
+    """Fields of one ``rtc_counters[r]`` word, 32 bits each, first name in the low bits."""
+    return list(COUNTERS) + [f"sub_busy{j}" for j in range(cfg.trav_subunits)]
+
+
+class RTCArray(wiring.Component):
+    """``cfg.rtcs`` RTCs with their RTC-MIs on one bus; see the module docstring."""
+
+    def __init__(self, cfg: Config, extra_tag_widths: tuple = ()):
+        self.cfg = cfg
+        n = cfg.rtcs
+        self.rtcs = [RTC(cfg) for _ in range(n)]
+        self.mis = [RTCMI(cfg, rtc) for rtc in self.rtcs]
+        tag = max(len(mi.mem(c).req.payload.tag) for mi in self.mis for c in CACHES)
+        tag = max(tag, *extra_tag_widths) if extra_tag_widths else tag
+        self.n_extra = len(extra_tag_widths)
+        self.bus = RoundRobinBus(3 * n + self.n_extra, addr_width=32, tag_width=tag)
+        self.names = counter_names(cfg)
+        super().__init__({
+            "rays": In(stream.Signature(RayIn(cfg))).array(n),
+            "results": Out(stream.Signature(RayResult(cfg))).array(n),
+            "mem": Out(self.bus.mem.signature),
+            "node_base": In(32), "list_base": In(32), "tri_base": In(32), "root": In(NODE_BITS),
+            "rtc_counters": Out(COUNTER_BITS * len(self.names)).array(n),
+            "hits": Out(COUNTER_BITS).array(3 * n), "misses": Out(COUNTER_BITS).array(3 * n),
+            "grants": Out(COUNTER_BITS).array(3 * n + self.n_extra),
+            "mem_reads": Out(COUNTER_BITS),
+            **({"ext": In(MemReadPort(addr_width=32, data_width=WORD_BITS,
+                                      tag_width=tag)).array(self.n_extra)}
+               if self.n_extra else {}),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.bus = bus = self.bus
+        wiring.connect(m, bus.mem, wiring.flipped(self.mem))
+        m.d.comb += self.mem_reads.eq(bus.req_cycles)
+        n = self.cfg.rtcs
+        for e in range(self.n_extra):
+            wiring.connect(m, bus.inputs[3 * n + e], wiring.flipped(self.ext[e]))
+            m.d.comb += self.grants[3 * n + e].eq(bus.grants[3 * n + e])
+        for r, (rtc, mi) in enumerate(zip(self.rtcs, self.mis)):
+            m.submodules[f"rtc{r}"] = rtc
+            m.submodules[f"rtcmi{r}"] = mi
+            wiring.connect(m, rtc.node_mem, mi.node)
+            wiring.connect(m, rtc.list_mem, mi.list)
+            wiring.connect(m, rtc.tri_mem, mi.tri)
+            wiring.connect(m, wiring.flipped(self.rays[r]), rtc.rays)
+            wiring.connect(m, rtc.results, wiring.flipped(self.results[r]))
+            m.d.comb += [rtc.node_base.eq(self.node_base), rtc.list_base.eq(self.list_base),
+                         rtc.root.eq(self.root), mi.tri_base.eq(self.tri_base)]
+            for c, name in enumerate(CACHES):
+                i = 3 * r + c
+                connect_tags(m, mi.mem(name), bus.inputs[i])
+                m.d.comb += [self.hits[i].eq(mi.hits[c]), self.misses[i].eq(mi.misses[c]),
+                             self.grants[i].eq(bus.grants[i])]
+            values = [getattr(rtc, k) for k in COUNTERS] + list(rtc.sub_busy)
+            m.d.comb += self.rtc_counters[r].eq(Cat(*values))
+        return m
+
+
+class RGSMaster(wiring.Component):
+    """The RGS master: hands out the frame's packets (tiles, row-major, packet id = tile
+    index) to whichever slave has room — dynamic load balancing.
+
+    Each slave has a request queue of ``depth`` entries (``req[s]`` is its write side): in a
+    cycle where some queues have room, the first of them at or after a round-robin pointer
+    gets the next tile. ``start`` (one cycle) begins a frame of ``tiles_x`` × ``tiles_y``
+    tiles; ``dispatched`` is high once every tile was handed out (and before the first start);
+    ``queued`` while a queue holds a tile no slave has taken yet.
+    Throughput: one packet a cycle. Counter: ``packets[s]`` (packets each slave got).
+    """
+
+    def __init__(self, cfg: Config, slaves: int, *, depth: int = 1):
+        from .rgs import COORD_BITS, EyeRequest
+        self.cfg, self.slaves, self.depth = cfg, slaves, depth
+        super().__init__({
+            "start": In(1), "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS),
+            "req": Out(stream.Signature(EyeRequest(cfg))).array(slaves),
+            "dispatched": Out(1), "queued": Out(1),
+            "packets": Out(COUNTER_BITS).array(slaves),
+        })
+
+    def elaborate(self, platform):
+        from amaranth.hdl import Mux, Signal
+        from amaranth.lib.fifo import SyncFIFO
+        from .common import rr_pick
+        from .rgs import EyeRequest
+        m = Module()
+        n = self.slaves
+        lay = EyeRequest(self.cfg)
+        tx, ty = Signal.like(self.tiles_x), Signal.like(self.tiles_y)
+        packet = Signal(32)
+        active = Signal()
+        m.d.comb += self.dispatched.eq(~active)
+        room = Signal(n)
+        fifos = []
+        for s in range(n):
+            f = SyncFIFO(width=lay.size, depth=self.depth)
+            m.submodules[f"queue{s}"] = f
+            fifos.append(f)
+            m.d.comb += [room[s].eq(f.w_rdy), self.req[s].valid.eq(f.r_rdy),
+                         self.req[s].payload.eq(f.r_data), f.r_en.eq(self.req[s].ready)]
+        m.d.comb += self.queued.eq(Cat(*(f.r_rdy for f in fifos)).any())
+        p2 = 1 << max(0, (n - 1).bit_length())
+        ptr = Signal(range(p2))
+        req_bits = Signal(p2)
+        m.d.comb += req_bits.eq(Mux(active, room, 0))
+        any_room, pick = rr_pick(m, req_bits, ptr, "rgs_master")
+        give = Signal()
+        m.d.comb += give.eq(active & any_room)
+        entry = Signal(lay)
+        m.d.comb += [entry.tile_x.eq(tx), entry.tile_y.eq(ty), entry.packet.eq(packet)]
+        for s, f in enumerate(fifos):
+            m.d.comb += [f.w_data.eq(entry), f.w_en.eq(give & (pick == s))]
+            with m.If(give & (pick == s)):
+                m.d.sync += self.packets[s].eq(self.packets[s] + 1)
+        with m.If(give):
+            end_x = tx == self.tiles_x - 1
+            m.d.sync += [tx.eq(Mux(end_x, 0, tx + 1)), packet.eq(packet + 1),
+                         ptr.eq(Mux(pick == n - 1, 0, pick + 1))]
+            with m.If(end_x):
+                m.d.sync += ty.eq(ty + 1)
+                with m.If(ty == self.tiles_y - 1):
+                    m.d.sync += active.eq(0)
+        with m.If(self.start):
+            m.d.sync += [active.eq((self.tiles_x != 0) & (self.tiles_y != 0)), tx.eq(0),
+                         ty.eq(0), packet.eq(0)]
+        return m
+
+
+class Chip(wiring.Component):
+    """The SaarCOR chip: RGS master, one RGS slave per RTC (``rtl/rgs_slave.py``: eye rays,
+    results, secondary rays) with its shading cache, :class:`RTCArray` (the RTCs, their
+    RTC-MIs, the bus: requesters ``3 r + c`` the RTC caches, ``3 rtcs + s`` slave s's shading
+    cache), one memory port ``mem`` for the memory controller. With ``cfg.secondary_rays``
+    false (no light registers, reflection depth 0) the slaves are eye-ray-only
+    (``Slave.elaborate_eye_only``) and there are no shading caches.
+
+    Host side (inputs held for the frame): the image constants ``node_base``, ``list_base``,
+    ``tri_base``, ``root``, ``rec_base`` (the slave records), the scene box
+    ``box_lo``/``box_hi``; the camera ``pos``, ``corner``, ``dx``, ``dy`` (format words, as
+    ``model.raygen.eye_rays`` quantizes them for the sample image), ``width``/``height``
+    (pixels), ``tiles_x``/``tiles_y`` (tiles of the sample image); ``eps``, ``lights``,
+    ``light_point``, ``n_lights``, ``reflect_depth`` (the slaves' secondary rays). ``start``
+    (one cycle) renders a frame; ``busy`` is high from the cycle after ``start`` until every
+    ray the frame spawned has finished and its result has left; ``done`` = not busy.
+    ``results`` (Out stream, ``SlaveResult``): every ray's id (eye packet and lane, depth,
+    sub) and hit, in any order.
+
+    Counters: ``cycles`` (busy cycles of the last frame), ``rays_in`` (rays into the RTCs),
+    ``results_out``, ``packets[s]`` (eye packets slave s got), per slave ``rays_eye``,
+    ``rays_shadow``, ``rays_reflect``, ``sec_busy`` (``slave_counters[s]``) and its shading
+    cache's ``shade_hits``/``shade_misses``, and :class:`RTCArray`'s (``rtc_counters``,
+    ``hits``, ``misses``, ``grants``, ``mem_reads``).
+    """
+
+    SLAVE_COUNTERS = ("rays_eye", "rays_shadow", "rays_reflect", "sec_busy")
+
+    def __init__(self, cfg: Config):
+        from model.layout import REC_BITS
+        from .cache import Cache
+        from .rgs import COORD_BITS
+        from .rgs_slave import DEPTH_BITS, Slave, SlaveResult, shade_cache_geometry
+        from .rtc_streams import vec3
+        self.cfg = cfg
+        n = cfg.rtcs
+        self.master = RGSMaster(cfg, n)
+        self.slaves = [Slave(cfg) for _ in range(n)]
+        # eye rays only (no secondary-ray hardware): no shading caches, no bus requesters for
+        # them; their counters (shade_hits, shade_misses, grants[3 rtcs + s]) stay 0
+        geom = shade_cache_geometry(cfg)
+        self.shade_caches = ([Cache(geom, tag_width=1) for _ in range(n)]
+                             if cfg.secondary_rays else [])
+        self.array = RTCArray(cfg, tuple(len(c.mem.req.payload.tag) for c in self.shade_caches))
+        assert geom.item_bits == REC_BITS
+        v3 = vec3(cfg)
+        L = max(1, cfg.rgs_lights)
+        members = {
+            "start": In(1), "busy": Out(1), "done": Out(1),
+            "node_base": In(32), "list_base": In(32), "tri_base": In(32), "root": In(NODE_BITS),
+            "rec_base": In(32),
+            "box_lo": In(v3), "box_hi": In(v3),
+            "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
+            "width": In(COORD_BITS), "height": In(COORD_BITS),
+            "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS),
+            "eps": In(cfg.fmt.width), "lights": In(v3).array(L), "light_point": In(L),
+            "n_lights": In(range(cfg.rgs_lights + 1)), "reflect_depth": In(DEPTH_BITS),
+            "results": Out(stream.Signature(SlaveResult(cfg))),
+            "cycles": Out(COUNTER_BITS), "rays_in": Out(COUNTER_BITS),
+            "results_out": Out(COUNTER_BITS),
+            "packets": Out(COUNTER_BITS).array(n),
+            "slave_counters": Out(COUNTER_BITS * len(self.SLAVE_COUNTERS)).array(n),
+            "shade_hits": Out(COUNTER_BITS).array(n), "shade_misses": Out(COUNTER_BITS).array(n),
+        }
+        for name in ("mem", "rtc_counters", "hits", "misses", "mem_reads"):
+            members[name] = self.array.signature.members[name]
+        members["grants"] = Out(COUNTER_BITS).array(4 * n)
+        super().__init__(members)
+
+    def elaborate(self, platform):
+        from amaranth.hdl import Mux, Signal
+        from .common import OutputStage, rr_pick
+        from .rgs_slave import SlaveResult
+        m = Module()
+        cfg, n = self.cfg, self.cfg.rtcs
+        m.submodules.array = arr = self.array
+        m.submodules.master = master = self.master
+        wiring.connect(m, arr.mem, wiring.flipped(self.mem))
+        for k in ("node_base", "list_base", "tri_base", "root"):
+            m.d.comb += getattr(arr, k).eq(getattr(self, k))
+        for k in ("rtc_counters", "hits", "misses", "grants"):
+            for a, b in zip(getattr(self, k), getattr(arr, k)):
+                m.d.comb += a.eq(b)
+        m.d.comb += [self.mem_reads.eq(arr.mem_reads), master.start.eq(self.start),
+                     master.tiles_x.eq(self.tiles_x), master.tiles_y.eq(self.tiles_y)]
+        for s in range(n):
+            m.d.comb += self.packets[s].eq(master.packets[s])
+
+        # -- slaves: rays for their RTC, its results back, their shading caches ---------------------
+        counts = []
+        for s, slave in enumerate(self.slaves):
+            m.submodules[f"slave{s}"] = slave
+            wiring.connect(m, master.req[s], slave.req)
+            if self.shade_caches:
+                cache = self.shade_caches[s]
+                m.submodules[f"shade_cache{s}"] = cache
+                wiring.connect(m, slave.shade, cache.port)
+                connect_tags(m, cache.mem, arr.ext[s])
+                m.d.comb += [cache.base.eq(self.rec_base), self.shade_hits[s].eq(cache.hits),
+                             self.shade_misses[s].eq(cache.misses)]
+            for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi", "eps",
+                      "light_point", "n_lights", "reflect_depth"):
+                m.d.comb += getattr(slave, k).eq(getattr(self, k))
+            for a, b in zip(slave.lights, self.lights):
+                m.d.comb += a.eq(b)
+            wiring.connect(m, slave.rays, arr.rays[s])
+            wiring.connect(m, arr.results[s], slave.results)
+            m.d.comb += self.slave_counters[s].eq(
+                Cat(*(getattr(slave, k) for k in self.SLAVE_COUNTERS)))
+            rays = arr.rays[s]
+            counts.append(rays.valid & rays.ready)
+        rays_in = Signal(range(n + 1))
+        m.d.comb += rays_in.eq(sum(counts[1:], counts[0]))
+
+        # -- results: round-robin over the slaves into one registered output ---------------------
+        m.submodules.res_out = out = OutputStage(SlaveResult(cfg))
+        wiring.connect(m, out.o, wiring.flipped(self.results))
+        p2 = 1 << max(0, (n - 1).bit_length())
+        valid = Signal(p2)
+        m.d.comb += valid.eq(Cat(*(sl.out.valid for sl in self.slaves)))
+        ptr = Signal(range(p2))
+        anyv, pick = rr_pick(m, valid, ptr, "chip_results")
+        m.d.comb += out.i.valid.eq(anyv)
+        for s, sl in enumerate(self.slaves):
+            sel = pick == s
+            with m.If(sel):
+                m.d.comb += out.i.payload.eq(sl.out.payload)
+            m.d.comb += sl.out.ready.eq(out.i.ready & sel)
+        with m.If(out.i.valid & out.i.ready):
+            m.d.sync += ptr.eq(Mux(pick == n - 1, 0, pick + 1))
+
+        # -- frame control and counters ------------------------------------------------------------
+        res = self.results
+        out_now = res.valid & res.ready
+        idle = Signal()
+        m.d.comb += idle.eq(master.dispatched & ~master.queued &
+                            Cat(*(sl.idle for sl in self.slaves)).all() & ~res.valid)
+        m.d.comb += self.done.eq(~self.busy)
+        with m.If(self.busy):
+            m.d.sync += [self.cycles.eq(self.cycles + 1), self.rays_in.eq(self.rays_in + rays_in),
+                         self.results_out.eq(self.results_out + out_now)]
+            with m.If(idle):
+                m.d.sync += self.busy.eq(0)
+        with m.If(self.start):
+            m.d.sync += [self.busy.eq(1), self.cycles.eq(0), self.rays_in.eq(0),
+                         self.results_out.eq(0)]
+        return m

@@ -1,0 +1,663 @@
+"""RGS slave, part one: eye rays from camera registers and ray setup, in FP hardware.
+
+The golden model is ``model/rgs.py`` (``eye_ray``, ``ray_setup``); every FP operation here is
+one of its steps, in its order, so the rays come out bit for bit as
+``model.raygen.eye_rays`` + ``setup`` make them (``docs/rgs.md``).
+
+* :class:`RaySetupPipe`: the bare ray-setup datapath (``inv``, ``axes``, ``shear``, ``slab``,
+  ``flat``, ``order``, ``clip``, ``octant``), fixed latency, one ray per enabled cycle.
+* :class:`RaySetup`: the datapath as a stream unit: (org, dir, tmax, anyhit, packet, lane, last)
+  in, ``RayIn`` out, back-pressure.
+* :class:`EyeRayPipe`: the bare eye-ray datapath: sample (sx, sy) -> direction (``sample``,
+  ``mul_x``, ``mul_y``, ``add_x``, ``add_y``) and the pixel index.
+* :class:`EyeRays`: the slave's ray generator: packet requests in, each tile's rays in lane
+  order through :class:`EyeRayPipe` and :class:`RaySetupPipe`, ``RayIn`` (+ pixel index) out.
+* :class:`SecondaryPipe`: a hit -> the secondary rays' origin, the oriented face and shading
+  normals and the reflected direction (``hit``, ``face``, ``dir_norm``, ``offset``,
+  ``normal``, ``reflect``); :class:`ShadowPipe`: (origin, normal, light) -> the shadow ray's
+  direction, tmax and whether it is cast.
+
+Flow control of the stream units: one clock enable stalls the whole pipeline while its last
+stage holds a ray the consumer does not take (``en = ~o.valid | o.ready``; ``i.ready = en``),
+so rays leave in order, one per cycle at full rate, at exactly ``latency`` cycles after they
+entered when the output is never stalled.
+"""
+from __future__ import annotations
+
+from amaranth.hdl import C, Cat, Const, Module, Mux, Signal, Value
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from model.config import COORD_BITS, Config
+from model.fp import FPFormat
+
+from .fp.common import unpack, wire
+from .fp.conv import FPFromInt
+from .fp.schedule import Schedule
+from .rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
+
+__all__ = ["COORD_BITS", "PIXEL_BITS", "RaySetupIn", "EyeRequest", "EyeRay", "RaySetupPipe",
+           "RaySetup", "EyeRayPipe", "EyeRays", "SecondaryPipe", "ShadowPipe", "div_const",
+           "div_const_params", "sample_converter"]
+
+PIXEL_BITS = 32        # pixel index y * width + x
+# COORD_BITS (model.config): sample coordinates (and image sizes in samples) below 2**16
+
+
+def RaySetupIn(cfg: Config) -> data.StructLayout:
+    """A ray into :class:`RaySetup`: its place in a packet and what ray setup needs."""
+    w = cfg.fmt.width
+    return data.StructLayout({
+        "packet": PACKET_ID_BITS, "lane": lane_bits(cfg), "last": 1,
+        "org": vec3(cfg), "dir": vec3(cfg), "tmax": w, "anyhit": 1,
+    })
+
+
+def EyeRequest(cfg: Config) -> data.StructLayout:
+    """A packet request to :class:`EyeRays`: tile (``tile_x``, ``tile_y``) of the sample image
+    (tile coordinates, so no division by the tiles per row is needed), labelled ``packet``."""
+    return data.StructLayout({"tile_x": COORD_BITS, "tile_y": COORD_BITS,
+                              "packet": PACKET_ID_BITS})
+
+
+def EyeRay(cfg: Config) -> data.StructLayout:
+    """An eye ray out of :class:`EyeRays`: the ``RayIn`` for the RTC, the index
+    ``y * width + x`` of the pixel the sample belongs to and the ray's direction (which the
+    slave keeps for the ray's secondary rays)."""
+    return data.StructLayout({"ray": RayIn(cfg), "pixel": PIXEL_BITS, "dir": vec3(cfg)})
+
+
+def div_const_params(n: int, bits: int) -> tuple[int, int]:
+    """``(m, k)`` with ``v // n == (v * m) >> k`` for every ``0 <= v < 2**bits``:
+    ``k = bits + ceil(log2 n)``, ``m = ceil(2**k / n)``. (With v = q*n + r, v*m/2**k =
+    v/n + v*e/(n*2**k), e = m*n - 2**k < n, and v*e < 2**bits * n <= 2**k: the excess is below
+    1/n, too little to carry r/n <= (n-1)/n over the next integer.)"""
+    if n < 1:
+        raise ValueError(f"div_const: n={n} must be >= 1")
+    k = bits + ceil_log2(n)
+    return -(-(1 << k) // n), k
+
+
+def div_const(v: Value, n: int) -> Value:
+    """``v // n`` for an unsigned ``v`` and a constant ``n``: a shift for a power of two,
+    else a multiplication by :func:`div_const_params`'s reciprocal."""
+    v = Value.cast(v)
+    if n & (n - 1) == 0:
+        return v >> ceil_log2(n)
+    mult, k = div_const_params(n, len(v))
+    return (v * mult)[k:k + len(v)]
+
+
+def sample_converter(fmt: FPFormat, coord_bits: int = COORD_BITS, latency: int = 2) -> FPFromInt:
+    """The ``sample`` step's converter: the ``coord_bits + 1``-bit unsigned integer 2*s + 1 with
+    one fraction bit, i.e. s + 0.5 rounded once to ``fmt`` (= ``fmt.quantize(s + 0.5)`` for
+    every s < 2**coord_bits: ``tests/test_rgs.py`` checks the whole range)."""
+    return FPFromInt(fmt, int_width=coord_bits + 1, signed=False, frac_bits=1, latency=latency)
+
+
+def _fp_const(fmt: FPFormat, value: str) -> Const:
+    E, M = fmt.exp_bits, fmt.frac_bits
+    emax = (1 << E) - 1
+    bits = {"one": fmt.bias << M, "+inf": emax << M, "-inf": (1 << (E + M)) | (emax << M),
+            "+0": 0}[value]
+    return Const(bits, fmt.width)
+
+
+def _pick(v, k):
+    return Mux(k == 0, v[0], Mux(k == 1, v[1], v[2]))
+
+
+def _valid_chain(m: Module, en: Value, valid: Value, n: int, name: str) -> Value:
+    """``valid`` through ``n`` registers (reset to 0) that load when ``en`` is 1."""
+    for i in range(n):
+        reg = Signal(name=f"{name}{i}")
+        with m.If(en):
+            m.d.sync += reg.eq(valid)
+        valid = reg
+    return valid
+
+
+def _latencies(fmt: FPFormat, latencies: dict | None) -> dict:
+    lat = Schedule.default_latencies(fmt, latencies)
+    conv = (latencies or {}).get("conv")
+    lat["conv"] = 2 if conv is None else conv          # FPFromInt's default
+    return lat
+
+
+class _Datapath(wiring.Component):
+    """A bare fixed-latency datapath of FP units (``Schedule``): ``inputs`` and ``outputs``
+    ports plus ``tag`` (carried along), ``i_valid``, ``en`` (0 holds every stage),
+    ``o_valid`` and ``o_tag``. A subclass writes ``_build(m, dry)``, which returns the
+    latency; ``latency`` comes from a dry build (ready cycles only, no units)."""
+
+    def __init__(self, fmt: FPFormat, tag_width: int, latencies: dict | None,
+                 inputs: dict, outputs: dict):
+        self.fmt, self.tag_width = fmt, tag_width
+        self.latencies = _latencies(fmt, latencies)
+        super().__init__({**inputs, "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
+                          "o_valid": Out(1), **outputs, "o_tag": Out(tag_width)})
+        dry = Module()
+        dry._MustUse__silence = True
+        self.latency = self._build(dry, dry=True)
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        raise TypeError(f"{type(self).__name__}: a datapath defines _build(m, dry) (its "
+                        "stages; returns the latency)")
+
+    def elaborate(self, platform):
+        m = Module()
+        self._build(m)
+        return m
+
+
+class RaySetupPipe(_Datapath):
+    """Bare ray-setup datapath: ``model.rgs.ray_setup`` as a pipeline.
+
+    In: ``org``, ``dir`` (3 format words each), ``tmax``, ``tag`` (carried along unchanged),
+    ``i_valid``, ``en``; ``lo``, ``hi``: the scene box (held constant while rays are in
+    flight). Out after ``latency`` enabled cycles: ``o_valid``, ``o_org``, ``o_dir``, ``inv``,
+    ``octant``,
+    ``k`` (kx, ky, kz), ``s`` (Sx, Sy, Sz), ``tnear``, ``tfar``, ``o_tmax``, ``o_tag`` (every
+    output comes from registers that hold while ``en`` is 0; a ``static`` input is passed
+    straight through).
+
+    Operations (the model's steps): 3 divs (``inv``), the axis choice (magnitude compares of the
+    direction's exponent:fraction keys, cycle 0, registered), 2 divs (``shear``; Sz is inv[kz],
+    no divider), 6 subs and 6 muls (``slab``), the NaN rule (``flat``: a mux), 3 min + 3 max
+    (``order``), 3 max + 3 min in two chains (``clip``): 5 div, 6 sub, 6 mul, 12 min/max.
+    Latency: ``latency`` = max(add, div) + mul + 4 min/max (the ``clip`` chains end the
+    longest path; the shear divisions, started one cycle late, end at 1 + div; at least 1):
+    binary32 with the default FP latencies add 3, mul 3, div 8, min/max 1 gives 8 + 3 + 4 =
+    15 cycles. Throughput: one ray per cycle in which ``en`` is 1 (``en`` = 0 holds every
+    stage).
+    ``latencies``: optional ``{"add": n, "mul": n, "div": n, "minmax": n}``. ``static``: names
+    of inputs (``"org"``, ``"tmax"``) that are constant while rays are in flight (the eye rays'
+    camera position and +inf): they skip the delay registers and go straight to the output.
+    """
+
+    STATIC = ("org", "tmax")
+
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None,
+                 static: tuple = ()):
+        if set(static) - set(self.STATIC):
+            raise ValueError(f"RaySetupPipe static={static!r}: only {self.STATIC} may be static")
+        self.static = tuple(static)
+        v3 = data.ArrayLayout(fmt.width, 3)
+        w = fmt.width
+        super().__init__(fmt, tag_width, latencies,
+                         {"org": In(v3), "dir": In(v3), "tmax": In(w), "lo": In(v3),
+                          "hi": In(v3)},
+                         {"o_org": Out(v3), "o_dir": Out(v3), "inv": Out(v3), "octant": Out(3),
+                          "k": Out(data.ArrayLayout(2, 3)), "s": Out(v3), "tnear": Out(w),
+                          "tfar": Out(w), "o_tmax": Out(w)})
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        fmt = self.fmt
+        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        d = [wire(m, self.dir[a], f"d{a}") for a in range(3)]
+        org = [wire(m, self.org[a], f"o{a}") for a in range(3)]
+        tmax = wire(m, self.tmax, "tmax")
+        # -- inv: 1 / d per axis ------------------------------------------------------------------
+        one = (_fp_const(fmt, "one"), 0)
+        inv = [sch.op("div", one, (d[a], 0), f"inv{a}") for a in range(3)]
+        # -- axes: kz = first axis of largest |d| (NaN key is the largest), swap if dz < 0 -------
+        u = [unpack(fmt, x) for x in d]
+        gt1 = u[1].key > u[0].key
+        best = Mux(gt1, u[1].key, u[0].key)
+        kz = wire(m, Mux(u[2].key > best, 2, Mux(gt1, 1, 0)), "axes_kz")
+        neg = wire(m, _pick([x.sign & ~x.zero & ~x.nan for x in u], kz), "axes_swap")
+        kx0 = Mux(kz == 2, 0, kz + 1)                     # (kz + 1) % 3
+        ky0 = Mux(kz == 0, 2, kz - 1)                     # (kx + 1) % 3
+        kx = wire(m, Mux(neg, ky0, kx0)[:2], "axes_kx")
+        ky = wire(m, Mux(neg, kx0, ky0)[:2], "axes_ky")
+        # -- shear: d[kx] / dz, d[ky] / dz (operands picked from the registered axes), inv[kz] ----
+        t1 = 1
+        d1 = [sch.at(x, 0, t1) for x in d]
+        dz = (wire(m, _pick(d1, sch.at(kz, 0, t1)), "shear_dz"), t1)
+        dkx = (wire(m, _pick(d1, sch.at(kx, 0, t1)), "shear_dkx"), t1)
+        dky = (wire(m, _pick(d1, sch.at(ky, 0, t1)), "shear_dky"), t1)
+        s_x = sch.op("div", dkx, dz, "shear_sx")
+        s_y = sch.op("div", dky, dz, "shear_sy")
+        ti = inv[0][1]
+        s_z = (wire(m, _pick([x[0] for x in inv], sch.at(kz, 0, ti)), "shear_sz"), ti)
+        # -- slab, flat, order per axis -----------------------------------------------------------
+        near, far = [], []
+        for a in range(3):
+            lo = wire(m, self.lo[a], f"lo{a}")
+            hi = wire(m, self.hi[a], f"hi{a}")
+            t0 = sch.op("mul", sch.op("sub", (lo, 0), (org[a], 0), f"slab_lo{a}"), inv[a],
+                        f"slab_t0_{a}")
+            t1_ = sch.op("mul", sch.op("sub", (hi, 0), (org[a], 0), f"slab_hi{a}"), inv[a],
+                         f"slab_t1_{a}")
+            tt = max(t0[1], t1_[1])
+            v0, v1 = sch.at(t0[0], t0[1], tt), sch.at(t1_[0], t1_[1], tt)
+            flat = wire(m, unpack(fmt, v0).nan | unpack(fmt, v1).nan, f"flat{a}")
+            f0 = (wire(m, Mux(flat, _fp_const(fmt, "-inf"), v0), f"flat_t0_{a}"), tt)
+            f1 = (wire(m, Mux(flat, _fp_const(fmt, "+inf"), v1), f"flat_t1_{a}"), tt)
+            near.append(sch.op("min", f0, f1, f"order_near{a}"))
+            far.append(sch.op("max", f0, f1, f"order_far{a}"))
+        # -- clip: two chains in axis order -------------------------------------------------------
+        tnear = (_fp_const(fmt, "+0"), 0)
+        tfar = (tmax, far[0][1] if "tmax" in self.static else 0)
+        for a in range(3):
+            tnear = sch.op("max", tnear, near[a], f"clip_near{a}")
+            tfar = sch.op("min", tfar, far[a], f"clip_far{a}")
+        octant = wire(m, Cat(*(x[-1] for x in d)), "octant")
+        L = max(tnear[1], tfar[1], s_x[1], s_y[1], s_z[1], 1)
+        if dry:
+            return L
+        at = lambda x: sch.at(x[0], x[1], L)
+        keep = lambda x, name: x if name in self.static else sch.at(x, 0, L)
+        m.d.comb += [
+            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_org.eq(Cat(*(keep(x, "org") for x in org))),
+            self.o_dir.eq(Cat(*(sch.at(x, 0, L) for x in d))),
+            self.inv.eq(Cat(*(at(x) for x in inv))),
+            self.octant.eq(sch.at(octant, 0, L)),
+            self.k.eq(Cat(sch.at(kx, 0, L), sch.at(ky, 0, L), sch.at(kz, 0, L))),
+            self.s.eq(Cat(at(s_x), at(s_y), at(s_z))),
+            self.tnear.eq(at(tnear)), self.tfar.eq(at(tfar)),
+            self.o_tmax.eq(keep(tmax, "tmax")),
+            self.o_tag.eq(sch.at(self.tag, 0, L)),
+        ]
+        return L
+
+
+def _stall(m: Module, o) -> Signal:
+    """The pipeline enable of a stream unit whose last stage is its output ``o``: advance
+    unless that stage holds a ray the consumer does not take."""
+    en = Signal(name="en")
+    m.d.comb += en.eq(~o.valid | o.ready)
+    return en
+
+
+def _ray_out(pipe: RaySetupPipe, ray, packet, lane, last, anyhit) -> list:
+    """Assignments of a ``RayIn`` view ``ray`` from the setup pipe's outputs."""
+    return [ray.packet.eq(packet), ray.lane.eq(lane), ray.last.eq(last),
+            ray.org.eq(pipe.o_org), ray.inv.eq(pipe.inv), ray.octant.eq(pipe.octant),
+            ray.tnear.eq(pipe.tnear), ray.tfar.eq(pipe.tfar), ray.k.eq(pipe.k),
+            ray.s.eq(pipe.s), ray.tmax.eq(pipe.o_tmax), ray.anyhit.eq(anyhit)]
+
+
+class RaySetup(wiring.Component):
+    """Ray setup as a stream unit: :class:`RaySetupPipe` with back-pressure.
+
+    Ports: ``i`` (In stream, :func:`RaySetupIn`): org, dir, tmax, anyhit, packet, lane, last;
+    ``box_lo``, ``box_hi`` (In, 3 format words each: the scene box, constant while rays are in
+    flight); ``o`` (Out stream, ``RayIn``).
+    Latency: ``latency`` cycles (= ``RaySetupPipe.latency``, 15 for binary32 with the default
+    FP latencies) from a ray's input transfer to its ``o.valid``, when ``o`` is not stalled.
+    Throughput: one ray per cycle; ``i.ready = ~o.valid | o.ready`` (the whole pipeline holds
+    while the output ray waits).
+    """
+
+    def __init__(self, cfg: Config, latencies: dict | None = None):
+        self.cfg = cfg
+        self.tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": lane_bits(cfg),
+                                      "last": 1, "anyhit": 1})
+        self.pipe = RaySetupPipe(cfg.fmt, self.tag.size,
+                                 cfg.fp_latencies() if latencies is None else latencies)
+        self.latency = self.pipe.latency
+        super().__init__({
+            "i": In(stream.Signature(RaySetupIn(cfg))),
+            "box_lo": In(vec3(cfg)), "box_hi": In(vec3(cfg)),
+            "o": Out(stream.Signature(RayIn(cfg))),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.pipe = pipe = self.pipe
+        en = _stall(m, self.o)
+        p = self.i.payload
+        tag_in = data.View(self.tag, pipe.tag)
+        m.d.comb += [
+            self.i.ready.eq(en), pipe.en.eq(en), pipe.i_valid.eq(self.i.valid),
+            pipe.org.eq(p.org), pipe.dir.eq(p.dir), pipe.tmax.eq(p.tmax),
+            pipe.lo.eq(self.box_lo), pipe.hi.eq(self.box_hi),
+            tag_in.packet.eq(p.packet), tag_in.lane.eq(p.lane), tag_in.last.eq(p.last),
+            tag_in.anyhit.eq(p.anyhit),
+        ]
+        tag = data.View(self.tag, pipe.o_tag)
+        m.d.comb += self.o.valid.eq(pipe.o_valid)
+        m.d.comb += _ray_out(pipe, self.o.payload, tag.packet, tag.lane, tag.last, tag.anyhit)
+        return m
+
+
+class EyeRayPipe(_Datapath):
+    """Bare eye-ray datapath: ``model.rgs.eye_ray`` and the pixel index as a pipeline.
+
+    In: ``sx``, ``sy`` (sample coordinates, ``coord_bits`` each), ``tag``, ``i_valid``, ``en``;
+    the camera ``corner``, ``dx``, ``dy`` (3 format words each) and the image ``width`` in
+    pixels (held constant while rays are in flight). Out after ``latency`` enabled cycles:
+    ``o_valid``, ``dir`` (3 format words), ``pixel`` = (sy // n) * width + sx // n (n =
+    ``oversampling``; a constant division: a shift or a reciprocal multiplication), ``o_tag``.
+
+    Operations (the model's steps): 2 int -> FP conversions of 2*s + 1 with one fraction bit
+    (``sample``: s + 0.5 rounded once), 6 muls (``mul_x``, ``mul_y``), 6 adds (``add_x``,
+    ``add_y``). Latency: ``latency`` = max(conv + mul + 2 add, 2) (binary32 defaults:
+    2 + 3 + 3 + 3 = 11 cycles; the pixel index takes 2).
+    Throughput: one sample per cycle in which ``en`` is 1.
+    """
+
+    def __init__(self, fmt: FPFormat, oversampling: int = 1, tag_width: int = 1,
+                 latencies: dict | None = None, coord_bits: int = COORD_BITS):
+        self.n, self.coord_bits = oversampling, coord_bits
+        v3 = data.ArrayLayout(fmt.width, 3)
+        super().__init__(fmt, tag_width, latencies,
+                         {"sx": In(coord_bits), "sy": In(coord_bits), "corner": In(v3),
+                          "dx": In(v3), "dy": In(v3), "width": In(coord_bits)},
+                         {"dir": Out(v3), "pixel": Out(PIXEL_BITS)})
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        fmt = self.fmt
+        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        # -- sample: (2*s + 1) * 2**-1 rounded once -----------------------------------------------
+        pts = []
+        for name, s in (("x", self.sx), ("y", self.sy)):
+            conv = sample_converter(fmt, self.coord_bits, self.latencies["conv"])
+            if not dry:
+                m.submodules[f"sample_{name}"] = conv
+                m.d.comb += [conv.a.eq(Cat(C(1, 1), s)), conv.en.eq(self.en)]
+            else:
+                conv._MustUse__silence = True
+            pts.append((wire(m, conv.o, f"sample_p{name}"), conv.latency))
+        px, py = pts
+        # -- mul_x, mul_y, add_x, add_y (camera registers are static: ready whenever read) --------
+        d = []
+        for a in range(3):
+            mx = sch.op("mul", px, (self.dx[a], px[1]), f"mul_x{a}")
+            my = sch.op("mul", py, (self.dy[a], py[1]), f"mul_y{a}")
+            ax = sch.op("add", (self.corner[a], mx[1]), mx, f"add_x{a}")
+            d.append(sch.op("add", ax, my, f"add_y{a}"))
+        # -- pixel index: quotients registered, then the row product registered -------------------
+        n = self.n
+        qx = wire(m, div_const(self.sx, n), "pixel_qx")
+        qy = wire(m, div_const(self.sy, n), "pixel_qy")
+        pixel = wire(m, (sch.at(qy, 0, 1) * self.width + sch.at(qx, 0, 1))[:PIXEL_BITS],
+                     "pixel_index")
+        L = max(max(x[1] for x in d), 2)
+        if dry:
+            return L
+        m.d.comb += [
+            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.dir.eq(Cat(*(sch.at(x[0], x[1], L) for x in d))),
+            self.pixel.eq(sch.at(pixel, 1, L)),
+            self.o_tag.eq(sch.at(self.tag, 0, L)),
+        ]
+        return L
+
+
+class EyeRays(wiring.Component):
+    """The RGS slave's eye-ray generator: packet requests in, ``RayIn`` s (+ pixel index) out.
+
+    Ports
+    -----
+    ``req`` (In stream, :func:`EyeRequest`): tile (``tile_x``, ``tile_y``) and packet id. The
+        tile must lie in the image (tile_x < ceil(width*n / tile_w), likewise y).
+    ``o`` (Out stream, :func:`EyeRay`): the tile's rays in lane order (row-major over the tile's
+        samples inside the image: a tile at the right/bottom edge gives a smaller packet),
+        ``ray.last`` on its final lane, ``ray.packet`` the request's id, ``pixel`` = y * width
+        + x of the sample's pixel. ``ray.tmax`` = +inf, ``ray.anyhit`` = 0.
+    ``pos``, ``corner``, ``dx``, ``dy`` (In, 3 format words each): the camera as
+        ``model.raygen.eye_rays`` quantizes it (``camera_basis`` of the sample image); ``pos``
+        is every ray's origin.
+    ``width``, ``height`` (In, ``coord_bits``): the image in pixels; the sample image is
+        ``width*n x height*n`` (n = ``cfg.oversampling``), below 2**``coord_bits`` each.
+    ``box_lo``, ``box_hi`` (In, 3 format words each): the scene box of ray setup.
+    The camera, image size and box are registers of the slave: hold them while rays are in
+    flight.
+
+    Pipeline: the sequencer issues one sample per cycle (x fastest) into :class:`EyeRayPipe`,
+    whose directions go straight into :class:`RaySetupPipe`; one enable stalls all three while
+    the output ray is not taken. Latency: ``latency`` = 1 (the request is registered) +
+    ``EyeRayPipe.latency`` + ``RaySetupPipe.latency`` cycles from a request's transfer to its
+    first ray's ``o.valid`` (binary32 with the default FP latencies: 1 + 11 + 15 = 27), when
+    the sequencer is idle and ``o`` not stalled. Throughput: one ray per cycle,
+    including from one packet to the next (the next request is taken in the cycle its
+    predecessor's last lane issues).
+    """
+
+    def __init__(self, cfg: Config, latencies: dict | None = None,
+                 coord_bits: int = COORD_BITS):
+        self.cfg, self.coord_bits = cfg, coord_bits
+        lat = cfg.fp_latencies() if latencies is None else latencies
+        self.lane_bits = lane_bits(cfg)
+        self.tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": self.lane_bits,
+                                      "last": 1})
+        self.setup_tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": self.lane_bits,
+                                            "last": 1, "pixel": PIXEL_BITS})
+        self.gen = EyeRayPipe(cfg.fmt, cfg.oversampling, self.tag.size, lat, coord_bits)
+        self.setup = RaySetupPipe(cfg.fmt, self.setup_tag.size, lat, static=("org", "tmax"))
+        self.latency = 1 + self.gen.latency + self.setup.latency
+        v3 = vec3(cfg)
+        super().__init__({
+            "req": In(stream.Signature(EyeRequest(cfg))),
+            "o": Out(stream.Signature(EyeRay(cfg))),
+            "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
+            "width": In(coord_bits), "height": In(coord_bits),
+            "box_lo": In(v3), "box_hi": In(v3),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, cb = self.cfg, self.coord_bits
+        m.submodules.gen = gen = self.gen
+        m.submodules.setup = setup = self.setup
+        en = _stall(m, self.o)
+
+        # -- sequencer: the current tile's lanes, x fastest ---------------------------------------
+        tw, th, n = cfg.tile_w, cfg.tile_h, cfg.oversampling
+        busy = Signal()
+        packet = Signal(PACKET_ID_BITS)
+        x0, y0 = Signal(cb), Signal(cb)
+        wt, ht = Signal(range(tw + 1)), Signal(range(th + 1))     # the tile's size in the image
+        lx, ly = Signal(range(max(2, tw))), Signal(range(max(2, th)))
+        lane = Signal(self.lane_bits)
+        end_x = wire(m, lx == wt - 1, "seq_end_x")
+        last = wire(m, end_x & (ly == ht - 1), "seq_last")
+        issue = wire(m, busy & en, "seq_issue")
+        with m.If(issue):
+            m.d.sync += [lx.eq(Mux(end_x, 0, lx + 1)), lane.eq(lane + 1)]
+            with m.If(end_x):
+                m.d.sync += ly.eq(ly + 1)
+            with m.If(last):
+                m.d.sync += busy.eq(0)
+        req = self.req
+        m.d.comb += req.ready.eq(~busy | (issue & last))
+        with m.If(req.valid & req.ready):
+            rx = wire(m, req.payload.tile_x * tw, "req_x0")
+            ry = wire(m, req.payload.tile_y * th, "req_y0")
+            sw = wire(m, self.width * n, "sample_w")
+            sh = wire(m, self.height * n, "sample_h")
+            rem_x, rem_y = sw - rx, sh - ry
+            m.d.sync += [
+                busy.eq(1), packet.eq(req.payload.packet), x0.eq(rx), y0.eq(ry),
+                wt.eq(Mux(rem_x < tw, rem_x, tw)), ht.eq(Mux(rem_y < th, rem_y, th)),
+                lx.eq(0), ly.eq(0), lane.eq(0),
+            ]
+
+        # -- eye rays, then ray setup -------------------------------------------------------------
+        tag = data.View(self.tag, gen.tag)
+        m.d.comb += [
+            gen.en.eq(en), gen.i_valid.eq(busy),
+            gen.sx.eq(x0 + lx), gen.sy.eq(y0 + ly),
+            tag.packet.eq(packet), tag.lane.eq(lane), tag.last.eq(last),
+            gen.corner.eq(self.corner), gen.dx.eq(self.dx), gen.dy.eq(self.dy),
+            gen.width.eq(self.width),
+        ]
+        g = data.View(self.tag, gen.o_tag)
+        st = data.View(self.setup_tag, setup.tag)
+        inf = _fp_const(cfg.fmt, "+inf")
+        m.d.comb += [
+            setup.en.eq(en), setup.i_valid.eq(gen.o_valid),
+            setup.org.eq(self.pos), setup.dir.eq(gen.dir), setup.tmax.eq(inf),
+            setup.lo.eq(self.box_lo), setup.hi.eq(self.box_hi),
+            st.packet.eq(g.packet), st.lane.eq(g.lane), st.last.eq(g.last),
+            st.pixel.eq(gen.pixel),
+        ]
+        out = data.View(self.setup_tag, setup.o_tag)
+        m.d.comb += [self.o.valid.eq(setup.o_valid), self.o.payload.pixel.eq(out.pixel),
+                     self.o.payload.dir.eq(setup.o_dir)]
+        m.d.comb += _ray_out(setup, self.o.payload.ray, out.packet, out.lane, out.last, 0)
+        return m
+
+
+# ---------------------------------------------------------------------------------------------
+# secondary rays
+# ---------------------------------------------------------------------------------------------
+
+def _dot(sch: Schedule, a: list, b: list, name: str) -> tuple:
+    """``dot``: (a0*b0 + a1*b1) + a2*b2 on scheduled values."""
+    p = [sch.op("mul", a[i], b[i], f"{name}_m{i}") for i in range(3)]
+    return sch.op("add", sch.op("add", p[0], p[1], f"{name}_a0"), p[2], f"{name}_a1")
+
+
+def _positive(fmt: FPFormat, x: Value) -> Value:
+    """x > 0 (a NaN is not; a denormal encoding reads as zero)."""
+    u = unpack(fmt, x)
+    return ~u.sign & ~u.zero & ~u.nan
+
+
+def _negative(fmt: FPFormat, x: Value) -> Value:
+    """x < 0 (-0 and NaN are not)."""
+    u = unpack(fmt, x)
+    return u.sign & ~u.zero & ~u.nan
+
+
+def _neg_if(fmt: FPFormat, x: Value, cond: Value) -> Value:
+    """-x where ``cond`` (the sign bit flipped; a NaN stays the canonical NaN), else x."""
+    sign = Const(1 << (fmt.width - 1), fmt.width)
+    return Mux(cond & ~unpack(fmt, x).nan, x ^ sign, x)
+
+
+class SecondaryPipe(_Datapath):
+    """Bare secondary-ray datapath: ``model.rgs.secondary`` as a pipeline.
+
+    In: ``org``, ``dir`` (the ray, 3 format words each), ``t``, ``u``, ``v`` (its hit), ``nf``
+    (the triangle's unit face normal), ``nv`` (vertex normals A, B, C: 3 x 3 words), ``tag``
+    (carried along), ``i_valid``, ``en``; ``eps`` (the offset register, constant while rays are
+    in flight). Out after ``latency`` enabled cycles: ``o_valid``, ``p0`` (the secondary rays'
+    origin), ``g`` (face normal turned toward the ray), ``n`` (shading normal), ``r`` (reflected
+    direction), ``o_tag``.
+
+    Operations (the model's steps, ``docs/rgs.md``): ``hit`` 3 mul + 3 add, ``face`` a dot
+    product (3 mul, 2 add) and a sign flip, ``dir_norm`` a dot product, a square root, a
+    reciprocal (div) and 3 mul, ``offset`` 6 mul + 3 add + 3 sub, ``normal`` 2 sub, 9 mul,
+    6 add, a dot product, a square root, a reciprocal, 3 mul, a zero test and mux and a dot
+    product for the side, ``reflect`` a dot product, 1 mul by 2, 3 mul, 3 sub: 43 mul, 30
+    add/sub, 2 sqrt, 2 div in all. Latency ``latency`` (binary32 with the default FP latencies:
+    add 3, mul 3, div 8, sqrt 8 gives 70: ``normal``'s chain of two dot products, square
+    root, reciprocal and the reflection ends the longest path). Throughput: one hit per cycle
+    in which ``en`` is 1.
+    ``latencies``: optional ``{"add": n, "mul": n, "div": n, "sqrt": n}``.
+    """
+
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+        w = fmt.width
+        v3 = data.ArrayLayout(w, 3)
+        super().__init__(fmt, tag_width, latencies,
+                         {"org": In(v3), "dir": In(v3), "t": In(w), "u": In(w), "v": In(w),
+                          "nf": In(v3), "nv": In(data.ArrayLayout(v3, 3)), "eps": In(w)},
+                         {"p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3)})
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        fmt = self.fmt
+        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        at = sch.at
+        vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), 0) for a in range(3)]  # noqa: E731
+        d, o, nf = vec(self.dir, "d"), vec(self.org, "o"), vec(self.nf, "nf")
+        nv = [vec(self.nv[c], f"nv{c}_") for c in range(3)]
+        t, u, v, eps = ((wire(m, x, name), 0) for x, name in
+                        ((self.t, "t"), (self.u, "u"), (self.v, "v"), (self.eps, "eps")))
+        one = (_fp_const(fmt, "one"), 0)
+        # -- face: g = -nf if dot(nf, d) > 0 -------------------------------------------------
+        dn = _dot(sch, nf, d, "face_dot")
+        flip = wire(m, _positive(fmt, dn[0]), "face_flip")
+        g = [(wire(m, _neg_if(fmt, at(nf[a][0], 0, dn[1]), flip), f"g{a}"), dn[1])
+             for a in range(3)]
+        # -- dir_norm: w = d * (1 / sqrt(dot(d, d))) -----------------------------------------
+        rl = sch.op("div", one, sch.op("sqrt", _dot(sch, d, d, "dir_dot"), None, "dir_len"),
+                    "dir_rcp")
+        w_ = [sch.op("mul", d[a], rl, f"w{a}") for a in range(3)]
+        # -- hit, offset: p0 = (o + t*d + eps*g) - eps*w --------------------------------------
+        p = [sch.op("add", o[a], sch.op("mul", t, d[a], f"hit_m{a}"), f"hit{a}") for a in range(3)]
+        p0 = [sch.op("sub", sch.op("add", p[a], sch.op("mul", eps, g[a], f"off_g{a}"),
+                                   f"off_a{a}"),
+                     sch.op("mul", eps, w_[a], f"off_w{a}"), f"p0_{a}") for a in range(3)]
+        # -- normal: interpolate, normalize (g where the sum is zero), turn to g's side --------
+        b = sch.op("sub", sch.op("sub", one, u, "bary_1u"), v, "bary_b")
+        s = [sch.op("add", sch.op("add", sch.op("mul", b, nv[0][a], f"nrm_b{a}"),
+                                  sch.op("mul", u, nv[1][a], f"nrm_u{a}"), f"nrm_a{a}"),
+                    sch.op("mul", v, nv[2][a], f"nrm_v{a}"), f"nrm_s{a}") for a in range(3)]
+        q = _dot(sch, s, s, "nrm_dot")
+        rn = sch.op("div", one, sch.op("sqrt", q, None, "nrm_len"), "nrm_rcp")
+        s1 = [sch.op("mul", s[a], rn, f"nrm_n{a}") for a in range(3)]
+        tn = s1[0][1]
+        zero = wire(m, unpack(fmt, at(q[0], q[1], tn)).zero, "nrm_zero")
+        n1 = [(wire(m, Mux(zero, at(g[a][0], g[a][1], tn), s1[a][0]), f"nrm_sel{a}"), tn)
+              for a in range(3)]
+        side = _dot(sch, n1, g, "side_dot")
+        back = wire(m, _negative(fmt, side[0]), "side_flip")
+        n = [(wire(m, _neg_if(fmt, at(n1[a][0], tn, side[1]), back), f"n{a}"), side[1])
+             for a in range(3)]
+        # -- reflect: r = d - (2 * dot(d, n)) * n ---------------------------------------------
+        two = (Const(fmt.to_bits(2.0).item(), fmt.width), 0)
+        k = sch.op("mul", two, _dot(sch, d, n, "refl_dot"), "refl_k")
+        r = [sch.op("sub", d[a], sch.op("mul", k, n[a], f"refl_m{a}"), f"r{a}") for a in range(3)]
+        L = max(x[1] for x in (*p0, *g, *n, *r))
+        if dry:
+            return L
+        out = lambda xs: Cat(*(at(x[0], x[1], L) for x in xs))  # noqa: E731
+        m.d.comb += [
+            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.p0.eq(out(p0)), self.g.eq(out(g)), self.n.eq(out(n)), self.r.eq(out(r)),
+            self.o_tag.eq(at(self.tag, 0, L)),
+        ]
+        return L
+
+
+class ShadowPipe(_Datapath):
+    """Bare shadow-ray datapath: ``model.rgs.shadow_dir`` as a pipeline.
+
+    In: ``p0``, ``g`` (a hit's secondary origin and oriented face normal, from
+    :class:`SecondaryPipe`), ``light`` (3 format words: a point light's position, or a parallel
+    light's reversed direction), ``point`` (1: point light), ``tag``, ``i_valid``, ``en``.
+    Out after ``latency`` enabled cycles: ``o_valid``, ``o_p0`` (the origin, carried along),
+    ``dir`` (light - p0, or the light vector
+    itself for a parallel light), ``tmax`` (1 for a point light, +inf for a parallel one),
+    ``cast`` (dot(g, dir) > 0: the light faces the surface; no ray otherwise), ``o_tag``.
+    Operations: 3 sub, a dot product (3 mul, 2 add), a sign test. Latency: add + mul + 2 add
+    (12 at the binary32 defaults). Throughput: one (hit, light) pair per enabled cycle.
+    """
+
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+        w = fmt.width
+        v3 = data.ArrayLayout(w, 3)
+        super().__init__(fmt, tag_width, latencies,
+                         {"p0": In(v3), "g": In(v3), "light": In(v3), "point": In(1)},
+                         {"o_p0": Out(v3), "dir": Out(v3), "tmax": Out(w), "cast": Out(1)})
+
+    def _build(self, m: Module, dry: bool = False) -> int:
+        fmt = self.fmt
+        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        at = sch.at
+        point = wire(m, self.point, "point")
+        sub = [sch.op("sub", (self.light[a], 0), (self.p0[a], 0), f"ldir{a}") for a in range(3)]
+        ts = sub[0][1]
+        ds = [(wire(m, Mux(at(point, 0, ts), sub[a][0], at(self.light[a], 0, ts)), f"dir{a}"),
+               ts) for a in range(3)]
+        dot = _dot(sch, [(self.g[a], 0) for a in range(3)], ds, "face_dot")
+        L = max(dot[1], 1)
+        if dry:
+            return L
+        pt = at(point, 0, L)
+        m.d.comb += [
+            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_p0.eq(Cat(*(at(self.p0[a], 0, L) for a in range(3)))),
+            self.dir.eq(Cat(*(at(x[0], x[1], L) for x in ds))),
+            self.tmax.eq(Mux(pt, _fp_const(fmt, "one"), _fp_const(fmt, "+inf"))),
+            self.cast.eq(_positive(fmt, at(dot[0], dot[1], L))),
+            self.o_tag.eq(at(self.tag, 0, L)),
+        ]
+        return L

@@ -1,0 +1,545 @@
+"""The RGS slave: one per RTC; eye rays, the results of every ray, and the secondary rays.
+
+A slave takes packet requests (tiles) from the RGS master, makes their eye rays
+(:class:`~rtl.rgs.EyeRays`) and feeds them to its RTC; it takes every result back, reports it
+to the host, and for every hit of an eye or reflection ray makes the secondary rays in FP
+hardware (:class:`~rtl.rgs.SecondaryPipe`, :class:`~rtl.rgs.ShadowPipe`): one shadow ray per
+light that faces the surface (any-hit, tmax 1 for a point light), a reflection ray where the
+material reflects and the depth allows. The secondary rays of one source packet are packed
+into packets exactly as ``model.shading`` packs them (per light, and the reflections: the
+wanted hits of the source packet in lane order) and set up (:class:`~rtl.rgs.RaySetup`) for
+the same RTC.
+
+Data paths::
+
+    master ─req─► admit ─► EyeRays ──────────────┐              ┌─► host records (out)
+                                                  ├─ RTC arbiter ─► RTC ─results─► store lookup
+    pending buffers ─► sender ─► RaySetup ────────┘   (per packet)                      │
+          ▲                                                                              ▼
+          └── builders ◄── ShadowPipe ◄── light loop ◄── SecondaryPipe ◄── shading cache (hits)
+
+* **Ray store**: per RTC packet slot (``2 * threads`` slots; the slot is the packet id the RTC
+  sees) and lane, the ray's origin, direction and lane in its eye packet; per slot the eye
+  packet (tile), the depth and the kind (``sub``: 0 eye or reflection, 1 + l shadow ray of
+  light l).
+* **Host record** (:func:`SlaveResult`) of every ray: eye packet and lane, depth, sub — the
+  ray's id — and its hit (triangle, t, u, v).
+* **Shading records** (``REC_BITS``: unit face normal, vertex normals, flags) come through the
+  slave's shading cache (a ``rtl.cache.Cache`` on the chip's bus), addressed by triangle.
+* **Pending buffers** (``buffers`` of ``packet_size`` rays: origin, direction, eye lane):
+  secondary packets waiting for the RTC.
+
+Nothing is dropped and nothing deadlocks (``docs/chip.md``): a packet whose hits may spawn
+rays (an eye or reflection packet, when there are lights or its depth is below
+``reflect_depth``) enters the RTC only after it has *reserved* ``lights + 1``
+pending buffers (one per light, one for the reflections), so the results of every packet in
+the RTC can always be processed and the RTC always frees its threads; eye packets are admitted
+only while no secondary packet waits, and there are ``buffers >= 2 * (lights + 1) + 2``, so a
+waiting reflection packet always finds its own reservation once the packets ahead of it have
+finished.
+
+Throughput: one ray into the RTC per cycle; one result per cycle; a hit takes
+``max(1, lights)`` cycles of the light loop. Latency of a hit's secondary rays: the shading
+cache, :class:`~rtl.rgs.SecondaryPipe` (70 cycles at binary32 defaults), the light loop,
+:class:`~rtl.rgs.ShadowPipe` (12), then the whole source packet must be done before its
+secondary packets go (they are complete only then).
+"""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from amaranth.hdl import Array, Cat, Module, Mux, Signal, Value
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFO
+from amaranth.lib.memory import Memory
+from amaranth.lib.wiring import In, Out
+from amaranth.utils import ceil_log2
+
+from model.cache import CacheGeometry
+from model.config import Config, ConfigError
+from model.layout import REC_BITS, REC_REFLECTIVE, REC_WORDS
+
+from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
+from .memport import MemReadPort
+from .rgs import (COORD_BITS, EyeRays, EyeRequest, RaySetup, SecondaryPipe, ShadowPipe,
+                  _fp_const)
+from .rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
+
+__all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
+           "shade_cache_geometry"]
+
+DEPTH_BITS = 4          # reflection depth of a ray (0: eye ray)
+SUB_BITS = 4            # 0: eye or reflection ray, 1 + l: shadow ray toward light l
+
+
+def slave_buffers(cfg: Config) -> int:
+    """Pending secondary packets a slave holds: ``2 * (rgs_lights + 1) + 2``."""
+    return 2 * (cfg.rgs_lights + 1) + 2
+
+
+def shade_cache_geometry(cfg: Config) -> CacheGeometry:
+    """The slave's shading cache: records of ``REC_BITS`` bits (``REC_WORDS`` memory words),
+    ``shade_cache_kb`` KB rounded down to a power-of-two number of sets."""
+    per_set = cfg.cache_ways * REC_BITS
+    sets = (cfg.shade_cache_kb * 1024 * 8) // per_set
+    if sets < 1:
+        raise ConfigError(f"shade_cache_kb={cfg.shade_cache_kb}: too small for one set of "
+                          f"{cfg.cache_ways} record(s) of {REC_BITS // 8} bytes")
+    sets = 1 << (sets.bit_length() - 1)
+    return CacheGeometry(size_bytes=sets * per_set // 8, ways=cfg.cache_ways, line_items=1,
+                         item_bits=REC_BITS, item_span=64 * REC_WORDS,
+                         outstanding=cfg.cache_outstanding, queue=cfg.cache_queue)
+
+
+def _regs(n: int, shape, name: str) -> Array:
+    """``n`` registers as an ``Array``, padded to a power of two (an index never falls outside
+    it, so a read mux has no uncovered case: no latch)."""
+    return Array(Signal(shape, name=f"{name}{i}") for i in range(1 << ceil_log2(max(2, n))))
+
+
+def SlaveResult(cfg: Config) -> data.StructLayout:
+    """A ray's result as the chip reports it: the ray's id — ``packet`` and ``lane`` of its eye
+    ray (the tile and the lane in it), ``depth`` (reflections before it), ``sub`` (0: eye or
+    reflection ray, 1 + l: shadow ray toward light l) — and its hit (``tri`` all ones on a
+    miss, t, u, v)."""
+    w = cfg.fmt.width
+    return data.StructLayout({"packet": PACKET_ID_BITS, "lane": lane_bits(cfg),
+                              "depth": DEPTH_BITS, "sub": SUB_BITS, "tri": TRI_ID_BITS,
+                              "t": w, "u": w, "v": w})
+
+
+class Slave(wiring.Component):
+    """One RGS slave (see the module docstring).
+
+    Ports: ``req`` (In stream ``EyeRequest``: tiles from the master), ``rays`` (Out stream
+    ``RayIn`` to the RTC), ``results`` (In stream ``RayResult`` from the RTC), ``out`` (Out
+    stream :func:`SlaveResult`: every ray's result), ``shade`` (read port of shading records by
+    triangle, ``REC_BITS`` wide: the shading cache). Registers (held for the frame): the
+    camera ``pos``, ``corner``, ``dx``, ``dy``, ``width``, ``height``, the scene box
+    ``box_lo``, ``box_hi``, ``eps`` (secondary origins' offset), ``lights`` (``rgs_lights`` ×
+    3 format words: a point light's position or a parallel light's reversed direction),
+    ``light_point`` (bit l: light l is a point light), ``n_lights`` (lights in use),
+    ``reflect_depth``. ``idle``: nothing in flight. Counters: ``rays_eye``, ``rays_shadow``,
+    ``rays_reflect`` (rays into the RTC by kind), ``sec_busy`` (cycles the light loop held a
+    hit).
+    """
+
+    def __init__(self, cfg: Config):
+        self.cfg = cfg
+        L = cfg.rgs_lights
+        if L < 0 or L + 1 >= 1 << SUB_BITS:
+            raise ConfigError(f"rgs_lights={L} must be in 0..{(1 << SUB_BITS) - 2}")
+        lat = cfg.fp_latencies()
+        self.eye = EyeRays(cfg, lat)
+        self.slots = 2 * cfg.threads
+        if cfg.secondary_rays:
+            self.setup = RaySetup(cfg, lat)
+            self.sec_tag = data.StructLayout({
+                "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
+                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
+            self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat)
+            self.shd_tag = data.StructLayout({
+                "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "last": 1,
+                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
+            self.shd = ShadowPipe(cfg.fmt, self.shd_tag.size, lat)
+            self.buffers = slave_buffers(cfg)
+        else:
+            self.buffers = 0
+        v3 = vec3(cfg)
+        w = cfg.fmt.width
+        super().__init__({
+            "req": In(stream.Signature(EyeRequest(cfg))),
+            "rays": Out(stream.Signature(RayIn(cfg))),
+            "results": In(stream.Signature(RayResult(cfg))),
+            "out": Out(stream.Signature(SlaveResult(cfg))),
+            "shade": Out(MemReadPort(addr_width=32, data_width=REC_BITS, tag_width=1)),
+            "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
+            "width": In(COORD_BITS), "height": In(COORD_BITS),
+            "box_lo": In(v3), "box_hi": In(v3), "eps": In(w),
+            "lights": In(v3).array(max(1, L)), "light_point": In(max(1, L)),
+            "n_lights": In(range(L + 1)), "reflect_depth": In(DEPTH_BITS),
+            "idle": Out(1),
+            "rays_eye": Out(COUNTER_BITS), "rays_shadow": Out(COUNTER_BITS),
+            "rays_reflect": Out(COUNTER_BITS), "sec_busy": Out(COUNTER_BITS),
+        })
+
+    # -- pieces both slaves are built from -------------------------------------------------------
+    def _eye(self, m: Module) -> EyeRays:
+        """The eye-ray generator, on the camera and scene-box registers."""
+        m.submodules.eye = eye = self.eye
+        for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi"):
+            m.d.comb += getattr(eye, k).eq(getattr(self, k))
+        return eye
+
+    def _slots(self, m: Module) -> SimpleNamespace:
+        """The RTC packet slots: ``free`` (mask), ``any``/``new`` (the lowest free one),
+        ``packet`` (each slot's eye packet id); ``take`` allocates ``new`` and ``release``
+        frees ``rel`` this cycle."""
+        NS = self.slots
+        s = SimpleNamespace(free=Signal(NS, init=(1 << NS) - 1), take=Signal(),
+                            release=Signal(), rel=Signal(range(NS)),
+                            packet=_regs(NS, PACKET_ID_BITS, "slot_packet"))
+        s.any, s.new = lowest(m, s.free, "slot")
+        m.d.sync += s.free.eq((s.free & ~Mux(s.take, 1 << s.new, 0))
+                              | Mux(s.release, 1 << s.rel, 0))
+        return s
+
+    def _admission(self, m: Module, eye: EyeRays, slot: Value, can_admit: Value) -> Signal:
+        """A tile from the master starts its eye rays as RTC packet ``slot`` while
+        ``can_admit``; returns the cycle's ``admit``."""
+        admit = Signal()
+        m.d.comb += [
+            eye.req.valid.eq(self.req.valid & can_admit),
+            self.req.ready.eq(eye.req.ready & can_admit),
+            eye.req.payload.tile_x.eq(self.req.payload.tile_x),
+            eye.req.payload.tile_y.eq(self.req.payload.tile_y),
+            eye.req.payload.packet.eq(slot),
+            admit.eq(self.req.valid & self.req.ready),
+        ]
+        return admit
+
+    def _result_stage(self, m: Module) -> SimpleNamespace:
+        """Stage B: the RTC's result registered (``valid``, ``res``); it moves on in a cycle
+        with ``adv``, which the caller drives."""
+        res = self.results
+        b = SimpleNamespace(valid=Signal(), res=Signal(RayResult(self.cfg)), adv=Signal())
+        m.d.comb += res.ready.eq(~b.valid | b.adv)
+        with m.If(res.ready):
+            m.d.sync += [b.valid.eq(res.valid), b.res.eq(res.payload)]
+        return b
+
+    def _host_out(self, m: Module) -> SyncFIFO:
+        """The host records: a 4-entry queue (the caller writes it) and the registered
+        ``out`` stream."""
+        m.submodules.outq = outq = SyncFIFO(width=SlaveResult(self.cfg).size, depth=4)
+        m.submodules.out_stage = ost = OutputStage(SlaveResult(self.cfg))
+        m.d.comb += [ost.i.valid.eq(outq.r_rdy), ost.i.payload.eq(outq.r_data),
+                     outq.r_en.eq(ost.i.ready)]
+        wiring.connect(m, ost.o, wiring.flipped(self.out))
+        return outq
+
+    def elaborate_eye_only(self, m: Module) -> Module:
+        """The slave without secondary-ray hardware (``cfg.secondary_rays`` false): tiles in,
+        eye rays to the RTC, every result to the host. The same cycles as the whole slave on
+        a frame with no lights and no reflections: admission, the RTC input and the result
+        path (a registered stage, the output queue and stage) are the same pieces; an eye
+        ray's lane in its tile is its lane in the RTC packet, so no ray store is needed."""
+        sb = ceil_log2(self.slots)
+        eye = self._eye(m)
+        slot = self._slots(m)
+        admit = self._admission(m, eye, slot.new, slot.any)
+        m.d.comb += slot.take.eq(admit)
+        with m.If(admit):
+            m.d.sync += slot.packet[slot.new].eq(self.req.payload.packet)
+        m.d.comb += [self.rays.valid.eq(eye.o.valid),
+                     self.rays.payload.eq(eye.o.payload.ray.as_value()),
+                     eye.o.ready.eq(self.rays.ready)]
+        with m.If(eye.o.valid & eye.o.ready):
+            m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
+        b = self._result_stage(m)
+        outq = self._host_out(m)
+        bslot = b.res.packet[:sb]
+        rec = Signal(SlaveResult(self.cfg))
+        m.d.comb += [b.adv.eq(b.valid & outq.w_rdy),
+                     rec.packet.eq(slot.packet[bslot]), rec.lane.eq(b.res.lane),
+                     rec.tri.eq(b.res.tri), rec.t.eq(b.res.t), rec.u.eq(b.res.u),
+                     rec.v.eq(b.res.v), outq.w_data.eq(rec), outq.w_en.eq(b.adv),
+                     slot.rel.eq(bslot), slot.release.eq(b.adv & b.res.last)]
+        m.d.comb += self.idle.eq((slot.free == (1 << self.slots) - 1) & ~b.valid &
+                                 ~outq.r_rdy & ~self.out.valid)
+        return m
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, fmt = self.cfg, self.cfg.fmt
+        if not cfg.secondary_rays:
+            return self.elaborate_eye_only(m)
+        P, L, NS, NB = cfg.packet_size, cfg.rgs_lights, self.slots, self.buffers
+        lb, sb, bb = lane_bits(cfg), ceil_log2(NS), max(1, ceil_log2(NB))
+        w = fmt.width
+        eye = self._eye(m)
+        m.submodules.setup = setup = self.setup
+        m.submodules.sec = sec = self.sec
+        m.submodules.shd = shd = self.shd
+        m.d.comb += [setup.box_lo.eq(self.box_lo), setup.box_hi.eq(self.box_hi)]
+        K = Signal(range(L + 2))
+        m.d.comb += K.eq(self.n_lights + 1)
+
+        def spawns(depth):               # may a packet (eye or reflection) of this depth spawn?
+            return (self.n_lights != 0) | (depth < self.reflect_depth)
+
+        # -- RTC packet slots and their table -------------------------------------------------------
+        slot = self._slots(m)
+        any_slot, new_slot, t_packet = slot.any, slot.new, slot.packet
+        t_depth = _regs(NS, DEPTH_BITS, "slot_depth")
+        t_sub = _regs(NS, SUB_BITS, "slot_sub")
+
+        # -- pending buffers: free, ready (with their packet's metadata), credits --------------------
+        buf_free = Signal(NB, init=(1 << NB) - 1)
+        buf_ready = Signal(NB)
+        b_count = _regs(NB, range(P + 1), "buf_count")
+        b_sub = _regs(NB, SUB_BITS, "buf_sub")
+        b_depth = _regs(NB, DEPTH_BITS, "buf_depth")
+        b_packet = _regs(NB, PACKET_ID_BITS, "buf_packet")
+        credits = Signal(range(NB + 1), init=NB)
+        entry = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb})
+        pend = Memory(shape=entry, depth=NB * P, init=[])
+        m.submodules.pend = pend
+        pend_w_sh = pend.write_port()        # shadow rays (ShadowPipe output)
+        pend_w_rf = pend.write_port()        # reflection rays (light loop)
+        pend_r = pend.read_port()
+
+        # -- ray store ------------------------------------------------------------------------------
+        store = Memory(shape=entry, depth=NS * P, init=[])
+        m.submodules.store = store
+        store_w_eye = store.write_port()
+        store_w_sec = store.write_port()
+        store_r = store.read_port()
+
+        # -- admission of eye packets ---------------------------------------------------------------
+        sender_busy = Signal()
+        eye_spawns = spawns(0)
+        can_admit = (any_slot & (~eye_spawns | (credits >= K)) & (buf_ready == 0) &
+                     ~sender_busy)
+        admit = self._admission(m, eye, new_slot, can_admit)
+        credit_take = Signal(range(L + 2))     # reserved this cycle
+        credit_back = Signal(range(NB + 1))    # returned this cycle
+        with m.If(admit):
+            m.d.comb += [slot.take.eq(1), credit_take.eq(Mux(eye_spawns, K, 0))]
+            m.d.sync += [t_packet[new_slot].eq(self.req.payload.packet),
+                         t_depth[new_slot].eq(0), t_sub[new_slot].eq(0)]
+
+        # -- sender: a ready buffer's rays into RaySetup ----------------------------------------------
+        # a ready reflection packet that may spawn waits for its reservation; the others (shadow
+        # packets, reflections that spawn nothing) may start: the lowest ready buffer that can
+        # start goes, so a waiting reflection packet never blocks the shadow packets whose
+        # buffers give the credits back
+        startable = Signal(NB)
+        m.d.comb += startable.eq(Cat(*(
+            buf_ready[i] & ~((b_sub[i] == 0) & spawns(b_depth[i]) & (credits < K))
+            for i in range(NB))))
+        any_ready, rb = lowest(m, startable, "ready")
+        s_buf = Signal(bb)
+        s_slot = Signal(range(NS))
+        s_count = Signal(range(P + 1))
+        s_next = Signal(range(P + 1))        # lanes read so far
+        rd_valid = Signal()
+        rd_lane = Signal(lb)
+        spawning = (b_sub[rb] == 0) & spawns(b_depth[rb])   # a reflection packet that may spawn
+        start_send = Signal()
+        m.d.comb += start_send.eq(~sender_busy & any_ready & any_slot)
+        with m.If(start_send):
+            m.d.comb += slot.take.eq(1)
+            with m.If(spawning):
+                m.d.comb += credit_take.eq(K)
+            m.d.sync += [sender_busy.eq(1), s_buf.eq(rb), s_slot.eq(new_slot),
+                         s_count.eq(b_count[rb]), s_next.eq(0), rd_valid.eq(0),
+                         t_packet[new_slot].eq(b_packet[rb]), t_depth[new_slot].eq(b_depth[rb]),
+                         t_sub[new_slot].eq(b_sub[rb])]
+        sp = setup.i
+        xfer = sp.valid & sp.ready
+        more = s_next < s_count
+        load = sender_busy & more & (~rd_valid | xfer)
+        m.d.comb += [pend_r.addr.eq(s_buf * P + s_next), pend_r.en.eq(load)]
+        with m.If(load):
+            m.d.sync += [s_next.eq(s_next + 1), rd_lane.eq(s_next)]
+        with m.If(xfer & ~load):
+            m.d.sync += rd_valid.eq(0)
+        with m.Elif(load):
+            m.d.sync += rd_valid.eq(1)
+        e = pend_r.data
+        cur_sub = t_sub[s_slot]
+        light_idx = (cur_sub - 1)[:max(1, ceil_log2(max(2, L)))]
+        is_shadow = cur_sub != 0
+        point = Mux(is_shadow, self.light_point.bit_select(light_idx, 1), 0)
+        last_lane = rd_lane == s_count - 1
+        m.d.comb += [
+            sp.valid.eq(sender_busy & rd_valid),
+            sp.payload.packet.eq(s_slot), sp.payload.lane.eq(rd_lane),
+            sp.payload.last.eq(last_lane), sp.payload.org.eq(e.org), sp.payload.dir.eq(e.dir),
+            sp.payload.tmax.eq(Mux(point, _fp_const(fmt, "one"), _fp_const(fmt, "+inf"))),
+            sp.payload.anyhit.eq(is_shadow),
+            store_w_sec.addr.eq(s_slot * P + rd_lane), store_w_sec.data.eq(e),
+            store_w_sec.en.eq(xfer),
+        ]
+        sent_done = Signal()
+        m.d.comb += sent_done.eq(xfer & last_lane)
+        with m.If(sent_done):
+            m.d.sync += sender_busy.eq(0)
+        with m.If(xfer):
+            with m.If(is_shadow):
+                m.d.sync += self.rays_shadow.eq(self.rays_shadow + 1)
+            with m.Else():
+                m.d.sync += self.rays_reflect.eq(self.rays_reflect + 1)
+
+        # -- RTC input: eye rays or set-up secondary rays, a whole packet at a time --------------------
+        lock = Signal(2)                     # 0 none, 1 eye, 2 secondary
+        use_sec = Mux(lock == 0, setup.o.valid, lock == 2)
+        src_valid = Mux(use_sec, setup.o.valid, eye.o.valid)
+        src_ray = Mux(use_sec, setup.o.payload.as_value(), eye.o.payload.ray.as_value())
+        m.d.comb += [self.rays.valid.eq(src_valid), self.rays.payload.eq(src_ray),
+                     setup.o.ready.eq(use_sec & self.rays.ready),
+                     eye.o.ready.eq(~use_sec & self.rays.ready)]
+        go = self.rays.valid & self.rays.ready
+        with m.If(go):
+            m.d.sync += lock.eq(Mux(self.rays.payload.last, 0, Mux(use_sec, 2, 1)))
+        eo = eye.o.payload
+        m.d.comb += [
+            store_w_eye.addr.eq(eo.ray.packet[:sb] * P + eo.ray.lane),
+            store_w_eye.data.eq(Cat(self.pos.as_value(), eo.dir.as_value(), eo.ray.lane)),
+            store_w_eye.en.eq(eye.o.valid & eye.o.ready),
+        ]
+        with m.If(eye.o.valid & eye.o.ready):
+            m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
+
+        # -- results: store lookup (stage B), host record, contexts of spawning packets ------------
+        res = self.results
+        b = self._result_stage(m)
+        b_valid, b_res, b_adv = b.valid, b.res, b.adv
+        m.d.comb += [store_r.addr.eq(res.payload.packet[:sb] * P + res.payload.lane),
+                     store_r.en.eq(res.ready)]
+        bslot = b_res.packet[:sb]
+        sub, depth = t_sub[bslot], t_depth[bslot]
+        hit = b_res.tri != (1 << TRI_ID_BITS) - 1
+        spawn_pkt = (sub == 0) & spawns(depth)
+        want_rec = spawn_pkt & hit
+        stored = data.View(entry, store_r.data)
+        ctx_lay = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb, "hit": 1,
+                                     "last": 1, "packet": PACKET_ID_BITS, "depth": DEPTH_BITS,
+                                     "t": w, "u": w, "v": w})
+        m.submodules.ctx = ctxq = SyncFIFO(width=ctx_lay.size, depth=4 + cfg.cache_queue)
+        outq = self._host_out(m)
+        rq = self.shade.req
+        need_ctx = b_valid & spawn_pkt
+        ok = (outq.w_rdy & (~spawn_pkt | (ctxq.w_rdy & (~want_rec | rq.ready))))
+        m.d.comb += b_adv.eq(b_valid & ok)
+        rec = Signal(SlaveResult(cfg))
+        m.d.comb += [rec.packet.eq(t_packet[bslot]), rec.lane.eq(stored.lane),
+                     rec.depth.eq(depth), rec.sub.eq(sub), rec.tri.eq(b_res.tri),
+                     rec.t.eq(b_res.t), rec.u.eq(b_res.u), rec.v.eq(b_res.v)]
+        ctx = Signal(ctx_lay)
+        m.d.comb += [ctx.org.eq(stored.org), ctx.dir.eq(stored.dir), ctx.lane.eq(stored.lane),
+                     ctx.hit.eq(hit), ctx.last.eq(b_res.last), ctx.packet.eq(t_packet[bslot]),
+                     ctx.depth.eq(depth), ctx.t.eq(b_res.t), ctx.u.eq(b_res.u),
+                     ctx.v.eq(b_res.v)]
+        m.d.comb += [outq.w_data.eq(rec), outq.w_en.eq(b_adv),
+                     ctxq.w_data.eq(ctx), ctxq.w_en.eq(b_adv & need_ctx),
+                     rq.valid.eq(b_valid & want_rec & outq.w_rdy & ctxq.w_rdy),
+                     rq.payload.addr.eq(b_res.tri), rq.payload.tag.eq(0)]
+        m.d.comb += [slot.rel.eq(bslot), slot.release.eq(b_adv & b_res.last)]
+
+        # -- SecondaryPipe: a context (with its record, for a hit) per enabled cycle -----------------
+        head = data.View(ctx_lay, ctxq.r_data)
+        resp = self.shade.resp
+        feed_ok = ctxq.r_rdy & (~head.hit | resp.valid)
+        sec_en = Signal()
+        m.d.comb += sec.en.eq(sec_en)
+        feed = feed_ok & sec_en
+        m.d.comb += [ctxq.r_en.eq(feed), resp.ready.eq(feed & head.hit)]
+        rdata = resp.payload.data
+        word = lambda i: from_binary32(fmt, rdata[32 * i:32 * i + 32])  # noqa: E731
+        flags = rdata[32 * 12:32 * 13]
+        st = data.View(self.sec_tag, sec.tag)
+        m.d.comb += [sec.i_valid.eq(feed), sec.org.eq(head.org), sec.dir.eq(head.dir),
+                     sec.t.eq(head.t), sec.u.eq(head.u), sec.v.eq(head.v), sec.eps.eq(self.eps),
+                     sec.nf.eq(Cat(word(0), word(1), word(2))),
+                     sec.nv.eq(Cat(*(word(3 + i) for i in range(9)))),
+                     st.lane.eq(head.lane), st.hit.eq(head.hit), st.last.eq(head.last),
+                     st.refl.eq((flags & REC_REFLECTIVE) != 0), st.packet.eq(head.packet),
+                     st.depth.eq(head.depth)]
+
+        # -- light loop: each SecondaryPipe output to ShadowPipe once per light (once if no hit) ----
+        so = data.View(self.sec_tag, sec.o_tag)
+        li = Signal(range(max(2, L)))
+        commit_wait = Signal()              # a packet's last token is in ShadowPipe
+        tokens_last = Mux(so.hit & (self.n_lights != 0), li == self.n_lights - 1, 1)
+        loop_go = sec.o_valid & ~commit_wait
+        take = loop_go & tokens_last
+        m.d.comb += sec_en.eq(~sec.o_valid | take)
+        with m.If(loop_go):
+            m.d.sync += li.eq(Mux(tokens_last, 0, li + 1))
+            m.d.sync += self.sec_busy.eq(self.sec_busy + 1)
+        with m.If(take & so.last):
+            m.d.sync += commit_wait.eq(1)
+        tt = data.View(self.shd_tag, shd.tag)
+        m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(sec.p0), shd.g.eq(sec.g),
+                     shd.light.eq(Array([x.as_value() for x in self.lights] +
+                                        [self.lights[0].as_value()] *
+                                        ((1 << ceil_log2(max(2, L))) - L))[li] if L else 0),
+                     shd.point.eq(self.light_point.bit_select(li, 1) if L else 0),
+                     tt.lane.eq(so.lane), tt.light.eq(li),
+                     tt.hit.eq(so.hit & (self.n_lights != 0)), tt.last.eq(take & so.last),
+                     tt.packet.eq(so.packet), tt.depth.eq(so.depth)]
+
+        # -- builders: L shadow packets and the reflection packet of the current source packet -----
+        nbld = L + 1
+        has = Signal(nbld)
+        bbuf = _regs(nbld, bb, "bld_buf")
+        bcnt = _regs(nbld, range(P + 1), "bld_count")
+        # reflection write (light loop, first token of a hit on a reflective surface)
+        rf_w = loop_go & (li == 0) & so.hit & so.refl & (so.depth < self.reflect_depth)
+        # shadow write (ShadowPipe output)
+        ot = data.View(self.shd_tag, shd.o_tag)
+        sh_w = shd.o_valid & ot.hit & shd.cast
+        sh_b = ot.light               # the light's builder (as wide as the light index: the
+                                      # register arrays' read muxes stay complete)
+        # buffers for builders without one: up to two new ones a cycle
+        a1, f1 = lowest(m, buf_free, "alloc1")
+        a2, f2 = lowest(m, buf_free & ~(1 << f1), "alloc2")
+        need_rf = rf_w & ~has[L]
+        need_sh = sh_w & ~has.bit_select(sh_b, 1)
+        rf_buf = Mux(has[L], bbuf[L], f1)
+        sh_buf = Mux(has.bit_select(sh_b, 1), bbuf[sh_b], Mux(need_rf, f2, f1))
+        taken = Signal(NB)
+        m.d.comb += taken.eq(Mux(need_rf, 1 << f1, 0) |
+                             Mux(need_sh, Mux(need_rf, 1 << f2, 1 << f1), 0))
+        m.d.comb += [
+            pend_w_rf.addr.eq(rf_buf * P + bcnt[L]), pend_w_rf.en.eq(rf_w),
+            pend_w_rf.data.eq(Cat(sec.p0.as_value(), sec.r.as_value(), so.lane)),
+            pend_w_sh.addr.eq(sh_buf * P + bcnt[sh_b]), pend_w_sh.en.eq(sh_w),
+            pend_w_sh.data.eq(Cat(shd.o_p0.as_value(), shd.dir.as_value(), ot.lane)),
+        ]
+        # commit: the source packet's last token left ShadowPipe
+        commit = shd.o_valid & ot.last
+        new_has = Signal(nbld)
+        m.d.comb += new_has.eq(has | Mux(rf_w, 1 << L, 0) | Mux(sh_w, 1 << sh_b, 0))
+        with m.If(rf_w):
+            m.d.sync += [bcnt[L].eq(bcnt[L] + 1)]
+            with m.If(~has[L]):
+                m.d.sync += bbuf[L].eq(f1)
+        with m.If(sh_w):
+            m.d.sync += bcnt[sh_b].eq(bcnt[sh_b] + 1)
+            with m.If(~has.bit_select(sh_b, 1)):
+                m.d.sync += bbuf[sh_b].eq(Mux(need_rf, f2, f1))
+        committed = Signal(NB)
+        unused = Signal(range(nbld + 1))
+        def fresh(i):                # the buffer builder i is given this cycle
+            return f1 if i == L else Mux(need_rf, f2, f1)
+        with m.If(commit):
+            m.d.sync += has.eq(0)
+            for i in range(nbld):
+                cnt = bcnt[i] + Mux(sh_w & (sh_b == i), 1, 0) + (rf_w if i == L else 0)
+                buf = Mux(has[i], bbuf[i], fresh(i))
+                m.d.sync += bcnt[i].eq(0)
+                with m.If(new_has[i]):
+                    m.d.sync += [b_count[buf].eq(cnt),
+                                 b_sub[buf].eq(0 if i == L else i + 1),
+                                 b_depth[buf].eq(ot.depth + (1 if i == L else 0)),
+                                 b_packet[buf].eq(ot.packet)]
+            m.d.comb += unused.eq(K - sum(new_has[i] for i in range(nbld)))
+            m.d.comb += committed.eq(Cat(*(
+                sum((new_has[i] & (Mux(has[i], bbuf[i], fresh(i)) == b)) for i in range(nbld))
+                != 0 for b in range(NB))))
+            m.d.sync += commit_wait.eq(0)
+        with m.Else():
+            m.d.sync += has.eq(new_has)
+        m.d.sync += buf_ready.eq((buf_ready | committed) &
+                                 ~Mux(start_send, 1 << rb, 0))
+        m.d.sync += buf_free.eq((buf_free & ~taken) | Mux(sent_done, 1 << s_buf, 0))
+        m.d.comb += credit_back.eq(unused + sent_done)
+        m.d.sync += credits.eq(credits + credit_back - credit_take)
+
+        # -- idle ------------------------------------------------------------------------------------
+        m.d.comb += self.idle.eq((slot.free == (1 << NS) - 1) & (credits == NB) & ~b_valid &
+                                 ~outq.r_rdy & ~self.out.valid & ~sender_busy)
+        return m

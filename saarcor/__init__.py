@@ -1,0 +1,2 @@
+"""The ``saarcor`` command line: one entry point for the golden model, the RTL and the benches
+(see :mod:`saarcor.cli`)."""

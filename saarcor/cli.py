@@ -1,0 +1,132 @@
+"""``saarcor COMMAND [options]``: one command line for the golden model, the RTL and the benches.
+
+Each command hands its arguments to an existing module's ``main(argv)``, so every option is
+defined once, in that module, and ``saarcor COMMAND --help`` prints that module's full help.
+Modules are imported only when their command runs (``saarcor --help`` imports none of them).
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Command:
+    """A command: ``module.func(prefix + argv)`` runs it; ``help`` is its line in the listing."""
+    module: str
+    help: str
+    func: str = "main"
+    prefix: tuple[str, ...] = ()
+
+
+COMMANDS: dict[str, Command] = {
+    "sim": Command("tb.sim", "render a scene on the simulated chip (RTL) and check it against "
+                             "the golden model"),
+    "render": Command("model.cli", "render a scene with the golden model alone: image.png, "
+                                   "stats.json, rays.npz, hits.npz", prefix=("render",)),
+    "verilog": Command("rtl.export", "write the Verilog of the one-RTC top or of one unit"),
+    "fpga": Command("rtl.fpga.flow", "synthesis, place and route on an ECP5-85k (YoWASP Yosys, "
+                                     "nextpnr); resources and Fmax"),
+    "verilator": Command("tb.verilator", "trace a frame through one RTC in Verilator, every ray "
+                                         "compared with the golden model"),
+    "sweep": Command("tb.sweep", "a design-space sweep (configurations x scenes x resolutions) "
+                                 "on Dask, cached per point, into one results table"),
+    "results": Command("tb.results", "docs/results.md: the paper's Section 5 tables beside "
+                                     "ours, from sweeps, with plots"),
+}
+"""Top-level commands; ``bench`` (below) is a group of its own."""
+
+BENCHES: dict[str, Command] = {
+    "chip": Command("tb.bench_chip", "a frame on the whole chip in Verilator: cycles, fps, "
+                                     "relative performance"),
+    "memory": Command("tb.bench_memory", "cache hit rates per unit and SDRAM bandwidth"),
+    "threads": Command("tb.bench_threads", "RTC cycles against threads per RTC (the paper's "
+                                           "speed-up)"),
+    "model": Command("model.bench", "golden-model rays per second next to Embree, kd-tree "
+                                    "build time"),
+    "ladder": Command("tb.ladder", "the simulation ladder: golden model, cycle estimate, "
+                                   "sampled RTL, Verilator, Amaranth: run time against fps error"),
+    "stress": Command("tb.stress", "numerical stress cases of the golden model against the "
+                                   "exact oracle"),
+    "resources": Command("tb.resources", "the chip's FP units by kind, flip-flop and memory "
+                                         "bits, from its netlist"),
+    "skipping": Command("tb.skipping", "what skipping work a scene doesn't need saves: run-time "
+                                       "skips, the chip built for the scene, second runs"),
+}
+
+BENCH_HELP = "benchmarks, written to build/bench/: " + ", ".join(BENCHES)
+
+
+def _parser(prog: str, description: str, commands: dict[str, str]) -> argparse.ArgumentParser:
+    """A parser used for its help and its error messages; commands parse their own options."""
+    ap = argparse.ArgumentParser(
+        prog=prog, description=description,
+        epilog=f"Run `{prog} COMMAND --help` for the options of a command.")
+    sub = ap.add_subparsers(title="commands", metavar="COMMAND")
+    for name, text in commands.items():
+        sub.add_parser(name, help=text, add_help=False)
+    return ap
+
+
+def top_parser() -> argparse.ArgumentParser:
+    listing = {name: c.help for name, c in COMMANDS.items()}
+    listing["bench"] = BENCH_HELP
+    return _parser("saarcor", "SaarCOR ray-tracing chip: golden model, RTL, simulation and "
+                              "benchmarks.", listing)
+
+
+def bench_parser() -> argparse.ArgumentParser:
+    return _parser("saarcor bench", "Benchmarks and sweeps; each writes JSON to its --out "
+                                    "directory (build/bench by default).",
+                   {name: c.help for name, c in BENCHES.items()})
+
+
+def _dispatch(ap: argparse.ArgumentParser, commands: dict, argv: list[str]):
+    """The command named by ``argv[0]`` and the rest of ``argv``; help and errors for the rest."""
+    if not argv:
+        ap.print_usage(sys.stderr)
+        ap.exit(2, f"{ap.prog}: error: name a command: {', '.join(commands)} "
+                   f"(`{ap.prog} --help` explains each)\n")
+    first = argv[0]
+    if first in ("-h", "--help"):
+        ap.print_help()
+        ap.exit(0)
+    if first.startswith("-"):
+        named = next((a for a in argv if a in commands), "COMMAND")
+        ap.error(f"unknown option {first!r}: options go after the command, "
+                 f"e.g. `{ap.prog} {named} {first}`")
+    if first not in commands:
+        ap.error(f"unknown command {first!r}; choose one of: {', '.join(commands)}")
+    return first, argv[1:]
+
+
+def run(name: str, cmd: Command, argv: list[str]) -> int:
+    """Import ``cmd.module`` and call its ``main`` with ``argv``; its exit status."""
+    try:
+        module = importlib.import_module(cmd.module)
+    except ModuleNotFoundError as e:
+        if e.name and (cmd.module + ".").startswith(e.name + "."):
+            path = cmd.module.replace(".", "/") + ".py"
+            raise SystemExit(f"{name}: {path} ({cmd.module}) is not in this checkout; update "
+                             f"the checkout to a version that has it")
+        raise SystemExit(f"{name}: needs the Python package {e.name!r}, which is not installed; "
+                         f"run `make setup`")
+    status = getattr(module, cmd.func)([*cmd.prefix, *argv])
+    return status if isinstance(status, int) else 0      # some mains return their results
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run ``saarcor COMMAND [options]``; returns the exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    listing = dict(COMMANDS, bench=None)
+    name, rest = _dispatch(top_parser(), listing, argv)
+    if name == "bench":
+        sub, rest = _dispatch(bench_parser(), BENCHES, rest)
+        return run(f"saarcor bench {sub}", BENCHES[sub], rest)
+    return run(f"saarcor {name}", COMMANDS[name], rest)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

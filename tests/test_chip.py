@@ -1,0 +1,219 @@
+"""The whole chip (rtl/chip.py): RGS master and slaves, RTCs behind their RTC-MIs, one bus to
+the SDRAM model; every ray — eye rays, and with a scene its shadow and reflection rays made by
+the slaves — bit-exact with the golden model in both simulators."""
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from model.cache import CacheModel
+from model.config import Config
+from model.events import EV_LEAF, EV_NODE, EV_TRI
+from model.raygen import REFLECTION, SHADOW, eye_rays
+from model.layout import REC_WORDS
+from model.render import prepare
+from model.rtc import trace
+from model.scene import load_scene
+from rtl.rtcmi import rtcmi_geometries
+from tb.compare import COMPARED
+
+from .conftest import ROOT, TIMING, timing_changed
+
+# small caches so that a tiny frame both hits and misses; SDRAM as configured (4 chips, 4:1)
+TINY = Config(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1,
+              int_cache_kb=9, mem_latency=8)
+
+
+@pytest.fixture(scope="module")
+def cornell(kd_cache):
+    scene = load_scene(ROOT / "scenes/cornell.toml")
+    return scene, prepare(scene, TINY, cache_dir=kd_cache).image
+
+
+def check_frame(r, cfg, image, rays):
+    """Every ray bit-exact; every ray in and out once; the RTCs' counters add up to the
+    model's; the caches' and the memory's counters agree with each other. ``rays``: the eye
+    rays (the frame's other rays are ``r.frame_rays``, the model's)."""
+    from model.raygen import EYE, REFLECTION, SHADOW
+    c = r.counters
+    every = r.frame_rays
+    assert r.mismatches == []
+    assert c["rays_in"] == c["results_out"] == len(every) == r.rays
+    assert sum(c["packets"]) == rays.n_packets
+    assert sum(x["packets_done"] for x in c["rtc"]) == every.n_packets
+    for kind, name in ((EYE, "rays_eye"), (SHADOW, "rays_shadow"), (REFLECTION, "rays_reflect")):
+        assert sum(x[name] for x in c["slave"]) == int((every.kind == kind).sum()), name
+    for rtc_name, model_name in COMPARED.items():
+        assert sum(x[rtc_name] for x in c["rtc"]) == r.model[model_name], rtc_name
+    for x, h, mi, g in zip(c["rtc"], c["hits"], c["misses"], c["grants"]):
+        assert h["trav"] + mi["trav"] == x["node_reads"]
+        assert h["list"] + mi["list"] == x["list_reads"]
+        assert h["int"] + mi["int"] == x["int_tris"]
+        assert (g["trav"], g["list"], g["int"]) == (mi["trav"], mi["list"], 5 * mi["int"])
+        assert g["shade"] == REC_WORDS * mi["shade"]
+    assert sum(c["mem_words"]) == c["mem_reads"] == sum(sum(g.values()) for g in c["grants"])
+
+
+@pytest.mark.parametrize("rtcs", [1, 2])
+def test_chip_frame_in_amaranth_sim(rtcs, cornell):
+    """An 8x4 Cornell frame (2 packets): eye rays made by the RGS slaves in FP hardware,
+    traced by 1 or 2 RTCs through their caches and the SDRAM model, under result
+    back-pressure; with 2 RTCs the master gives each a packet."""
+    from tb.chip import run_chip
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=rtcs)
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    r = run_chip(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3)
+    check_frame(r, cfg, image, rays)
+    if rtcs == 2:
+        assert r.counters["packets"] == [1, 1]
+    name = {1: "chip/cornell_8x4_rtcs1", 2: "chip/cornell_8x4_rtcs2"}[rtcs]
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+
+
+def test_cache_hits_are_the_cache_models(cornell):
+    """One RTC of one thread traces packet after packet in the model's event order, so each
+    cache sees the model's request sequence: ``model.cache.CacheModel`` predicts its hits."""
+    from tb.chip import run_chip
+    scene, image = cornell
+    cfg = TINY.replace(threads=1)
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    r = run_chip(cfg, image, scene.camera, 8, 4)
+    check_frame(r, cfg, image, rays)
+    _, _, ev = trace(image, rays, cfg, record=True)
+    kind = ev["kind"]
+    leaf = ev[(kind == EV_LEAF) & (ev["count"] > 0)]
+    words = [np.arange(f >> 1, ((f + n - 1) >> 1) + 1) for f, n in zip(leaf["first"],
+                                                                         leaf["count"])]
+    streams = {"trav": image.node_base + ev["node"][(kind == EV_NODE) | (kind == EV_LEAF)],
+               "list": image.list_base + np.concatenate(words),
+               "int": ev["tri"][kind == EV_TRI]}
+    geoms = rtcmi_geometries(cfg)
+    for name, addrs in streams.items():
+        model = CacheModel(geoms[name])
+        model.access(addrs.astype(np.int64))
+        assert (r.counters["hits"][0][name], r.counters["misses"][0][name]) == \
+            (model.hits, model.misses), name
+        assert model.hits > 0 and model.misses > 0, name
+
+
+def test_chip_verilator_same_cycles_as_amaranth_sim(cornell):
+    """The same frame, stall pattern and seed in Verilator: the same results, counters and
+    cycle count as in Amaranth's simulator (the timing contract)."""
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    r = run_chip_frame(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3, progress=False)
+    check_frame(r, cfg, image, rays)
+    assert r.cycles == TIMING["chip/cornell_8x4_rtcs2"], timing_changed(
+        "chip/cornell_8x4_rtcs2", r.cycles)
+
+
+def test_chip_verilator_cornell_16x16(cornell):
+    """A 16x16 Cornell frame (16 packets) on 2 RTCs in Verilator with result back-pressure
+    and random memory latency (the SDRAM model holds its responses in half the cycles): every
+    ray bit-exact, the packets spread over both RTCs by the master."""
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(scene.camera, 16, 16, cfg)
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
+                       progress=False)
+    check_frame(r, cfg, image, rays)
+    assert min(r.counters["packets"]) >= 4
+    fixed = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, seed=5,
+                           progress=False)
+    check_frame(fixed, cfg, image, rays)
+    assert r.cycles > fixed.cycles        # the holds do act
+
+
+def test_chip_secondary_rays_in_amaranth_sim(cornell):
+    """A 4x4 Cornell frame with its shadow rays (3 point lights) and reflections (the mirror
+    sphere): the slaves make every secondary ray in FP hardware from the RTCs' results, and
+    every ray of the frame's ray tree is bit-exact with ``model.render``'s, found by its id."""
+    from tb.chip import run_chip
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(scene.camera, 4, 4, cfg)
+    r = run_chip(cfg, image, scene.camera, 4, 4, stall=0.25, seed=3, scene=scene)
+    check_frame(r, cfg, image, rays)
+    kinds = np.bincount(r.frame_rays.kind, minlength=3)
+    assert kinds[1] > kinds[0] > 0                  # shadow rays toward every light
+    name = "chip/cornell_4x4_scene_rtcs2"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+
+
+def test_chip_secondary_rays_verilator(cornell):
+    """The same 4x4 frame with secondary rays in Verilator: the same cycle count as in
+    Amaranth's simulator; then 16x16 (shadows, a reflective sphere, the textured floor) under
+    back-pressure and random memory latency: every ray bit-exact, reflections included."""
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    r = run_chip_frame(cfg, image, scene.camera, 4, 4, stall=0.25, seed=3, scene=scene,
+                       progress=False)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 4, 4, cfg))
+    name = "chip/cornell_4x4_scene_rtcs2"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
+                       scene=scene, progress=False, max_cycles=2_000_000)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    rays = r.frame_rays
+    assert (rays.kind == REFLECTION).any()
+    assert ((rays.kind == SHADOW) & (rays.depth == 1)).any()     # shadow rays at reflection hits
+
+
+def test_chip_reflections_of_reflections_verilator(kd_cache):
+    """Office (3 lights, a mirror) on the same binary, 16x16 under back-pressure: reflections of
+    reflections and many reflection packets waiting for their reservations. (The standard chip
+    hung on office while the slave's sender tried only the lowest ready buffer: a reflection
+    packet waiting for its reservation blocked the shadow packets that return it.)"""
+    from tb.chip import run_chip_frame
+    cfg = TINY.replace(rtcs=2)
+    scene = load_scene(ROOT / "scenes/office.toml")
+    image = prepare(scene, cfg, cache_dir=kd_cache).image
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, seed=3, scene=scene,
+                       progress=False, max_cycles=1_000_000)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    rays = r.frame_rays
+    assert (rays.depth == 2).any() and (rays.kind == REFLECTION).sum() > 10
+
+
+def test_a_stuck_frame_names_its_packets_and_rtcs():
+    """When a frame hits the cycle limit, the message names the packets whose results are
+    missing and, per RTC, packets given against packets finished."""
+    from tb.chip import stuck
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(load_scene(ROOT / "scenes/cornell.toml").camera, 8, 8, cfg)   # 4 packets
+    records = {"packet": np.array([0] * 16 + [1] * 16 + [3] * 10)}
+    c = {"packets0": 2, "packets1": 2, "rtc0_packets_done": 2, "rtc1_packets_done": 0,
+         "rays_in": 64}
+    text = stuck(cfg, rays, records, c, 1000)
+    assert "packets never finished: [2, 3]" in text
+    assert "RTC 0: 2 packets in, 2 done" in text and "RTC 1: 2 packets in, 0 done" in text
+    assert "42 of 64 results" in text
+    # with secondary rays a tile has finished when the rays it spawned have: tile 0's eye rays
+    # 3 and 5 spawned two more
+    every = SimpleNamespace(eye=np.concatenate([np.arange(64), [3, 5]]))
+    text = stuck(cfg, rays, records, c, 1000, every)
+    assert "packets never finished: [0, 2, 3]" in text and "42 of 66 results" in text
+
+
+def test_stall_bench_passes_and_can_fail(cornell, tmp_path):
+    """``tb.bench_chip --seeds``: a few seeds of back-pressure and memory-latency jitter on the
+    small chip finish bit-exact; with a cycle limit no frame can meet, every seed is reported
+    as a failure naming the unfinished packets."""
+    import json
+
+    from tb.bench_chip import stall_bench
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    path = tmp_path / "stalls.json"
+    assert stall_bench(cfg, image, scene.camera, 8, 8, 3, path) == 0
+    res = json.loads(path.read_text())
+    assert res["runs"] == 3 and res["failures"] == []
+    assert len({r["cycles"] for r in res["per_run"]}) > 1          # the seeds differ
+    assert stall_bench(cfg, image, scene.camera, 8, 8, 2, path, max_cycles=200) == 1
+    res = json.loads(path.read_text())
+    assert len(res["failures"]) == 2 and "packets never finished" in res["failures"][0]["what"]

@@ -1,0 +1,233 @@
+"""RGS slave RTL (``rtl/rgs.py``): ``EyeRays`` and ``RaySetup`` bit for bit against the golden
+model (``model.raygen.eye_rays`` + ``setup``, i.e. ``model/rgs.py``), with random request
+bubbles and output back-pressure; exact latency and one-ray-per-cycle throughput; the sample
+conversion over its whole range; the pixel index's constant division; the secondary-ray
+datapaths (``SecondaryPipe``, ``ShadowPipe``) against ``model.rgs.secondary_rays`` /
+``shadow_rays`` at their exact cycles."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from amaranth.sim import Simulator
+
+from model.config import Config
+from model.fp import FPFormat
+from model.raygen import eye_rays
+from rtl.rgs import (COORD_BITS, EyeRays, RaySetupPipe, SecondaryPipe, ShadowPipe,
+                     div_const_params, sample_converter)
+from tb.rgs import (AXIS_BOX, axis_camera, edge_rays, oblique_camera, run_eye_rays,
+                    run_ray_setup, run_secondary, run_shadow, secondary_cases, tile_grid)
+
+B32 = FPFormat(8, 23)
+OBLIQUE_BOX = np.array([[-1.5, -1.0, -2.0], [1.0, 2.0, 0.5]])
+
+
+def check(r):
+    assert r.mismatches == [], r.describe()
+    assert len(r.out_cycles) == r.rays
+
+
+# ----------------------------------------------------------------------------------------------
+# EyeRays
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("fmt", [B32, FPFormat(6, 10)], ids=str)
+def test_eye_rays_axis_camera(fmt):
+    """15 x 12 pixels in 8 x 8 tiles (partial tiles right and bottom), every tile requested in
+    a shuffled order with arbitrary packet ids; the camera looks down -z, so the middle column
+    has d.x = 0 (inv.x = inf) on the box's lo.x face plane (the flat rule), and the z sums add
+    ±0 products. Random request bubbles and output back-pressure."""
+    cfg = Config(fmt=fmt)
+    cam, bounds = axis_camera(), fmt.quantize(AXIS_BOX)
+    rays = eye_rays(cam, 15, 12, cfg)
+    assert (rays.dir[:, 0] == 0).sum() == 12 and sorted(np.diff(rays.pk_start)) == [28, 32, 56, 64]
+    rng = np.random.default_rng(1)
+    tiles = list(rng.permutation(4))
+    r = run_eye_rays(cam, 15, 12, cfg, bounds, tiles=tiles, packet_ids=[7, 0xFFFFFFFF, 3, 42],
+                     idle=0.3, stall=0.3, seed=2)
+    check(r)
+    assert r.rays == 180
+
+
+@pytest.mark.parametrize("fmt,n,res,tile,tiles", [
+    (FPFormat(8, 14), 2, (15, 11), (8, 8), [0, 3, 11, 7]),     # 30 x 22 samples; 4 x 3 tiles
+    (FPFormat(8, 16), 3, (5, 4), (4, 4), None),                # 15 x 12: pixel = s // 3
+    (B32, 1, (16, 12), (8, 8), [1, 2]),
+], ids=["E8M14-n2", "E8M16-n3", "E8M23-n1"])
+def test_eye_rays_oversampling(fmt, n, res, tile, tiles):
+    """Oversampled frames (n x n samples per pixel; the pixel index divides by n), the oblique
+    camera, a small format."""
+    cfg = Config(fmt=fmt, oversampling=n, tile_w=tile[0], tile_h=tile[1], trav_subunits=1)
+    r = run_eye_rays(oblique_camera(), *res, cfg, fmt.quantize(OBLIQUE_BOX), tiles=tiles,
+                     idle=0.2, stall=0.4, seed=5)
+    check(r)
+
+
+def test_eye_rays_latency_and_throughput():
+    """Without bubbles or back-pressure: the first ray leaves ``latency`` cycles after the first
+    request (27 for binary32 with the default FP latencies) and then one ray per cycle,
+    packets back to back, partial tiles included."""
+    cfg = Config()
+    r = run_eye_rays(oblique_camera(), 15, 12, cfg, OBLIQUE_BOX)
+    check(r)
+    assert r.latency == 27
+    assert r.out_cycles[0] == r.in_cycles[0] + r.latency
+    assert r.out_cycles == list(range(r.out_cycles[0], r.out_cycles[0] + r.rays))
+
+
+def test_eye_rays_latency_follows_fp_latencies():
+    cfg = Config(fp_add_latency=2, fp_mul_latency=1, fp_div_latency=5)
+    dut = EyeRays(cfg)
+    for unit in (dut, dut.gen, dut.setup):
+        unit._MustUse__silence = True
+    # 1 + (conv 2 + mul 1 + 2 adds) + (div 5 + mul 1 + 4 min/max)
+    assert (dut.gen.latency, dut.setup.latency, dut.latency) == (7, 10, 18)
+    r = run_eye_rays(oblique_camera(), 9, 8, cfg.replace(tile_w=4, tile_h=4, trav_subunits=1),
+                     OBLIQUE_BOX)
+    check(r)
+    assert r.out_cycles[0] == r.in_cycles[0] + r.latency
+
+
+# ----------------------------------------------------------------------------------------------
+# RaySetup
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("fmt", [B32, FPFormat(8, 14), FPFormat(6, 10)], ids=str)
+def test_ray_setup_edge_and_random_rays(fmt):
+    """Zero and signed-zero components, |d| ties, negative dominant axes, origins on every face
+    plane (in-plane and leaving), infinite, tiny and huge components, finite tmax, any-hit."""
+    cfg = Config(fmt=fmt, tile_w=4, tile_h=4, trav_subunits=1)
+    bounds = fmt.quantize(OBLIQUE_BOX)
+    r = run_ray_setup(edge_rays(fmt, bounds, n_random=60, seed=4), bounds, cfg, idle=0.25,
+                      stall=0.35, seed=9)
+    check(r)
+
+
+def test_ray_setup_exact_latency():
+    """Every ray leaves exactly ``latency`` cycles after it entered (no back-pressure; input
+    bubbles), one per cycle when they come one per cycle; 15 cycles for binary32."""
+    cfg = Config(tile_w=4, tile_h=4, trav_subunits=1)
+    bounds = OBLIQUE_BOX.astype(np.float32)
+    rays = edge_rays(B32, bounds, n_random=20, seed=6)
+    r = run_ray_setup(rays, bounds, cfg, idle=0.3, seed=3)
+    check(r)
+    assert r.latency == 15
+    assert [o - i for i, o in zip(r.in_cycles, r.out_cycles)] == [r.latency] * r.rays
+    r = run_ray_setup(rays, bounds, cfg)
+    assert r.out_cycles == [c + r.latency for c in r.in_cycles]
+    assert r.in_cycles == list(range(r.in_cycles[0], r.in_cycles[0] + r.rays))
+
+
+def test_ray_setup_latency_parameters():
+    fmt = FPFormat(8, 10)
+    for lat, want in (({"add": 1, "mul": 2, "div": 3, "minmax": 0}, 3 + 2 + 0),
+                      ({"add": 1, "mul": 0, "div": 3, "minmax": 0}, 1 + 3),  # shear ends last
+                      ({"add": 4, "mul": 1, "div": 2, "minmax": 2}, 4 + 1 + 4 * 2)):
+        pipe = RaySetupPipe(fmt, latencies=lat)
+        pipe._MustUse__silence = True
+        assert pipe.latency == want, lat
+    cfg = Config(fmt=fmt, tile_w=4, tile_h=4, trav_subunits=1)
+    bounds = fmt.quantize(OBLIQUE_BOX)
+    r = run_ray_setup(edge_rays(fmt, bounds, n_random=10, seed=2), bounds, cfg, latencies=lat,
+                      stall=0.3, seed=1)
+    check(r)
+
+
+# ----------------------------------------------------------------------------------------------
+# pieces: the sample conversion, the pixel index's division
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("fmt", [
+    FPFormat(5, 10),                   # rounds above s = 2**10, overflows to inf above 65504
+    FPFormat(2, 1),                    # 0.5 flushes to zero, 4 and up overflow
+    *(pytest.param(f, marks=pytest.mark.slow)
+      for f in (B32, FPFormat(8, 14), FPFormat(6, 10), FPFormat(4, 3)))], ids=str)
+def test_sample_conversion_whole_range(fmt):
+    """The RTL's ``sample`` step (int -> FP of 2*s + 1 with one fraction bit, the converter
+    ``EyeRayPipe`` instantiates) equals ``fmt.quantize(s + 0.5)`` for every s < 2**16 (the
+    model's side of the identity is checked in every format in
+    ``tests/test_rgs_model.py``). ~15 s per format in the Amaranth simulator."""
+    dut = sample_converter(fmt, COORD_BITS, latency=0)
+    n = 1 << COORD_BITS
+    got = np.empty(n, np.int64)
+
+    async def bench(ctx):
+        for s in range(n):
+            ctx.set(dut.a, 2 * s + 1)
+            got[s] = ctx.get(dut.o)
+
+    sim = Simulator(dut)
+    sim.add_testbench(bench)
+    sim.run()
+    want = fmt.to_bits(fmt.quantize(np.arange(n) + 0.5)).astype(np.int64)
+    bad = np.flatnonzero(got != want)
+    assert bad.size == 0, f"{fmt}: s = {bad[:5]}: RTL {got[bad[:5]]}, model {want[bad[:5]]}"
+
+
+def test_div_const_exact():
+    """The pixel index's ``v // n`` by reciprocal multiplication is exact for every 16-bit v."""
+    v = np.arange(1 << COORD_BITS, dtype=np.int64)
+    for n in range(1, 17):
+        mult, k = div_const_params(n, COORD_BITS)
+        assert np.array_equal((v * mult) >> k, v // n), n
+
+
+def test_tile_grid():
+    assert tile_grid(15, 11, Config(oversampling=2)) == (4, 3)
+
+
+# ----------------------------------------------------------------------------------------------
+# secondary rays: SecondaryPipe, ShadowPipe
+# ----------------------------------------------------------------------------------------------
+
+LIGHTS = np.array([[1.0, 2.0, 3.0], [0.3, -0.5, 0.8], [-4.0, 5.0, 1.0]])
+POINT = np.array([1, 0, 1])
+
+
+@pytest.mark.parametrize("fmt,latencies", [
+    (B32, None), (FPFormat(8, 12), {"add": 1, "mul": 2, "div": 3, "sqrt": 2}),
+    (FPFormat(6, 10), {"add": 5, "mul": 4, "div": 12, "sqrt": 11})], ids=str)
+def test_secondary_pipe(fmt, latencies):
+    """Every output of every hit (random and edge cases) at its exact cycle, bit for bit with
+    ``model.rgs.secondary_rays``, with 20 % input bubbles and 20 % stalls."""
+    hits = secondary_cases(fmt, 80, seed=fmt.frac_bits)
+    r = run_secondary(hits, fmt, latencies=latencies)
+    assert r.mismatches == [], r.mismatches[:5]
+    assert r.outputs == len(hits) and r.cycles > len(hits)
+
+
+def test_secondary_cases_reach_every_branch():
+    """The edge cases make each of the datapath's selects go both ways in the model."""
+    from model.rgs import secondary_rays
+    fmt = B32
+    h = secondary_cases(fmt, 200, seed=3)
+    p0, g, n, r = secondary_rays(h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps),
+                                 *fmt.em)
+    flipped = np.all(g == -h.nf, axis=1) & np.any(h.nf != 0, axis=1)
+    assert 0 < flipped.sum() < len(h)                          # face: both orientations
+    assert np.all(np.sum(g.astype(np.float64) * h.dir, axis=1) <= 0)
+    zero_sum = np.all(n == g, axis=1)
+    assert zero_sum.any()                                      # normal: the zero-sum rule
+    assert np.all(np.sum(n.astype(np.float64) * g, axis=1) >= 0)   # n on g's side
+    assert np.any(h.dir == 0) and np.any(np.signbit(h.dir) & (h.dir == 0))
+
+
+def test_secondary_pipe_latency_formula():
+    """Latency = 11 add + 7 mul + sqrt + div (the shading normal's path through the
+    reflection), for two sets of FP latencies."""
+    for lat in ({"add": 3, "mul": 3, "div": 8, "sqrt": 8}, {"add": 2, "mul": 5, "div": 9, "sqrt": 4}):
+        p = SecondaryPipe(B32, latencies=lat)
+        assert p.latency == 11 * lat["add"] + 7 * lat["mul"] + lat["sqrt"] + lat["div"]
+        s = ShadowPipe(B32, latencies=lat)
+        assert s.latency == 3 * lat["add"] + lat["mul"]
+    assert SecondaryPipe(B32).latency == 70 and ShadowPipe(B32).latency == 12
+
+
+@pytest.mark.parametrize("fmt", [B32, FPFormat(8, 12)], ids=str)
+def test_shadow_pipe(fmt):
+    """Point and parallel lights: direction, tmax and the facing test of every (hit, light)
+    pair bit for bit with ``model.rgs.shadow_rays``."""
+    hits = secondary_cases(fmt, 50, seed=7)
+    r = run_shadow(hits, LIGHTS, POINT, fmt)
+    assert r.mismatches == [], r.mismatches[:5]
+    assert r.outputs == 3 * len(hits) and r.cycles > 3 * len(hits)

@@ -1,0 +1,314 @@
+"""The RGS slave's golden model (``model/rgs.py``) against two independent recomputations.
+
+* NumPy-vectorized: the per-operation arrays ``FPFormat.add/mul/div/min/max`` (a different code
+  path from the scalar kernels), written here the way ``model/raygen.py`` computed rays before
+  the kernels existed, on whole frames and on many random and edge-case rays.
+* Exact: ``tests/fp_exact.py``'s ``Fraction`` arithmetic on encodings, step by step in the
+  documented order (``docs/rgs.md``), on edge cases.
+
+Plus the sample-coordinate identity (``(2*s + 1) * 2**-1`` rounded once equals
+``quantize(s + 0.5)``) over the whole 16-bit coordinate range in every format.
+"""
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numba
+import numpy as np
+import pytest
+
+from model.config import Config
+from model.fp import FPFormat
+from model.raygen import Rays, camera_registers, eye_rays, setup
+from model.rgs import sample_coord
+from tb.rgs import AXIS_BOX, axis_camera, edge_rays, oblique_camera
+from tests.fp_exact import INF, NAN, ExactFormat
+
+FORMATS = [FPFormat(8, 23), FPFormat(8, 14), FPFormat(6, 10), FPFormat(5, 10)]
+
+
+# ----------------------------------------------------------------------------------------------
+# the NumPy-vectorized recomputation
+# ----------------------------------------------------------------------------------------------
+
+def np_eye_rays(camera, width, height, cfg):
+    fmt, n = cfg.fmt, cfg.oversampling
+    sw, sh = width * n, height * n
+    pos, corner, dx, dy = camera_registers(camera, width, height, cfg)
+    tw, th = cfg.tile_w, cfg.tile_h
+    ty, tx, ly, lx = np.meshgrid(np.arange(-(-sh // th)), np.arange(-(-sw // tw)),
+                                 np.arange(th), np.arange(tw), indexing="ij")
+    sx, sy = (tx * tw + lx).ravel(), (ty * th + ly).ravel()
+    inside = (sx < sw) & (sy < sh)
+    tile = (ty * (-(-sw // tw)) + tx).ravel()[inside]
+    sx, sy = sx[inside], sy[inside]
+    px, py = fmt.quantize(sx + 0.5), fmt.quantize(sy + 0.5)
+    d = np.stack([fmt.add(fmt.add(corner[a], fmt.mul(px, dx[a])), fmt.mul(py, dy[a]))
+                  for a in range(3)], axis=1)
+    counts = np.bincount(tile, minlength=-(-sw // tw) * -(-sh // th))
+    pk_start = np.concatenate([[0], np.cumsum(counts[counts > 0])])
+    return d, (sy // n) * width + sx // n, pk_start, pos
+
+
+@np.errstate(invalid="ignore")
+def np_setup(org, dirn, tmax, bounds, fmt):
+    """Inputs read as the hardware reads them (denormals flushed), then the steps vectorized."""
+    d, o = fmt.flush(dirn), fmt.flush(org)
+    tmax = fmt.flush(tmax)
+    one = np.float32(1.0)
+    inv = np.stack([fmt.div(one, d[:, a]) for a in range(3)], axis=1)
+    kz = np.argmax(np.abs(d), axis=1)          # first of the largest; a NaN is the largest
+    kx = (kz + 1) % 3
+    ky = (kx + 1) % 3
+    idx = np.arange(len(d))
+    dz = d[idx, kz]
+    swap = dz < 0
+    kx, ky = np.where(swap, ky, kx), np.where(swap, kx, ky)
+    s = np.stack([fmt.div(d[idx, kx], dz), fmt.div(d[idx, ky], dz), fmt.div(one, dz)], axis=1)
+    lo, hi = (fmt.flush(np.asarray(b, np.float32)) for b in bounds)
+    tnear = np.zeros(len(d), np.float32)
+    tfar = tmax.copy()
+    for a in range(3):
+        t0 = fmt.mul(fmt.sub(lo[a], o[:, a]), inv[:, a])
+        t1 = fmt.mul(fmt.sub(hi[a], o[:, a]), inv[:, a])
+        flat = np.isnan(t0) | np.isnan(t1)
+        t0 = np.where(flat, np.float32(-np.inf), t0)
+        t1 = np.where(flat, np.float32(np.inf), t1)
+        tnear = fmt.max(tnear, fmt.min(t0, t1))
+        tfar = fmt.min(tfar, fmt.max(t0, t1))
+    sign = (d.view(np.uint32) >> 31).astype(np.int64)
+    octant = sign[:, 0] | sign[:, 1] << 1 | sign[:, 2] << 2
+    return inv, np.stack([kx, ky, kz], axis=1), s, tnear, tfar, octant
+
+
+def same(fmt, a, b) -> bool:
+    """Bit-identical as format words (NaN canonical)."""
+    return np.array_equal(fmt.to_bits(np.asarray(a, np.float32)),
+                          fmt.to_bits(np.asarray(b, np.float32)))
+
+
+def check_setup(rays, bounds, fmt):
+    rs = setup(rays, bounds, fmt)
+    inv, k, s, tnear, tfar, octant = np_setup(rays.org, rays.dir, rays.tmax, bounds, fmt)
+    assert same(fmt, rs.inv, inv) and same(fmt, rs.s, s)
+    assert np.array_equal(rs.k, k) and np.array_equal(rs.octant, octant)
+    assert same(fmt, rs.tnear, tnear) and same(fmt, rs.tfar, tfar)
+    return rs
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=str)
+@pytest.mark.parametrize("n,tile,res", [(1, (8, 8), (15, 12)), (2, (8, 8), (15, 11)),
+                                        (3, (4, 4), (7, 5)), (1, (8, 4), (64, 48))])
+def test_eye_rays_match_vectorized(fmt, n, tile, res):
+    cfg = Config(fmt=fmt, oversampling=n, tile_w=tile[0], tile_h=tile[1], trav_subunits=1)
+    for cam in (axis_camera(), oblique_camera()):
+        rays = eye_rays(cam, *res, cfg)
+        d, pixel, pk_start, pos = np_eye_rays(cam, *res, cfg)
+        assert same(fmt, rays.dir, d)
+        assert np.array_equal(rays.pixel, pixel) and np.array_equal(rays.pk_start, pk_start)
+        assert same(fmt, rays.org, np.broadcast_to(pos, d.shape))
+        assert np.all(rays.tmax == np.inf) and not rays.anyhit.any()
+        check_setup(rays, fmt.quantize(AXIS_BOX), fmt)
+
+
+def test_axis_camera_makes_the_edge_cases():
+    """The axis camera gives exact zero direction components (infinite reciprocals), ±0
+    products, and with :data:`tb.rgs.AXIS_BOX` (lo.x on the camera's x) the flat rule: checked
+    here, so the tests using them do cover those paths."""
+    fmt = FPFormat(8, 23)
+    cfg = Config(fmt=fmt)
+    rays = eye_rays(axis_camera(), 15, 12, cfg)
+    _, _, dx, dy = camera_registers(axis_camera(), 15, 12, cfg)
+    assert dx[2] == 0 and dy[2] == 0 and np.signbit(dy[2])       # px*dx_z = +0, py*dy_z = -0
+    zero = rays.dir[:, 0] == 0
+    assert zero.sum() == 12
+    bounds = fmt.quantize(AXIS_BOX)
+    rs = setup(rays, bounds, fmt)
+    assert np.all(np.isinf(rs.inv[zero, 0]))
+    # the x slab of these rays is (lo.x - o.x) * inf = 0 * inf = NaN: the flat rule ignores it,
+    # and the interval is the z slab's [2.5, 5] (a NaN let through would make tnear +inf)
+    assert np.all(rs.tnear[zero] == 2.5) and np.all(rs.tfar[zero] == 5)
+
+
+@pytest.mark.parametrize("fmt", FORMATS + [FPFormat(4, 3)], ids=str)
+def test_setup_matches_vectorized_on_edge_and_random_rays(fmt):
+    rng = np.random.default_rng(7)
+    bounds = fmt.quantize(np.array([[-1.5, -1.0, -2.0], [1.0, 2.0, 0.5]]))
+    edge = edge_rays(fmt, bounds, n_random=2000, seed=3)
+    check_setup(edge, bounds, fmt)
+    # NaN and denormal components, NaN and -0 tmax: the axis choice, the swap and the flush
+    n = 400
+    dirn = rng.normal(size=(n, 3)).astype(np.float32)
+    pick = rng.integers(0, 6, size=(n, 3))
+    dirn[pick == 0] = np.nan
+    dirn[pick == 1] = np.float32(1e-40) * np.sign(rng.normal(size=(pick == 1).sum()))
+    dirn[pick == 2] = -0.0
+    org = rng.normal(size=(n, 3)).astype(np.float32)
+    org[:, 0] = np.where(rng.random(n) < 0.3, bounds[0, 0], org[:, 0])
+    tmax = rng.choice(np.array([np.inf, 1.0, -0.0, np.nan, 1e-40], np.float32), n)
+    rays = Rays.from_arrays(fmt.quantize(org), np.where(pick == 1, dirn, fmt.quantize(dirn)),
+                            tmax)
+    check_setup(rays, bounds, fmt)
+
+
+# ----------------------------------------------------------------------------------------------
+# the exact recomputation (Fraction arithmetic on encodings)
+# ----------------------------------------------------------------------------------------------
+
+def _mag_key(X, b):
+    kind, _, v = X.decode(b)
+    return (2, 0) if kind == NAN else (1, 0) if kind == INF else (0, v)
+
+
+def exact_eye_dir(X, sx, sy, corner, dx, dy):
+    px = X.round(0, Fraction(2 * sx + 1, 2))
+    py = X.round(0, Fraction(2 * sy + 1, 2))
+    return [X.add(X.add(corner[a], X.mul(px, dx[a])), X.mul(py, dy[a])) for a in range(3)]
+
+
+def exact_setup(X, o, d, tmax, lo, hi):
+    """One ray, encodings in and out: inv, k, s, tnear, tfar, octant."""
+    one = X.round(0, Fraction(1))
+    inv = [X.div(one, d[a]) for a in range(3)]
+    keys = [_mag_key(X, x) for x in d]
+    kz = max(range(3), key=lambda a: (keys[a], -a))         # first of the largest
+    kx, ky = (kz + 1) % 3, (kz + 2) % 3
+    if X.lt(d[kz], X.zero(0)):
+        kx, ky = ky, kx
+    s = [X.div(d[kx], d[kz]), X.div(d[ky], d[kz]), inv[kz]]
+    tnear, tfar = X.zero(0), X.canonical(tmax)
+    for a in range(3):
+        t0 = X.mul(X.sub(lo[a], o[a]), inv[a])
+        t1 = X.mul(X.sub(hi[a], o[a]), inv[a])
+        if X.decode(t0)[0] == NAN or X.decode(t1)[0] == NAN:
+            t0, t1 = X.inf(1), X.inf(0)
+        tnear = X.max(tnear, X.min(t0, t1))
+        tfar = X.min(tfar, X.max(t0, t1))
+    sign = [(x >> (X.E + X.M)) & 1 for x in d]
+    return inv, [kx, ky, kz], s, tnear, tfar, sign[0] | sign[1] << 1 | sign[2] << 2
+
+
+@pytest.mark.parametrize("fmt", [FPFormat(8, 23), FPFormat(6, 10), FPFormat(4, 3)], ids=str)
+def test_setup_matches_exact_arithmetic(fmt):
+    X = ExactFormat(fmt.exp_bits, fmt.frac_bits)
+    bounds = fmt.quantize(np.array([[-1.5, -1.0, -2.0], [1.0, 2.0, 0.5]]))
+    rays = edge_rays(fmt, bounds, n_random=100, seed=11)
+    rs = setup(rays, bounds, fmt)
+    bits = lambda x: [int(v) for v in fmt.to_bits(np.asarray(x, np.float32))]
+    lo, hi = bits(bounds[0]), bits(bounds[1])
+    for r in range(len(rays)):
+        inv, k, s, tnear, tfar, octant = exact_setup(X, bits(rays.org[r]), bits(rays.dir[r]),
+                                                     bits([rays.tmax[r]])[0], lo, hi)
+        got = (bits(rs.inv[r]), list(rs.k[r]), bits(rs.s[r]), bits([rs.tnear[r]])[0],
+               bits([rs.tfar[r]])[0], int(rs.octant[r]))
+        assert got == (inv, k, s, tnear, tfar, octant), (r, rays.org[r], rays.dir[r])
+
+
+@pytest.mark.parametrize("fmt", [FPFormat(8, 23), FPFormat(6, 10), FPFormat(5, 4)], ids=str)
+@pytest.mark.parametrize("n", [1, 2])
+def test_eye_rays_match_exact_arithmetic(fmt, n):
+    X = ExactFormat(fmt.exp_bits, fmt.frac_bits)
+    cfg = Config(fmt=fmt, oversampling=n, tile_w=4, tile_h=4, trav_subunits=1)
+    for cam in (axis_camera(), oblique_camera()):
+        w, h = 15 if n == 1 else 7, 6
+        rays = eye_rays(cam, w, h, cfg)
+        _, corner, dx, dy = (
+            [int(v) for v in fmt.to_bits(x)] for x in camera_registers(cam, w, h, cfg))
+        sw, tw, th = w * n, cfg.tile_w, cfg.tile_h
+        tiles_x = -(-sw // tw)
+        r = 0
+        for p in range(rays.n_packets):
+            tx, ty = p % tiles_x, p // tiles_x
+            for sy in range(ty * th, min(ty * th + th, h * n)):
+                for sx in range(tx * tw, min(tx * tw + tw, sw)):
+                    want = exact_eye_dir(X, sx, sy, corner, dx, dy)
+                    assert [int(v) for v in fmt.to_bits(rays.dir[r])] == want, (sx, sy)
+                    assert rays.pixel[r] == (sy // n) * w + sx // n
+                    r += 1
+        assert r == len(rays)
+
+
+@numba.njit(cache=True)
+def _sample_coords(n, E, M):
+    out = np.empty(n, np.float32)
+    for s in range(n):
+        out[s] = sample_coord(s, E, M)
+    return out
+
+
+def test_sample_coordinate_identity_every_format():
+    """``sample``: (2*s + 1) * 2**-1 rounded once (the kernel; ``from_fixed(2*s + 1, 1)``, the
+    RTL converter's definition) equals ``quantize(s + 0.5)`` for every 16-bit s in every
+    format E2..E8 x M1..M23 (rounding, overflow to inf, and at E2 the flush of 0.5)."""
+    s = np.arange(1 << 16)
+    for E in range(2, 9):
+        for M in range(1, 24):
+            fmt = FPFormat(E, M)
+            want = fmt.to_bits(fmt.quantize(s + 0.5))
+            assert np.array_equal(fmt.to_bits(_sample_coords(s.size, E, M)), want), fmt
+            assert np.array_equal(fmt.to_bits(fmt.from_fixed(2 * s + 1, 1)), want), fmt
+
+
+# ----------------------------------------------------------------------------------------------
+# secondary rays against the NumPy-vectorized recomputation and float64
+# ----------------------------------------------------------------------------------------------
+
+def np_secondary(h, fmt):
+    """The documented steps (``docs/rgs.md``) with ``FPFormat``'s array operations."""
+    add, sub, mul, div, sqrt = fmt.add, fmt.sub, fmt.mul, fmt.div, fmt.sqrt
+
+    def dot(a, b):
+        return add(add(mul(a[:, 0], b[:, 0]), mul(a[:, 1], b[:, 1])), mul(a[:, 2], b[:, 2]))
+
+    def unit(x):
+        q = dot(x, x)
+        r = div(np.float32(1), sqrt(q))
+        return np.stack([mul(x[:, a], r) for a in range(3)], axis=1), q
+    d, o = h.dir, h.org
+    g = np.where((dot(h.nf, d) > 0)[:, None], -h.nf, h.nf)
+    w, _ = unit(d)
+    p = np.stack([add(o[:, a], mul(h.t, d[:, a])) for a in range(3)], axis=1)
+    p0 = np.stack([sub(add(p[:, a], mul(h.eps, g[:, a])), mul(h.eps, w[:, a]))
+                   for a in range(3)], axis=1)
+    b = sub(sub(np.float32(1), h.u), h.v)
+    s = np.stack([add(add(mul(b, h.nv[:, 0, a]), mul(h.u, h.nv[:, 1, a])), mul(h.v, h.nv[:, 2, a]))
+                  for a in range(3)], axis=1)
+    n, q = unit(s)
+    n = np.where((q == 0)[:, None], g, n)
+    n = np.where((dot(n, g) < 0)[:, None], -n, n)
+    k = mul(np.float32(2), dot(d, n))
+    r = np.stack([sub(d[:, a], mul(k, n[:, a])) for a in range(3)], axis=1)
+    return p0, g, n, r
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=str)
+def test_secondary_matches_vectorized(fmt):
+    from model.rgs import secondary_rays
+    from tb.rgs import secondary_cases
+    h = secondary_cases(fmt, 3000, seed=11)
+    got = secondary_rays(h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps), *fmt.em)
+    for name, a, b in zip(("p0", "g", "n", "r"), got, np_secondary(h, fmt)):
+        assert same(fmt, a, b), name
+
+
+def test_secondary_geometry_float64():
+    """What the steps are for, checked in float64 at binary32: the origin lies on g's side of
+    the hit point's tangent plane and before it along the ray; the shading normal has unit
+    length and lies on g's side; the reflection keeps |d| and mirrors d about n."""
+    from model.rgs import secondary_rays
+    from tb.rgs import secondary_cases
+    fmt = FPFormat(8, 23)
+    h = secondary_cases(fmt, 2000, seed=12)
+    p0, g, n, r = (x.astype(np.float64) for x in secondary_rays(
+        h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps), *fmt.em))
+    d = h.dir.astype(np.float64)
+    p = h.org + h.t[:, None].astype(np.float64) * d
+    off = p0 - p
+    ok = np.linalg.norm(p, axis=1) < 100            # eps = 1e-3 is above the rounding there
+    assert np.all(np.sum(off * g, axis=1)[ok] > 0)
+    assert np.all(np.sum(off * d, axis=1)[ok] < 0)
+    assert np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-5)
+    assert np.all(np.sum(n * g, axis=1) >= 0)
+    want = d - 2 * np.sum(d * n, axis=1, keepdims=True) * n
+    scale = np.linalg.norm(d, axis=1, keepdims=True)
+    assert np.allclose(r / scale, want / scale, atol=1e-5)

@@ -1,0 +1,140 @@
+"""The ``saarcor`` command line (saarcor/cli.py): listing, forwarding, help and errors."""
+import ast
+import importlib.util
+import json
+import subprocess
+import sys
+import tomllib
+
+import pytest
+from PIL import Image
+
+from saarcor.cli import BENCHES, COMMANDS, main
+
+from .conftest import ROOT
+
+# an option each command's --help must show: proof that the module's own parser answered
+OPTION = {
+    ("render",): "--reflect-depth",
+    ("verilog",): "--threads",
+    ("fpga",): "--freq",
+    ("verilator",): "--mem-stall",
+    ("sweep",): "--scheduler",
+    ("results",): "--skip-threads",
+    ("sim",): "--mem-stall",
+    ("bench", "chip"): "--seeds",
+    ("bench", "memory"): "--words-per-chip",
+    ("bench", "threads"): "--thread-counts",
+    ("bench", "model"): "--build-copies",
+    ("bench", "stress"): "--formats",
+    ("bench", "ladder"): "--fraction",
+    ("bench", "resources"): "--json",
+    ("bench", "skipping"): "--second-run",
+}
+
+
+def call(argv, capsys):
+    """``saarcor *argv`` in this process: (exit status, stdout, stderr)."""
+    try:
+        status = main(argv)
+    except SystemExit as e:
+        status = e.code if isinstance(e.code, int) else (print(e.code, file=sys.stderr) or 1)
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def test_every_command_has_a_help_test():
+    names = {(n,) for n in COMMANDS} | {("bench", n) for n in BENCHES}
+    assert names == set(OPTION)
+
+
+def test_help_lists_every_command_and_imports_none_of_them():
+    code = ("import sys; from saarcor.cli import main\n"
+            "try:\n    main(['--help'])\nexcept SystemExit as e:\n    assert e.code == 0, e.code\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            "('model', 'rtl', 'tb', 'numpy', 'amaranth')))")
+    r = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert lines[-1] == "[]", f"saarcor --help imported {lines[-1]}"
+    listing = "\n".join(lines[:-1])
+    for name in [*COMMANDS, "bench"]:
+        assert f"\n    {name} " in listing or f"\n    {name}\n" in listing, (name, listing)
+    for name in BENCHES:                   # the bench group names its benches in its line
+        assert name in listing
+
+
+def test_python_m_saarcor_runs():
+    r = subprocess.run([sys.executable, "-m", "saarcor", "bench", "--help"], cwd=ROOT,
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    for name, cmd in BENCHES.items():
+        assert f"    {name}" in r.stdout and cmd.help.split()[0] in r.stdout
+
+
+@pytest.mark.parametrize("cmd", sorted(OPTION), ids=" ".join)
+def test_command_help_is_the_modules_help(cmd, capsys):
+    status, out, err = call([*cmd, "--help"], capsys)
+    assert status == 0, err
+    assert OPTION[cmd] in out, out
+    if cmd in (("render",), ("verilog",), ("bench", "threads")):   # Config options, generated
+        assert "--trav-cache-kb" in out and "--fmt" in out
+
+
+@pytest.mark.parametrize("argv, words", [
+    ([], ["name a command", "render"]),
+    (["rendr"], ["unknown command 'rendr'", "render"]),
+    (["--threads", "4", "verilog"], ["'--threads'", "saarcor verilog --threads"]),
+    (["bench"], ["name a command", "threads"]),
+    (["bench", "speed"], ["unknown command 'speed'", "memory"]),
+    (["verilog", "--no-such-option"], ["--no-such-option"]),
+    (["bench", "threads", "--threads", "4"], ["--thread-counts"]),
+    (["render", "scenes/cornell.toml", "--fmt", "E8M30"], ["frac_bits"]),
+])
+def test_bad_command_or_option_names_the_problem(argv, words, capsys):
+    status, out, err = call(argv, capsys)
+    assert status != 0
+    for w in words:
+        assert w in err, (w, err)
+    assert "Traceback" not in err
+
+
+def test_forwards_arguments_and_exit_status(capsys):
+    status, out, err = call(["verilog", "--list"], capsys)
+    assert status == 0, err
+    assert "rtc" in [line.split()[0] for line in out.splitlines() if line.strip()], out
+    status, out, err = call(["render", "no-such-scene.toml", "--quiet"], capsys)
+    assert status == 2 and "no-such-scene.toml" in err     # render's own status, returned
+
+
+def test_render_writes_an_image(tmp_path, capsys):
+    status, out, err = call(["render", str(ROOT / "scenes" / "cornell.toml"), "--res", "8x6",
+                             "--tile-w", "4", "--tile-h", "4", "--reflect-depth", "0",
+                             "--out", str(tmp_path), "--no-cache", "--quiet"], capsys)
+    assert status == 0, err
+    assert Image.open(tmp_path / "image.png").size == (8, 6)
+    stats = json.loads((tmp_path / "stats.json").read_text())
+    assert stats["rays"]["eye"] == 48
+    assert stats["config"]["tile_w"] == 4 and stats["config"]["reflect_depth"] == 0
+
+
+def test_console_script_is_declared():
+    meta = tomllib.loads((ROOT / "pyproject.toml").read_text())
+    module, _, func = meta["project"]["scripts"]["saarcor"].partition(":")
+    assert callable(getattr(importlib.import_module(module), func))
+    assert any(module.split(".")[0] + "*" == p
+               for p in meta["tool"]["setuptools"]["packages"]["find"]["include"])
+
+
+def test_golden_model_imports_no_testbench():
+    """model/ is the golden model: it must not import tb/ (the testbenches import it)."""
+    bad = []
+    for path in sorted((ROOT / "model").rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level
+                     else [])
+            bad += [f"{path.relative_to(ROOT)}:{node.lineno} imports {n}" for n in names
+                    if n == "tb" or n.startswith("tb.")]
+    assert not bad, bad

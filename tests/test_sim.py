@@ -1,0 +1,93 @@
+"""``make sim`` (``tb/sim.py``): a frame through the chip in Verilator, its outputs and errors.
+
+Uses the small 2-RTC chip configuration of ``tests/test_chip.py`` (its Verilator binary is
+shared with those tests)."""
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from model.raygen import eye_rays
+from model.render import prepare
+from model.scene import load_scene
+
+from .conftest import ROOT
+
+TINY_ARGS = ["--rtcs", "2", "--threads", "2", "--tile-w", "4", "--tile-h", "4",
+             "--trav-subunits", "2", "--trav-cache-kb", "1", "--list-cache-kb", "1",
+             "--int-cache-kb", "9", "--mem-latency", "8"]
+
+
+def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
+    from model.config import Config
+    from tb.sim import main
+    out = tmp_path / "sim"
+    rc = main(["--scene", str(ROOT / "scenes/cornell.toml"), "--res", "16x12", "--out",
+               str(out), "--kd-cache", str(kd_cache), "--quiet", "--sample-every", "100",
+               *TINY_ARGS])
+    assert rc == 0
+    stats = json.loads((out / "stats.json").read_text())
+    c = stats["config"]
+    assert (c["rtcs"], c["threads"], c["trav_cache_kb"]) == (2, 2, 1)
+    cfg = Config(rtcs=2, threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1,
+                 list_cache_kb=1, int_cache_kb=9, mem_latency=8)
+    assert cfg.to_dict() == c
+    assert stats["mismatches"] == 0 and stats["backend"] == "verilator"
+    kinds = stats["rays"]
+    assert kinds["eye"] == 16 * 12 and kinds["shadow"] > kinds["eye"]
+    assert stats["rays_total"] == sum(kinds.values())
+    # the figures are the counters' own: op counts, the paper's ideal and relative performance
+    ctr = stats["counters"]
+    assert stats["trav_ops"] == sum(x["trav_ops"] for x in ctr["rtc"]) > 0
+    # the same float expressions as the paper's definition: equal, not close (JSON keeps them)
+    ideal = max(stats["trav_ops"] / (2 * 2), stats["int_ops"] / 2)
+    assert stats["relative_performance"] == ideal / stats["cycles"]
+    assert stats["fps"] == cfg.clock_mhz * 1e6 / stats["cycles"]
+    for k in ("trav", "list", "int"):
+        c = stats["cache"][k]
+        assert 0 < c["hit_rate"] < 1 and c["hits"] + c["misses"] > 0
+    mem = stats["memory"]
+    assert mem["bytes"] == 8 * mem["words"] == 8 * sum(p["words"] for p in mem["per_chip"])
+    assert [p["share"] for p in mem["per_chip"]] == [p["words"] / mem["words"]
+                                                     for p in mem["per_chip"]]
+    assert 0 < stats["units"]["int"] <= 1 and 0 < stats["bus"]["words_per_cycle"] <= 1
+    # the rays and hits are the chip's: equal to the golden model's render of the frame, and
+    # the image is that render's (the model's colour of exactly these rays and hits)
+    from model.render import render, to_srgb8
+    scene = load_scene(ROOT / "scenes/cornell.toml")
+    prep = prepare(scene, cfg, cache_dir=kd_cache)
+    want = render(scene, cfg, 16, 12, prepared=prep)
+    hits = np.load(out / "hits.npz")
+    assert np.array_equal(hits["tri"], want.hits.tri)
+    for f in ("t", "u", "v"):
+        assert np.array_equal(hits[f].view(np.uint32), getattr(want.hits, f).view(np.uint32)), f
+    assert (hits["tri"] >= 0).any()
+    img = np.asarray(Image.open(out / "image.png"))
+    assert img.shape == (12, 16, 3) and img.std() > 5
+    assert np.array_equal(img, to_srgb8(want.image))
+    assert Image.open(out / "usage.png").size[0] > 500
+    assert len(np.load(out / "rays.npz")["pixel"]) == stats["rays_total"]
+
+
+def test_sim_errors_name_the_problem(tmp_path):
+    from tb.sim import main
+    with pytest.raises(SystemExit, match="--res '0x4'"):
+        main(["--res", "0x4", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="scene 'nope.toml' not found"):
+        main(["--scene", "nope.toml", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="rtcs"):
+        main(["--rtcs", "0", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="VCD"):
+        main(["--backend", "amaranth", "--trace", "x.fst", "--out", str(tmp_path)])
+
+
+def test_a_mismatch_names_the_rays_pixel_kind_and_packet():
+    """The text a mismatching run prints: ray id, pixel, kind, packet and lane, both values."""
+    from model.config import Config
+    from tb.compare import describe
+    rays = eye_rays(load_scene(ROOT / "scenes/cornell.toml").camera, 16, 8,
+                    Config(tile_w=4, tile_h=4))
+    text = describe([(37, "t", 0x3f800000, 0x3f800001)], rays=rays)
+    # 4x4 packets over a 16-pixel row: ray 37 = packet 2 (tiles x = 8..11), lane 5 (x + 1, y + 1)
+    assert "ray 37 (pixel 25, eye, packet 2 lane 5): t RTL 0x3f800000, model 0x3f800001" in text

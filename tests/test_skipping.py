@@ -1,0 +1,134 @@
+"""Skipping what a scene doesn't need: the box cull and empty tiles at run time
+(``model.render.Skip``), and the chip built for the scene (``Config.for_scene``: stack depth,
+light registers, no secondary-ray hardware). The measurements are ``python -m tb.skipping``."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from model.config import Config, ConfigError
+from model.raygen import box_misses, eye_rays, live_packets, setup
+from model.render import Skip, prepare, render
+from model.rtc import counter_totals, trace
+from model.scene import load_scene
+
+from .conftest import ROOT, TIMING, timing_changed
+
+TINY = Config(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1,
+              list_cache_kb=1, int_cache_kb=9, mem_latency=8)
+
+
+@pytest.fixture(scope="module")
+def cornell(kd_cache):
+    scene = load_scene(ROOT / "scenes/cornell.toml")
+    return scene, prepare(scene, TINY, cache_dir=kd_cache)
+
+
+def test_box_cull_keeps_missing_rays_out_of_traversal(cornell):
+    """Cornell's camera sees past the open box: the rays that miss the box do no traversal
+    step with the cull and do work without it; every hit is the same either way."""
+    scene, prep = cornell
+    rays = eye_rays(scene.camera, 32, 24, TINY)
+    rs = setup(rays, prep.image.bounds, TINY.fmt)
+    miss = box_misses(rs.tnear, rs.tfar)
+    assert 0 < miss.sum() < len(rays)
+    on, c_on = trace(prep.image, rays, TINY)
+    off, c_off = trace(prep.image, rays, TINY, box_cull=False)
+    for f in ("tri", "t", "u", "v"):
+        assert np.array_equal(getattr(on, f), getattr(off, f)), f
+    on, off = counter_totals(c_on), counter_totals(c_off)
+    assert off["trav_ops"] > on["trav_ops"] and off["int_ops"] > on["int_ops"]
+    # the missing rays alone, in packets of their own: nothing with the cull
+    from model.raygen import Rays
+    lost = Rays.from_arrays(rays.org[miss], rays.dir[miss], packet=16)
+    _, c = trace(prep.image, lost, TINY)
+    assert counter_totals(c)["trav_ops"] == counter_totals(c)["passes"] == 0
+    _, c = trace(prep.image, lost, TINY, box_cull=False)
+    assert counter_totals(c)["trav_ops"] > 0
+
+
+def test_empty_tiles_are_not_traced_and_change_nothing(cornell):
+    scene, prep = cornell
+    cfg = TINY.replace(reflect_depth=1)
+    base = render(scene, cfg, 32, 24, prepared=prep)
+    skip = render(scene, cfg, 32, 24, prepared=prep, skip=Skip(empty_tiles=True))
+    eye = eye_rays(scene.camera, 32, 24, cfg)
+    empty = int((~live_packets(eye, setup(eye, prep.image.bounds, cfg.fmt))).sum())
+    assert empty > 0
+    assert skip.stats["packets_skipped"] == empty        # secondary packets all meet the box
+    assert base.stats["packets_skipped"] == 0
+    assert np.array_equal(base.image, skip.image)
+    assert np.array_equal(base.hits.tri, skip.hits.tri)
+    assert base.counters == skip.counters
+
+
+def _no_lights_no_mirrors(scene):
+    mats = [dataclasses.replace(m, reflect=0.0) for m in scene.materials]
+    return dataclasses.replace(scene, lights=[], materials=mats)
+
+
+def _first(scene, n):
+    return dataclasses.replace(scene, tris=scene.tris[:n], tri_id=np.arange(n, dtype=np.int32),
+                               n_scene_tris=n, material=scene.material[:n], uv=scene.uv[:n],
+                               normals=scene.normals[:n])
+
+
+def test_for_scene_derives_what_the_scene_needs(cornell, kd_cache):
+    scene, prep = cornell
+    cfg = TINY.for_scene(scene, prep.image, 32, 24)
+    # the builder splits Cornell down to the depth limit: the stack stays as configured
+    assert (cfg.kd_max_depth, cfg.rgs_lights, cfg.reflect_depth) == (TINY.kd_max_depth, 3, 3)
+    assert cfg.secondary_rays
+    bare = TINY.for_scene(_no_lights_no_mirrors(scene), prep.image, 32, 24)
+    assert (bare.rgs_lights, bare.reflect_depth, bare.secondary_rays) == (0, 0, False)
+    dark = TINY.replace(shadows=False).for_scene(scene, prep.image, 32, 24)
+    assert (dark.rgs_lights, dark.reflect_depth, dark.secondary_rays) == (0, 3, True)
+    # four triangles (kd_leaf_size): the root is a leaf, one stack entry is enough, and the
+    # tree built with that limit is the same
+    few = _first(scene, TINY.kd_leaf_size)
+    small = prepare(few, TINY, cache_dir=kd_cache)
+    assert small.image.depth == 0
+    fit = TINY.for_scene(few, small.image, 32, 24)
+    assert fit.kd_max_depth == fit.stack_depth == 1
+    assert np.array_equal(prepare(few, fit, cache_dir=kd_cache).image.data, small.image.data)
+
+
+def test_for_scene_names_what_the_configuration_lacks(cornell):
+    scene, prep = cornell
+    with pytest.raises(ConfigError, match="3 lights.*rgs_lights=2"):
+        TINY.replace(rgs_lights=2).for_scene(scene, prep.image, 32, 24)
+    with pytest.raises(ConfigError, match=f"{prep.image.depth} levels deep.*holds 3"):
+        TINY.replace(kd_max_depth=3).check_scene(scene, prep.image, 32, 24)
+    with pytest.raises(ConfigError, match="width=70000"):
+        TINY.check_scene(scene, prep.image, 70000, 24)
+
+
+@pytest.mark.filterwarnings("ignore:.*created but never used")
+def test_eye_only_slave_has_no_secondary_ray_units():
+    """Without lights and reflections the slave drops the ray setup (3 + 2 div, 6 sub, 6
+    mul, 12 min/max: docs/rgs.md), the secondary datapath (43 mul, 30 add, 2 sqrt, 2 div) and
+    the shadow datapath (5 add, 3 mul), and its ray store and pending buffers."""
+    from rtl.rgs_slave import Slave
+    from tb.resources import resources
+    full = resources(lambda: Slave(TINY))
+    eye = resources(lambda: Slave(TINY.replace(rgs_lights=0, reflect_depth=0)))
+    diff = {k: full["fp_units"].get(k, 0) - eye["fp_units"].get(k, 0)
+            for k in full["fp_units"]}
+    assert {k: v for k, v in diff.items() if v} == {"div": 7, "add": 41, "mul": 52,
+                                                   "minmax": 12, "sqrt": 2}
+    assert eye["totals"]["memory_bits"] < full["totals"]["memory_bits"] / 10
+
+
+def test_eye_only_chip_same_frame_same_cycles(cornell):
+    """The chip without secondary-ray hardware renders an eye-ray frame bit-exact, in the
+    same cycles as the whole chip (``tests/test_chip.py``, same frame, stall and seed)."""
+    from tb.chip import run_chip
+
+    from .test_chip import check_frame
+    scene, prep = cornell
+    cfg = TINY.replace(rgs_lights=0, reflect_depth=0)
+    assert not cfg.secondary_rays
+    r = run_chip(cfg, prep.image, scene.camera, 8, 4, stall=0.25, seed=3)
+    check_frame(r, cfg, prep.image, eye_rays(scene.camera, 8, 4, cfg))
+    name = "chip/cornell_8x4_rtcs1"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
