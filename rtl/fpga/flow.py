@@ -58,6 +58,15 @@ def parse_stat(text: str) -> dict[str, int]:
     return {k: n for k, n in cell_counts(text).items() if re.fullmatch(r"[A-Z][A-Z0-9_]+", k)}
 
 
+def _set_router(placed: Path, router: str) -> None:
+    """Store ``router`` in the settings of nextpnr's written design ``placed`` (a ``--write``
+    JSON): loading it, nextpnr routes with the stored router whatever ``--router`` says."""
+    text = placed.read_text()
+    new = re.sub(r'"router": "router[12]"', f'"router": "{router}"', text, count=1)
+    if new != text:
+        placed.write_text(new)
+
+
 def pnr_times(log: str) -> dict[str, float]:
     """Seconds per nextpnr step from its log: HeAP placement, SA refinement, routing."""
     out = {}
@@ -224,12 +233,16 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
                                  "(make it with --place-only)")
             if src != wd / "placed.json":
                 shutil.copyfile(src, wd / "placed.json")
+            # nextpnr takes the settings stored in a written design over its command line:
+            # without this the router of the placement run (router1 by default) would route
+            _set_router(wd / "placed.json", router)
             entry["placement_from"] = route_only
             p = subprocess.run(base + ["--json", "placed.json", "--no-place", *route,
                                        "-l", "route.log"], cwd=wd, capture_output=True, text=True)
         elif place_only:      # stop after placement, keep it in placed.json
-            p = subprocess.run(place + ["--no-route", "--write", "placed.json", "-l",
-                                        "place.log"], cwd=wd, capture_output=True, text=True)
+            p = subprocess.run(place + ["--router", router, "--no-route", "--write",
+                                        "placed.json", "-l", "place.log"],
+                               cwd=wd, capture_output=True, text=True)
         else:
             p = subprocess.run(place + route + ["-l", "place.log"], cwd=wd, capture_output=True,
                                text=True)
