@@ -38,6 +38,12 @@ class Config:
     fp_mul_latency: int = 0
     fp_div_latency: int = 0
     fp_sqrt_latency: int = 0
+    fp_cmp_latency: int = 0        # compare and min/max units (0: the default 1; 2 registers
+                                   # their inputs too)
+    # extra registers for a faster clock (docs/fpga.md): block-RAM reads registered before
+    # they feed arithmetic or control, the per-thread selects of the traversal control cut in
+    # two, the caches' lookup in two stages. False keeps every unit's cycle timing as it was.
+    fast_clock: bool = False
     tile_w: int = 8                # a packet is a tile_w x tile_h tile of eye rays
     tile_h: int = 8
 
@@ -79,7 +85,8 @@ class Config:
                      "cache_outstanding", "cache_line_words"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
-        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency", "fp_sqrt_latency"):
+        for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency", "fp_sqrt_latency",
+                     "fp_cmp_latency"):
             if not 0 <= getattr(self, name) <= 64:
                 raise ConfigError(f"{name}={getattr(self, name)} must be in 0..64 (pipeline "
                                   "stages of that FP unit; 0 = the unit's default)")
@@ -153,10 +160,12 @@ class Config:
         return self.mem_chips * self.mem_chip_bits / 8 * self.clock_mhz * 1e6 / self.mem_clock_ratio
 
     def fp_latencies(self) -> dict:
-        """``{"add": n, "mul": n, "div": n, "sqrt": n}`` for the RTL's FP units; None = the
+        """``{"add": n, "mul": n, "div": n, "sqrt": n, "cmp": n}`` for the RTL's FP units
+        (``cmp``: compare and min/max of the traversal and intersection units); None = the
         unit's default."""
         return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
-                "div": self.fp_div_latency or None, "sqrt": self.fp_sqrt_latency or None}
+                "div": self.fp_div_latency or None, "sqrt": self.fp_sqrt_latency or None,
+                "cmp": self.fp_cmp_latency or None}
 
     def for_scene(self, scene, image, width: int, height: int) -> "Config":
         """The smallest chip of this configuration that renders ``scene`` at ``width x

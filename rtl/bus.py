@@ -124,9 +124,11 @@ class MemoryInterface(wiring.Component):
     0), ``mem`` (words; tag = ``{cache's tag, requester id}``); counters ``hits[i]``,
     ``misses[i]``, ``grants[i]`` (memory words cache i read) and ``req_cycles`` (bus busy
     cycles). Latency and throughput: those of the cache plus one cycle each way on the bus.
+    ``fast``: the caches' ``fast`` registers (``Config.fast_clock``).
     """
 
-    def __init__(self, geoms, *, tag_width: int = 4, policy: str = "round_robin"):
+    def __init__(self, geoms, *, tag_width: int = 4, policy: str = "round_robin",
+                 fast: bool = False):
         from .cache import Cache   # the cache imports model/, keep the bare bus import-light
 
         if not geoms:
@@ -134,7 +136,7 @@ class MemoryInterface(wiring.Component):
         widths = {g.mem_addr_width for g in geoms}
         if len(widths) != 1:
             raise ValueError(f"all caches must use one memory address width, got {widths}")
-        self.caches = [Cache(g, tag_width=tag_width) for g in geoms]
+        self.caches = [Cache(g, tag_width=tag_width, fast=fast) for g in geoms]
         addr_width = widths.pop()
         bus_tag = max(len(c.mem.req.payload.tag) for c in self.caches)
         self.bus = RoundRobinBus(len(geoms), addr_width=addr_width, tag_width=bus_tag,

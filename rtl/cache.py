@@ -13,7 +13,7 @@ Pipeline::
                                MSHR + issue FIFO -> mem.req       |
                                mem.resp -> fill buffer -> data array -> [data read] -> port.resp
 
-* Latency: a hit 3 cycles (request accepted in cycle t, response valid in t+3) when nothing older
+* Latency: a hit 3 cycles (5 with ``fast``; request accepted in cycle t, response valid in t+3) when nothing older
   waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle. Responses come back **in
   request order** (a hit behind a miss waits for it), so tags are returned but never reordered.
 * Throughput: one lookup and one response per cycle; ``outstanding`` line fetches in flight;
@@ -46,11 +46,18 @@ __all__ = ["Cache"]
 class Cache(wiring.Component):
     """Non-blocking read-only cache; see the module docstring for latency and throughput.
 
-    Parameters: ``geom`` (:class:`model.cache.CacheGeometry`), ``tag_width`` (unit tags).
+    Parameters: ``geom`` (:class:`model.cache.CacheGeometry`), ``tag_width`` (unit tags),
+    ``fast`` (``Config.fast_clock``: registers for a faster clock, hit latency 5 instead of 3
+    (``hit_latency``): ``port.req.ready`` is a register (a skid register takes a request
+    while the lookup stalls), the tag row is read a stage before the compare and goes
+    straight into a register (the tag and data block RAMs' outputs feed only registers; a
+    tag write the read missed is forwarded), and the data word is registered before
+    ``port.resp``). The hit/miss sequence is the same either way.
     """
 
-    def __init__(self, geom: CacheGeometry, *, tag_width: int = 4):
-        self.geom = geom
+    def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
+        self.geom, self.fast = geom, fast
+        self.hit_latency = 5 if fast else 3
         g = geom
         self.mshr_bits = max(1, ceil_log2(g.outstanding))
         self.word_bits = max(1, ceil_log2(g.line_words))
@@ -80,26 +87,37 @@ class Cache(wiring.Component):
         tags = Memory(shape=W * entry + wb, depth=S, init=[])
         m.submodules.tags = tags
         twp = tags.write_port()
-        trp = tags.read_port(transparent_for=(twp,))
+        a = req.payload.addr
 
-        # --- S1 registers -----------------------------------------------------------------
+        # --- lookup stage S1: valid, the request's fields, its tag row; ``s1_go`` = it
+        # finishes this cycle -----------------------------------------------------------------
         s1_valid = Signal()
         s1_off, s1_set, s1_tag = Signal(ob), Signal(sb), Signal(tb)
         s1_utag = Signal(utag_bits)
-        s1_go = Signal()           # S1 finishes this cycle
+        s1_go = Signal()
         accept = Signal()
-        m.d.comb += [req.ready.eq(~s1_valid | s1_go), accept.eq(req.valid & req.ready)]
-        a = req.payload.addr
-        m.d.comb += [trp.addr.eq(a[ob:ob + sb]), trp.en.eq(req.ready)]
-        with m.If(req.ready):
-            m.d.sync += [s1_valid.eq(req.valid), s1_off.eq(a[:ob]), s1_set.eq(a[ob:ob + sb]),
-                         s1_tag.eq(a[ob + sb:]), s1_utag.eq(req.payload.tag)]
+        m.d.comb += accept.eq(req.valid & req.ready)
+        if not self.fast:
+            # the request is accepted while its row is read (transparent for the tag write)
+            trp = tags.read_port(transparent_for=(twp,))
+            m.d.comb += [req.ready.eq(~s1_valid | s1_go), trp.addr.eq(a[ob:ob + sb]),
+                         trp.en.eq(req.ready)]
+            with m.If(req.ready):
+                m.d.sync += [s1_valid.eq(req.valid), s1_off.eq(a[:ob]), s1_set.eq(a[ob:ob + sb]),
+                             s1_tag.eq(a[ob + sb:]), s1_utag.eq(req.payload.tag)]
+            row = trp.data
+        else:
+            row = self._fast_front(m, tags, twp, s1_valid, s1_go,
+                                   (s1_off, s1_set, s1_tag, s1_utag))
 
-        row = trp.data
-        way_valid = [row[w * entry] for w in range(W)]
-        way_tag = [row[w * entry + 1:(w + 1) * entry] for w in range(W)]
         rr = row[W * entry:]
-        hit_vec = Cat(*[way_valid[w] & (way_tag[w] == s1_tag) for w in range(W)])
+        def hits(r):
+            return Cat(*[r[w * entry] & (r[w * entry + 1:(w + 1) * entry] == s1_tag)
+                         for w in range(W)])
+        if self.fast:       # compare both candidate rows, select the verdict
+            hit_vec = Mux(self._s1_fwd, hits(self._s1_fwd_row), hits(self._s1_raw))
+        else:
+            hit_vec = hits(row)
         hit = Signal()
         hit_way = Signal(wb)
         m.d.comb += hit.eq(hit_vec.any())
@@ -115,6 +133,7 @@ class Cache(wiring.Component):
         mshr_set = [Signal(sb, name=f"mshr{i}_set") for i in range(O)]
         mshr_way = [Signal(wb, name=f"mshr{i}_way") for i in range(O)]
         mshr_line = [Signal(g.addr_width - ob, name=f"mshr{i}_line") for i in range(O)]
+        mshr_addr = [Signal(g.mem_addr_width, name=f"mshr{i}_addr") for i in range(O)]
         mshr_cnt = [Signal(range(LW), name=f"mshr{i}_cnt") for i in range(O)]
         mshr_buf = [Signal(LW * WORD_BITS, name=f"mshr{i}_buf") for i in range(O)]
         free = Signal(range(O))
@@ -141,7 +160,24 @@ class Cache(wiring.Component):
                          for i in range(O)])
             return in_q.any() | in_f.any()
 
-        m.d.comb += s1_go.eq(s1_valid & ~q_full & (hit | (any_free & ~slot_busy(s1_set, victim))))
+        if self.fast:
+            # the victim slot's "busy" from registers: per way, computed a cycle ahead for the
+            # request then in S0 (which S1 takes next) and for S1's own (while it waits), plus
+            # the queue entry written in that cycle; a slot freed meanwhile costs one cycle
+            def busy_ways(set_):
+                return Cat(*(slot_busy(set_, w) for w in range(W)))
+            b0, b1 = Signal(W, name="busy_s0"), Signal(W, name="busy_s1")
+            fresh = Signal()                       # S1 was loaded in the last cycle
+            lw_v, lw_set, lw_way = Signal(), Signal(sb), Signal(wb)
+            m.d.sync += [b0.eq(busy_ways(self._s0_set)), b1.eq(busy_ways(s1_set)),
+                         fresh.eq(self._s1_move), lw_v.eq(s1_go), lw_set.eq(s1_set),
+                         lw_way.eq(way)]
+            last_w = Mux(lw_v & (lw_set == s1_set), Const(1, W) << lw_way, 0)[:W]
+            busy = (Mux(fresh, b0, b1) | last_w).bit_select(victim, 1) if W > 1 else \
+                Mux(fresh, b0, b1) | last_w
+        else:
+            busy = slot_busy(s1_set, victim)
+        m.d.comb += s1_go.eq(s1_valid & ~q_full & (hit | (any_free & ~busy)))
         m.d.comb += [self.lookup_valid.eq(s1_go), self.lookup_hit.eq(hit)]
 
         issue = SyncFIFO(width=self.mshr_bits, depth=O)
@@ -171,6 +207,8 @@ class Cache(wiring.Component):
             with m.If(s1_go & ~hit & (free == i)):
                 m.d.sync += [mshr_set[i].eq(s1_set), mshr_way[i].eq(victim),
                              mshr_line[i].eq(Cat(s1_set, s1_tag)), mshr_cnt[i].eq(0)]
+                if self.fast:       # the line's first word address, computed at allocation
+                    m.d.sync += mshr_addr[i].eq(self.base + Cat(s1_set, s1_tag) * LW)
 
         # --- issue: the line's words, one request per cycle -----------------------------------
         word = Signal(range(LW))
@@ -178,7 +216,8 @@ class Cache(wiring.Component):
         mreq = self.mem.req
         line = Array(mshr_line)[head_m]
         m.d.comb += [mreq.valid.eq(issue.r_rdy),
-                     mreq.payload.addr.eq(self.base + line * LW + word),
+                     mreq.payload.addr.eq(Array(mshr_addr)[head_m] + word if self.fast
+                                          else self.base + line * LW + word),
                      mreq.payload.tag.eq(Cat(head_m, word)[:len(mreq.payload.tag)])]
         m.d.comb += issue.r_en.eq(mreq.valid & mreq.ready & (word == LW - 1))
         with m.If(mreq.valid & mreq.ready):
@@ -203,7 +242,16 @@ class Cache(wiring.Component):
             with m.If(fire & (f_m == i)):
                 m.d.sync += [mshr_buf[i].eq(merged[i]), mshr_cnt[i].eq(mshr_cnt[i] + 1)]
         last = Signal()
-        m.d.comb += last.eq(fire & (Array(mshr_cnt)[f_m] == LW - 1))
+        if self.fast:       # per MSHR "the next word completes the line", kept in a register
+            nearly = Signal(O, name="mshr_last")
+            for i in range(O):
+                with m.If(s1_go & ~hit & (free == i)):
+                    m.d.sync += nearly[i].eq(LW == 1)
+                with m.Elif(fire & (f_m == i)):
+                    m.d.sync += nearly[i].eq(mshr_cnt[i] + 1 == LW - 1)
+            m.d.comb += last.eq(fire & nearly.bit_select(f_m, 1))
+        else:
+            m.d.comb += last.eq(fire & (Array(mshr_cnt)[f_m] == LW - 1))
         line_raw = Array(merged)[f_m]
         items = [line_raw[j * g.item_span:j * g.item_span + g.item_bits]
                  for j in range(g.line_items)]
@@ -220,22 +268,88 @@ class Cache(wiring.Component):
         # --- output: head of the queue once its line is present -----------------------------
         h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
         h_ready = Signal()
-        h_pending = Cat(*[mshr_valid[i] & (mshr_set[i] == h_set) & (mshr_way[i] == h_way)
-                          for i in range(O)]).any()
+        def pending(set_, way_):
+            return Cat(*[mshr_valid[i] & (mshr_set[i] == set_) & (mshr_way[i] == way_)
+                         for i in range(O)]).any()
+        if self.fast:       # per queue entry in parallel, then select the head's
+            h_pending = Cat(*(pending(q_set[i], q_way[i]) for i in range(Q))).bit_select(
+                q_head, 1)
+        else:
+            h_pending = pending(h_set, h_way)
         m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
+        # o: the data read (the block RAM's output); fast: o2, that line in a register
         o_valid, o_off, o_utag = Signal(), Signal(ob), Signal(utag_bits)
+        if self.fast:
+            o2_valid, o2_off, o2_utag = Signal(), Signal(ob), Signal(utag_bits)
+            o2_line = Signal(len(drp.data), reset_less=True)
+            o_move = Signal()
+            m.d.comb += o_move.eq(~o2_valid | resp.ready)
+            with m.If(o_move):
+                m.d.sync += [o2_valid.eq(o_valid), o2_off.eq(o_off), o2_utag.eq(o_utag),
+                             o2_line.eq(drp.data)]
+            line, off, out_valid, out_utag = o2_line, o2_off, o2_valid, o2_utag
+        else:
+            o_move = resp.ready
+            line, off, out_valid, out_utag = drp.data, o_off, o_valid, o_utag
         pop = Signal()
-        m.d.comb += pop.eq(h_ready & (~o_valid | resp.ready))
+        m.d.comb += pop.eq(h_ready & (~o_valid | o_move))
         m.d.comb += [drp.addr.eq(Cat(h_way, h_set)), drp.en.eq(pop)]
         with m.If(pop):
             m.d.sync += [o_valid.eq(1), o_off.eq(Array(q_off)[q_head]),
                          o_utag.eq(Array(q_utag)[q_head]),
                          q_used.bit_select(q_head, 1).eq(0),
                          q_head.eq(Mux(q_head == Q - 1, 0, q_head + 1))]
-        with m.Elif(resp.ready):
+        with m.Elif(o_move):
             m.d.sync += o_valid.eq(0)
-        m.d.comb += [resp.valid.eq(o_valid),
-                     resp.payload.data.eq(drp.data.word_select(o_off, g.item_bits)
-                                          if ob else drp.data),
-                     resp.payload.tag.eq(o_utag)]
+        m.d.comb += [resp.valid.eq(out_valid),
+                     resp.payload.data.eq(line.word_select(off, g.item_bits) if ob else line),
+                     resp.payload.tag.eq(out_utag)]
         return m
+
+    def _fast_front(self, m: Module, tags, twp, s1_valid, s1_go, s1_fields) -> Signal:
+        """``fast``: request register (registered ``ready``, a skid register), stage S0 that
+        reads the tag row, and S1's tag row (the block RAM's output straight into a register,
+        a tag write the read missed forwarded). Returns S1's tag row."""
+        g, req = self.geom, self.port.req
+        ob, sb = g.offset_bits, g.set_bits
+        a = req.payload.addr
+        trp = tags.read_port()              # not transparent: writes are forwarded below
+        # skid register: takes a request while S0 holds; ready is its emptiness
+        k_valid = Signal()
+        k_addr, k_utag = Signal.like(a, name="k_addr"), Signal.like(req.payload.tag, name="k_utag")
+        m.d.comb += req.ready.eq(~k_valid)
+        # S0: the request whose row is being read; the row arrives in the next cycle
+        s0_valid = Signal()
+        s0_addr, s0_utag = Signal.like(a, name="s0_addr"), Signal.like(req.payload.tag, name="s0_utag")
+        s0_fwd, s0_row = Signal(), Signal(len(trp.data), name="s0_fwd_row")
+        s1_move = Signal()                  # S0 -> S1 this cycle
+        s0_load = Signal()
+        m.d.comb += [s1_move.eq(~s1_valid | s1_go), s0_load.eq(~s0_valid | s1_move)]
+        in_valid = k_valid | req.valid
+        in_addr = Mux(k_valid, k_addr, a)
+        in_utag = Mux(k_valid, k_utag, req.payload.tag)
+        in_set = in_addr[ob:ob + sb]
+        m.d.comb += [trp.addr.eq(in_set), trp.en.eq(s0_load)]
+        with m.If(s0_load):
+            m.d.sync += [s0_valid.eq(in_valid), s0_addr.eq(in_addr), s0_utag.eq(in_utag),
+                         s0_fwd.eq(twp.en & (twp.addr == in_set)), s0_row.eq(twp.data),
+                         k_valid.eq(0)]
+        with m.Elif(req.valid & req.ready):
+            m.d.sync += [k_valid.eq(1), k_addr.eq(a), k_utag.eq(req.payload.tag)]
+        # S1: the row as read, or the newest tag write to the set since the read
+        s1_off, s1_set, s1_tag, s1_utag = s1_fields
+        s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
+        s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
+        s0_set = s0_addr[ob:ob + sb]
+        self._s0_set, self._s1_move = s0_set, s1_move
+        w_now = twp.en & (twp.addr == s0_set)
+        with m.If(s1_move):
+            m.d.sync += [s1_valid.eq(s0_valid), s1_off.eq(s0_addr[:ob]), s1_set.eq(s0_set),
+                         s1_tag.eq(s0_addr[ob + sb:]), s1_utag.eq(s0_utag),
+                         s1_raw.eq(trp.data), s1_fwd.eq(s0_fwd | w_now),
+                         s1_fwd_row.eq(Mux(w_now, twp.data, s0_row))]
+        row = Signal(len(trp.data), name="s1_row")
+        m.d.comb += row.eq(Mux(s1_fwd, s1_fwd_row, s1_raw))
+        self._s1_fwd, self._s1_fwd_row, self._s1_raw = s1_fwd, s1_fwd_row, s1_raw
+        return row
+

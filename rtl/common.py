@@ -2,7 +2,7 @@
 the registered stream output, and the memory's binary32 words as format words."""
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Module, Mux, Signal, Value
+from amaranth.hdl import C, Cat, Module, Mux, Signal, Value
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
@@ -15,12 +15,26 @@ COUNTER_BITS = 32      # every statistics counter the hardware reports
 
 
 def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:
-    """(any, index of the lowest set bit) of ``bits``: a priority encoder."""
+    """(any, index of the lowest set bit) of ``bits``: a priority encoder, built as a tree of
+    2:1 muxes (log2 of the width deep, not a chain of one mux per bit); index 0 if none."""
     bits = Value.cast(bits)
-    idx = Signal(range(max(2, len(bits))), name=f"{name}_idx")
-    for i in reversed(range(len(bits))):
-        with m.If(bits[i]):
-            m.d.comb += idx.eq(i)
+    n = len(bits)
+    idx = Signal(range(max(2, n)), name=f"{name}_idx")
+
+    def tree(lo, hi):
+        """(any, index within the part) of bits[lo:hi]; the left part is the largest power
+        of two 2**k below the width, so an index is k bits plus one that says which part."""
+        if hi - lo == 1:
+            return bits[lo], Cat()
+        k = (hi - lo - 1).bit_length() - 1
+        mid = lo + (1 << k)
+        a_l, i_l = tree(lo, mid)
+        a_h, i_h = tree(mid, hi)
+        pad = lambda i: Cat(i, C(0, k - len(i))) if len(i) < k else i
+        return a_l | a_h, Mux(a_l | ~a_h, Cat(pad(i_l), C(0, 1)), Cat(pad(i_h), C(1, 1)))
+
+    _, off = tree(0, n)
+    m.d.comb += idx.eq(off)
     anyb = Signal(name=f"{name}_any")
     m.d.comb += anyb.eq(bits.any())
     return anyb, idx
@@ -29,6 +43,7 @@ def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:
 def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signal]:
     """Round-robin: (any, first set bit of ``req`` at or after ``ptr``); len(req) a power of 2."""
     n = len(req)
+    assert n & (n - 1) == 0, f"rr_pick: {n} requests, not a power of two"
     if n == 1:
         return lowest(m, req, name)
     rot = Signal(n, name=f"{name}_rot")

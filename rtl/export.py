@@ -122,13 +122,14 @@ def _fp(kind: str) -> Callable:
 def _cache(unit: str) -> Callable:
     def make(cfg: Config, latency):
         from .cache import Cache
-        return Cache(cache_geometry(cfg, unit))
+        return Cache(cache_geometry(cfg, unit), fast=cfg.fast_clock)
     return make
 
 
 def _memif(cfg: Config, latency):
     from .bus import MemoryInterface
-    return MemoryInterface([cache_geometry(cfg, u) for u in ("trav", "list", "int")])
+    return MemoryInterface([cache_geometry(cfg, u) for u in ("trav", "list", "int")],
+                           fast=cfg.fast_clock)
 
 
 def _bus(cfg: Config, latency):

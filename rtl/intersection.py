@@ -50,8 +50,8 @@ class IntersectPipe(wiring.Component):
     In: ``tri`` (9 format words: A, B, C), ``org`` (3), ``k`` (kx, ky, kz), ``s`` (Sx, Sy, Sz),
     ``tag`` (carried along unchanged), ``i_valid``, ``en``. Out after ``latency`` enabled cycles:
     ``o_valid``, ``hit`` (edge test passed and det != 0), ``t``, ``u``, ``v`` (zero when not
-    ``hit``, as the model returns them), ``o_tag``; ``pre_tag`` is the tag one stage earlier
-    (for a read that must land together with the result).
+    ``hit``, as the model returns them), ``o_tag``; ``pre_tag`` and ``pre2_tag`` are the tag
+    one and two stages earlier (for a read that must land together with the result).
 
     Operations (all rounded to the format, the model's order): 9 subs (vertices - origin), 9
     muls (Sx, Sy times the z of each vertex; Sz times it), 6 subs (shear), 6 muls + 3 subs (edge
@@ -78,7 +78,7 @@ class IntersectPipe(wiring.Component):
             "k": In(data.ArrayLayout(2, 3)), "s": In(data.ArrayLayout(w, 3)),
             "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
             "o_valid": Out(1), "hit": Out(1), "t": Out(w), "u": Out(w), "v": Out(w),
-            "o_tag": Out(tag_width), "pre_tag": Out(tag_width),
+            "o_tag": Out(tag_width), "pre_tag": Out(tag_width), "pre2_tag": Out(tag_width),
         })
         dry = Module()
         dry._MustUse__silence = True
@@ -141,6 +141,7 @@ class IntersectPipe(wiring.Component):
             self.o_valid.eq(sch.at(self.i_valid, 0, L)),
             self.o_tag.eq(sch.at(self.tag, 0, L)),
             self.pre_tag.eq(sch.at(self.tag, 0, L - 1)),
+            self.pre2_tag.eq(sch.at(self.tag, 0, L - 2)),
         ]
         return m, L
 
@@ -236,7 +237,10 @@ class IntersectionUnit(wiring.Component):
         m.submodules.best = best = Memory(shape=best_l, depth=depth, init=[])
         ray_w, best_w = rays.write_port(), best.write_port()
         ray_r = rays.read_port()
-        best_r = best.read_port(transparent_for=(best_w,))
+        # fast_clock: the best-hit read goes straight into a register, the stores it missed
+        # are forwarded (_best_hit); else the read port is transparent to the store
+        best_r = best.read_port() if self.cfg.fast_clock else \
+            best.read_port(transparent_for=(best_w,))
         out_r = best.read_port()
         slots = self._fetch(m)
         issued = self._issue(m, en, slots, ray_r)
@@ -262,6 +266,7 @@ class IntersectionUnit(wiring.Component):
                          for i in range(n_slots))
         s.index = Array(Signal(TRI_ID_BITS, name=f"s{i}_index") for i in range(n_slots))
         s.last = Signal(n_slots)
+        s.count = Array(Signal(range(lanes + 1), name=f"s{i}_count") for i in range(n_slots))
         s.alloc = alloc = Signal(n_slots)
         alloc_set, s.alloc_clr = Signal(n_slots), Signal(n_slots)
         m.d.sync += alloc.eq((alloc | alloc_set) & ~s.alloc_clr)
@@ -281,6 +286,8 @@ class IntersectionUnit(wiring.Component):
                 s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread), s.index[nxt].eq(p.tri),
                 s.last.bit_select(nxt, 1).eq(p.last),
             ]
+            if self.cfg.fast_clock:         # the mask's lane count (for the issue stage)
+                m.d.sync += s.count[nxt].eq(sum(p.mask[i] for i in range(lanes)))
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
@@ -295,24 +302,50 @@ class IntersectionUnit(wiring.Component):
         the ray store is read. Returns the condition that a test issues this cycle."""
         fmt, lanes, pipe = self.fmt, self.lanes, self.pipe
         t_slot = Signal(self.slot_bits)
-        testing = Signal()                 # part of t_slot's mask is already issued
         rem = Signal(lanes)
-        ready_slot = s.alloc.bit_select(t_slot, 1) & s.got.bit_select(t_slot, 1)
-        cur = Signal(lanes)
-        m.d.comb += cur.eq(Mux(testing, rem, s.mask[t_slot]))
         go = Signal()
         issue = Signal()                   # a lane's test issues this cycle
-        m.d.comb += [go.eq(en & ready_slot), issue.eq(go & (cur != 0))]
-        _, lane = lowest(m, cur, "issue")
         rest = Signal(lanes)
-        m.d.comb += rest.eq(cur & (cur - 1))
-        with m.If(go):
-            m.d.sync += rem.eq(rest)
-            with m.If(rest == 0):
-                m.d.comb += s.alloc_clr.eq(1 << t_slot)
-                m.d.sync += [testing.eq(0), t_slot.eq(t_slot + 1)]
-            with m.Else():
-                m.d.sync += testing.eq(1)
+        if self.cfg.fast_clock:
+            # rem holds the current slot's lanes still to test as soon as the slot is
+            # allocated (rem_v), ``left`` their number, ``last`` whether one is left (the
+            # TriRequest's lane count is taken with it): the issue decision reads
+            # only registers (the next slot's mask is loaded as the current one's last lane
+            # issues, so triangles follow each other without a gap)
+            rem_v, last = Signal(), Signal()
+            left = Signal(range(lanes + 1))     # lanes in rem
+            m.d.comb += [go.eq(en & rem_v & s.got.bit_select(t_slot, 1)), issue.eq(go),
+                         rest.eq(rem & (rem - 1))]
+            _, lane = lowest(m, rem, "issue")
+            nxt = (t_slot + 1)[:self.slot_bits]
+            with m.If(go):
+                with m.If(last):
+                    m.d.comb += s.alloc_clr.eq(1 << t_slot)
+                    m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.alloc.bit_select(nxt, 1)),
+                                 rem.eq(s.mask[nxt]), left.eq(s.count[nxt]),
+                                 last.eq(s.count[nxt] == 1)]
+                with m.Else():
+                    m.d.sync += [rem.eq(rest), left.eq(left - 1), last.eq(left == 2)]
+            with m.Elif(~rem_v):
+                m.d.sync += [rem_v.eq(s.alloc.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
+                             left.eq(s.count[t_slot]), last.eq(s.count[t_slot] == 1)]
+            lane_last = last
+        else:
+            testing = Signal()             # part of t_slot's mask is already issued
+            ready_slot = s.alloc.bit_select(t_slot, 1) & s.got.bit_select(t_slot, 1)
+            cur = Signal(lanes)
+            m.d.comb += cur.eq(Mux(testing, rem, s.mask[t_slot]))
+            m.d.comb += [go.eq(en & ready_slot), issue.eq(go & (cur != 0))]
+            _, lane = lowest(m, cur, "issue")
+            m.d.comb += rest.eq(cur & (cur - 1))
+            with m.If(go):
+                m.d.sync += rem.eq(rest)
+                with m.If(rest == 0):
+                    m.d.comb += s.alloc_clr.eq(1 << t_slot)
+                    m.d.sync += [testing.eq(0), t_slot.eq(t_slot + 1)]
+                with m.Else():
+                    m.d.sync += testing.eq(1)
+            lane_last = rest == 0
 
         tri = data.View(data.ArrayLayout(32, 9), s.item[t_slot][:9 * 32])
         s1_valid = Signal()
@@ -327,7 +360,7 @@ class IntersectionUnit(wiring.Component):
                 s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
                 s1_meta.id.eq(s.index[t_slot]),
                 s1_meta.tri_last.eq(s.last.bit_select(t_slot, 1)),
-                s1_meta.lane_last.eq(rest == 0),
+                s1_meta.lane_last.eq(lane_last),
             ]
         ray = ray_r.data
         m.d.comb += [
@@ -340,23 +373,29 @@ class IntersectionUnit(wiring.Component):
         """Closest-hit update at the end of the pipeline (accept ``0 < t < best``), the ray
         store's writes, and the ``LaneResult`` after a leaf's last triangle. The best-hit read
         is presented one stage before the datapath's output; the read port is transparent to
-        the update's write, so back-to-back tests of one lane see each other."""
+        the update's write, so back-to-back tests of one lane see each other
+        (``cfg.fast_clock``: :meth:`_best_hit_fast`)."""
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
-        pre = data.View(self.pipe_meta, pipe.pre_tag)
+        fast = self.cfg.fast_clock
+        pre = data.View(self.pipe_meta, pipe.pre2_tag if fast else pipe.pre_tag)
         m.d.comb += [best_r.addr.eq(self._addr(pre.thread, pre.lane)), best_r.en.eq(en)]
+        if fast:
+            self._best_hit_fast(m, en, best_r, best_w, ray_w)
+            return
         o_meta = data.View(self.pipe_meta, pipe.o_tag)
         old = best_r.data
-        gt0 = Signal()
-        lt_best = Signal()
-        m.d.comb += [gt0.eq(compare(fmt, Const(0, w), pipe.t).lt),
-                     lt_best.eq(compare(fmt, pipe.t, old.t).lt)]
-        accept = Signal()
-        m.d.comb += accept.eq(pipe.o_valid & pipe.hit & gt0 & lt_best)
-        store = Signal()
-        m.d.comb += store.eq(en & accept)
+        accept, store = Signal(), Signal()
+        m.d.comb += [accept.eq(pipe.o_valid & pipe.hit & compare(fmt, Const(0, w), pipe.t).lt &
+                               compare(fmt, pipe.t, old.t).lt),
+                     store.eq(en & accept), self.ray_in.ready.eq(~store)]
+        self._ray_store_writes(m, store, pipe.o_valid, pipe.t, pipe.u, pipe.v, o_meta, accept,
+                               old.t, old.hit, best_w, ray_w)
 
+    def _ray_store_writes(self, m, store, valid, t, u, v, meta, accept, old_t, old_hit,
+                          best_w, ray_w) -> None:
+        """The ray store's writes, the best-hit store's write (the store of a better hit, else
+        a new ray's initial best) and the LaneResult, from the deciding stage's values."""
         ray_in = self.ray_in
-        m.d.comb += ray_in.ready.eq(~store)
         rp = ray_in.payload
         m.d.comb += [
             ray_w.addr.eq(self._addr(rp.thread, rp.ray.lane)),
@@ -365,9 +404,9 @@ class IntersectionUnit(wiring.Component):
         ]
         with m.If(store):
             m.d.comb += [
-                best_w.addr.eq(self._addr(o_meta.thread, o_meta.lane)), best_w.en.eq(1),
-                best_w.data.t.eq(pipe.t), best_w.data.u.eq(pipe.u), best_w.data.v.eq(pipe.v),
-                best_w.data.tri.eq(o_meta.id), best_w.data.hit.eq(1),
+                best_w.addr.eq(self._addr(meta.thread, meta.lane)), best_w.en.eq(1),
+                best_w.data.t.eq(t), best_w.data.u.eq(u), best_w.data.v.eq(v),
+                best_w.data.tri.eq(meta.id), best_w.data.hit.eq(1),
             ]
         with m.Else():
             m.d.comb += [
@@ -376,17 +415,66 @@ class IntersectionUnit(wiring.Component):
             ]
         lo = self._lane_stage.i
         m.d.comb += [
-            lo.valid.eq(pipe.o_valid & o_meta.tri_last),
-            lo.payload.thread.eq(o_meta.thread), lo.payload.lane.eq(o_meta.lane),
-            lo.payload.hit.eq(accept | old.hit),
-            lo.payload.t.eq(Mux(accept, pipe.t, old.t)),
-            lo.payload.last.eq(o_meta.lane_last),
+            lo.valid.eq(valid & meta.tri_last),
+            lo.payload.thread.eq(meta.thread), lo.payload.lane.eq(meta.lane),
+            lo.payload.hit.eq(accept | old_hit),
+            lo.payload.t.eq(Mux(accept, t, old_t)),
+            lo.payload.last.eq(meta.lane_last),
         ]
+
+    def _best_hit_fast(self, m: Module, en: Value, best_r, best_w, ray_w) -> None:
+        """``cfg.fast_clock``: the closest-hit decision in two stages. Stage A (the datapath's
+        output) compares t with each candidate for the lane's best so far: the best-hit read
+        (issued two stages earlier, registered: it misses the last three stores) and those
+        three stores (the one being decided in stage B now, and the two before, in
+        registers). Stage B (a register stage) knows which of them stored, picks the newest
+        matching one's verdict, accepts and stores. The LaneResult leaves a cycle later than
+        without ``fast_clock``; a ray write waits while stage B holds a hit."""
+        fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
+        a_meta = data.View(self.pipe_meta, pipe.o_tag)
+        a_addr = self._addr(a_meta.thread, a_meta.lane)
+        q_t, q_hit = Signal(w, name="best_q_t"), Signal(name="best_q_hit")
+        # stage B registers
+        b_valid, b_hit, b_gt0 = Signal(name="b_valid"), Signal(name="b_hit"), Signal(name="b_gt0")
+        b_t, b_u, b_v = (Signal(w, name=f"b_{n}") for n in "tuv")
+        b_meta = Signal(self.pipe_meta, name="b_meta")
+        b_addr = Signal(len(a_addr), name="b_addr")
+        b_q_t, b_q_hit = Signal(w, name="b_q_t"), Signal(name="b_q_hit")
+        # the last three stores: (valid, address, t), newest first
+        st = [(Signal(name=f"st{i}_v"), Signal(len(a_addr), name=f"st{i}_addr"),
+               Signal(w, name=f"st{i}_t")) for i in (1, 2, 3)]
+        # stage A: one compare per candidate (B's op, st1, st2 as they are now; the read)
+        cands = [(Const(1), b_addr, b_t), st[0], st[1]]
+        lt_a = [compare(fmt, pipe.t, c[2]).lt for c in cands] + [compare(fmt, pipe.t, q_t).lt]
+        match_a = [c[0] & (c[1] == a_addr) for c in cands]
+        lt_q, match_q = Signal(4, name="b_lt"), Signal(3, name="b_match")
+        store = Signal()
+        with m.If(en):
+            m.d.sync += [q_t.eq(best_r.data.t), q_hit.eq(best_r.data.hit),
+                         b_valid.eq(pipe.o_valid), b_hit.eq(pipe.hit),
+                         b_gt0.eq(compare(fmt, Const(0, w), pipe.t).lt),
+                         b_t.eq(pipe.t), b_u.eq(pipe.u), b_v.eq(pipe.v), b_meta.eq(pipe.o_tag),
+                         b_addr.eq(a_addr), b_q_t.eq(q_t), b_q_hit.eq(q_hit),
+                         lt_q.eq(Cat(*lt_a)), match_q.eq(Cat(*match_a))]
+            m.d.sync += [st[0][0].eq(store), st[0][1].eq(b_addr), st[0][2].eq(b_t)]
+            for i in (1, 2):
+                m.d.sync += [a.eq(b) for a, b in zip(st[i], st[i - 1])]
+        # stage B: candidate i matched in A and stored (st1 = B's predecessor, now known)
+        mt = [match_q[0] & st[0][0], match_q[1], match_q[2]]
+        lt_best = Mux(mt[0], lt_q[0], Mux(mt[1], lt_q[1], Mux(mt[2], lt_q[2], lt_q[3])))
+        old_t = Mux(mt[0], st[0][2], Mux(mt[1], st[1][2], Mux(mt[2], st[2][2], b_q_t)))
+        old_hit = mt[0] | mt[1] | mt[2] | b_q_hit
+        accept = Signal()
+        m.d.comb += [accept.eq(b_valid & b_hit & b_gt0 & lt_best), store.eq(en & accept),
+                     self.ray_in.ready.eq(~(b_valid & b_hit))]
+        self._ray_store_writes(m, store, b_valid, b_t, b_u, b_v, b_meta, accept, old_t,
+                               old_hit, best_w, ray_w)
 
     def _readout(self, m: Module, out_r) -> None:
         """Final results of a finished packet: one ``RayResult`` per lane of the ``done``
         mask, in lane order, read from the best-hit store (the read port is the output
-        register: it advances when the output is empty or taken)."""
+        register: it advances when the output is empty or taken; ``cfg.fast_clock``: the read
+        is registered once more before the output)."""
         fmt, w, lanes = self.fmt, self.fmt.width, self.lanes
         done, res = self.done, self.result
         d_active = Signal()
@@ -395,7 +483,19 @@ class IntersectionUnit(wiring.Component):
         d_packet = Signal(PACKET_ID_BITS)
         _, d_lane = lowest(m, d_rem, "readout")
         adv = Signal()
-        m.d.comb += [adv.eq(~res.valid | res.ready), done.ready.eq(~d_active)]
+        hb = out_r.data
+        if self.cfg.fast_clock:
+            # the read lands in a register stage (r_*, the block RAM's output straight into
+            # hb_q) before the output
+            r_valid = Signal()
+            hb_q = Signal.like(out_r.data, name="readout_hb_q", reset_less=True)
+            o_lane, o_last, o_packet = (Signal(self.lane_bits), Signal(),
+                                        Signal(PACKET_ID_BITS))
+            move = ~res.valid | res.ready
+            m.d.comb += [adv.eq(~r_valid | move), done.ready.eq(~d_active)]
+        else:
+            m.d.comb += [adv.eq(~res.valid | res.ready), done.ready.eq(~d_active)]
+            r_valid = res.valid
         with m.If(done.valid & done.ready):
             m.d.sync += [d_active.eq(done.payload.mask != 0), d_rem.eq(done.payload.mask),
                          d_thread.eq(done.payload.thread), d_packet.eq(done.payload.packet)]
@@ -405,16 +505,21 @@ class IntersectionUnit(wiring.Component):
         r_packet = Signal(PACKET_ID_BITS)
         r_thread = Signal(self.cfg.thread_bits)
         with m.If(adv):
-            m.d.sync += [res.valid.eq(d_active), r_lane.eq(d_lane), r_packet.eq(d_packet),
+            m.d.sync += [r_valid.eq(d_active), r_lane.eq(d_lane), r_packet.eq(d_packet),
                          r_thread.eq(d_thread), r_last.eq((d_rem & (d_rem - 1)) == 0)]
             with m.If(d_active):
                 m.d.sync += d_rem.eq(d_rem & (d_rem - 1))
                 with m.If((d_rem & (d_rem - 1)) == 0):
                     m.d.sync += d_active.eq(0)
+        if self.cfg.fast_clock:
+            o_thread = Signal(self.cfg.thread_bits)
+            with m.If(move):
+                m.d.sync += [res.valid.eq(r_valid), o_lane.eq(r_lane), o_last.eq(r_last),
+                             o_packet.eq(r_packet), o_thread.eq(r_thread), hb_q.eq(out_r.data)]
+            hb, r_lane, r_last, r_packet, r_thread = hb_q, o_lane, o_last, o_packet, o_thread
         # the thread goes with its last result: by then `done` may hold the next packet
         m.d.comb += [self.release.valid.eq(res.valid & res.ready & r_last),
                      self.release.payload.eq(r_thread)]
-        hb = out_r.data
         inf = Const(((1 << fmt.exp_bits) - 1) << fmt.frac_bits, w)
         m.d.comb += [
             res.payload.packet.eq(r_packet), res.payload.lane.eq(r_lane),

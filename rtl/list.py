@@ -71,6 +71,7 @@ class ListUnit(wiring.Component):
         mask = Signal(cfg.packet_size)
         word = Signal(32)                  # current word index (entry >> 1)
         last_word = Signal(32)
+        at_last = Signal()                 # word == last_word (set when a leaf or word is taken)
         first = Signal(33)
         end = Signal(33)                   # first + count: one past the final entry
 
@@ -94,12 +95,13 @@ class ListUnit(wiring.Component):
             w_meta.thread.eq(thread), w_meta.mask.eq(mask),
             w_meta.lo.eq(Cat(C(0, 1), word) >= first),          # entry 2w is in the leaf
             w_meta.hi.eq(Cat(C(1, 1), word) < end),             # entry 2w+1 is in the leaf
-            w_meta.last.eq(word == last_word),
+            w_meta.last.eq(at_last),
         ]
-        final = issue & (word == last_word)
+        final = issue & at_last
         m.d.comb += leaf.ready.eq(~active | final)
         with m.If(issue):
-            m.d.sync += [word.eq(word + 1), wr_tag.eq(wr_tag + 1)]
+            m.d.sync += [word.eq(word + 1), wr_tag.eq(wr_tag + 1),
+                         at_last.eq((word + 1)[:32] == last_word)]
         with m.If(final):
             m.d.sync += active.eq(0)
         with m.If(leaf.valid & leaf.ready):
@@ -111,6 +113,7 @@ class ListUnit(wiring.Component):
                 thread.eq(p.thread), mask.eq(p.mask),
                 first.eq(p.first), end.eq(stop),
                 word.eq(p.first >> 1), last_word.eq((stop - 1) >> 1),
+                at_last.eq((p.first >> 1) == ((stop - 1) >> 1)),
             ]
         m.d.sync += inflight.eq(inflight + issue - done_word)
 

@@ -14,7 +14,7 @@ The hit/miss sequence of each cache for a given request sequence is
 addresses are ``model.rtc.rtcmi_trace``'s).
 
 Latency and throughput: the cache's (``rtl/cache.py``: a hit answers 3 cycles after the
-request, one lookup a cycle).
+request, 5 with ``cfg.fast_clock``; one lookup a cycle).
 """
 from __future__ import annotations
 
@@ -80,7 +80,8 @@ class RTCMI(wiring.Component):
         self.caches = {}
         for name in CACHES:
             port = getattr(rtc, PORTS[name])
-            self.caches[name] = Cache(self.geoms[name], tag_width=len(port.req.payload.tag))
+            self.caches[name] = Cache(self.geoms[name], tag_width=len(port.req.payload.tag),
+                                      fast=cfg.fast_clock)
         def server(name):
             g, port = self.geoms[name], getattr(rtc, PORTS[name])
             return In(MemReadPort(addr_width=g.addr_width, data_width=g.item_bits,

@@ -119,18 +119,22 @@ class StepIssue(wiring.Component):
         act, d = self.active, self.cur
         rem = Signal(R)                     # lanes of the current step not issued yet
         has, lane0 = lowest(m, rem, "issue")
+        # ``last`` (at most one lane left) is a register, computed when rem is loaded or
+        # loses its lowest lane: the issue decision does not wait for the priority encoder
         last = self.last
-        m.d.comb += [self.has_lane.eq(has), self.lane.eq(lane0),
-                     last.eq(~(rem & ~(Const(1, R) << lane0)).any())]
+        at_most_one = lambda x: (x & (x - 1))[:R] == 0
+        rest = (rem & (rem - 1))[:R]        # rem without its lowest lane
+        m.d.comb += [self.has_lane.eq(has), self.lane.eq(lane0)]
         take = Signal()
         m.d.comb += [self.can_start.eq(q.r_rdy & (~act | last)),
                      take.eq(self.can_start & self.go), q.r_en.eq(take)]
         with m.If(take):
-            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask)]
+            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask),
+                         last.eq(at_most_one(head.mask))]
         with m.Elif(act & last):
             m.d.sync += act.eq(0)
         with m.Elif(act):
-            m.d.sync += rem.eq(rem & ~(Const(1, R) << lane0))
+            m.d.sync += [rem.eq(rest), last.eq(at_most_one(rest))]
         return m
 
 
@@ -156,7 +160,12 @@ class TravSubunit(wiring.Component):
 
     ``ld_*``: write one lane's ray data and initial interval (the loader); ``ld_block`` says the
     datapath writes ``N`` this cycle (the loader must wait). ``rq_*``: read a lane's ``tfar``
-    (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid one cycle later.
+    (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later
+    (1; 2 with ``cfg.fast_clock``: the block-RAM outputs are registered).
+
+    Block-RAM outputs feed only registers: the ray read is registered before the axis pick,
+    the interval read is issued two stages before ``dist`` is valid and registered once.
+    ``cfg.fp_cmp_latency`` (default 1) sets the compare and min/max units' latency.
     """
 
     def __init__(self, cfg: Config, *, queue: int = 4):
@@ -171,8 +180,10 @@ class TravSubunit(wiring.Component):
         lat = cfg.fp_latencies()
         self.add = FPAdd(fmt) if lat["add"] is None else FPAdd(fmt, latency=lat["add"])
         self.mul = FPMul(fmt) if lat["mul"] is None else FPMul(fmt, latency=lat["mul"])
-        self.LAT = 2 + self.add.latency + self.mul.latency + 1   # issue -> write stage
+        self.cmp_lat = lat["cmp"] or 1     # compare and min/max units
+        self.LAT = 2 + self.add.latency + self.mul.latency + self.cmp_lat  # issue -> write stage
         self.STEP_LAT = self.LAT + 2      # step transfer -> verdict valid, minus active lanes
+        self.RQ_LAT = 2 if cfg.fast_clock else 1    # rq_* address -> rq_tfar, rq_anyhit
         super().__init__({
             "step": In(stream.Signature(step_layout(cfg))),
             "go": In(1, init=1), "can_start": Out(1),
@@ -199,10 +210,11 @@ class TravSubunit(wiring.Component):
         n_r, n_rq, n_w = nmem.read_port(), nmem.read_port(), nmem.write_port()
         s_r, s_rq, s_w = smem.read_port(), smem.read_port(), smem.write_port()
         m.submodules.add, m.submodules.mul = add, mul = self.add, self.mul
-        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=1)
-        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=1)
-        m.submodules.vmin = vmin = FPMinMax(fmt, latency=1)
-        m.submodules.vmax = vmax = FPMinMax(fmt, latency=1)
+        c = self.cmp_lat
+        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=c)
+        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=c)
+        m.submodules.vmin = vmin = FPMinMax(fmt, latency=c)
+        m.submodules.vmax = vmax = FPMinMax(fmt, latency=c)
 
         # ---- step queue and issue stage
         m.submodules.issue = iss = StepIssue(cfg, queue=self.queue)
@@ -241,18 +253,29 @@ class TravSubunit(wiring.Component):
         m.d.comb += [mul.a.eq(add.o), mul.b.eq(inv_d), mul.i_valid.eq(add.o_valid)]
         dist = mul.o
         kd = 2 + add.latency + mul.latency          # stage where dist is valid
-        assert kd == K - 1
-        # interval read issued one stage earlier, so it meets dist
-        m.d.comb += [n_r.addr.eq(Cat(st[kd - 1].lane, st[kd - 1].thread)),
-                     s_r.addr.eq(Cat(st[kd - 1].lane, st[kd - 1].sp, st[kd - 1].thread))]
-        iv = Mux(st[kd].cur, s_r.data, n_r.data)
+        assert kd == K - c
+        # interval read issued two stages earlier and registered, so it meets dist (the
+        # block RAM's output feeds only the slot mux and that register; no step of the same
+        # thread is in the pipeline, so reading a cycle earlier sees the same words)
+        m.d.comb += [n_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].thread)),
+                     s_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].sp, st[kd - 2].thread))]
+        iv = Signal(2 * w)
+        if cfg.fast_clock:        # the block RAMs' outputs straight into registers
+            s_q, n_q = Signal(2 * w, reset_less=True), Signal(2 * w, reset_less=True)
+            m.d.sync += [s_q.eq(s_r.data), n_q.eq(n_r.data)]
+            m.d.comb += iv.eq(Mux(st[kd].cur, s_q, n_q))
+        else:
+            m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_r.data, n_r.data))
         tnear, tfar = iv[:w], iv[w:]
         m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
                      gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(st[kd].v),
                      vmin.a.eq(tfar), vmin.b.eq(dist), vmin.op.eq(0), vmin.i_valid.eq(st[kd].v),
                      vmax.a.eq(tnear), vmax.b.eq(dist), vmax.op.eq(1), vmax.i_valid.eq(st[kd].v)]
-        tnear_d, tfar_d = Signal(w), Signal(w)
-        m.d.sync += [tnear_d.eq(tnear), tfar_d.eq(tfar)]
+        tnear_d, tfar_d = tnear, tfar               # the interval, delayed to the write stage
+        for i in range(c):
+            tn, tf = Signal(w, name=f"tnear_d{i}"), Signal(w, name=f"tfar_d{i}")
+            m.d.sync += [tn.eq(tnear_d), tf.eq(tfar_d)]
+            tnear_d, tfar_d = tn, tf
         # ---- k=K: write near interval to N, far interval to S[sp]; collect the verdict
         sw = st[K]
         near, far = Signal(R), Signal(R)            # this step's lanes so far
@@ -288,8 +311,14 @@ class TravSubunit(wiring.Component):
                      ah_r.addr.eq(Cat(self.rq_lane, self.rq_thread))]
         cur_d = Signal()
         m.d.sync += cur_d.eq(self.rq_cur)
-        m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_rq.data, n_rq.data)[w:]),
-                     self.rq_anyhit.eq(ah_r.data)]
+        s_tfar, n_tfar, anyhit = s_rq.data[w:], n_rq.data[w:], ah_r.data
+        if self.RQ_LAT == 2:            # the block RAMs' outputs straight into registers
+            regs = Signal(w, name="rq_s_tfar"), Signal(w, name="rq_n_tfar"), Signal(name="rq_ah")
+            cur_dd = Signal()
+            m.d.sync += [regs[0].eq(s_tfar), regs[1].eq(n_tfar), regs[2].eq(anyhit),
+                         cur_dd.eq(cur_d)]
+            (s_tfar, n_tfar, anyhit), cur_d = regs, cur_dd
+        m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_tfar, n_tfar)), self.rq_anyhit.eq(anyhit)]
         return m
 
 
@@ -300,6 +329,7 @@ class _Threads:
     def __init__(self, cfg: Config, packet_bits: int):
         T, L = cfg.threads, cfg.packet_size
         db = max(1, ceil_log2(cfg.stack_depth))
+        self.fast, self.tbits, self.writes = cfg.fast_clock, cfg.thread_bits, {}
 
         def per_thread(shape, name, init=0):
             return Array(Value.cast(Signal(shape, name=f"{name}{t}", init=init))
@@ -320,6 +350,41 @@ class _Threads:
     def in_state(self, s: ThreadState) -> Value:
         """One bit per thread: the thread is in state ``s``."""
         return Cat(*(self.state[t] == s for t in range(self.T)))
+
+    def set(self, m: Module, field: str, thread: Value, value) -> None:
+        """``field[thread] = value`` at the next clock edge, in the caller's ``If`` context.
+
+        Each engine moves only the threads in the states it owns, so no two engines write one
+        thread's field in one cycle; with ``fast`` the writes are therefore combined as an
+        AND-OR per thread (:meth:`finish`) instead of a chain of one priority mux per writer.
+        """
+        reg = getattr(self, field)
+        if not self.fast:
+            m.d.sync += reg[thread].eq(value)
+            return
+        writes = self.writes.setdefault(field, [])
+        i = len(writes)
+        req = Signal(name=f"{field}_w{i}")
+        tgt = Signal(self.tbits, name=f"{field}_w{i}_thread")
+        val = Signal.like(reg[0], name=f"{field}_w{i}_value")
+        m.d.comb += [req.eq(1), tgt.eq(thread), val.eq(value)]
+        writes.append((req, tgt, val))
+
+    def set_state(self, m: Module, thread: Value, value) -> None:
+        self.set(m, "state", thread, value)
+
+    def finish(self, m: Module) -> None:
+        """The combined writes (``fast``)."""
+        for field, writes in self.writes.items():
+            reg = getattr(self, field)
+            for t in range(self.T):
+                hit = [Signal(name=f"{field}{t}_w{i}") for i in range(len(writes))]
+                m.d.comb += [h.eq(req & (tgt == t)) for h, (req, tgt, _) in zip(hit, writes)]
+                nxt = 0
+                for h, (_, _, val) in zip(hit, writes):
+                    nxt = nxt | Mux(h, Value.cast(val), 0)
+                with m.If(Cat(*hit).any()):
+                    m.d.sync += reg[t].eq(nxt)
 
 
 class Traversal(wiring.Component):
@@ -385,11 +450,14 @@ class Traversal(wiring.Component):
         self._result_engine(m, th)
         self._done_engine(m, th)
         self._control(m, th, stack.read_port(), stack.write_port(), pm_r)
+        if th.fast:
+            th.finish(m)
         return m
 
     def _loader(self, m: Module, th: _Threads, pm_w) -> None:
         """``RayIn`` lanes into a free thread, one per cycle; each lane's octant goes into the
-        thread's pass masks (live rays only) and the passes to run into ``todo``."""
+        thread's pass masks (live rays only) and the passes to run into ``todo``
+        (``cfg.fast_clock``: each lane waits a cycle in an input register)."""
         cfg, L, k, subs = self.cfg, self.cfg.packet_size, self.cfg.trav_subunits, self.subunits
         ld_active = Signal()
         ld_thread = Signal(cfg.thread_bits)
@@ -397,32 +465,61 @@ class Traversal(wiring.Component):
         acc_lanes = Signal(L)
         free_any, free_idx = lowest(m, th.in_state(ThreadState.FREE), "free")
         with m.If(~ld_active & free_any):
-            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx),
-                         th.state[free_idx].eq(ThreadState.LOAD)]
-        p = self.rays.payload
+            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx)]
+            th.set_state(m, free_idx, ThreadState.LOAD)
+        rays = self.rays
+        live_in = compare(cfg.fmt, rays.payload.tnear, rays.payload.tfar).le
+        if cfg.fast_clock:
+            # the lane waits in an input register with its live bit, its lane and octant
+            # one-hot precomputed; a packet's lanes are taken while the loader has its thread
+            # (no lane of the next packet before this one's last lane is written)
+            valid, got_last = Signal(name="ld_in_valid"), Signal(name="ld_got_last")
+            p = Signal.like(rays.payload, name="ld_in")
+            live, lane_one = Signal(name="ld_in_live"), Signal(L, name="ld_in_lane_one")
+            oct_one = Signal(8, name="ld_in_oct_one")
+        else:
+            valid, p, live = rays.valid, rays.payload, live_in
+            lane_one, oct_one = Signal(L), Signal(8)
+            m.d.comb += [lane_one.eq(Const(1, L) << p.lane), oct_one.eq(Const(1, 8) << p.octant)]
         lane_sub, lane_loc = self._split_lane(m, p.lane, "ld")
         blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
-        m.d.comb += [self.rays.ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
-        take = self.rays.valid & self.rays.ready
-        live = compare(cfg.fmt, p.tnear, p.tfar).le
-        lane_bit, lane_one = Signal(L), Signal(L)
-        m.d.comb += [lane_one.eq(Const(1, L) << p.lane), lane_bit.eq(Mux(live, lane_one, 0))]
+        ready = Signal()                    # the loader writes the lane this cycle if valid
+        m.d.comb += [ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
+        take = valid & ready
+        if cfg.fast_clock:
+            m.d.comb += rays.ready.eq(ld_active & ~got_last & (~valid | ready))
+            with m.If(rays.valid & rays.ready):
+                m.d.sync += [valid.eq(1), p.eq(rays.payload), live.eq(live_in),
+                             lane_one.eq(Const(1, L) << rays.payload.lane),
+                             oct_one.eq(Const(1, 8) << rays.payload.octant),
+                             got_last.eq(rays.payload.last)]
+            with m.Elif(take):
+                m.d.sync += valid.eq(0)
+            with m.If(take & p.last):
+                m.d.sync += got_last.eq(0)
+        else:
+            m.d.comb += rays.ready.eq(ready)
+        # per octant: its lanes so far (acc) and whether it has any (acc_any)
+        acc_any = Signal(8)
         acc_new = [Signal(L, name=f"acc_new{o}") for o in range(8)]
         for o in range(8):
-            m.d.comb += acc_new[o].eq(acc[o] | Mux(p.octant == o, lane_bit, 0))
+            m.d.comb += acc_new[o].eq(acc[o] | Mux(oct_one[o] & live, lane_one, 0))
+        acc_any_new = acc_any | Mux(live, oct_one, 0)
         for j, s in enumerate(subs):
             m.d.comb += [s.ld_en.eq(take & (lane_sub == j)), s.ld_thread.eq(ld_thread),
                          s.ld_lane.eq(lane_loc), s.ld_org.eq(p.org), s.ld_inv.eq(p.inv),
                          s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
         m.d.comb += [pm_w.addr.eq(ld_thread), pm_w.data.eq(Cat(*acc_new))]
         with m.If(take):
-            m.d.sync += [th.packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one)]
+            m.d.sync += [th.packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one),
+                         acc_any.eq(acc_any_new)]
             m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
             with m.If(p.last):
                 m.d.comb += pm_w.en.eq(1)
-                m.d.sync += [ld_active.eq(0), th.state[ld_thread].eq(ThreadState.NEXTPASS),
+                th.set_state(m, ld_thread, ThreadState.NEXTPASS)
+                m.d.sync += [ld_active.eq(0),
                              acc_lanes.eq(0), th.lanes[ld_thread].eq(acc_lanes | lane_one),
-                             th.todo[ld_thread].eq(Cat(*(a.any() for a in acc_new))),
+                             th.todo[ld_thread].eq(acc_any_new), acc_any.eq(0),
                              th.term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
 
     def _fetcher(self, m: Module, th: _Threads) -> None:
@@ -432,23 +529,36 @@ class Traversal(wiring.Component):
                                                               len(req.payload.tag)))
         wiring.connect(m, out.o, wiring.flipped(req))
         f_ptr = Signal(self.cfg.thread_bits)
-        f_any, f_idx = rr_pick(m, th.in_state(ThreadState.FETCH), f_ptr, "fetch")
+        fetching = th.in_state(ThreadState.FETCH)
+        if self.cfg.fast_clock:
+            # the pick is registered: made a cycle ahead, less the thread whose request goes
+            # out then (only this engine moves a thread out of FETCH)
+            T = self.cfg.threads
+            f_any, f_idx = Signal(name="fetch_any_q"), Signal(self.cfg.thread_bits,
+                                                              name="fetch_pick_q")
+            sent = Mux(out.i.valid & out.i.ready, Const(1, T) << f_idx, 0)
+            p_any, p_idx = rr_pick(m, (fetching & ~sent)[:T], f_ptr, "fetch")
+            m.d.sync += [f_any.eq(p_any), f_idx.eq(p_idx)]
+        else:
+            f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
                      out.i.payload.addr.eq(self.node_base + th.node[f_idx])]
         with m.If(out.i.valid & out.i.ready):
-            m.d.sync += [th.state[f_idx].eq(ThreadState.WAIT_MEM), f_ptr.eq(f_idx + 1)]
+            m.d.sync += f_ptr.eq(f_idx + 1)
+            th.set_state(m, f_idx, ThreadState.WAIT_MEM)
         with m.If(req.valid & req.ready):
             m.d.sync += self.node_reads.eq(self.node_reads + 1)
         resp = self.node.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
-            m.d.sync += [th.word[resp.payload.tag].eq(resp.payload.data),
-                         th.state[resp.payload.tag].eq(ThreadState.HAVE_NODE)]
+            m.d.sync += th.word[resp.payload.tag].eq(resp.payload.data)
+            th.set_state(m, resp.payload.tag, ThreadState.HAVE_NODE)
 
     def _result_engine(self, m: Module, th: _Threads) -> None:
         """One ``LaneResult`` per cycle: the lane ends if it hit and is an any-hit ray or its
         hit lies in the cell (``t <= tfar``, tfar read from its sub-unit); the leaf's ``last``
-        result makes the thread pop."""
+        result makes the thread pop. Applied 1 + ``RQ_LAT`` cycles after the result arrives
+        (``cfg.fast_clock``: 2 + ``RQ_LAT``, the verdict registered)."""
         cfg, fmt, k, subs = self.cfg, self.cfg.fmt, self.cfg.trav_subunits, self.subunits
         rs = self.result.payload
         m.d.comb += self.result.ready.eq(1)
@@ -456,21 +566,32 @@ class Traversal(wiring.Component):
         for s in subs:
             m.d.comb += [s.rq_thread.eq(rs.thread), s.rq_lane.eq(r_loc),
                          s.rq_sp.eq(th.sp[rs.thread]), s.rq_cur.eq(th.cur[rs.thread])]
-        r_v, r_thread, r_lane, r_hit, r_t, r_last = (Signal(), Signal(cfg.thread_bits),
-                                                     Signal(lane_bits(cfg)), Signal(),
-                                                     Signal(fmt.width), Signal())
-        r_sub1 = Signal(range(max(2, k)))
-        m.d.sync += [r_v.eq(self.result.valid), r_thread.eq(rs.thread), r_lane.eq(rs.lane),
-                     r_hit.eq(rs.hit), r_t.eq(rs.t), r_last.eq(rs.last), r_sub1.eq(r_sub)]
+        # the result waits in registers for the sub-units' read (RQ_LAT cycles)
+        r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = (
+            self.result.valid, rs.thread, rs.lane, rs.hit, rs.t, rs.last, r_sub)
+        for i in range(subs[0].RQ_LAT):
+            regs = (Signal(name=f"r{i}_v"), Signal(cfg.thread_bits, name=f"r{i}_thread"),
+                    Signal(lane_bits(cfg), name=f"r{i}_lane"), Signal(name=f"r{i}_hit"),
+                    Signal(fmt.width, name=f"r{i}_t"), Signal(name=f"r{i}_last"),
+                    Signal(range(max(2, k)), name=f"r{i}_sub"))
+            m.d.sync += [a.eq(b) for a, b in zip(regs, (r_v, r_thread, r_lane, r_hit, r_t,
+                                                         r_last, r_sub1))]
+            r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = regs
         tfar = Array(s.rq_tfar for s in subs)[r_sub1]
         anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
         kill = r_hit & (anyhit | compare(fmt, r_t, tfar).le)
+        if cfg.fast_clock:              # the verdict is registered before it is applied
+            vals = (r_v, kill, r_thread, r_lane, r_last)
+            regs = [Signal.like(Value.cast(v), name=f"rk_{n}") for v, n in zip(
+                vals, ("v", "kill", "thread", "lane", "last"))]
+            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
+            r_v, kill, r_thread, r_lane, r_last = regs
         with m.If(r_v):
             with m.If(kill):
                 m.d.sync += th.term[r_thread].eq(th.term[r_thread] |
                                                  (Const(1, cfg.packet_size) << r_lane))
             with m.If(r_last):
-                m.d.sync += th.state[r_thread].eq(ThreadState.POP)
+                th.set_state(m, r_thread, ThreadState.POP)
 
     def _done_engine(self, m: Module, th: _Threads) -> None:
         """``PacketDone`` for a thread whose passes all ended; ``release`` frees the thread."""
@@ -482,12 +603,12 @@ class Traversal(wiring.Component):
                      out.i.payload.packet.eq(th.packet[d_idx]),
                      out.i.payload.mask.eq(th.lanes[d_idx])]
         with m.If(out.i.valid & out.i.ready):
-            m.d.sync += th.state[d_idx].eq(ThreadState.DRAIN)
+            th.set_state(m, d_idx, ThreadState.DRAIN)
         with m.If(dn.valid & dn.ready):
             m.d.sync += self.packets_done.eq(self.packets_done + 1)
         m.d.comb += self.release.ready.eq(1)
         with m.If(self.release.valid):
-            m.d.sync += th.state[self.release.payload].eq(ThreadState.FREE)
+            th.set_state(m, self.release.payload, ThreadState.FREE)
 
     def _control(self, m: Module, th: _Threads, st_r, st_w, pm_r) -> None:
         """The control engine (pick a thread, dispatch its step / leaf / pop / pass) and the
@@ -497,10 +618,20 @@ class Traversal(wiring.Component):
         tb, db = cfg.thread_bits, max(1, ceil_log2(cfg.stack_depth))
         subs = self.subunits
         e_ptr = Signal(tb)
-        e_any, e_idx = rr_pick(m, th.in_state(ThreadState.HAVE_NODE) |
-                               th.in_state(ThreadState.POP) | th.in_state(ThreadState.NEXTPASS),
-                               e_ptr, "step")
         e_t = Signal(tb)
+        ctl_busy = Signal()                          # the engine works on thread e_t
+        waiting = (th.in_state(ThreadState.HAVE_NODE) | th.in_state(ThreadState.POP) |
+                   th.in_state(ThreadState.NEXTPASS))
+        if cfg.fast_clock:
+            # the pick is registered: made a cycle ahead from the threads waiting then, less
+            # the one being worked on (only this engine moves a thread out of those states,
+            # so a registered pick is still waiting when it is used)
+            busy_bit = Mux(ctl_busy, Const(1, T) << e_t, 0)
+            p_any, p_idx = rr_pick(m, (waiting & ~busy_bit)[:T], e_ptr, "step")
+            e_any, e_idx = Signal(name="step_any_q"), Signal(tb, name="step_pick_q")
+            m.d.sync += [e_any.eq(p_any), e_idx.eq(p_idx)]
+        else:
+            e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)
         e_word = Signal(node_layout())
         e_mask = Signal(L)
@@ -522,9 +653,21 @@ class Traversal(wiring.Component):
         # synchronous sub-units start each step together; asynchronous ones start when free
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]
-        lo_oc_any, lo_oc = lowest(m, th.todo[e_t], "pass")
-        st_mask = st_r.data[NODE_BITS:]
-        popped = st_mask & ~th.term[e_t]
+        fast = cfg.fast_clock
+        # the thread's octants to do and terminated lanes: fast_clock copies them at the pick
+        # (only this engine changes todo; term does not change while the thread pops)
+        e_todo, e_term = (Signal(8, name="e_todo"), Signal(L, name="e_term")) if fast else \
+            (th.todo[e_t], th.term[e_t])
+        lo_oc_any, lo_oc = lowest(m, e_todo, "pass")
+        # the stack entry and the pass masks as read (fast_clock: the block RAMs' outputs
+        # straight into registers, used a cycle later: POP3, PASS3)
+        st_data, pm_data = st_r.data, pm_r.data
+        if fast:
+            st_data, pm_data = Signal.like(st_r.data, name="st_q", reset_less=True), \
+                Signal.like(pm_r.data, name="pm_q", reset_less=True)
+            m.d.sync += [st_data.eq(st_r.data), pm_data.eq(pm_r.data)]
+        st_mask = st_data[NODE_BITS:]
+        popped = st_mask & ~e_term
         m.submodules.leaf_out = lf = OutputStage(LeafRequest(cfg))
         wiring.connect(m, lf.o, wiring.flipped(self.leaf))
         m.d.comb += [lf.i.payload.thread.eq(e_t), lf.i.payload.first.eq(e_word.value),
@@ -538,7 +681,6 @@ class Traversal(wiring.Component):
                 m.d.sync += self.sub_busy[j].eq(self.sub_busy[j] + 1)
 
         dec = self._decide(m, th, order, st_w)
-        ctl_busy = Signal()
         m.d.comb += ctl_busy.eq(1)
         with m.If(ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()):
             m.d.sync += self.busy.eq(self.busy + 1)
@@ -551,6 +693,8 @@ class Traversal(wiring.Component):
                 with m.If(e_any):
                     m.d.sync += [e_t.eq(e_idx), e_kind.eq(th.state[e_idx]),
                                  e_word.eq(th.word[e_idx]), e_mask.eq(th.mask[e_idx]),
+                                 *([e_todo.eq(th.todo[e_idx]), e_term.eq(th.term[e_idx])]
+                                   if fast else []),
                                  e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
                                  e_ptr.eq(e_idx + 1)]
                     m.next = "DISPATCH"
@@ -559,8 +703,8 @@ class Traversal(wiring.Component):
                     with m.If(e_word.axis != LEAF):
                         with m.If(room):
                             m.d.comb += disp.eq(1)
-                            m.d.sync += [self.trav_steps.eq(self.trav_steps + 1),
-                                         th.state[e_t].eq(ThreadState.STEP)]
+                            m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
+                            th.set_state(m, e_t, ThreadState.STEP)
                             m.next = "IDLE"
                     with m.Elif(e_word.index != 0):
                         m.next = "LEAF"
@@ -573,7 +717,7 @@ class Traversal(wiring.Component):
             with m.State("LEAF"):
                 m.d.comb += lf.i.valid.eq(1)
                 with m.If(lf.i.ready):
-                    m.d.sync += th.state[e_t].eq(ThreadState.WAIT_LEAF)
+                    th.set_state(m, e_t, ThreadState.WAIT_LEAF)
                     m.next = "IDLE"
             with m.State("POP"):
                 with m.If(e_sp == 0):
@@ -582,34 +726,51 @@ class Traversal(wiring.Component):
                     m.d.comb += st_r.addr.eq(Cat((e_sp - 1)[:db], e_t))
                     m.d.sync += e_sp.eq(e_sp - 1)
                     m.next = "POP2"
-            with m.State("POP2"):
-                with m.If(popped.any()):
-                    m.d.sync += [th.node[e_t].eq(st_r.data[:NODE_BITS]), th.mask[e_t].eq(popped),
-                                 th.sp[e_t].eq(e_sp), th.cur[e_t].eq(1),
-                                 th.state[e_t].eq(ThreadState.FETCH)]
+            pop_node, pop_mask, pop_any = st_data[:NODE_BITS], popped, popped.any()
+            if fast:
+                # POP2: the entry is read; POP3: its lanes still live, registered; POP4: used
+                with m.State("POP2"):
+                    m.next = "POP3"
+                regs = (Signal(NODE_BITS, name="pop_node"), Signal(L, name="pop_mask"),
+                        Signal(name="pop_any"))
+                with m.State("POP3"):
+                    m.d.sync += [r.eq(v) for r, v in zip(regs, (pop_node, pop_mask, pop_any))]
+                    m.next = "POP4"
+                pop_node, pop_mask, pop_any = regs
+            with m.State("POP4" if fast else "POP2"):
+                with m.If(pop_any):
+                    for f, v in (("node", pop_node), ("mask", pop_mask), ("sp", e_sp),
+                                 ("cur", 1)):
+                        th.set(m, f, e_t, v)
+                    th.set_state(m, e_t, ThreadState.FETCH)
                     m.next = "IDLE"
                 with m.Else():
                     m.next = "POP"
             with m.State("PASS"):
                 with m.If(~lo_oc_any):
-                    m.d.sync += th.state[e_t].eq(ThreadState.DONE)
+                    th.set_state(m, e_t, ThreadState.DONE)
                     m.next = "IDLE"
                 with m.Else():
                     m.d.comb += pm_r.addr.eq(e_t)
                     m.d.sync += [e_oct.eq(lo_oc),
-                                 th.todo[e_t].eq(th.todo[e_t] & ~(Const(1, 8) << lo_oc))]
+                                 th.todo[e_t].eq(e_todo & ~(Const(1, 8) << lo_oc))]
                     m.next = "PASS2"
-            with m.State("PASS2"):
-                m.d.sync += [th.mask[e_t].eq(pm_r.data.word_select(e_oct, L)),
-                             th.node[e_t].eq(self.root), th.sp[e_t].eq(0), th.cur[e_t].eq(0),
-                             th.octant[e_t].eq(e_oct), th.state[e_t].eq(ThreadState.FETCH),
-                             self.passes.eq(self.passes + 1)]
+            if fast:
+                with m.State("PASS2"):
+                    m.next = "PASS3"
+            with m.State("PASS3" if fast else "PASS2"):
+                m.d.sync += [th.octant[e_t].eq(e_oct), self.passes.eq(self.passes + 1)]
+                for f, v in (("mask", pm_data.word_select(e_oct, L)), ("node", self.root),
+                             ("sp", 0), ("cur", 0)):
+                    th.set(m, f, e_t, v)
+                th.set_state(m, e_t, ThreadState.FETCH)
                 m.next = "IDLE"
 
     def _decide(self, m: Module, th: _Threads, order, st_w) -> Signal:
         """The oldest outstanding step, once every sub-unit's verdict is in: both children ->
         push the far one and go near; near only; far only; none ends the pass (as in
-        ``model.traversal.decide``). One cycle. Returns the signal that a step is decided."""
+        ``model.traversal.decide``). One cycle (two with ``cfg.fast_clock``: the queue heads
+        are registered first). Returns the signal that a step is decided (in its last cycle)."""
         subs = self.subunits
         dt = order.r_data
         dec = Signal()
@@ -622,18 +783,30 @@ class Traversal(wiring.Component):
         neg = th.octant[dt].bit_select(d_word.axis, 1)
         near_node = (d_word.index + neg)[:NODE_BITS]
         far_node = (d_word.index + 1 - neg)[:NODE_BITS]
+        n_any, f_any = mn.any(), mf.any()
+        if self.cfg.fast_clock:
+            # the verdict queues' heads and the thread's children go through registers; the
+            # thread's state is written a cycle later (no other engine touches a STEP thread)
+            vals = (dec, dt, mn, mf, n_any, f_any, near_node, far_node, d_sp)
+            regs = [Signal.like(Value.cast(v), name=f"dec_{n}") for v, n in zip(vals, (
+                "v", "thread", "near", "far", "near_any", "far_any", "near_node", "far_node",
+                "sp"))]
+            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
+            dec, dt, mn, mf, n_any, f_any, near_node, far_node, d_sp = regs
         with m.If(dec):
-            with m.If(mn.any() & mf.any()):
+            with m.If(n_any & f_any):
                 m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
                              st_w.en.eq(1)]
-                m.d.sync += [th.sp[dt].eq(d_sp + 1), th.node[dt].eq(near_node),
-                             th.mask[dt].eq(mn), th.cur[dt].eq(0),
-                             th.state[dt].eq(ThreadState.FETCH), self.pushes.eq(self.pushes + 1)]
-            with m.Elif(mn.any()):
-                m.d.sync += [th.node[dt].eq(near_node), th.mask[dt].eq(mn), th.cur[dt].eq(0),
-                             th.state[dt].eq(ThreadState.FETCH)]
+                m.d.sync += self.pushes.eq(self.pushes + 1)
+                for f, v in (("sp", d_sp + 1), ("node", near_node), ("mask", mn), ("cur", 0)):
+                    th.set(m, f, dt, v)
+                th.set_state(m, dt, ThreadState.FETCH)
+            with m.Elif(n_any):
+                for f, v in (("node", near_node), ("mask", mn), ("cur", 0)):
+                    th.set(m, f, dt, v)
+                th.set_state(m, dt, ThreadState.FETCH)
             with m.Else():
-                m.d.sync += [th.node[dt].eq(far_node), th.mask[dt].eq(mf), th.cur[dt].eq(1),
-                             th.state[dt].eq(Mux(mf.any(), ThreadState.FETCH,
-                                                 ThreadState.NEXTPASS))]
+                for f, v in (("node", far_node), ("mask", mf), ("cur", 1)):
+                    th.set(m, f, dt, v)
+                th.set_state(m, dt, Mux(f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
         return dec

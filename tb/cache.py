@@ -53,15 +53,17 @@ class CacheRun:
 
 def run_cache(geom: CacheGeometry, image: np.ndarray, addrs, *, base: int = 0,
               tag_width: int = 4, memory: str = "ideal", latency: int = 8, seed: int = 0,
-              idle: float = 0.0, stall: float = 0.0, gaps=None, check: bool = True) -> CacheRun:
+              idle: float = 0.0, stall: float = 0.0, gaps=None, check: bool = True,
+              fast: bool = False) -> CacheRun:
     """Simulate the cache on ``addrs`` (item indices) and, with ``check``, assert it is right.
 
     ``idle``/``stall``: probabilities of a request bubble / of response back-pressure per cycle;
-    ``gaps``: idle cycles before each request (instead of random bubbles).
+    ``gaps``: idle cycles before each request (instead of random bubbles); ``fast``: the
+    cache's ``fast`` registers (``Config.fast_clock``).
     """
     rng = random.Random(seed)
     addrs = np.asarray(addrs, dtype=np.int64)
-    cache = Cache(geom, tag_width=tag_width)
+    cache = Cache(geom, tag_width=tag_width, fast=fast)
     fetched = []
     if memory == "ideal":
         mem = IdealMemory(image, addr_width=geom.mem_addr_width, tag_width=len(cache.mem.req.payload.tag),

@@ -10,6 +10,8 @@
 """
 from __future__ import annotations
 
+import dataclasses
+
 import random
 import time
 from dataclasses import dataclass, field
@@ -218,14 +220,24 @@ MASK64 = (1 << 64) - 1
 
 class IntBench(wiring.Component):
     """The intersection unit with an ``IdealMemory`` behind an ``ItemReader`` (5 words a
-    triangle) on its port; its streams passed through, ``words`` = words read."""
+    triangle) on its port; its streams passed through, ``words`` = words read. ``cache``: the
+    RTC's int cache (``rtl/rtcmi.py``) instead of the ItemReader, so triangles that hit
+    arrive one a cycle."""
 
-    def __init__(self, cfg, image, *, latency: int = 20, tri_slots: int = 4):
+    def __init__(self, cfg, image, *, latency: int = 20, tri_slots: int = 4,
+                 cache: bool = False):
         addr_width = max(8, int(len(image.data) - 1).bit_length())
         self.unit = IntersectionUnit(cfg, addr_width=addr_width, tri_slots=tri_slots)
-        self.reader = ItemReader(item_bits=cfg.int_item_bits, item_words=TRI_WORDS,
-                                 addr_width=addr_width, tag_width=self.unit.tag_width,
-                                 slots=tri_slots)
+        if cache:
+            from rtl.cache import Cache
+            from rtl.rtcmi import rtcmi_geometries
+            geom = rtcmi_geometries(cfg)["int"]
+            geom = dataclasses.replace(geom, addr_width=addr_width, mem_addr_width=addr_width)
+            self.reader = Cache(geom, tag_width=self.unit.tag_width, fast=cfg.fast_clock)
+        else:
+            self.reader = ItemReader(item_bits=cfg.int_item_bits, item_words=TRI_WORDS,
+                                     addr_width=addr_width, tag_width=self.unit.tag_width,
+                                     slots=tri_slots)
         self.memory = IdealMemory(image.data, addr_width=addr_width,
                                   tag_width=len(self.reader.mem.req.payload.tag), latency=latency)
         self.tri_base = image.tri_base
@@ -245,7 +257,7 @@ class IntBench(wiring.Component):
             wiring.connect(m, wiring.flipped(getattr(self, name)), getattr(u, name))
         for name in ("lane_out", "result", "release"):
             wiring.connect(m, getattr(u, name), wiring.flipped(getattr(self, name)))
-        m.d.comb += [r.base.eq(self.tri_base), self.words.eq(r.words)]
+        m.d.comb += [r.base.eq(self.tri_base), self.words.eq(mem.reads)]
         for name in ("int_ops", "tris", "busy"):
             m.d.comb += getattr(self, name).eq(getattr(u, name))
         return m
@@ -360,13 +372,14 @@ class UnitRun:
 
 
 def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0.3,
-             stall: float = 0.3, latency: int = 20, tri_slots: int = 4) -> UnitRun:
+             stall: float = 0.3, latency: int = 20, tri_slots: int = 4,
+             cache: bool = False) -> UnitRun:
     """Load the packets' rays, feed the golden TriRequests with random bubbles, drain the
     LaneResults with random back-pressure, then read out every packet's final hits; check the
     datapath outputs (``EV_INT``), the LaneResults, the RayResults and the counters against the
     model; returns every difference in ``mismatches``."""
     s = unit_streams(g, max_leaves)
-    dut = IntBench(g.cfg, g.image, latency=latency, tri_slots=tri_slots)
+    dut = IntBench(g.cfg, g.image, latency=latency, tri_slots=tri_slots, cache=cache)
     rng = random.Random(seed)
     pipe = dut.unit.pipe
     ints, lanes, results, released, info = [], [], [], [], {}
@@ -421,9 +434,11 @@ def run_unit(g, *, max_leaves: int | None = None, seed: int = 0, idle: float = 0
     if released != want_rel:
         bad.append(f"releases (cycle, thread) {released[:8]}..., want {want_rel[:8]}... "
                    "(the thread of each packet with its last result)")
-    want_ctr = unit_counters(s, g, whole=max_leaves is None) + [("words", 5 * len(s.tris))]
-    if max_leaves is None:          # the whole image: the model's own word count too
-        want_ctr.append(("words", int(g.counters.sum(axis=0)[C["int_reads"]])))
+    want_ctr = unit_counters(s, g, whole=max_leaves is None)
+    if not cache:                   # a cache reads a triangle's words only on a miss
+        want_ctr.append(("words", 5 * len(s.tris)))
+        if max_leaves is None:      # the whole image: the model's own word count too
+            want_ctr.append(("words", int(g.counters.sum(axis=0)[C["int_reads"]])))
     for k, w in want_ctr:
         if info[k] != w:
             bad.append(f"counter {k}: {info[k]}, model {w}")
@@ -447,19 +462,27 @@ if __name__ == "__main__":          # speed figures: python -m tb.intersection [
           f"{r.seconds:.1f} s = {r.cycles_per_s:.0f} cycles/s; counters {r.counters}")
 
 
-def golden_stack(cfg, cache_dir, layers: int = 10, rays_per_packet: int = 1):
+def golden_stack(cfg, cache_dir, layers: int = 10, rays_per_packet: int = 1,
+                 near_first: bool = False):
     """A stack of ``layers`` parallel quads (two triangles each) facing rays from +z, listed
     far to near, and a few rays per packet: every test of a lane hits and is closer than the
-    last, back to back when a packet has one ray (the best-hit read-after-write case)."""
+    last, back to back when a packet has one ray (the best-hit read-after-write case).
+    ``near_first`` lists them near to far, each layer as two overlapping triangles that
+    both cover every ray: every test after the first hits at or beyond the best and must be
+    rejected, back to back (a stale best-hit read would accept it)."""
     from model.kdtree import build_kdtree
     from model.layout import build_image
     from tb.list import Golden
     quads = []
     for i in range(layers):
         z = float(-i)
-        quads += [[(-1, -1, z), (1, -1, z), (1, 1, z)], [(-1, -1, z), (1, 1, z), (-1, 1, z)]]
+        if near_first:
+            quads += [[(-3, -3, z), (3, -3, z), (0, 4, z)], [(3, 3, z), (-3, 3, z), (0, -4, z)]]
+        else:
+            quads += [[(-1, -1, z), (1, -1, z), (1, 1, z)], [(-1, -1, z), (1, 1, z), (-1, 1, z)]]
     # reversed: memory (and list) order runs from the farthest layer to the nearest
-    tris = cfg.fmt.quantize(np.array(quads[::-1], np.float64)).astype(np.float32)
+    tris = cfg.fmt.quantize(np.array(quads if near_first else quads[::-1],
+                                     np.float64)).astype(np.float32)
     tree = build_kdtree(tris, cfg, cache_dir=cache_dir)
     image = build_image(tris, tree, cfg)
     rng = np.random.default_rng(3)

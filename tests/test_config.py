@@ -24,7 +24,8 @@ def test_units_take_latencies_and_sizes_from_config():
     base = Config(**SMALL)
     slow = base.replace(fp_add_latency=5, fp_mul_latency=4, int_tri_slots=16,
                         list_outstanding=4)
-    assert base.fp_latencies() == {"add": None, "mul": None, "div": None, "sqrt": None}
+    assert base.fp_latencies() == {"add": None, "mul": None, "div": None, "sqrt": None,
+                                   "cmp": None}
     assert slow.replace(fp_sqrt_latency=11).fp_latencies()["sqrt"] == 11
     sub0, sub1 = TravSubunit(base), TravSubunit(slow)
     assert (sub0.add.latency, sub0.mul.latency) == (3, 3)

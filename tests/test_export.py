@@ -238,14 +238,20 @@ class _TopSim(wiring.Component):
         return m
 
 
-@pytest.mark.parametrize("caches", [True, pytest.param(False, marks=pytest.mark.slow)])
-def test_rtc_top_matches_model(caches, kd_cache, monkeypatch):
+@pytest.mark.parametrize("caches,fast", [(True, False), (True, True),
+                                         pytest.param(False, False, marks=pytest.mark.slow)],
+                         ids=["caches", "caches-fast_clock", "nocache"])
+def test_rtc_top_matches_model(caches, fast, kd_cache, monkeypatch):
     """The ``rtc`` top (RTC + word caches + bus, one memory port) on an ideal memory traces
-    2 packets of 4x4 eye rays bit-exactly like the golden model, with the model's counters."""
+    2 packets of 4x4 eye rays bit-exactly like the golden model, with the model's counters
+    (``fast``: the FPGA build's settings, the caches' registers included)."""
     import tb.rtc
     from tb.traversal import small_case
     cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1,
                  list_cache_kb=1, int_cache_kb=1, cache_outstanding=2)
+    if fast:
+        cfg = cfg.replace(fast_clock=True, fp_add_latency=8, fp_mul_latency=5,
+                          fp_div_latency=29, fp_cmp_latency=3)
     image, rays = small_case(ROOT / "scenes/cornell.toml", 8, 4, cfg, kd_cache)
     monkeypatch.setattr(tb.rtc, "RTCSim", lambda c, img, mem_latency: _TopSim(
         c, img, mem_latency=mem_latency, caches=caches))

@@ -83,6 +83,8 @@ CI_CASES = [
     ("add", E8M10, 0), ("add", E8M16, 5), ("sub", E4M3, 1),
     ("mul", E8M16, 1), ("mul", E8M10, 0), ("div", E8M10, 2), ("div", E4M3, 0),
     ("max", E8M16, 0), ("cmp", E4M3, 2), ("conv", E8M10, 0),
+    ("min", BINARY32, 3), ("max", E4M3, 3), ("cmp", BINARY32, 3),   # min/max: compare cut
+    ("add", BINARY32, 8), ("sub", E8M10, 8),                         # add: normalize cut
     ("sqrt", BINARY32, None), ("sqrt", E8M16, 3), ("sqrt", E8M10, 0), ("sqrt", BINARY32, 12),
 ]
 
@@ -104,10 +106,11 @@ def test_random_with_stalls_long(kind, fmt):
 
 
 @pytest.mark.parametrize("kind,regs", [
-    ("add", (1, 0, 2, 0, 0, 0, 1)), ("mul", (2, 0, 0, 1, 0, 0, 0)),
+    ("add", (1, 0, 2, 0, 0, 0, 0, 1)), ("mul", (2, 0, 0, 1, 0, 0, 0)),
     ("div", (0, 1) + (0,) * 12 + (1,) + (0,) * 13 + (0, 2)),
     # round and pack cut; binary32 products from four registered 18-bit partial products
-    ("add", (0, 0, 0, 0, 0, 2, 1)), ("mul", (0, 0, 1, 0, 0, 1, 1)), ("mul", (0, 1, 1, 1, 1, 1, 1)),
+    ("add", (0, 0, 0, 0, 0, 0, 2, 1)), ("add", (0, 0, 0, 1, 2, 0, 0, 1)),
+    ("mul", (0, 0, 1, 0, 0, 1, 1)), ("mul", (0, 1, 1, 1, 1, 1, 1)),
     ("div", (0, 1) + (0, 1) * 13 + (1, 0)), ("div", (0, 0) + (1,) * 26 + (1, 1))])
 def test_custom_register_placement(kind, regs):
     """Registers may sit anywhere, several at one boundary; latency is their count."""

@@ -45,3 +45,14 @@ def test_reuse_checks(tmp_path):
         run("fp_add", cfg, out=tmp_path, reuse="old", pnr=False)
     with pytest.raises(SystemExit, match="another top or configuration"):
         run("fp_mul", cfg.replace(fp_mul_latency=5), out=tmp_path, reuse="old", pnr=False)
+
+
+def test_set_router_rewrites_the_stored_setting(tmp_path):
+    from rtl.fpga.flow import _set_router
+    placed = tmp_path / "placed.json"
+    text = '{"modules": {"top": {"settings": {"placer": "heap", "router": "router1"}}}}'
+    placed.write_text(text)
+    _set_router(placed, "router2")
+    assert json.loads(placed.read_text())["modules"]["top"]["settings"]["router"] == "router2"
+    _set_router(placed, "router2")                    # already so: unchanged
+    assert placed.read_text() == text.replace("router1", "router2")

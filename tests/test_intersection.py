@@ -56,6 +56,16 @@ def test_unit_matches_model_first_leaves(cornell):
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
+def test_unit_deep_settings_first_leaves(kd_cache):
+    """The deep settings on the first leaves of 4 Cornell packets, bubbles and back-pressure."""
+    from tb.list import golden
+    from tb.intersection import run_unit
+    from .conftest import ROOT
+    g = golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(**DEEP), kd_cache)
+    r = run_unit(g, max_leaves=6, seed=3, idle=0.3, stall=0.3, latency=20)
+    assert r.mismatches[:5] == [] and r.int_ops > 50
+
+
 @pytest.mark.slow
 def test_unit_matches_model_whole_image(cornell):
     from tb.intersection import run_unit
@@ -66,17 +76,35 @@ def test_unit_matches_model_whole_image(cornell):
           f"{r.cycles_per_s:.0f} cycles/s")
 
 
-def test_unit_every_test_accepts_small_slots_fast_memory(kd_cache):
-    """One-ray packets against a stack of quads listed far to near: every layer's hit replaces
-    the previous best; two triangle slots and a 2-cycle memory; LaneResults back-pressured."""
+# the deep settings of the FPGA build (docs/fpga.md): deeper FP units, block-RAM reads
+# registered with the best hit's stores forwarded, a registered readout (fast_clock)
+DEEP = dict(fast_clock=True, fp_add_latency=6, fp_mul_latency=5, fp_div_latency=29)
+
+
+@pytest.mark.parametrize("deep", [False, True], ids=["default", "deep"])
+def test_unit_every_test_accepts_small_slots_fast_memory(kd_cache, deep):
+    """One-ray packets against a stack of quads listed far to near (every layer's hit
+    replaces the previous best) and near to far (every later hit is rejected): back-to-back
+    tests of one lane after a stall, each needing the previous one's store (with the deep
+    settings: a store the best-hit read missed, forwarded); two triangle slots and a 2-cycle
+    memory; LaneResults back-pressured."""
     from tb.intersection import golden_stack, run_unit
     from model.events import EV_INT
-    g = golden_stack(Config(kd_leaf_size=32), kd_cache, layers=6)
-    ints = g.events[g.events["kind"] == EV_INT]
-    assert ((ints["flags"] & 2) != 0).sum() >= 6 * 8                    # >= 6 accepts per ray
-    r = run_unit(g, seed=5, idle=0.0, stall=0.4, latency=2, tri_slots=2)
+    cfg = Config(kd_leaf_size=32, **(DEEP if deep else {}))
+    for near_first in (False, True):
+        g = golden_stack(cfg, kd_cache, layers=6, near_first=near_first)
+        ints = g.events[g.events["kind"] == EV_INT]
+        accepts = ((ints["flags"] & 2) != 0).sum()
+        # near first: the nearest layer's two triangles only (rounding may favour either)
+        assert 8 <= accepts <= 16 if near_first else accepts >= 6 * 8
+        r = run_unit(g, seed=5, idle=0.0, stall=0.4, latency=2, tri_slots=2)
+        assert r.mismatches[:5] == []
+        assert r.counters["tris"] == len(ints) and r.int_ops == len(ints)  # one ray a packet
+    # through the int cache: the triangles of every packet after the first hit and arrive
+    # one a cycle, so one lane's tests follow each other back to back
+    g = golden_stack(cfg.replace(int_cache_kb=1), kd_cache, layers=6, near_first=True)
+    r = run_unit(g, seed=6, idle=0.0, stall=0.0, latency=4, tri_slots=8, cache=True)
     assert r.mismatches[:5] == []
-    assert r.counters["tris"] == len(ints) and r.int_ops == len(ints)      # one ray per packet
 
 
 @pytest.mark.slow

@@ -45,6 +45,21 @@ def test_rtc_matches_model_with_deep_fp_pipelines_and_async_subunits(kd_cache):
     check(r, rays)
 
 
+# the FPGA build's settings (docs/fpga.md, make fpga): deeper FP units and compare units,
+# block-RAM reads registered and the other registers of Config.fast_clock
+DEEP = dict(fast_clock=True, fp_add_latency=8, fp_mul_latency=5, fp_div_latency=29,
+            fp_cmp_latency=3)
+
+
+def test_rtc_matches_model_fast_clock(kd_cache):
+    """The FPGA build's settings, 3 packets through 2 threads (a thread is reused), bubbles
+    and back-pressure: the same bits and counters as the model."""
+    cfg = TINY.replace(**DEEP)
+    image, rays = small_case(ROOT / "scenes/cornell.toml", 12, 4, cfg, kd_cache)
+    r = run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=5)
+    check(r, rays)
+
+
 @pytest.mark.slow
 def test_rtc_python_testbench_standard(kd_cache):
     """Standard configuration, 2 packets of 64 rays, Python-driven random bubbles and stalls."""

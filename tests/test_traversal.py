@@ -45,13 +45,30 @@ def test_traversal_reuses_threads(kd_cache):
     assert sorted(r.packets_done) == list(range(4))
 
 
-def test_subunit_classifies_like_model_at_fixed_latency():
+# the deep settings of the FPGA build (docs/fpga.md): every FP unit and the compare units
+# deeper, block-RAM reads registered (fast_clock)
+DEEP = dict(fast_clock=True, fp_add_latency=7, fp_mul_latency=5, fp_cmp_latency=3)
+
+
+def test_traversal_fast_clock_replays_model(kd_cache):
+    """The deep settings (longer sub-unit pipeline, registered result read, two-cycle decide):
+    the same leaves, done and counters as the model, threads reused, 2 sub-units."""
+    cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, **DEEP)
+    image, rays = small_case(ROOT / "scenes/office.toml", 8, 8, cfg, kd_cache)
+    r = run_traversal(image, rays, cfg, seed=5, mem_latency=6)
+    check(r)
+    assert sorted(r.packets_done) == list(range(4))
+
+
+@pytest.mark.parametrize("deep", [False, True], ids=["default", "deep"])
+def test_subunit_classifies_like_model_at_fixed_latency(deep):
     """Steps through one sub-unit: each verdict (near/far masks) equals
     ``model.traversal.classify``; the first comes exactly ``lanes + STEP_LAT`` cycles after its
     transfer; steps of other threads queued behind it follow back to back (one lane per cycle,
     an empty step one cycle, no pipeline drain in between); the stored intervals equal the
     model's clipped near interval (N) and far interval (S[sp])."""
-    cfg = Config(threads=4, tile_w=4, tile_h=4, trav_subunits=1, kd_max_depth=4)
+    cfg = Config(threads=4, tile_w=4, tile_h=4, trav_subunits=1, kd_max_depth=4,
+                 **(DEEP if deep else {}))
     fmt, R = cfg.fmt, cfg.rays_per_subunit
     rng = np.random.default_rng(7)
     bits = lambda x: int(fmt.to_bits(np.float32(x)))
@@ -117,7 +134,8 @@ def test_subunit_classifies_like_model_at_fixed_latency():
                     ctx.set(dut.rq_lane, lane)
                     ctx.set(dut.rq_sp, sp)
                     ctx.set(dut.rq_cur, cur)
-                    await ctx.tick()
+                    for _ in range(dut.RQ_LAT):
+                        await ctx.tick()
                     got[key][thread, lane] = ctx.get(dut.rq_tfar)
 
     run(dut, tb)
@@ -125,6 +143,7 @@ def test_subunit_classifies_like_model_at_fixed_latency():
     lanes = [max(1, bin(s[4]).count("1")) for s in steps]     # an empty step takes one cycle
     # the first step was transferred in cycle 0 (the queue had room), the others queued
     # behind it: each verdict follows the previous one by the step's issue cycles
+    assert dut.STEP_LAT == (2 + 3 + 3 + 1 + 2 if not deep else 2 + 7 + 5 + 3 + 2)
     assert got["at"][0] == lanes[0] + dut.STEP_LAT
     assert [b - a for a, b in zip(got["at"], got["at"][1:])] == lanes[1:]
     for (thread, axis, split, sp, mask, org, inv, tnear, tfar), (_, _, dist) in zip(steps, want):

@@ -20,9 +20,14 @@ CompareLayout = data.StructLayout({"lt": 1, "le": 1, "equal": 1})
 def compare(fmt: FPFormat, a: Value, b: Value) -> SimpleNamespace:
     """IEEE order of two encodings (denormals read as zero): ``-0 == +0``, NaN unordered."""
     ua, ub = unpack(fmt, a), unpack(fmt, b)
-    # sign-magnitude order on the keys (exponent:fraction, denormals cleared): one magnitude
-    # comparator; a sign difference decides unless both are zeros
-    mlt, meq = ua.key < ub.key, ua.key == ub.key
+    # sign-magnitude order on the magnitudes (exponent:fraction, denormals read as zero): one
+    # comparator on the raw bits, started at once; a zero exponent field (zero or denormal)
+    # is settled beside it: two such are equal, one is below any other magnitude
+    E, M = fmt.exp_bits, fmt.frac_bits
+    ra, rb = Value.cast(a)[:E + M], Value.cast(b)[:E + M]
+    za, zb = ua.zero, ub.zero
+    mlt = Mux(za | zb, za & ~zb, ra < rb)
+    meq = Mux(za | zb, za & zb, ra == rb)
     mgt = ~mlt & ~meq
     ordered = ~ua.nan & ~ub.nan
     zeros = ua.zero & ub.zero
@@ -40,11 +45,13 @@ def canonical(fmt: FPFormat, u: SimpleNamespace, x: Value) -> Value:
 
 class _Unit(wiring.Component):
     BOUNDARIES = ("input", "output")
+    ORDER = (1, 0)
 
     def __init__(self, fmt, latency, regs, out_shape, extra):
         self.fmt = fmt
-        self.regs = (placement(latency, 2, (1, 0)) if regs is None
-                     else check_regs(regs, 2, type(self).__name__, self.BOUNDARIES))
+        nb = len(self.BOUNDARIES)
+        self.regs = (placement(latency, nb, self.ORDER) if regs is None
+                     else check_regs(regs, nb, type(self).__name__, self.BOUNDARIES))
         self.latency = sum(self.regs)
         super().__init__(unit_ports(fmt.width, out_shape, b=In(fmt.width), **extra))
 
@@ -77,9 +84,14 @@ class FPMinMax(_Unit):
     other operand is a number and of ``+0``/``-0`` the first is returned; NaN out is canonical
     and a denormal operand comes out as signed zero.
 
-    Latency: ``latency`` cycles (default 1; 0 = combinational), registers at the input and
-    output boundaries by ``regs``. Throughput: one per cycle in which ``en`` is 1.
+    Latency: ``latency`` cycles (default 1; 0 = combinational), registers at the input,
+    after-compare and output boundaries by ``regs`` or, by default, output first, then input,
+    then after the compare (so latencies 1 and 2 place them as before the compare boundary
+    existed). Throughput: one per cycle in which ``en`` is 1.
     """
+
+    BOUNDARIES = ("input", "compare", "output")
+    ORDER = (2, 0, 1)
 
     def __init__(self, fmt: FPFormat = BINARY32, latency: int = 1, regs: Sequence[int] | None = None):
         super().__init__(fmt, latency, regs, fmt.width, {"op": In(1)})
@@ -89,9 +101,9 @@ class FPMinMax(_Unit):
         st = Stager(m, self.en, self.i_valid, self.regs)
         v = st(a=self.a, b=self.b, op=self.op)
         c = compare(self.fmt, v.a, v.b)
-        take_b = Mux(v.op, c.lt, c.gt) | c.ua.nan          # max: b > a; min: b < a
-        o = Mux(take_b, canonical(self.fmt, c.ub, v.b), canonical(self.fmt, c.ua, v.a))
-        v = st(o=o)
+        v = st(take_b=Mux(v.op, c.lt, c.gt) | c.ua.nan,    # max: b > a; min: b < a
+               a=canonical(self.fmt, c.ua, v.a), b=canonical(self.fmt, c.ub, v.b))
+        v = st(o=Mux(v.take_b, v.b, v.a))
         st.finish()
         m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]
         return m

