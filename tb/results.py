@@ -510,6 +510,8 @@ in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
     def table3(self):
         rows = self.run.rows.get("intcache", [])
         if not rows:
+            if "intcache" not in self.plan.sweeps and self.plan.notes.get("intcache"):
+                self.add("## Table 3: int-cache size and memory bandwidth" + self.note("intcache"))
             return
         scene = _stem(rows[0])
         kbs = sorted({int(r["int_cache_kb"]) for r in rows})

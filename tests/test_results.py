@@ -206,3 +206,17 @@ def test_rays_text_and_chip_cases():
     assert [c[n]["fps"] for n, _ in results.CASES] == [3, 5, 4, 1, 2]
     c = results.chip_cases([row(0, False), row(0, False, os_=2, fps=9)])
     assert c["(e) eye, 4x oversampling"]["fps"] == 9 and "(d) eye + reflections + 3 lights" not in c
+
+
+def test_table3_not_in_the_plan_says_why(tmp_path):
+    """A plan without the int-cache sweep prints Table 3's heading with the plan's note (why
+    it was not run), and no table."""
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None,
+                        notes={"intcache": "Not run: four binaries."})
+    w = results.Writer(plan, results.Run(), tmp_path / "img", tmp_path / "r.md")
+    w.table3()
+    assert w.parts == ["## Table 3: int-cache size and memory bandwidth\n\nNot run: four binaries.\n"]
+    plan.sweeps["intcache"] = tmp_path / "intcache.toml"      # planned, but no rows: nothing
+    w = results.Writer(plan, results.Run(), tmp_path / "img", tmp_path / "r.md")
+    w.table3()
+    assert w.parts == []
