@@ -272,13 +272,16 @@ def _secondary_rays(r) -> float:
     return sum(_num(r, f"rays.{k}") or 0 for k in ("shadow", "reflection", "refraction"))
 
 
-def rays_text(rows) -> str:
+def rays_text(rows, short: bool = False) -> str:
     """Which rays the chip ``rows`` traced, for a table's caption: eye rays only, or all the
-    rays each scene has (with the reflection depth the rows ask for), or a mix."""
+    rays each scene has (with the reflection depth the rows ask for; ``short``: without the
+    list of kinds), or a mix."""
     ok = [r for r in rows if r.get("status") == "ok"] or list(rows)
     asked = [_asks_secondary(r) for r in ok]
     if not any(asked):
         return "eye rays only"
+    if short and all(asked):
+        return "all the rays each scene has"
     depth = max(int(r.get("reflect_depth") or 0) for r in ok)
     lights = all(_true(r.get("shadows")) for r in ok)
     kinds = ", ".join(x for x in ("eye rays", "a shadow ray per light from every hit" if lights
@@ -345,6 +348,23 @@ def _commit() -> str:
     except (OSError, subprocess.SubprocessError):
         c = ""
     return f"`{c}`" if c else "unknown"
+
+
+def _build_text(root: Path = ROOT / "build" / "verilator") -> str:
+    """How long the chip's Verilator binaries took to build here (the latest per RTC count,
+    from their ``build.json``)."""
+    took = {}
+    for p in sorted(root.glob("*/build.json"), key=lambda p: p.stat().st_mtime):
+        try:
+            d = json.loads(p.read_text())
+            if d.get("top") == "chip":
+                took[int(d["config"]["rtcs"])] = float(d["build_s"])
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    if not took:
+        return "minutes each"
+    return "here " + ", ".join(f"{s / 60:.0f} min with {n} RTC{'s' if n > 1 else ''}"
+                               for n, s in sorted(took.items()))
 
 
 def _ideal_cycles(trav, inter, rtcs=4, sub=4):
@@ -501,7 +521,8 @@ the share of shadow and reflection rays. Frames of different sizes compare by ra
 
 ## Table 4: relative performance
 
-Measured fps over the ideal fps of the same frame's operation counts (chip, {kinds}, {res});
+Measured fps over the ideal fps of the same frame's operation counts (chip,
+{rays_text(rows, short=True)}, {res});
 in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
 
 """ + _md_table(["scene", "1 RTC", "2 RTCs", "4 RTCs", "paper 1 RTC", "2", "4"], rel_body))
@@ -749,7 +770,7 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
         self.add(f"""
 ## Unit usage (the paper's Figure 5)
 
-`{scene}` on the standard chip (4 RTCs, {subs} traversal sub-units each), {rays_text([r])},
+`{scene}` on the standard chip (4 RTCs, {subs} traversal sub-units each), {rays_text([r], True)},
 at {r['width']}×{r['height']} (the `{self._spec('rtcs')}` point): busy share of the cycles of
 each unit, the caches' hit rates, each cache's share of the memory words and each SDRAM
 chip's share of the memory accesses — panels (a), (b), (e), (f) and (h) of the paper's
@@ -775,7 +796,7 @@ words a cycle.
             txt = ", ".join(f"`{o}` {x:.2f}×" for o, x in sp)
             items.append(f"*Performance scales almost linearly with the RTCs* (paper: 3.8–4.1× "
                          f"from 1 to 4 RTCs on Quake3, Sodahall, Office, BQD-1; 2.3× and 2.0× on "
-                         f"CruiserGL and Cruiser, memory-bound). Ours, {rays_text(rows)}, at {_res(rows)}: "
+                         f"CruiserGL and Cruiser, memory-bound). Ours, {rays_text(rows, True)}, at {_res(rows)}: "
                          f"{txt} — {verdict(min(x for _, x in sp) >= 3.4)}"
                          + ("." if min(x for _, x in sp) >= 3.4 else
                             ": see the relative performance (Table 4) and the memory figures "
@@ -889,8 +910,8 @@ simulated memory, preparing it, checking the rays; the mean over this page's chi
 {_f(fix, '{:.0f}')} s — plus its simulation, linear in its rays at their mean rate
 ({_f(spr and spr * 1e6, '{:.0f}')} s per million rays), so {_f(full, '{:.0f}')} s per 786 432-ray
 frame (frames with secondary rays cost more: more rays); every frame is an independent
-job; Verilator binaries are built beforehand (one per configuration, about 10 minutes each,
-in parallel on the cluster); the efficiency of 2 workers is the measured one, beyond that
+job; Verilator binaries are built beforehand (one per configuration, in parallel on the
+cluster; {_build_text()}); the efficiency of 2 workers is the measured one, beyond that
 0.9 (jobs this long amortise start-up; a shared filesystem serves the scenes and binaries).
 A cluster worker is one core; a worker runs whole frames, so beyond {paper_frames} workers
 nothing is gained.
@@ -919,7 +940,7 @@ Each sweep point's own time when it was computed (`job_seconds`: loading the sce
 kd-tree from its cache, the frame and its check; one worker process each), and the threads
 bench's runs (without its builds). From an empty result cache the page takes about the sum,
 {total / 60:.1f} minutes of job time, divided among the workers, plus the Verilator builds
-(one per chip configuration, 4 to 15 minutes each here) and the 1- and 2-worker timing.
+(one per chip configuration; {_build_text()}) and the 1- and 2-worker timing.
 
 """ + _md_table(["sweep", "backend", "points", "sum of job times", "longest job"], body))
 
