@@ -392,6 +392,7 @@ class Writer:
         self.parts: list[str] = []
         self.missing = 0
         self.figures: list[Path] = []
+        self.commit = ""       # the checkout's commit when the run started (before the plots)
 
     def rel(self, p: Path) -> str:
         return os.path.relpath(p, self.page.parent)
@@ -963,7 +964,7 @@ model's* columns are its operation counts (the ops the chip's units perform: the
 counters equal the model's on every frame checked). Estimates are marked as such.
 {self.plan.resolution_note}
 
-Code: commit {_commit()}. This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
+Code: commit {self.commit or _commit()}. This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
 {load[1]:.2f} before / after, on a 2-core machine shared with other work);
 {sum(len(v) for v in self.run.rows.values())} sweep points.
 """
@@ -971,8 +972,9 @@ Code: commit {_commit()}. This run: {total_seconds / 60:.1f} minutes of wall tim
 
 
 def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float,
-               load: tuple) -> Writer:
+               load: tuple, commit: str = "") -> Writer:
     w = Writer(plan, run, img, page)
+    w.commit = commit
     w.scenes()
     w.table2()
     w.table3()
@@ -1016,6 +1018,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0]
+    commit = _commit()          # before the page and its plots change the checkout
     try:
         plan = load_plan(args.plan)
         page = Path(args.out)
@@ -1025,7 +1028,7 @@ def main(argv=None) -> int:
     except (ResultsError, sw.SpecError) as e:
         raise SystemExit(f"results: {e}")
     w = write_page(plan, run, page, Path(args.img) if args.img else page.parent / "img",
-                   time.perf_counter() - t0, (load0, os.getloadavg()[0]))
+                   time.perf_counter() - t0, (load0, os.getloadavg()[0]), commit)
     print(f"results: wrote {page} and {len(w.figures)} plots in "
           f"{(time.perf_counter() - t0) / 60:.1f} min; {run.computed} point(s) computed, "
           f"{run.failed} failed point(s), "
