@@ -211,14 +211,20 @@ class Config:
 
     def hardware_dict(self) -> dict:
         """:meth:`to_dict` without :data:`HOST_FIELDS`: what the elaborated hardware depends on
-        (a Verilator binary's cache key; one binary serves every value of the others)."""
-        return {k: v for k, v in self.to_dict().items() if k not in HOST_FIELDS}
+        (a Verilator binary's cache key; one binary serves every value of the others).
+        ``reflect_depth`` enters only as :attr:`secondary_rays` (the RTL reads it through that
+        property alone; the depth itself is a register loaded per frame), so a chip with light
+        registers is one binary for every reflection depth."""
+        d = {k: v for k, v in self.to_dict().items() if k not in HOST_FIELDS}
+        del d["reflect_depth"]
+        d["secondary_rays"] = self.secondary_rays
+        return d
 
 
 # Fields the RTL never reads: how the host builds the kd-tree, whether a frame asks for shadow
 # rays (the slaves' n_lights register, loaded per frame) and the clock the figures are quoted
 # at. (reflect_depth is loaded per frame too, but reflect_depth = 0 with rgs_lights = 0 builds
-# the eye-ray-only slave: secondary_rays.)
+# the eye-ray-only slave: hardware_dict keeps it as secondary_rays.)
 HOST_FIELDS = ("kd_leaf_size", "kd_bins", "kd_cost_trav", "kd_cost_int", "shadows",
                "clock_mhz")
 

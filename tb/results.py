@@ -6,10 +6,11 @@ point is cached and a second run computes nothing), the one-RTC threads bench, a
 sweep's own scaling measurement (a small spec with 1 and 2 workers, uncached); then writes
 the tables, each beside the paper's figures, and matplotlib plots into ``docs/img/``.
 
-The chip columns are eye-ray frames through the whole chip in Verilator (every ray checked
-against the golden model; the plan's chip specs set ``shadows = false``, ``reflect_depth = 0``,
-although the chip makes every ray kind); the columns for shadow and reflection rays are the
-golden model's operation counts. Every column says which it is.
+The chip columns are frames through the whole chip in Verilator with the rays their spec asks
+for (``shadows``, ``reflect_depth``: the RGS slaves make the shadow and reflection rays from
+their hits), every ray checked against the golden model; each table says which rays its chip
+columns hold (:func:`rays_text`, from the rows). The golden model's columns are its operation
+counts; estimates are marked as such.
 
 Run: ``saarcor results`` or ``python -m tb.results [--plan PLAN] [--out docs/results.md]
 [--img docs/img] [--workers 2] [--skip-threads] [--skip-scaling]`` (``make results``).
@@ -35,7 +36,11 @@ from . import sweep as sw
 ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
 PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene", "note")
-SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "oversampling", "scaling")
+SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "raykinds_chip", "oversampling", "scaling")
+# the chip's office cases of Table 5, as (reflect_depth, shadows, oversampled 4x)
+CASES = [("(a) eye rays", (0, False, False)), ("(b) eye + reflections (depth 3)", (3, False, False)),
+         ("(c) eye + 3 lights", (0, True, False)), ("(d) eye + reflections + 3 lights", (3, True, False)),
+         ("(e) eye, 4x oversampling", (0, False, True))]
 
 # ---- the paper's figures (Schmittler, Wald, Slusallek 2002, Section 5; 1024x768) ----------
 PAPER_SCENES = {  # scene: (triangles, lights, reflection depth, rays shot)
@@ -253,22 +258,74 @@ def _frac(rows) -> str:
     return f"1/{1 / f:.0f}" if f < 1 and abs(1 / f - round(1 / f)) < 1e-9 else f"{f:.3g}×"
 
 
-def _os_rows(rows):
-    """(frame, the same frame 4x oversampled) among ok chip rows: oversampling = 2, or a frame
-    of twice the width and height (the same rays and packets)."""
+def _true(v) -> bool:
+    """A boolean field of a row (a bool, or its text in a CSV)."""
+    return v is True or str(v).strip().lower() in ("true", "1")
+
+
+def _asks_secondary(r) -> bool:
+    """Does the row's configuration ask for shadow or reflection rays?"""
+    return _true(r.get("shadows")) or int(r.get("reflect_depth") or 0) > 0
+
+
+def _secondary_rays(r) -> float:
+    return sum(_num(r, f"rays.{k}") or 0 for k in ("shadow", "reflection", "refraction"))
+
+
+def rays_text(rows, short: bool = False) -> str:
+    """Which rays the chip ``rows`` traced, for a table's caption: eye rays only, or all the
+    rays each scene has (with the reflection depth the rows ask for; ``short``: without the
+    list of kinds), or a mix."""
+    ok = [r for r in rows if r.get("status") == "ok"] or list(rows)
+    asked = [_asks_secondary(r) for r in ok]
+    if not any(asked):
+        return "eye rays only"
+    if short and all(asked):
+        return "all the rays each scene has"
+    depth = max(int(r.get("reflect_depth") or 0) for r in ok)
+    lights = all(_true(r.get("shadows")) for r in ok)
+    kinds = ", ".join(x for x in ("eye rays", "a shadow ray per light from every hit" if lights
+                                  else "", f"reflections up to depth {depth}" if depth else "")
+                      if x)
+    if all(asked):
+        return f"all the rays each scene has ({kinds}; a scene without lights or mirrors makes eye rays only)"
+    return "eye rays, and where the row says so shadow and reflection rays"
+
+
+def _frame(r):
+    return int(r["width"]), int(r["height"])
+
+
+def chip_cases(rows) -> dict:
+    """The chip's office cases of Table 5 among ok ``rows``: ``{case name: row}`` for the
+    :data:`CASES` found. The frame is the smallest resolution of the rows; (e) is that frame
+    with ``oversampling = 2``, or an eye-ray frame of twice its width and height (the same rays
+    and packets)."""
     ok = [r for r in rows if r.get("status") == "ok"]
-    eye = next((r for r in ok if int(r["oversampling"]) == 1), None)
-    if eye is None:
-        return None, None
-    w, h = int(eye["width"]), int(eye["height"])
-    for r in ok:
-        if r is eye:
-            continue
-        if int(r["oversampling"]) == 2 and (int(r["width"]), int(r["height"])) == (w, h):
-            return eye, r
-        if int(r["oversampling"]) == 1 and (int(r["width"]), int(r["height"])) == (2 * w, 2 * h):
-            return eye, r
-    return eye, None
+    if not ok:
+        return {}
+    w, h = min((_frame(r) for r in ok), key=lambda f: f[0] * f[1])
+    out = {}
+    for name, (depth, shadows, over) in CASES:
+        for r in ok:
+            if int(r.get("reflect_depth") or 0) != depth or _true(r.get("shadows")) != shadows:
+                continue
+            os_ = int(r.get("oversampling") or 1)
+            if not over and os_ == 1 and _frame(r) == (w, h):
+                out[name] = r
+            elif over and ((os_ == 2 and _frame(r) == (w, h)) or
+                           (os_ == 1 and _frame(r) == (2 * w, 2 * h))):
+                out[name] = r
+            if name in out:
+                break
+    return out
+
+
+def _os_rows(rows):
+    """(eye-ray frame, the same frame 4x oversampled) among ok chip rows (:func:`chip_cases`
+    (a) and (e))."""
+    c = chip_cases(rows)
+    return c.get(CASES[0][0]), c.get(CASES[4][0])
 
 
 def _os_text(eye, os_row) -> str:
@@ -291,6 +348,23 @@ def _commit() -> str:
     except (OSError, subprocess.SubprocessError):
         c = ""
     return f"`{c}`" if c else "unknown"
+
+
+def _build_text(root: Path = ROOT / "build" / "verilator") -> str:
+    """How long the chip's Verilator binaries took to build here (the latest per RTC count,
+    from their ``build.json``)."""
+    took = {}
+    for p in sorted(root.glob("*/build.json"), key=lambda p: p.stat().st_mtime):
+        try:
+            d = json.loads(p.read_text())
+            if d.get("top") == "chip":
+                took[int(d["config"]["rtcs"])] = float(d["build_s"])
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+    if not took:
+        return "minutes each"
+    return "here " + ", ".join(f"{s / 60:.0f} min with {n} RTC{'s' if n > 1 else ''}"
+                               for n, s in sorted(took.items()))
 
 
 def _ideal_cycles(trav, inter, rtcs=4, sub=4):
@@ -318,6 +392,7 @@ class Writer:
         self.parts: list[str] = []
         self.missing = 0
         self.figures: list[Path] = []
+        self.commit = ""       # the checkout's commit when the run started (before the plots)
 
     def rel(self, p: Path) -> str:
         return os.path.relpath(p, self.page.parent)
@@ -382,7 +457,6 @@ paper's columns are for 1024×768.
         rows = self.run.rows.get("rtcs", [])
         if not rows:
             return
-        model = self.run.rows.get("rays", [])
         body, rel_body, fig_data = [], [], {}
         for ours, paper in self.plan.classes.items():
             if not any(_stem(r) == ours for r in rows):
@@ -393,17 +467,15 @@ paper's columns are for 1024×768.
             rays = [_num(p, "rays_total") for p in pts]
             mr = [f * r / 1e6 if f and r else None for f, r in zip(fps, rays)]
             pr = [f * PAPER_SCENES[paper][3] / 1e6 for f in PAPER_FPS[paper]]
-            m = _one(model, scene=ours)
-            sec = None
-            if m and pts[2]:       # the golden model's all-ray ops against the chip's eye-ray ops
-                eye = _ideal_cycles(_num(pts[2], "trav_ops"), _num(pts[2], "int_ops"))
-                allr = _ideal_cycles(_num(m, "counters.trav_ops"), _num(m, "counters.int_ops"))
-                sec = fps[2] * eye / allr if fps[2] else None
+            n_rays = next((x for x in rays if x), None)     # the same frame on every chip
+            n_sec = next((_secondary_rays(p) for p in pts if p), None)
             body.append([f"`{ours}` ({paper})",
+                         self.cell(n_rays, "{:,.0f}"),
+                         self.cell(n_rays and n_sec is not None and n_sec / n_rays, "{:.0%}"),
                          *[self.cell(x, "{:,.0f}", q) for x, q in zip(fps, planned)],
                          *[self.cell(x, "{:.1f}", q) for x, q in zip(mr, planned)],
                          *[f"{x:.1f}" for x in pr],
-                         self.cell(sec, "{:,.0f}", planned[2] and m is not None),
+                         f"{PAPER_SCENES[paper][3]:,}",
                          *[f"{x:.2f}" for x in PAPER_FPS[paper]]])
             rel = [_num(p, "relative_performance") for p in pts]
             bound = [p.get("bound") if p else None for p in pts]
@@ -414,6 +486,7 @@ paper's columns are for 1024×768.
             fig_data[ours] = (paper, mr, pr)
         res = _res(rows)
         frac = _frac(rows)
+        kinds = rays_text(rows)
         plt = _plt()
         fig, ax = plt.subplots(1, 2, figsize=(11, 4))
         for ours, (paper, mr, pr) in fig_data.items():
@@ -421,7 +494,8 @@ paper's columns are for 1024×768.
                 ax[0].plot(RTCS, [x / mr[0] if x else float("nan") for x in mr], "o-",
                            label=f"{ours}")
             ax[1].plot(RTCS, [x / pr[0] for x in pr], "s--", label=paper)
-        for a, t in zip(ax, (f"our chip, eye rays, {res}", "paper, 1024×768, all rays")):
+        short = "eye rays" if kinds == "eye rays only" else "all rays"
+        for a, t in zip(ax, (f"our chip, {short}, {res}", "paper, 1024×768, all rays")):
             a.plot(RTCS, RTCS, "k:", label="linear")
             a.set_xlabel("RTCs")
             a.set_xticks(RTCS)
@@ -433,24 +507,23 @@ paper's columns are for 1024×768.
 ## Table 2: frames per second with 1, 2 and 4 RTCs
 
 The standard chip (16 threads, 4 traversal sub-units, caches 64/64/144 KB, 4 SDRAM chips =
-1 GB/s, 533 MHz) with 1, 2 and 4 RTCs. **Chip columns: eye rays only**, one frame at {res}
-through the whole chip in Verilator (`{self._spec('rtcs')}`), every ray checked against the
-golden model; a frame this small has {frac} of the paper's rays and starts with cold caches.
-Frames of different sizes compare by rays per second (M rays/s = fps × rays per frame; the
-paper's rays include its shadow and reflection rays, which it finds cost about the same as
-eye rays). *Full-frame estimate*: the chip's measured 4-RTC eye-ray fps scaled by the
-golden model's ideal cycles (the paper's `max(trav-ops / (4·4), int-ops / 4)`) of the eye rays
-against all rays of the frame (`{self._spec('rays')}`) — an estimate, not a measurement.
+1 GB/s, 533 MHz) with 1, 2 and 4 RTCs. **Chip columns: measured, {kinds}**, one frame at
+{res} through the whole chip in Verilator (`{self._spec('rtcs')}`), every ray checked against
+the golden model; a frame this small has {frac} of the paper's pixels and starts with cold
+caches. *Rays* counts every ray of the chip's frame (eye, shadow and reflection), *secondary*
+the share of shadow and reflection rays. Frames of different sizes compare by rays per second
+(M rays/s = fps × rays per frame), the paper's by its rays at 1024×768.
 
-""" + _md_table(["scene", "fps 1 RTC", "2 RTCs", "4 RTCs", "M rays/s 1", "2", "4",
-                 "paper M rays/s 1", "2", "4", "all rays, 4 RTCs (estimate, fps)",
+""" + _md_table(["scene", "rays", "secondary", "fps 1 RTC", "2 RTCs", "4 RTCs",
+                 "M rays/s 1", "2", "4", "paper M rays/s 1", "2", "4", "paper rays",
                  "paper fps 1", "2", "4"], body) + self.note("rtcs") + f"""
 
 {figure}
 
 ## Table 4: relative performance
 
-Measured fps over the ideal fps of the same frame's operation counts (chip, eye rays, {res});
+Measured fps over the ideal fps of the same frame's operation counts (chip,
+{rays_text(rows, short=True)}, {res});
 in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
 
 """ + _md_table(["scene", "1 RTC", "2 RTCs", "4 RTCs", "paper 1 RTC", "2", "4"], rel_body))
@@ -459,6 +532,8 @@ in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
     def table3(self):
         rows = self.run.rows.get("intcache", [])
         if not rows:
+            if "intcache" not in self.plan.sweeps and self.plan.notes.get("intcache"):
+                self.add("## Table 3: int-cache size and memory bandwidth" + self.note("intcache"))
             return
         scene = _stem(rows[0])
         kbs = sorted({int(r["int_cache_kb"]) for r in rows})
@@ -493,7 +568,7 @@ in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
         self.add(f"""
 ## Table 3: int-cache size and memory bandwidth
 
-`{scene}`, 4 RTCs, eye rays at {_res(rows)}
+`{scene}`, 4 RTCs, {rays_text(rows)}, at {_res(rows)}
 through the chip (`{self._spec('intcache')}`); int-cache {', '.join(f'{k} KB' for k in kbs)} ×
 {' and '.join(str(c) for c in chips)} SDRAM chips. In brackets: fps relative to the standard
 chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
@@ -502,23 +577,25 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
                 body) + self.note("intcache") + f"\n\n{figure}")
 
     # -- Tables 5 and 6 ------------------------------------------------------------------------
+    def _chip_office(self):
+        """The chip's office rows (Tables 5 and 6): the ``raykinds_chip`` sweep, or an older
+        plan's ``oversampling`` sweep (eye rays with and without oversampling)."""
+        key = "raykinds_chip" if "raykinds_chip" in self.run.rows else "oversampling"
+        return key, self.run.rows.get(key, [])
+
     def table5(self):
         rows = self.run.rows.get("raykinds", [])
         if not rows:
             return
-        chip = self.run.rows.get("oversampling", [])
-        cases = [("(a) eye rays", dict(reflect_depth=0, shadows=False, oversampling=1)),
-                 ("(b) eye + reflections (depth 3)", dict(reflect_depth=3, shadows=False,
-                                                          oversampling=1)),
-                 ("(c) eye + 3 lights", dict(reflect_depth=0, shadows=True, oversampling=1)),
-                 ("(d) eye + reflections + 3 lights", dict(reflect_depth=3, shadows=True,
-                                                           oversampling=1)),
-                 ("(e) eye, 4x oversampling", dict(reflect_depth=0, shadows=False,
-                                                   oversampling=2))]
+        ckey, chip = self._chip_office()
+        cases = [(name, dict(reflect_depth=d, shadows=sh, oversampling=2 if o else 1))
+                 for name, (d, sh, o) in CASES]
         scene = _stem(rows[0])
+        found = chip_cases(chip)
+        eye_row, os_row = found.get(CASES[0][0]), found.get(CASES[4][0])
+        chip_eye = _num(eye_row, "cycles")
+        planned = bool(chip) and ckey == "raykinds_chip"
         base = None
-        eye_row, os_row = _os_rows(chip)
-        chip_eye, chip_os = _num(eye_row, "fps"), _num(os_row, "fps")
         body, pts = [], []
         for (name, match), (_, prays, pfps) in zip(cases, PAPER_T5):
             r = _one(rows, **match)
@@ -528,36 +605,54 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
             if base is None:
                 base = (n, cyc)
             ideal = Config().clock_mhz * 1e6 / cyc if cyc else None
-            measured = chip_eye if match["oversampling"] == 1 and name.startswith("(a") else (
-                chip_os if match["oversampling"] == 2 else None)
+            c = found.get(name)
+            measured = _num(c, "fps")
+            meas_cost = (_num(c, "cycles") / chip_eye) if (c and chip_eye) else None
             share = n and base[0] and base[0] / n
             cost = cyc and base[1] and cyc / base[1]
-            meas_cost = (chip_eye / measured) if (measured and chip_eye) else None
+            want = planned or name[:3] in ("(a)", "(e)")
             body.append([name, self.cell(n, "{:,.0f}"), self.pcell(share),
                          self.cell(_num(r, "counters.trav_ops"), "{:,.0f}"),
                          self.cell(_num(r, "counters.int_ops"), "{:,.0f}"),
                          self.cell(ideal, "{:,.0f}"), self.cell(cost, "{:.2f}×"),
-                         _f(measured, "{:,.0f}", "n/a"), _f(meas_cost, "{:.2f}×", "n/a"),
+                         self.cell(_num(c, "rays_total"), "{:,.0f}", want),
+                         self.cell(measured, "{:,.0f}", want),
+                         self.cell(meas_cost, "{:.2f}×", want),
+                         self.cell(_num(c, "relative_performance") and
+                                   100 * _num(c, "relative_performance"), "{:.1f} %", want),
                          f"{prays:,}", f"{100 * PAPER_T5[0][1] / prays:.0f} %", f"{pfps:.2f}",
                          f"{PAPER_T5[0][2] / pfps:.2f}×"])
-            pts.append((name[:3], n / base[0] if n and base[0] else None, cost, meas_cost,
-                        prays / PAPER_T5[0][1], PAPER_T5[0][2] / pfps))
+            crays = _num(c, "rays_total")
+            pts.append((name[:3], n / base[0] if n and base[0] else None, cost,
+                        crays / _num(eye_row, "rays_total") if crays and eye_row else None,
+                        meas_cost, prays / PAPER_T5[0][1], PAPER_T5[0][2] / pfps))
         plt = _plt()
         fig, ax = plt.subplots(figsize=(6, 4))
-        x = [p[1] for p in pts]
         ax.plot([1, 5], [1, 5], "k:", label="cost = rays")
-        ax.plot(x, [p[2] for p in pts], "o", label="ours: golden model's ideal cycles")
-        ax.plot([p[1] for p in pts if p[3]], [p[3] for p in pts if p[3]], "D",
-                label="ours: chip cycles (eye rays)")
-        ax.plot([p[4] for p in pts], [p[5] for p in pts], "s", label="paper: 1/fps")
+        ax.plot([p[1] for p in pts], [p[2] for p in pts], "o",
+                label="ours: golden model's ideal cycles")
+        ax.plot([p[3] for p in pts if p[4]], [p[4] for p in pts if p[4]], "D",
+                label="ours: the chip's cycles (measured)")
+        ax.plot([p[5] for p in pts], [p[6] for p in pts], "s", label="paper: 1/fps")
         for p in pts:
-            if p[1] and p[2]:
-                ax.annotate(p[0], (p[1], p[2]), fontsize=7, xytext=(3, -9),
+            x, y = (p[3], p[4]) if p[4] else (p[1], p[2])
+            if x and y:
+                ax.annotate(p[0], (x, y), fontsize=7, xytext=(3, -9),
                             textcoords="offset points")
         ax.set_xlabel("rays / eye rays")
         ax.set_ylabel("cost / cost of eye rays")
         ax.legend(fontsize=7)
         figure = self.fig(plt, fig, "results_raykinds.png")
+        if planned:
+            chip_text = (f"**Chip columns** (`{self._spec(ckey)}`): each case measured on the "
+                         f"standard chip (4 RTCs) in Verilator, the RGS slaves making the shadow "
+                         f"and reflection rays, every ray checked against the golden model: "
+                         f"rays traced, fps, cycles relative to (a) and the relative "
+                         f"performance; {_os_text(eye_row, os_row)}.")
+        else:
+            chip_text = (f"**Chip columns** (`{self._spec(ckey)}`): measured fps of eye-ray "
+                         f"frames with and without 4× oversampling "
+                         f"({_os_text(eye_row, os_row)}); (b)–(d) were not run on the chip.")
         self.add(f"""
 ## Table 5: the office's cost per kind of ray
 
@@ -565,36 +660,42 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
 {_res(rows)}. **Golden-model columns** (`{self._spec('raykinds')}`): rays shot, trav-ops and
 int-ops of every ray kind, the ideal fps of 4 RTCs from those counts (533 MHz /
 `max(trav-ops / 16, int-ops / 4)`, a bound, not a measurement) and the cost relative to eye
-rays in those ideal cycles. **Chip columns** (`{self._spec('oversampling')}`): measured fps of
-the frames the chip can make, eye rays with and without 4× oversampling
-({_os_text(eye_row, os_row)}); the chip's shadow and reflection rays are not in these
-sweeps, so (b)–(d) have no chip figure.
+rays in those ideal cycles. {chip_text} Paper: Office, 4 RTCs, 1024×768.
 
 """ + _md_table(["case", "rays (model)", "rays(er)/rays", "trav-ops", "int-ops",
-                 "ideal fps, 4 RTCs", "cost / cost(er) (model)", "chip fps, 4 RTCs",
-                 "cost / cost(er) (chip)", "paper rays", "rays(er)/rays", "paper fps",
-                 "fps(er)/fps"], body) + f"\n\n{figure}")
+                 "ideal fps, 4 RTCs", "cost / cost(er) (model)", "rays (chip)",
+                 "chip fps, 4 RTCs", "cost / cost(er) (chip)", "relative perf. (chip)",
+                 "paper rays", "rays(er)/rays", "paper fps", "fps(er)/fps"], body)
+                 + f"\n\n{figure}")
 
     def table6(self):
-        chip = self.run.rows.get("oversampling", [])
+        ckey, chip = self._chip_office()
         if not chip:
             return
         scene = _stem(chip[0])
         body = []
-        eye_row, os_row = _os_rows(chip)
+        found = chip_cases(chip)
+        eye_row, os_row = found.get(CASES[0][0]), found.get(CASES[4][0])
+        all_row = found.get(CASES[3][0])
+        with_all = ckey == "raykinds_chip"
         for k in ("trav", "list", "int"):
             a = _num(eye_row, f"cache.{k}.hit_rate")
             b = _num(os_row, f"cache.{k}.hit_rate")
-            body.append([f"{k}-cache", self.pcell(a), self.pcell(b),
+            c = [self.pcell(_num(all_row, f"cache.{k}.hit_rate"))] if with_all else []
+            body.append([f"{k}-cache", self.pcell(a), self.pcell(b), *c,
                          f"{100 * PAPER_T6[k][0]:.1f} %", f"{100 * PAPER_T6[k][1]:.1f} %"])
+        allcol = ["ours, all rays (d)"] if with_all else []
+        alltext = (" The third column is case (d) of Table 5, the office with all its rays "
+                   "(the paper's standard Office frame)." if with_all else "")
         self.add(f"""
 ## Table 6: cache hit rates with and without oversampling
 
-`{scene}`, the standard chip (4 RTCs, 64/64/144 KB direct-mapped caches), **eye rays through
-the chip** (`{self._spec('oversampling')}`): {_os_text(eye_row, os_row)}.
+`{scene}`, the standard chip (4 RTCs, 64/64/144 KB direct-mapped caches), through the chip
+(`{self._spec(ckey)}`): eye rays, {_os_text(eye_row, os_row)}.{alltext}
 Paper: Office, 1024×768, all rays.
 
-""" + _md_table(["", "ours, none", "ours, 4×", "paper, none", "paper, 4×"], body))
+""" + _md_table(["", "ours, eye rays", "ours, eye rays 4×", *allcol, "paper, none",
+                 "paper, 4×"], body))
 
     # -- threads, unit usage, scaling ----------------------------------------------------------
     def threads(self):
@@ -670,8 +771,8 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
         self.add(f"""
 ## Unit usage (the paper's Figure 5)
 
-`{scene}` on the standard chip (4 RTCs, {subs} traversal sub-units each), eye rays at
-{r['width']}×{r['height']} (the `{self._spec('rtcs')}` point): busy share of the cycles of
+`{scene}` on the standard chip (4 RTCs, {subs} traversal sub-units each), {rays_text([r], True)},
+at {r['width']}×{r['height']} (the `{self._spec('rtcs')}` point): busy share of the cycles of
 each unit, the caches' hit rates, each cache's share of the memory words and each SDRAM
 chip's share of the memory accesses — panels (a), (b), (e), (f) and (h) of the paper's
 Figure 5 (BQD-1). Memory port: {_f(_num(r, 'bus.words_per_cycle'), '{:.3f}')}
@@ -696,7 +797,7 @@ words a cycle.
             txt = ", ".join(f"`{o}` {x:.2f}×" for o, x in sp)
             items.append(f"*Performance scales almost linearly with the RTCs* (paper: 3.8–4.1× "
                          f"from 1 to 4 RTCs on Quake3, Sodahall, Office, BQD-1; 2.3× and 2.0× on "
-                         f"CruiserGL and Cruiser, memory-bound). Ours, eye rays at {_res(rows)}: "
+                         f"CruiserGL and Cruiser, memory-bound). Ours, {rays_text(rows, True)}, at {_res(rows)}: "
                          f"{txt} — {verdict(min(x for _, x in sp) >= 3.4)}"
                          + ("." if min(x for _, x in sp) >= 3.4 else
                             ": see the relative performance (Table 4) and the memory figures "
@@ -722,7 +823,16 @@ words a cycle.
         if rk:
             base = _one(rk, reflect_depth=0, shadows=False, oversampling=1)
             allr = _one(rk, reflect_depth=3, shadows=True, oversampling=1)
-            if base and allr:
+            found = chip_cases(self._chip_office()[1])
+            ca, cd = found.get(CASES[0][0]), found.get(CASES[3][0])
+            if ca and cd:          # measured on the chip
+                rr = _num(cd, "rays_total") / _num(ca, "rays_total")
+                cc = _num(cd, "cycles") / _num(ca, "cycles")
+                items.append(f"*Cost is about linear in the rays, whatever their kind* (Table 5; "
+                             f"paper: 4.9× the rays for 4.5× the cost). Ours on the chip: "
+                             f"{rr:.2f}× the rays for {cc:.2f}× the cycles — "
+                             f"{verdict(abs(cc / rr - 1) < 0.25)}.")
+            elif base and allr:
                 rr = _num(allr, "rays_total") / _num(base, "rays_total")
                 cc = (_ideal_cycles(_num(allr, "counters.trav_ops"),
                                     _num(allr, "counters.int_ops")) /
@@ -732,7 +842,7 @@ words a cycle.
                              f"paper: 4.9× the rays for 4.5× the cost). Ours (golden model's "
                              f"ideal cycles): {rr:.2f}× the rays for {cc:.2f}× the cost — "
                              f"{verdict(abs(cc / rr - 1) < 0.25)}.")
-        eye_row, os_row = _os_rows(self.run.rows.get("oversampling", []))
+        eye_row, os_row = _os_rows(self._chip_office()[1])
         if eye_row and os_row:
             x = float(os_row["cycles"]) / float(eye_row["cycles"])
             d = [100 * (_num(os_row, f"cache.{k}.hit_rate") - _num(eye_row, f"cache.{k}.hit_rate"))
@@ -759,7 +869,8 @@ words a cycle.
             return
         r1, r2 = s["runs"][0], s["runs"][1]
         speed = r1["wall_seconds"] / r2["wall_seconds"]
-        chip = [r for k in ("rtcs", "intcache", "oversampling") for r in self.run.rows.get(k, [])
+        chip = [r for k in ("rtcs", "intcache", "raykinds_chip", "oversampling")
+                for r in self.run.rows.get(k, [])
                 if r.get("status") == "ok" and r.get("job_seconds") not in (None, "")]
         chip = [r for r in chip if r.get("sim_seconds") not in (None, "")]
         # a frame's cost: a fixed part (load the scene into the simulated memory, prepare,
@@ -800,8 +911,8 @@ simulated memory, preparing it, checking the rays; the mean over this page's chi
 {_f(fix, '{:.0f}')} s — plus its simulation, linear in its rays at their mean rate
 ({_f(spr and spr * 1e6, '{:.0f}')} s per million rays), so {_f(full, '{:.0f}')} s per 786 432-ray
 frame (frames with secondary rays cost more: more rays); every frame is an independent
-job; Verilator binaries are built beforehand (one per configuration, about 10 minutes each,
-in parallel on the cluster); the efficiency of 2 workers is the measured one, beyond that
+job; Verilator binaries are built beforehand (one per configuration, in parallel on the
+cluster; {_build_text()}); the efficiency of 2 workers is the measured one, beyond that
 0.9 (jobs this long amortise start-up; a shared filesystem serves the scenes and binaries).
 A cluster worker is one core; a worker runs whole frames, so beyond {paper_frames} workers
 nothing is gained.
@@ -830,7 +941,7 @@ Each sweep point's own time when it was computed (`job_seconds`: loading the sce
 kd-tree from its cache, the frame and its check; one worker process each), and the threads
 bench's runs (without its builds). From an empty result cache the page takes about the sum,
 {total / 60:.1f} minutes of job time, divided among the workers, plus the Verilator builds
-(one per chip configuration, 4 to 15 minutes each here) and the 1- and 2-worker timing.
+(one per chip configuration; {_build_text()}) and the 1- and 2-worker timing.
 
 """ + _md_table(["sweep", "backend", "points", "sum of job times", "longest job"], body))
 
@@ -845,14 +956,15 @@ and golden model, each table beside the paper's figures. Regenerate with `make r
 so a second run recomputes nothing; the chip's Verilator binaries are built once per
 configuration.
 
-**What is measured how.** Every *chip* figure is an eye-ray frame through the whole chip
-(RGS, RTCs, caches, bus, SDRAM model) in Verilator, every ray checked bit for bit against the
-golden model (the sweep's chip backend runs eye rays). Figures for shadow and reflection rays
-are the *golden model's* operation counts (the ops the chip's units perform: the chip's
+**What is measured how.** Every *chip* figure is a frame through the whole chip (RGS, RTCs,
+caches, bus, SDRAM model) in Verilator, with the rays its sweep asks for — eye rays, and the
+shadow and reflection rays the RGS slaves make from their hits — every ray checked bit for
+bit against the golden model; each table says which rays its chip columns hold. The *golden
+model's* columns are its operation counts (the ops the chip's units perform: the chip's
 counters equal the model's on every frame checked). Estimates are marked as such.
 {self.plan.resolution_note}
 
-Code: commit {_commit()}. This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
+Code: commit {self.commit or _commit()}. This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
 {load[1]:.2f} before / after, on a 2-core machine shared with other work);
 {sum(len(v) for v in self.run.rows.values())} sweep points.
 """
@@ -860,8 +972,9 @@ Code: commit {_commit()}. This run: {total_seconds / 60:.1f} minutes of wall tim
 
 
 def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float,
-               load: tuple) -> Writer:
+               load: tuple, commit: str = "") -> Writer:
     w = Writer(plan, run, img, page)
+    w.commit = commit
     w.scenes()
     w.table2()
     w.table3()
@@ -905,6 +1018,7 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0]
+    commit = _commit()          # before the page and its plots change the checkout
     try:
         plan = load_plan(args.plan)
         page = Path(args.out)
@@ -914,7 +1028,7 @@ def main(argv=None) -> int:
     except (ResultsError, sw.SpecError) as e:
         raise SystemExit(f"results: {e}")
     w = write_page(plan, run, page, Path(args.img) if args.img else page.parent / "img",
-                   time.perf_counter() - t0, (load0, os.getloadavg()[0]))
+                   time.perf_counter() - t0, (load0, os.getloadavg()[0]), commit)
     print(f"results: wrote {page} and {len(w.figures)} plots in "
           f"{(time.perf_counter() - t0) / 60:.1f} min; {run.computed} point(s) computed, "
           f"{run.failed} failed point(s), "

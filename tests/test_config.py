@@ -62,3 +62,23 @@ def test_host_fields_are_not_read_by_the_hardware():
             assert not used & set(HOST_FIELDS), (node.name, used & set(HOST_FIELDS))
     d = Config().hardware_dict()
     assert not set(HOST_FIELDS) & set(d) and {"rtcs", "fmt", "kd_max_depth"} <= set(d)
+
+
+def test_reflect_depth_enters_the_hardware_key_as_secondary_rays():
+    """The RTL reads ``reflect_depth`` only through ``Config.secondary_rays`` (the depth is a
+    register loaded per frame), so a binary with light registers serves every depth, and the
+    eye-ray-only chip (no lights, no reflections) is a binary of its own."""
+    import re
+    from pathlib import Path
+    root = Path(__file__).resolve().parent.parent
+    files = sorted((root / "rtl").rglob("*.py")) + [root / "tb" / n for n in (
+        "frame.py", "chip_frame.py", "lfsr.py")]
+    read = set()
+    for p in files:
+        read |= set(re.findall(r"cfg\.(\w+)", p.read_text()))
+    assert "secondary_rays" in read and "reflect_depth" not in read
+    lit = [Config(reflect_depth=d).hardware_dict() for d in (0, 1, 3)]
+    assert lit[0] == lit[1] == lit[2] and lit[0]["secondary_rays"] is True
+    dark = [Config(rgs_lights=0, reflect_depth=d).hardware_dict() for d in (0, 1, 3)]
+    assert dark[1] == dark[2] != dark[0] and dark[0]["secondary_rays"] is False
+    assert dark[0] != lit[0]

@@ -24,16 +24,22 @@ def spec(path, backend, body, res="8x8", scenes=(CORNELL,)):
     return path
 
 
-def fake_chip_stats(cfg: Config, rays: int) -> dict:
-    """Plausible figures of a chip frame, different for every configuration."""
+def fake_chip_stats(cfg: Config, eye: int) -> dict:
+    """Plausible figures of a chip frame of ``eye`` eye rays and the shadow (3 lights) and
+    reflection rays its configuration asks for, different for every configuration."""
+    kinds = {"eye": eye, "shadow": 3 * eye if cfg.shadows else 0,
+             "reflection": eye // 8 if cfg.reflect_depth else 0}
+    rays = sum(kinds.values())
     cycles = 40_000 // cfg.rtcs + 9_000 * 144 // cfg.int_cache_kb + 3_000 * 4 // cfg.mem_chips
-    cycles *= cfg.oversampling ** 2
+    cycles = cycles * rays // 256 + 7 * cfg.reflect_depth
     trav, inter = 30 * rays, 6 * rays
     per_rtc = [{"trav": 0.5 + 0.01 * r, "trav_subunits": 0.4, "list": 0.3, "int": 0.6}
                for r in range(cfg.rtcs)]
-    return {"cycles": cycles, "rays_total": rays, "trav_ops": trav, "int_ops": inter,
+    return {"cycles": cycles, "rays_total": rays, "rays": kinds, "trav_ops": trav,
+            "int_ops": inter,
             **relative_performance(cfg, cycles, trav, inter),
-            "cache": {k: {"hit_rate": h + 0.01 * cfg.oversampling, "memory_words": w}
+            "cache": {k: {"hit_rate": h + 0.01 * cfg.oversampling + 0.001 * cfg.reflect_depth
+                              + 0.002 * (eye > 256), "memory_words": w}
                       for k, h, w in (("trav", 0.8, 300), ("list", 0.7, 100), ("int", 0.9, 600))},
             "units": {"per_rtc": per_rtc},
             "memory": {"per_chip": [{"share": 1 / cfg.mem_chips}] * cfg.mem_chips},
@@ -50,7 +56,8 @@ def precache(spec_path, cache):
         key = sweep.point_key(p, code)
         sweep._cache_write(cache / f"{key}.json", key, p,
                            {"status": "ok", "error": None, "stats": st, "seconds": 2.0})
-        stats[(cfg.rtcs, cfg.int_cache_kb, cfg.mem_chips, cfg.oversampling)] = st
+        stats[(cfg.rtcs, cfg.int_cache_kb, cfg.mem_chips, cfg.oversampling, cfg.reflect_depth,
+               cfg.shadows, p.width)] = st
     return stats
 
 
@@ -65,12 +72,17 @@ def make_plan(tmp_path, scenes=(CORNELL,)):
     spec(d / "rtcs.toml", "chip", "[grid]\nrtcs = [1, 2, 4]\n", "16x16")
     spec(d / "intcache.toml", "chip", "[config]\nrtcs = 4\n[grid]\nint_cache_kb = [144, 576]\n"
                                       "mem_chips = [4, 8]\n", "16x16")
-    spec(d / "oversampling.toml", "chip", "[grid]\noversampling = [1, 2]\n", "16x16")
+    # the chip's office cases, all-ray case (d) first: the table must find each by its fields
+    spec(d / "raykinds_chip.toml", "chip", "".join(
+        f"[[point]]\nreflect_depth = {r}\nshadows = {s}\n{extra}"
+        for r, s, extra in ((3, "true", ""), (0, "false", ""), (3, "false", ""),
+                            (0, "true", ""), (0, "false", 'resolutions = ["32x32"]\n'))), "16x16")
     classes = "".join(f'{s.stem} = "{p}"\n' for s, p in zip(scenes, ("Quake3", "Sodahall")))
     (d / "plan.toml").write_text(
         f'title = "tiny"\nusage_scene = "cornell"\n[class]\n{classes}[sweeps]\n'
         'rays = "rays.toml"\nrtcs = "rtcs.toml"\nintcache = "intcache.toml"\n'
-        f'raykinds = "raykinds.toml"\noversampling = "oversampling.toml"\nscaling = "{TINY}"\n')
+        f'raykinds = "raykinds.toml"\nraykinds_chip = "raykinds_chip.toml"\n'
+        f'scaling = "{TINY}"\n')
     return d
 
 
@@ -96,7 +108,7 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     d = make_plan(tmp_path)
     cache, work, page = tmp_path / "cache", tmp_path / "work", tmp_path / "docs" / "results.md"
     chip = {}
-    for name in ("rtcs", "intcache", "oversampling"):
+    for name in ("rtcs", "intcache", "raykinds_chip"):
         chip.update(precache(d / f"{name}.toml", cache))
     rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page), "--work", str(work),
                        "--cache", str(cache), "--workers", "1", "--skip-threads",
@@ -109,25 +121,36 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     # Table 1: the golden model's own rays per frame
     model = read_csv(work / "rays" / "results.csv")
     assert table(text, "## The scenes")[0][2] == f"{int(model[0]['rays_total']):,}"
-    # Table 2: the fps of each RTC count, as measured
+    # Table 2: the fps of each RTC count, as measured, with all the frame's rays
+    allr = {n: chip[(n, 144, 4, 1, 3, True, 16)] for n in (1, 2, 4)}
     row = table(text, "## Table 2")[0]
-    assert row[1:4] == [f"{chip[(n, 144, 4, 1)]['fps']:,.0f}" for n in (1, 2, 4)]
+    sec = allr[4]["rays"]["shadow"] + allr[4]["rays"]["reflection"]
+    assert row[1:3] == [f"{allr[4]['rays_total']:,}", f"{sec / allr[4]['rays_total']:.0%}"]
+    assert row[3:6] == [f"{allr[n]['fps']:,.0f}" for n in (1, 2, 4)]
+    t2 = text[text.index("## Table 2"):text.index("## Table 4")]
+    assert "**Chip columns: measured, all the rays each scene has (eye rays, a shadow" in t2
+    assert "estimate" not in t2
     rel = table(text, "## Table 4")[0]
-    assert rel[3].startswith(f"{100 * chip[(4, 144, 4, 1)]['relative_performance']:.1f} %")
+    assert rel[3].startswith(f"{100 * allr[4]['relative_performance']:.1f} %")
     # Table 3: 2 bandwidths x 2 int-cache sizes
     t3 = table(text, "## Table 3")
-    assert len(t3) == 2 and t3[1][2].startswith(f"{chip[(4, 576, 8, 1)]['fps']:,.0f} (")
+    assert len(t3) == 2 and t3[1][2].startswith(f"{chip[(4, 576, 8, 1, 3, True, 16)]['fps']:,.0f} (")
     # Table 5: the model's ops of each ray kind; the chip's eye-ray frames
     kinds = {(r["reflect_depth"], r["shadows"], r["oversampling"]): r
              for r in read_csv(work / "raykinds" / "results.csv")}
     t5 = table(text, "## Table 5")
     assert t5[2][3] == f"{int(kinds[('0', 'True', '1')]['counters.trav_ops']):,}"
     assert int(kinds[("3", "True", "1")]["rays_total"]) > int(kinds[("0", "False", "1")]["rays_total"])
-    assert t5[0][7] == f"{chip[(4, 144, 4, 1)]['fps']:,.0f}"
-    # Table 6: hit rates without and with oversampling
+    # ... and the chip's frame of every case, each found by its fields (not by its order)
+    case = {"a": (0, False, 16), "b": (3, False, 16), "c": (0, True, 16), "d": (3, True, 16),
+            "e": (0, False, 32)}
+    ch = {k: chip[(4, 144, 4, 1, *v)] for k, v in case.items()}
+    for i, k in enumerate("abcde"):
+        assert t5[i][7:10] == [f"{ch[k]['rays_total']:,}", f"{ch[k]['fps']:,.0f}",
+                               f"{ch[k]['cycles'] / ch['a']['cycles']:.2f}×"], (k, t5[i])
+    # Table 6: hit rates of eye rays without and with oversampling, and of all rays
     t6 = table(text, "## Table 6")
-    assert t6[2][1:3] == [f"{100 * chip[(4, 144, 4, o)]['cache']['int']['hit_rate']:.1f} %"
-                          for o in (1, 2)]
+    assert t6[2][1:4] == [f"{100 * ch[k]['cache']['int']['hit_rate']:.1f} %" for k in "aed"]
     # the trends, from the tables: the made-up int-cache and bandwidth gains hold
     trends = text[text.index("## Which of the paper's trends hold"):]
     assert re.search(r"larger int-cache gives 1\.\d\d× the fps \(paper 1\.31×\): \*\*holds", trends)
@@ -147,7 +170,7 @@ def test_failed_point_leaves_a_gap_and_fails(tmp_path, kd_cache, capsys):
     missing = tmp_path / "nowhere.toml"
     d = make_plan(tmp_path, scenes=(CORNELL, missing))
     cache = tmp_path / "cache"
-    for name in ("rtcs", "intcache", "oversampling"):
+    for name in ("rtcs", "intcache", "raykinds_chip"):
         precache(d / f"{name}.toml", cache)
     page = tmp_path / "results.md"
     rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page), "--work",
@@ -164,3 +187,36 @@ def test_bad_plan(tmp_path):
     p.write_text('[sweeps]\ntable9 = "x.toml"\n')
     with pytest.raises(SystemExit, match="unknown table 'table9'"):
         results.main(["--plan", str(p), "--out", str(tmp_path / "r.md")])
+
+
+def test_rays_text_and_chip_cases():
+    """A table's caption names the rays its chip rows traced; the office cases are found by
+    their fields, the oversampled one also as the frame of twice the size."""
+    def row(d, sh, w=16, os_=1, **kw):
+        return {"status": "ok", "reflect_depth": d, "shadows": sh, "oversampling": os_,
+                "width": w, "height": w, **kw}
+    assert results.rays_text([row(0, False), row(0, "False")]) == "eye rays only"
+    t = results.rays_text([row(3, True), row(3, "True")])
+    assert t.startswith("all the rays each scene has (eye rays, a shadow ray per light from "
+                        "every hit, reflections up to depth 3")
+    assert "where the row says so" in results.rays_text([row(0, False), row(3, True)])
+    rows = [row(3, True, fps=1), row(0, False, w=32, fps=2), row(0, False, fps=3),
+            row(0, True, fps=4), row(3, False, fps=5), row(0, False, w=64, fps=6)]
+    c = results.chip_cases(rows)
+    assert [c[n]["fps"] for n, _ in results.CASES] == [3, 5, 4, 1, 2]
+    c = results.chip_cases([row(0, False), row(0, False, os_=2, fps=9)])
+    assert c["(e) eye, 4x oversampling"]["fps"] == 9 and "(d) eye + reflections + 3 lights" not in c
+
+
+def test_table3_not_in_the_plan_says_why(tmp_path):
+    """A plan without the int-cache sweep prints Table 3's heading with the plan's note (why
+    it was not run), and no table."""
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None,
+                        notes={"intcache": "Not run: four binaries."})
+    w = results.Writer(plan, results.Run(), tmp_path / "img", tmp_path / "r.md")
+    w.table3()
+    assert w.parts == ["## Table 3: int-cache size and memory bandwidth\n\nNot run: four binaries.\n"]
+    plan.sweeps["intcache"] = tmp_path / "intcache.toml"      # planned, but no rows: nothing
+    w = results.Writer(plan, results.Run(), tmp_path / "img", tmp_path / "r.md")
+    w.table3()
+    assert w.parts == []
