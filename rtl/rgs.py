@@ -706,10 +706,10 @@ class LightPipe(_Datapath):
     (the ambient contribution), ``wr`` (the reflection ray's weight), ``rmiss`` (the reflection
     ray's contribution if it misses), ``o_tag``.
 
-    Operations: the shadow ray's 3 sub, 3 mul, 2 add; three dot products (ld.ld, r.r, n.ld,
-    r.ld: 12 mul, 8 add), 2 sqrt, 2 div (reciprocals), 3 mul, 2 max, the power by squaring
-    (19 mul, 10 muxes), per channel 3 mul and an add; the hit's terms 10 mul: 47 mul, 14
-    add/sub, 2 sqrt, 2 div, 2 max in all. Latency: the power's chain of 10 multiplications
+    Operations: the shadow ray's 3 sub, 3 mul, 2 add; four dot products (ld.ld, r.r, n.ld,
+    r.ld: 12 mul, 8 add), 2 sqrt, 2 div (reciprocals), 3 mul, 2 clamps at +0 (a mux each, in
+    a min/max unit's latency), the power by squaring (19 mul, 10 muxes), per channel 4 mul and
+    an add; the hit's terms 10 mul: 59 mul, 16 add/sub, 2 sqrt, 2 div in all. Latency: the power's chain of 10 multiplications
     after the two reciprocals, then a fixed-point conversion (75 at the binary32 defaults).
     Throughput: one pair per enabled cycle.
     """
@@ -739,15 +739,19 @@ class LightPipe(_Datapath):
                        ((self.wt, "wt"), (self.kr, "kr"), (self.amb, "amb")))
         shin = wire(m, self.shin, "shin")
         one = (_fp_const(fmt, "one"), 0)
-        zero = (Const(0, fmt.width), 0)
         # -- light: il = 1 / |ld|, ir = 1 / |r|; ndl, rdl clamped at +0 -----------------------
         il = sch.op("div", one, sch.op("sqrt", _dot(sch, ds, ds, "ll_dot"), None, "ll_len"),
                     "ll_rcp")
         ir = sch.op("div", one, sch.op("sqrt", _dot(sch, r, r, "rr_dot"), None, "rr_len"),
                     "rr_rcp")
-        ndl = sch.op("max", sch.op("mul", _dot(sch, n, ds, "nl_dot"), il, "ndl_m"), zero, "ndl")
-        rdl = sch.op("max", sch.op("mul", sch.op("mul", _dot(sch, r, ds, "rl_dot"), il,
-                                                  "rdl_m0"), ir, "rdl_m1"), zero, "rdl")
+        def clamp0(x, name):             # max(x, +0) as FPMinMax gives it, in its latency:
+            u = unpack(fmt, x[0])        # +0 for a NaN or a value below zero (-0 stays)
+            v = wire(m, Mux(u.nan | (u.sign & ~u.zero), 0, x[0]), name)
+            t = x[1] + self.latencies["max"]
+            return at(v, x[1], t), t
+        ndl = clamp0(sch.op("mul", _dot(sch, n, ds, "nl_dot"), il, "ndl_m"), "ndl")
+        rdl = clamp0(sch.op("mul", sch.op("mul", _dot(sch, r, ds, "rl_dot"), il, "rdl_m0"),
+                            ir, "rdl_m1"), "rdl")
         # -- spec = rdl ** shin, by squaring ---------------------------------------------------
         acc, p = one, rdl
         for i in range(SHIN_BITS):
