@@ -14,8 +14,8 @@ one of its steps, in its order, so the rays come out bit for bit as
   order through :class:`EyeRayPipe` and :class:`RaySetupPipe`, ``RayIn`` (+ pixel index) out.
 * :class:`SecondaryPipe`: a hit -> the secondary rays' origin, the oriented face and shading
   normals and the reflected direction (``hit``, ``face``, ``dir_norm``, ``offset``,
-  ``normal``, ``reflect``); :class:`ShadowPipe`: (origin, normal, light) -> the shadow ray's
-  direction, tmax and whether it is cast.
+  ``normal``, ``reflect``); :class:`LightPipe`: (origin, normals, light, material) -> the
+  shadow ray's direction, tmax and whether it is cast, and the colour contributions.
 
 Flow control of the stream units: one clock enable stalls the whole pipeline while its last
 stage holds a ray the consumer does not take (``en = ~o.valid | o.ready``; ``i.ready = en``),
@@ -40,7 +40,7 @@ from .fp.schedule import Schedule
 from .rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
 
 __all__ = ["COORD_BITS", "PIXEL_BITS", "RaySetupIn", "EyeRequest", "EyeRay", "RaySetupPipe",
-           "RaySetup", "EyeRayPipe", "EyeRays", "SecondaryPipe", "ShadowPipe", "div_const",
+           "RaySetup", "EyeRayPipe", "EyeRays", "SecondaryPipe", "div_const",
            "div_const_params", "sample_converter", "LightPipe", "to_fixed"]
 
 PIXEL_BITS = 32        # pixel index y * width + x
@@ -619,59 +619,6 @@ class SecondaryPipe(_Datapath):
         return L
 
 
-def _shadow_ops(m: Module, sch: Schedule, dp) -> tuple:
-    """``model.rgs.shadow_dir`` on ``dp``'s ports ``p0``, ``g``, ``light``, ``point``: the
-    ``point`` wire, the direction (3 scheduled values) and dot(g, direction) (scheduled)."""
-    at = sch.at
-    point = wire(m, dp.point, "point")
-    sub = [sch.op("sub", (dp.light[a], 0), (dp.p0[a], 0), f"ldir{a}") for a in range(3)]
-    ts = sub[0][1]
-    ds = [(wire(m, Mux(at(point, 0, ts), sub[a][0], at(dp.light[a], 0, ts)), f"dir{a}"), ts)
-          for a in range(3)]
-    return point, ds, _dot(sch, [(dp.g[a], 0) for a in range(3)], ds, "face_dot")
-
-
-class ShadowPipe(_Datapath):
-    """Bare shadow-ray datapath: ``model.rgs.shadow_dir`` as a pipeline.
-
-    In: ``p0``, ``g`` (a hit's secondary origin and oriented face normal, from
-    :class:`SecondaryPipe`), ``light`` (3 format words: a point light's position, or a parallel
-    light's reversed direction), ``point`` (1: point light), ``tag``, ``i_valid``, ``en``.
-    Out after ``latency`` enabled cycles: ``o_valid``, ``o_p0`` (the origin, carried along),
-    ``dir`` (light - p0, or the light vector
-    itself for a parallel light), ``tmax`` (1 for a point light, +inf for a parallel one),
-    ``cast`` (dot(g, dir) > 0: the light faces the surface; no ray otherwise), ``o_tag``.
-    Operations: 3 sub, a dot product (3 mul, 2 add), a sign test. Latency: add + mul + 2 add
-    (12 at the binary32 defaults). Throughput: one (hit, light) pair per enabled cycle.
-    """
-
-    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
-        w = fmt.width
-        v3 = data.ArrayLayout(w, 3)
-        super().__init__(fmt, tag_width, latencies,
-                         {"p0": In(v3), "g": In(v3), "light": In(v3), "point": In(1)},
-                         {"o_p0": Out(v3), "dir": Out(v3), "tmax": Out(w), "cast": Out(1)})
-
-    def _build(self, m: Module, dry: bool = False) -> int:
-        fmt = self.fmt
-        sch = Schedule(m, self.en, fmt, self.latencies, dry)
-        at = sch.at
-        point, ds, dot = _shadow_ops(m, sch, self)
-        L = max(dot[1], 1)
-        if dry:
-            return L
-        pt = at(point, 0, L)
-        m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
-            self.o_p0.eq(Cat(*(at(self.p0[a], 0, L) for a in range(3)))),
-            self.dir.eq(Cat(*(at(x[0], x[1], L) for x in ds))),
-            self.tmax.eq(Mux(pt, _fp_const(fmt, "one"), _fp_const(fmt, "+inf"))),
-            self.cast.eq(_positive(fmt, at(dot[0], dot[1], L))),
-            self.o_tag.eq(at(self.tag, 0, L)),
-        ]
-        return L
-
-
 # ---------------------------------------------------------------------------------------------
 # colour
 # ---------------------------------------------------------------------------------------------
@@ -692,17 +639,21 @@ def to_fixed(fmt: FPFormat, x: Value) -> Value:
 
 
 class LightPipe(_Datapath):
-    """The shadow ray of a (hit, light) pair and its colour: :class:`ShadowPipe`'s shadow ray
+    """The shadow ray of a (hit, light) pair and its colour: the shadow ray
     (``model.rgs.shadow_dir``), the Phong term the ray brings if it reaches its light
     (``model.rgs.light_colour``) and the hit's own terms (``model.rgs.hit_colour``), each made
     a fixed-point contribution (``model.rgs.to_fixed``), as a pipeline.
 
-    In: ``p0``, ``g``, ``light``, ``point`` (as :class:`ShadowPipe`); ``n``, ``r`` (the hit's
+    In: ``p0``, ``g`` (the hit's secondary origin and oriented face normal, from
+    :class:`SecondaryPipe`), ``light`` (3 format words: a point light's position, or a
+    parallel light's reversed direction), ``point`` (1: point light); ``n``, ``r`` (the hit's
     shading normal and reflected direction, from :class:`SecondaryPipe`); ``kd``, ``ks``,
     ``kr``, ``shin`` (the material's record constants); ``lc`` (the light's colour), ``wt``
     (the hit ray's weight); registers ``amb``, ``bg``; ``tag``, ``i_valid``, ``en``. Out after
-    ``latency`` enabled cycles: ``o_p0``, ``o_r`` (carried along), ``dir``, ``tmax``, ``cast``
-    (as :class:`ShadowPipe`), ``col`` (the light's contribution, 3 x ``FIX_BITS``), ``amb_col``
+    ``latency`` enabled cycles: ``o_p0``, ``o_r`` (carried along), ``dir`` (light - p0, or the
+    light vector itself for a parallel light), ``tmax`` (1 for a point light, +inf for a
+    parallel one), ``cast`` (dot(g, dir) > 0: the light faces the surface; no ray otherwise),
+    ``col`` (the light's contribution, 3 x ``FIX_BITS``), ``amb_col``
     (the ambient contribution), ``wr`` (the reflection ray's weight), ``rmiss`` (the reflection
     ray's contribution if it misses), ``o_tag``.
 
@@ -731,7 +682,13 @@ class LightPipe(_Datapath):
         fmt = self.fmt
         sch = Schedule(m, self.en, fmt, self.latencies, dry)
         at = sch.at
-        point, ds, face = _shadow_ops(m, sch, self)
+        # -- the shadow ray (model.rgs.shadow_dir) ----------------------------------------------
+        point = wire(m, self.point, "point")
+        sub = [sch.op("sub", (self.light[a], 0), (self.p0[a], 0), f"ldir{a}") for a in range(3)]
+        ts = sub[0][1]
+        ds = [(wire(m, Mux(at(point, 0, ts), sub[a][0], at(self.light[a], 0, ts)), f"dir{a}"),
+               ts) for a in range(3)]
+        face = _dot(sch, [(self.g[a], 0) for a in range(3)], ds, "face_dot")
         vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), 0) for a in range(3)]  # noqa: E731
         n, r, kd, ks = vec(self.n, "n"), vec(self.r, "r"), vec(self.kd, "kd"), vec(self.ks, "ks")
         lc, bg = vec(self.lc, "lc"), vec(self.bg, "bg")

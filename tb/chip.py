@@ -114,21 +114,19 @@ def colour_mismatches(records: dict, eye, colour: np.ndarray) -> tuple[list, np.
     """The chip's pixel colours (:func:`record_colour`) against the model's fixed-point sums
     ``colour`` ((pixels, 3)): ``(pixel, "colour", chip, model)`` for every pixel that differs
     (three 24-bit channels packed, red lowest) and the chip's image ((pixels, 3) float32)."""
-    got = record_colour(records, eye)
-    if got.shape[0] < colour.shape[0]:
-        got = np.concatenate([got, np.zeros((colour.shape[0] - got.shape[0], 3), np.int64)])
+    got = record_colour(records, eye, len(colour))
     pack = lambda c: int(c[0]) | int(c[1]) << 24 | int(c[2]) << 48  # noqa: E731
     bad = [(int(p), "colour", pack(got[p]), pack(colour[p]))
            for p in np.flatnonzero(np.any(got != colour, axis=1))]
     return bad, (got / float(1 << FIX_FRAC)).astype(np.float32)
 
 
-def record_colour(records: dict, eye) -> np.ndarray:
-    """The pixels' colour sums ((pixels, 3) int64) of the chip's records (every record adds its
+def record_colour(records: dict, eye, n_pixels: int) -> np.ndarray:
+    """The colour sums ((n_pixels, 3) int64) of the chip's records (every record adds its
     ``col`` to the pixel of its eye ray: ``packet``, ``lane``)."""
     pk = np.asarray(eye.pk_start, np.int64)
     ray = pk[np.asarray(records["packet"], np.int64)] + np.asarray(records["lane"], np.int64)
-    out = np.zeros((int(eye.pixel.max()) + 1 if len(eye) else 0, 3), np.int64)
+    out = np.zeros((n_pixels, 3), np.int64)
     col = np.stack([np.asarray(records[f"col{c}"], np.int64) for c in range(3)], axis=1)
     np.add.at(out, eye.pixel[ray], col)
     return out

@@ -346,9 +346,10 @@ def run_secondary(hits: Hits, fmt: FPFormat, *, latencies=None, seed: int = 0,
 
 def shadow_ports(hits: Hits, lights: np.ndarray, point: np.ndarray, fmt: FPFormat,
                  tag_width: int) -> tuple[dict, dict]:
-    """``ShadowPipe``'s port values for every (hit, light) pair — the hits' ``p0`` and ``g``
-    from the model's secondary rays, light vectors ``lights`` (L, 3) of kind ``point`` (L,) —
-    and the model's (``model.rgs.shadow_rays``) ``dir``, ``tmax``, ``cast``, ``o_tag``."""
+    """``LightPipe``'s shadow-ray port values for every (hit, light) pair — the hits' ``p0``
+    and ``g`` from the model's secondary rays, light vectors ``lights`` (L, 3) of kind
+    ``point`` (L,); the colour inputs stay 0 — and the model's (``model.rgs.shadow_rays``)
+    ``dir``, ``tmax``, ``cast``, ``o_tag``."""
     from model.rgs import secondary_rays, shadow_rays
     p0, g, _, _ = secondary_rays(hits.org, hits.dir, hits.t, hits.u, hits.v, hits.nf, hits.nv,
                                  np.float32(hits.eps), *fmt.em)
@@ -371,11 +372,12 @@ def shadow_ports(hits: Hits, lights: np.ndarray, point: np.ndarray, fmt: FPForma
 
 def run_shadow(hits: Hits, lights, point, fmt: FPFormat, *, latencies=None, seed: int = 0,
                p_bubble: float = 0.2, p_stall: float = 0.2):
-    """Every (hit, light) pair through ``ShadowPipe``, checked like :func:`run_secondary`."""
-    from rtl.rgs import ShadowPipe
+    """Every (hit, light) pair through ``LightPipe``, its shadow ray checked like
+    :func:`run_secondary`."""
+    from rtl.rgs import LightPipe
     from .common import run_fixed_pipe
     n = len(hits) * len(lights)
-    dut = ShadowPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
+    dut = LightPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
     ins, outs = shadow_ports(hits, np.asarray(lights, np.float64), np.asarray(point), fmt,
                              dut.tag_width)
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
@@ -440,7 +442,7 @@ def light_ports(c: ColourCases, lights: np.ndarray, point: np.ndarray, fmt: FPFo
     ``c.ld`` as origin offset: p0 = light - ld for a point light) and the model's outputs:
     the shadow ray (``model.rgs.shadow_rays``), the light's, ambient and reflection-miss
     contributions and the reflection weight (``model.rgs.light_colours``, ``hit_colours``)."""
-    from model.rgs import hit_colours, light_colours, shadow_rays
+    from model.rgs import FIX_BITS, hit_colours, light_colours, shadow_rays
     E, M = fmt.em
     n = len(c)
     light = fmt.quantize(np.asarray(lights, np.float64))[np.arange(n) % len(lights)]
@@ -449,16 +451,14 @@ def light_ports(c: ColourCases, lights: np.ndarray, point: np.ndarray, fmt: FPFo
     g = c.n
     dirs = np.empty((n, 3), np.float32)
     cast = np.empty(n, bool)
-    for k in (False, True):
-        sel = pt == k
-        for li in np.unique(np.arange(n)[sel] % len(lights)):
-            rows = np.flatnonzero(sel & (np.arange(n) % len(lights) == li))
-            d, cs = shadow_rays(p0[rows], g[rows], light[rows[0]], k, E, M)
-            dirs[rows], cast[rows] = d, cs
+    for li in range(len(lights)):
+        rows = np.arange(li, n, len(lights))
+        dirs[rows], cast[rows] = shadow_rays(p0[rows], g[rows], light[li], bool(pt[li]), E, M)
     col = light_colours(dirs, c.n, c.r, c.kd, c.ks, c.shin, c.lc, c.wt, E, M)
     amb, wr, rmiss = hit_colours(c.kd, c.kr, np.float32(c.amb), c.bg, c.wt, E, M)
     tag = [i % (1 << tag_width) for i in range(n)]
-    fix = lambda x: [sum(int(v) << (24 * k) for k, v in enumerate(row)) for row in x]  # noqa: E731
+    fix = lambda x: [sum(int(v) << (FIX_BITS * k) for k, v in enumerate(row))  # noqa: E731
+                     for row in x]
     ins = {"p0": _pack_rows(fmt, p0), "g": _pack_rows(fmt, g), "light": _pack_rows(fmt, light),
            "point": pt.astype(int).tolist(), "n": _pack_rows(fmt, c.n),
            "r": _pack_rows(fmt, c.r), "kd": _pack_rows(fmt, c.kd), "ks": _pack_rows(fmt, c.ks),

@@ -40,20 +40,27 @@ def test_units_take_latencies_and_sizes_from_config():
         u._MustUse__silence = True
 
 
-def test_host_fields_are_not_read_by_the_hardware():
-    """A Verilator binary is shared across values of ``HOST_FIELDS`` (its key leaves them out),
-    so no RTL source, simulation top or Config property the RTL reads may use them."""
-    import ast
-    import inspect
+def config_names_the_hardware_reads() -> set[str]:
+    """Every ``cfg.<name>`` in the RTL sources and the Verilator frame tops (what a binary's
+    key must hold)."""
     import re
     from pathlib import Path
-    from model.config import HOST_FIELDS
     root = Path(__file__).resolve().parent.parent
     files = sorted((root / "rtl").rglob("*.py")) + [root / "tb" / n for n in (
         "frame.py", "chip_frame.py", "lfsr.py")]
     read = set()
     for p in files:
         read |= set(re.findall(r"cfg\.(\w+)", p.read_text()))
+    return read
+
+
+def test_host_fields_are_not_read_by_the_hardware():
+    """A Verilator binary is shared across values of ``HOST_FIELDS`` (its key leaves them out),
+    so no RTL source, simulation top or Config property the RTL reads may use them."""
+    import ast
+    import inspect
+    from model.config import HOST_FIELDS
+    read = config_names_the_hardware_reads()
     assert {"threads", "stack_depth", "fp_latencies"} <= read
     assert not read & set(HOST_FIELDS), read & set(HOST_FIELDS)
     for node in ast.walk(ast.parse(inspect.getsource(Config))):     # properties the RTL reads
@@ -68,14 +75,7 @@ def test_reflect_depth_enters_the_hardware_key_as_secondary_rays():
     """The RTL reads ``reflect_depth`` only through ``Config.secondary_rays`` (the depth is a
     register loaded per frame), so a binary with light registers serves every depth, and the
     eye-ray-only chip (no lights, no reflections) is a binary of its own."""
-    import re
-    from pathlib import Path
-    root = Path(__file__).resolve().parent.parent
-    files = sorted((root / "rtl").rglob("*.py")) + [root / "tb" / n for n in (
-        "frame.py", "chip_frame.py", "lfsr.py")]
-    read = set()
-    for p in files:
-        read |= set(re.findall(r"cfg\.(\w+)", p.read_text()))
+    read = config_names_the_hardware_reads()
     assert "secondary_rays" in read and "reflect_depth" not in read
     lit = [Config(reflect_depth=d).hardware_dict() for d in (0, 1, 3)]
     assert lit[0] == lit[1] == lit[2] and lit[0]["secondary_rays"] is True

@@ -11,13 +11,15 @@ from tb.resources import resources
 def test_secondary_pipe_units_as_documented():
     """The secondary-ray datapath's operations, counted by hand from its steps
     (``docs/rgs.md``): hit 3 mul 3 add; face 3 mul 2 add; dir_norm 6 mul 2 add 1 sqrt 1 div;
-    offset 6 mul 6 add/sub; normal 18 mul 12 add/sub 1 sqrt 1 div; reflect 7 mul 5 add/sub."""
-    from rtl.rgs import SecondaryPipe, ShadowPipe
+    offset 6 mul 6 add/sub; normal 18 mul 12 add/sub 1 sqrt 1 div; reflect 7 mul 5 add/sub.
+    The light datapath (``LightPipe``): the shadow ray 3 mul 5 add/sub; the cosines 15 mul
+    6 add 2 sqrt 2 div; the power 19 mul; the channels 12 mul 3 add; the hit's terms 10 mul."""
+    from rtl.rgs import LightPipe, SecondaryPipe
     r = resources(lambda: SecondaryPipe(FPFormat(8, 12), tag_width=2))
     assert r["fp_units"] == {"mul": 43, "add": 30, "sqrt": 2, "div": 2}
     assert r["totals"]["flipflop_bits"] > 0 and r["totals"]["memory_bits"] == 0
-    r = resources(lambda: ShadowPipe(FPFormat(8, 12)))
-    assert r["fp_units"] == {"add": 5, "mul": 3}
+    r = resources(lambda: LightPipe(FPFormat(8, 12)))
+    assert r["fp_units"] == {"add": 16, "mul": 59, "sqrt": 2, "div": 2}
 
 
 def test_cache_memory_bits_hold_its_data():

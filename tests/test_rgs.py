@@ -2,8 +2,8 @@
 model (``model.raygen.eye_rays`` + ``setup``, i.e. ``model/rgs.py``), with random request
 bubbles and output back-pressure; exact latency and one-ray-per-cycle throughput; the sample
 conversion over its whole range; the pixel index's constant division; the secondary-ray
-datapaths (``SecondaryPipe``, ``ShadowPipe``) against ``model.rgs.secondary_rays`` /
-``shadow_rays`` at their exact cycles."""
+datapaths (``SecondaryPipe``, ``LightPipe``) against ``model.rgs.secondary_rays`` /
+``shadow_rays`` / ``light_colours`` / ``hit_colours`` at their exact cycles."""
 from __future__ import annotations
 
 import numpy as np
@@ -13,7 +13,7 @@ from amaranth.sim import Simulator
 from model.config import Config
 from model.fp import FPFormat
 from model.raygen import eye_rays
-from rtl.rgs import (COORD_BITS, EyeRays, RaySetupPipe, SecondaryPipe, ShadowPipe,
+from rtl.rgs import (COORD_BITS, EyeRays, LightPipe, RaySetupPipe, SecondaryPipe,
                      div_const_params, sample_converter)
 from tb.rgs import (AXIS_BOX, axis_camera, edge_rays, oblique_camera, run_eye_rays,
                     run_ray_setup, run_secondary, run_shadow, secondary_cases, tile_grid)
@@ -177,7 +177,7 @@ def test_tile_grid():
 
 
 # ----------------------------------------------------------------------------------------------
-# secondary rays: SecondaryPipe, ShadowPipe
+# secondary rays: SecondaryPipe, LightPipe
 # ----------------------------------------------------------------------------------------------
 
 LIGHTS = np.array([[1.0, 2.0, 3.0], [0.3, -0.5, 0.8], [-4.0, 5.0, 1.0]])
@@ -214,19 +214,23 @@ def test_secondary_cases_reach_every_branch():
 
 def test_secondary_pipe_latency_formula():
     """Latency = 11 add + 7 mul + sqrt + div (the shading normal's path through the
-    reflection), for two sets of FP latencies."""
+    reflection), and LightPipe's 4 add + 15 mul + sqrt + div + 2, for two sets of FP
+    latencies."""
     for lat in ({"add": 3, "mul": 3, "div": 8, "sqrt": 8}, {"add": 2, "mul": 5, "div": 9, "sqrt": 4}):
         p = SecondaryPipe(B32, latencies=lat)
         assert p.latency == 11 * lat["add"] + 7 * lat["mul"] + lat["sqrt"] + lat["div"]
-        s = ShadowPipe(B32, latencies=lat)
-        assert s.latency == 3 * lat["add"] + lat["mul"]
-    assert SecondaryPipe(B32).latency == 70 and ShadowPipe(B32).latency == 12
+        s = LightPipe(B32, latencies=lat)
+        # the light vector (add), the dot product ld.ld (mul, 2 add), its square root and
+        # reciprocal, r.ld * il * ir (2 mul), the clamp (min/max, 1), the power (10 mul),
+        # ks * spec (mul), the sum (add), the product with lc * wt (mul), fixed point (1)
+        assert s.latency == 4 * lat["add"] + 15 * lat["mul"] + lat["sqrt"] + lat["div"] + 2
+    assert SecondaryPipe(B32).latency == 70 and LightPipe(B32).latency == 75
 
 
 @pytest.mark.parametrize("fmt", [B32, FPFormat(8, 12)], ids=str)
 def test_shadow_pipe(fmt):
-    """Point and parallel lights: direction, tmax and the facing test of every (hit, light)
-    pair bit for bit with ``model.rgs.shadow_rays``."""
+    """Point and parallel lights: LightPipe's direction, tmax and facing test of every (hit,
+    light) pair bit for bit with ``model.rgs.shadow_rays``."""
     hits = secondary_cases(fmt, 50, seed=7)
     r = run_shadow(hits, LIGHTS, POINT, fmt)
     assert r.mismatches == [], r.mismatches[:5]
@@ -251,7 +255,7 @@ def test_light_pipe(fmt, latencies):
 def test_light_pipe_cases_reach_every_branch():
     """The colour cases make the model saturate and zero contributions, clamp n.l and r.l,
     and use exponents 0 and 1023, so the pipe test covers them."""
-    from model.rgs import FIX_MAX, light_colours
+    from model.rgs import FIX_MAX
     from tb.rgs import colour_cases, light_ports
     fmt = B32
     c = colour_cases(fmt, 90, seed=fmt.frac_bits)
@@ -260,7 +264,6 @@ def test_light_pipe_cases_reach_every_branch():
     assert (col == FIX_MAX).any() and (col == 0).all(axis=1).any()
     assert 0 < np.count_nonzero(outs["cast"]) < len(c)
     assert {0, 1023} <= set(c.shin.tolist())
-    assert light_colours is not None
 
 
 def test_to_fixed_rtl_exhaustive_small_format():
