@@ -59,9 +59,12 @@ class Config:
     oversampling: int = 1          # rays per pixel side: n x n rays on a regular sub-pixel grid
     shadows: bool = True           # every light casts shadows
     rgs_lights: int = 4            # light registers per RGS slave (the most lights a scene has)
-    shade_cache_kb: int = 20       # each RGS slave's cache of shading records (face and vertex
-                                   # normals, flags, colour constants: 80 bytes a triangle;
-                                   # 20 KB = 256 records)
+    shade_cache_kb: int = 28       # each RGS slave's cache of shading records (face and vertex
+                                   # normals, flags, colour constants, texture coordinates and
+                                   # texture: 112 bytes a triangle; 28 KB = 256 records)
+    tex_cache_kb: int = 4          # each RGS slave's texel cache (64-bit words, two RGBA8
+                                   # texels each); 0: no texture unit (a textured surface shows
+                                   # its material's colour)
 
     # --- memory interface (RTC-MI) -------------------------------------------------------------
     clock_mhz: float = 533.0       # chip clock
@@ -104,6 +107,9 @@ class Config:
                               "registers per RGS slave)")
         if self.shade_cache_kb < 1:
             raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
+        if self.tex_cache_kb < 0:
+            raise ConfigError(f"tex_cache_kb={self.tex_cache_kb} must be >= 0 (0: no texture "
+                              "unit)")
         if self.oversampling < 1:
             raise ConfigError(f"oversampling={self.oversampling} must be >= 1")
         if self.packet_size > 64:
@@ -173,14 +179,15 @@ class Config:
         memory image, built with this configuration: ``model.render.prepare``), as many light
         registers as the scene casts shadows from, no reflections if no triangle reflects (so
         for a scene without lights and mirrors no secondary-ray hardware:
-        :attr:`secondary_rays`). Rebuilding the
+        :attr:`secondary_rays`), no texture unit if no triangle is textured. Rebuilding the
         tree with the derived ``kd_max_depth`` gives the same tree (the limit was not
         reached below it). Raises :class:`ConfigError` if the scene needs more than this
         configuration provides (:meth:`check_scene`)."""
         self.check_scene(scene, image, width, height)
         need = scene_needs(scene, image, self)
         return self.replace(kd_max_depth=max(1, need["stack_depth"]),
-                            rgs_lights=need["lights"], reflect_depth=need["reflect_depth"])
+                            rgs_lights=need["lights"], reflect_depth=need["reflect_depth"],
+                            tex_cache_kb=need["tex_cache_kb"])
 
     def check_scene(self, scene, image, width: int, height: int) -> None:
         """Raise :class:`ConfigError` naming what ``scene`` (with its memory ``image``) at
@@ -236,13 +243,17 @@ def scene_needs(scene, image, cfg: Config) -> dict:
     """What rendering ``scene`` (``image``: its memory image) with ``cfg`` uses of the chip:
     ``stack_depth`` (the kd-tree's depth), ``lights`` (shadow-casting lights: 0 without
     ``cfg.shadows``), ``reflect_depth`` (``cfg.reflect_depth``, 0 if no triangle's material
-    reflects)."""
+    reflects), ``tex_cache_kb`` (``cfg.tex_cache_kb``, 0 if no triangle's material has a
+    texture)."""
     import numpy as np
     reflect = np.array([m.reflect for m in scene.materials], np.float64)
     reflective = bool(len(scene.material) and (reflect[scene.material] > 0).any())
+    tex = np.array([m.texture is not None for m in scene.materials], bool)
+    textured = bool(len(scene.material) and tex[scene.material].any())
     return {"stack_depth": int(image.depth),
             "lights": len(scene.lights) if cfg.shadows else 0,
-            "reflect_depth": cfg.reflect_depth if reflective else 0}
+            "reflect_depth": cfg.reflect_depth if reflective else 0,
+            "tex_cache_kb": cfg.tex_cache_kb if textured else 0}
 
 
 DEFAULT = Config()

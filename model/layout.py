@@ -41,9 +41,10 @@ SHADE_HEADER_WORDS = 8
 NORMAL_WORDS = 5              # 9 x binary32 per triangle + pad
 UV_WORDS = 3                  # 6 x binary32 per triangle
 MATERIAL_WORDS = 8            # 16 x 32 bits per material
-REC_WORDS = 10                # slave record: face normal, 3 vertex normals, flags, material
-REC_BITS = 20 * 32            # (20 x 32 bits: see rec_material)
+REC_WORDS = 14                # slave record: face normal, 3 vertex normals, flags, material,
+REC_BITS = 28 * 32            # texture coordinates, texture (28 x 32 bits: see _shading_section)
 REC_REFLECTIVE = 1            # flags bit 0: the material reflects (reflect > 0)
+REC_TEXTURED = 2              # flags bit 1: the material has a texture (and the scene UVs)
 REC_SHIN_SHIFT = 16           # flags bits 16..25: the Phong exponent (0..1023)
 SHIN_BITS = 10
 NO_TEXTURE = 0xFFFFFFFF
@@ -332,7 +333,8 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
         put(tw)
     n_texel_words = addr - texel_base
     # the slave's records: face normal, vertex normals A, B, C (face normal when none), flags,
-    # the material's colour constants
+    # the material's colour constants, texture coordinates, the texture's first texel word
+    # and size
     rec = np.zeros((n_tris, 2 * REC_WORDS), "<u4")
     if n_tris:
         fn = face_normals(tris, fmt)
@@ -345,6 +347,16 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
         rec[:, 13:16] = _f32_bits(mc["kd"][mat_id])
         rec[:, 16:19] = _f32_bits(mc["ks"][mat_id])
         rec[:, 19] = _f32_bits(mc["kr"][mat_id])
+        tex = mats["texture"][mat_id]
+        textured = (tex >= 0) & (shading.uvs is not None)
+        if textured.any():
+            rec[:, 12] |= np.where(textured, REC_TEXTURED, 0).astype(np.uint32)
+            uv = q(np.asarray(shading.uvs)).reshape(n_tris, 6)
+            rec[textured, 20:26] = uv[textured]
+            tex_word = (tex_dir[np.maximum(tex, 0)] >> np.uint64(32)).astype(np.uint32)
+            tex_size = (tex_dir[np.maximum(tex, 0)] & np.uint64(0xFFFFFFFF)).astype(np.uint32)
+            rec[textured, 26] = tex_word[textured]
+            rec[textured, 27] = tex_size[textured]
     rec_base = put(rec.view("<u8").ravel())
     hdr[1] = _lohi(n_mat, n_tex)
     hdr[2] = _lohi(matid_base, normal_base)

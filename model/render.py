@@ -98,11 +98,13 @@ class Skip:
 
 def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
            prepared: Prepared | None = None, skip: Skip = Skip(),
-           textures: bool = True) -> RenderResult:
+           textures: bool | None = None) -> RenderResult:
     """Render a frame: eye rays, shadow rays per light, reflections to ``cfg.reflect_depth``,
     each ray's colour contribution as the RGS slave computes it (``model.shading``), summed per
-    pixel in fixed point. ``textures=False`` leaves textures out (the chip's colour: it has no
-    texture unit yet)."""
+    pixel in fixed point. ``textures``: filter the textures (default: if the chip has a
+    texture unit, ``cfg.tex_cache_kb > 0``); False leaves kd as the records hold it."""
+    if textures is None:
+        textures = cfg.tex_cache_kb > 0
     t0 = time.perf_counter()
     prep = prepared or prepare(scene, cfg)
     t_build = time.perf_counter() - t0

@@ -20,9 +20,11 @@ colour it adds if it leaves the scene (background times weight); a hit adds its 
 a shadow ray carries the Phong term of its light and adds it if it reaches the light. A pixel is
 the integer sum of its contributions, the same in any order. The material constants come from
 the slave records (``model.layout.rec_material``: kd and ks already scaled by 1 - reflect). A
-texture multiplies kd by its bilinearly filtered texel colour (float32, rounded once to the
-format): the chip has no texture unit yet, so its colour equals the model's with
-``textures=False``.
+texture multiplies kd by its bilinearly filtered texel colour (:func:`~model.rgs.texture_kd`:
+the texture coordinate interpolated in the format, wrapped and placed in fixed point, the four
+texels filtered in integers, scaled to the format); ``textures=False`` leaves kd as the
+record holds it (a chip without a texture unit, ``Config.tex_cache_kb = 0``). The float
+``albedo`` (the reference renderer's and the host preview's) filters in float32.
 """
 from __future__ import annotations
 
@@ -33,7 +35,7 @@ import numpy as np
 from .fp import FPFormat
 from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
 from .raygen import REFLECTION, SHADOW, Rays
-from .rgs import secondary_rays, shadow_rays
+from .rgs import secondary_rays, shadow_rays, texture_kd
 
 AMBIENT = np.float32(0.08)
 
@@ -131,7 +133,19 @@ class Shader:
         self.specular = np.array([mm.specular for mm in m], np.float32).reshape(-1, 3)
         self.shininess = np.array([mm.shininess for mm in m], np.float32)
         self.reflect = np.array([mm.reflect for mm in m], np.float32)
-        self.rec = rec_material(shading_data(scene, fmt).materials, fmt)
+        sd = shading_data(scene, fmt)
+        self.rec = rec_material(sd.materials, fmt)
+        # the textures as the memory image holds them: RGBA8 words, row by row, one after the
+        # other (tex_first: each material's first texel, -1 = none)
+        words = [np.ascontiguousarray(t).view("<u4").reshape(-1) for t in sd.textures]
+        firsts = np.cumsum([0] + [w.size for w in words])
+        self.texels = np.concatenate(words + [np.zeros(1, np.uint32)]).astype(np.uint32)
+        ti = sd.materials["texture"]
+        self.tex_first = np.where(ti >= 0, firsts[np.maximum(ti, 0)], -1).astype(np.int64)
+        sizes = np.array([t.shape[:2] for t in sd.textures] + [(1, 1)], np.int64)
+        self.tex_w = sizes[ti, 1]
+        self.tex_h = sizes[ti, 0]
+        self.uv = fmt.quantize(np.asarray(scene.uv, np.float64)).astype(np.float32)
 
     def surface(self, rays: Rays, sel: np.ndarray, tri: np.ndarray, t, u, v) -> Surface:
         """The slave's secondary-ray arithmetic (``model.rgs.secondary_rays``) and the
@@ -152,10 +166,13 @@ class Shader:
                 on = mat == mi
                 if on.any():
                     uv = np.einsum("nk,nkc->nc", w[on], self.scene.uv[k[on]])
-                    tex = bilinear(mm.texture, uv)
-                    albedo[on] *= tex
-                    if self.textures:
-                        kd[on] = self.fmt.mul(kd[on], self.fmt.quantize(tex))
+                    albedo[on] *= bilinear(mm.texture, uv)
+        if self.textures and len(k):
+            kd = texture_kd(np.ascontiguousarray(kd, np.float32), np.asarray(u, np.float32),
+                            np.asarray(v, np.float32),
+                            np.ascontiguousarray(self.uv[k].reshape(-1, 6)),
+                            self.tex_first[mat], self.tex_w[mat], self.tex_h[mat],
+                            self.texels, E, M)
         return Surface(p0, g, n, r, mat, albedo, kd)
 
     def light_vector(self, light) -> tuple[np.ndarray, bool]:

@@ -19,7 +19,7 @@ import random
 from dataclasses import dataclass, field
 
 import numpy as np
-from amaranth.lib import data
+from amaranth.lib import data, stream, wiring
 
 from model.config import Config
 from model.fp import FPFormat
@@ -482,3 +482,160 @@ def run_light(c: ColourCases, lights, point, fmt: FPFormat, *, latencies=None, s
     dut = LightPipe(fmt, tag_width=max(1, len(c).bit_length()), latencies=latencies)
     ins, outs = light_ports(c, lights, point, fmt, dut.tag_width)
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+
+
+@dataclass
+class TextureCases:
+    """Textured hits for ``model.rgs.texture_kd`` and the RTL's ``Texture``: ``kd`` (N, 3),
+    ``u``, ``v`` (N,), ``uv`` (N, 6) format values; ``tex`` (N,) the first texel's index in
+    ``texels`` (-1: not textured), ``tw``, ``th`` (N,) texture sizes; ``texels`` (uint32 RGBA8
+    words of every texture, row by row)."""
+    kd: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    uv: np.ndarray
+    tex: np.ndarray
+    tw: np.ndarray
+    th: np.ndarray
+    texels: np.ndarray
+
+    def __len__(self):
+        return len(self.u)
+
+
+TEXTURE_SIZES = ((1, 1), (2, 3), (5, 4), (8, 8), (17, 3), (300, 2))   # (width, height)
+
+
+def texture_cases(fmt: FPFormat, n: int = 200, seed: int = 1) -> TextureCases:
+    """Random textured hits on textures of the sizes ``TEXTURE_SIZES`` (1 texel, odd and
+    power-of-two sizes, a wide one), with texture coordinates in [-3, 3) (the texture repeats,
+    negative ones wrap), plus edge cases: coordinates on texel centres and edges, exact
+    integers, tiny negatives (wrap to just below 1), huge values (no fraction), NaN and
+    infinity, u = v = 0, untextured hits, texels of 0 and 255."""
+    rng = np.random.default_rng(seed)
+    q = fmt.quantize
+    words, first = [], []
+    for w, h in TEXTURE_SIZES:
+        first.append(sum(x.size for x in words))
+        t = rng.integers(0, 256, (h * w, 4)).astype(np.uint8)
+        t[rng.random(h * w) < 0.2] = 255
+        t[rng.random(h * w) < 0.2] = 0
+        words.append(t.view("<u4").reshape(-1))
+    texels = np.concatenate(words).astype(np.uint32)
+    k = rng.integers(0, len(TEXTURE_SIZES), n)
+    tw = np.array([TEXTURE_SIZES[i][0] for i in k], np.int64)
+    th = np.array([TEXTURE_SIZES[i][1] for i in k], np.int64)
+    tex = np.array(first, np.int64)[k]
+    tex[rng.random(n) < 0.1] = -1
+    u = rng.uniform(0, 1, n)
+    v = rng.uniform(0, 1, n) * (1 - u)
+    uv = rng.uniform(-3, 3, (n, 6))
+    e = rng.integers(0, 10, n)
+    sel = e == 0                                  # texel centres and edges, on every vertex
+    uv[sel] = (rng.integers(-20, 40, (int(sel.sum()), 6)) / 2 + 0.5) / 8
+    uv[e == 1] = rng.integers(-3, 4, (int((e == 1).sum()), 6))
+    uv[e == 2] = -rng.uniform(0, 1e-6, (int((e == 2).sum()), 6))
+    uv[e == 3] = rng.choice([1e9, -3e30, 2.0 ** 30 + 1], (int((e == 3).sum()), 6))
+    uv[e == 4] = rng.choice([np.nan, np.inf, -np.inf, 0.25], (int((e == 4).sum()), 6))
+    u[e == 5] = 0.0
+    v[e == 5] = 0.0
+    kd = rng.uniform(0, 1, (n, 3))
+    with np.errstate(invalid="ignore", over="ignore"):
+        return TextureCases(q(kd), q(u), q(v), q(uv), tex, tw, th, texels)
+
+
+def texture_image(c: TextureCases) -> tuple[np.ndarray, np.ndarray]:
+    """The textures of ``c`` as a memory image holds them (each from a word of its own, two
+    texels a word, the low half first): ``(words uint64, addr)`` with ``addr`` (N,) each
+    case's texture's first word (0 where untextured)."""
+    firsts = sorted(set(int(t) for t in c.tex if t >= 0) | {0})
+    ends = firsts[1:] + [len(c.texels)]
+    words, where, at = [], {}, 0
+    for f, e in zip(firsts, ends):
+        t = c.texels[f:e]
+        if t.size % 2:
+            t = np.concatenate([t, np.zeros(1, np.uint32)])
+        where[f] = at
+        words.append(t.view("<u8"))
+        at += t.size // 2
+    return (np.concatenate(words), np.array([where.get(int(t), 0) for t in c.tex], np.int64))
+
+
+class TextureBench(wiring.Component):
+    """``rtl.rgs.Texture`` on its texel cache (``rtl.cache.Cache``, ``cache_bytes``) and an
+    ``rtl.memory.IdealMemory`` holding ``words``; ``hold`` stalls the memory's answers."""
+
+    def __init__(self, cfg: Config, words: np.ndarray, *, tag_width: int, cache_bytes: int = 256,
+                 latency: int = 6):
+        from model.cache import CacheGeometry
+        from rtl.cache import Cache
+        from rtl.memory import IdealMemory
+        from rtl.rgs import TexIn, TexOut, Texture
+        self.tex = Texture(cfg, tag_width)
+        self.cache = Cache(CacheGeometry(size_bytes=cache_bytes, ways=1, line_items=1,
+                                         item_bits=64, item_span=64, outstanding=2, queue=8),
+                           tag_width=1)
+        self.mem = IdealMemory(words, addr_width=max(2, (len(words) - 1).bit_length()),
+                               tag_width=len(self.cache.mem.req.payload.tag), latency=latency)
+        super().__init__({"i": wiring.In(stream.Signature(TexIn(cfg, tag_width))),
+                          "o": wiring.Out(stream.Signature(TexOut(cfg, tag_width))),
+                          "hold": wiring.In(1)})
+
+    def elaborate(self, platform):
+        from amaranth.hdl import Module
+        m = Module()
+        m.submodules.tex, m.submodules.cache, m.submodules.mem = self.tex, self.cache, self.mem
+        wiring.connect(m, wiring.flipped(self.i), self.tex.i)
+        wiring.connect(m, self.tex.o, wiring.flipped(self.o))
+        wiring.connect(m, self.tex.mem, self.cache.port)
+        aw = len(self.mem.port.req.payload.addr)
+        cm, mp = self.cache.mem, self.mem.port
+        m.d.comb += [mp.req.valid.eq(cm.req.valid), cm.req.ready.eq(mp.req.ready),
+                     mp.req.payload.addr.eq(cm.req.payload.addr[:aw]),
+                     mp.req.payload.tag.eq(cm.req.payload.tag),
+                     cm.resp.valid.eq(mp.resp.valid), mp.resp.ready.eq(cm.resp.ready),
+                     cm.resp.payload.eq(mp.resp.payload), self.mem.hold.eq(self.hold),
+                     self.cache.base.eq(0)]
+        return m
+
+
+def run_texture(c: TextureCases, cfg: Config, *, seed: int = 0, idle: float = 0.2,
+                stall: float = 0.2, hold: float = 0.3) -> tuple[list, int]:
+    """Every texture case through :class:`TextureBench` (input gaps with probability
+    ``idle``, output back-pressure ``stall``, memory holds ``hold``): returns the mismatches
+    against ``model.rgs.texture_kd`` (``(case, field, got, want)``, in order) and the cycles."""
+    from .common import drain, drive, run
+    E, M = cfg.fmt.em
+    from model.rgs import texture_kd
+    want = texture_kd(c.kd, c.u, c.v, c.uv, c.tex, c.tw, c.th, c.texels, E, M)
+    words, addr = texture_image(c)
+    tag_width = max(1, len(c).bit_length())
+    dut = TextureBench(cfg, words, tag_width=tag_width)
+    fmt = cfg.fmt
+    ins = [{"u": int(fmt.to_bits(c.u[i])), "v": int(fmt.to_bits(c.v[i])),
+            "uv": _words(fmt, c.uv[i]), "addr": int(addr[i]), "tw": int(c.tw[i]),
+            "th": int(c.th[i]), "on": int(c.tex[i] >= 0), "kd": _words(fmt, c.kd[i]),
+            "tag": i} for i in range(len(c))]
+    rng = random.Random(seed)
+    got: list = []
+
+    async def source(ctx):
+        await drive(ctx, dut.i, ins, rng=random.Random(seed + 1), idle=idle)
+
+    async def sink(ctx):
+        await drain(ctx, dut.o, len(ins), rng=random.Random(seed + 2), stall=stall, out=got,
+                    timeout=5000)
+
+    async def holder(ctx):
+        while True:
+            ctx.set(dut.hold, int(rng.random() < hold))
+            await ctx.tick()
+    run(dut, source, sink, background=[holder])
+    bad = []
+    for k, (cycle, p) in enumerate(got):
+        if p["tag"] != k:
+            bad.append((k, "tag", p["tag"], k))
+        w = _words(fmt, want[k])
+        if list(p["kd"]) != w:
+            bad.append((k, "kd", list(p["kd"]), w))
+    return bad, (got[-1][0] if got else 0)

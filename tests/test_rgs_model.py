@@ -408,3 +408,88 @@ def test_render_colour_is_the_sum_of_its_contributions():
     differ = np.any(a.colour != b.colour, axis=1)
     assert differ.any()
     assert not differ[a.rays.pixel[eye][~textured]].all()
+
+
+# ----------------------------------------------------------------------------------------------
+# texture: model.rgs.texture_kd against FPFormat array operations and exact integers
+# ----------------------------------------------------------------------------------------------
+
+def np_texture_kd(c, fmt):
+    """The texture steps of ``model.rgs.texture_kd``'s docstring, recomputed with the array
+    operations and Python's exact integers and fractions."""
+    add, sub, mul = fmt.add, fmt.sub, fmt.mul
+    f = fmt.flush
+    u, v, uv = f(c.u), f(c.v), f(c.uv)
+    b = sub(sub(np.ones_like(u), u), v)
+
+    def coord(k):
+        return add(add(mul(b, uv[:, k]), mul(u, uv[:, 2 + k])), mul(v, uv[:, 4 + k]))
+
+    def wrap(s):
+        out = []
+        for x in s.tolist():
+            if x != x or x in (np.inf, -np.inf):
+                out.append(0)
+            else:
+                out.append(int(np.floor(Fraction(x) * 2 ** 24)) % 2 ** 24)
+        return out
+
+    def pos(fs, size):
+        x = (fs * size) // 2 ** 16 - 128
+        i0, w = x // 256, x % 256
+        return i0 % size, (i0 + 1) % size, w
+
+    ss, tt = wrap(coord(0)), wrap(coord(1))
+    out = c.kd.copy()
+    scale = fmt.quantize(256 / 255)
+    for i in range(len(c)):
+        if c.tex[i] < 0:
+            continue
+        tw, th = int(c.tw[i]), int(c.th[i])
+        x0, x1, wx = pos(ss[i], tw)
+        y0, y1, wy = pos(2 ** 24 - tt[i], th)
+        at = lambda x, y: int(c.texels[c.tex[i] + y * tw + x])  # noqa: E731
+        for ch in range(3):
+            g = lambda x, y: (at(x, y) >> (8 * ch)) & 255  # noqa: E731
+            val = ((g(x0, y0) * (256 - wx) + g(x1, y0) * wx) * (256 - wy)
+                   + (g(x0, y1) * (256 - wx) + g(x1, y1) * wx) * wy)
+            tex = mul(fmt.from_fixed(np.array([val]), 24).astype(np.float32),
+                      np.array([scale], np.float32))
+            out[i, ch] = mul(f(c.kd[i:i + 1, ch]), tex)[0]
+    return out
+
+
+@pytest.mark.parametrize("fmt", FORMATS, ids=str)
+def test_texture_matches_vectorized(fmt):
+    from model.rgs import texture_kd
+    from tb.rgs import texture_cases
+    c = texture_cases(fmt, 1500, seed=23)
+    got = texture_kd(c.kd, c.u, c.v, c.uv, c.tex, c.tw, c.th, c.texels, *fmt.em)
+    want = np_texture_kd(c, fmt)
+    assert same(fmt, got, want)
+    # the cases reach what they are for: black and white texels, untouched kd
+    ratio = got[c.tex >= 0] / np.maximum(c.kd[c.tex >= 0], 1e-30)
+    assert (got[c.tex >= 0] == 0).any() and (np.abs(ratio - 1) < 1e-2).any()
+    assert np.array_equal(got[c.tex < 0], c.kd[c.tex < 0])
+
+
+def test_texture_filter_is_bilinear():
+    """On texel centres the filter returns the texel; halfway between two texels their mean;
+    a negative coordinate wraps (-0.25 is 0.75: the last texel's centre) (binary32)."""
+    from model.rgs import texture_kd
+    fmt = FPFormat(8, 23)
+    texels = np.array([[10, 20, 30, 255], [50, 60, 70, 255], [90, 100, 110, 255],
+                       [130, 140, 150, 255]], np.uint8).view("<u4").reshape(-1)  # 2 x 2
+    # u = v = 0: the coordinate is vertex A's
+    s = np.array([0.25, 0.75, 0.5, -0.25, 0.25], np.float32)
+    t = np.array([0.75, 0.75, 0.75, 0.75, 0.25], np.float32)  # t = 0.75: the top row
+    n = len(s)
+    uv = np.zeros((n, 6), np.float32)
+    uv[:, 0], uv[:, 1] = s, t
+    kd = np.ones((n, 3), np.float32)
+    z = np.zeros(n, np.float32)
+    got = texture_kd(kd, z, z, uv, np.zeros(n, np.int64), np.full(n, 2), np.full(n, 2),
+                     texels, *fmt.em)
+    want = np.array([[10, 20, 30], [50, 60, 70], [30, 40, 50], [50, 60, 70], [90, 100, 110]],
+                    np.float64) / 255
+    assert np.allclose(got, want, rtol=1e-6)
