@@ -169,11 +169,13 @@ class RGSMaster(wiring.Component):
 
 class Chip(wiring.Component):
     """The SaarCOR chip: RGS master, one RGS slave per RTC (``rtl/rgs_slave.py``: eye rays,
-    results, secondary rays) with its shading cache, :class:`RTCArray` (the RTCs, their
-    RTC-MIs, the bus: requesters ``3 r + c`` the RTC caches, ``3 rtcs + s`` slave s's shading
-    cache), one memory port ``mem`` for the memory controller. With ``cfg.secondary_rays``
-    false (no light registers, reflection depth 0) the slaves are eye-ray-only
-    (``Slave.elaborate_eye_only``) and there are no shading caches.
+    results, secondary rays, colour) with its shading cache and texel cache,
+    :class:`RTCArray` (the RTCs, their RTC-MIs, the bus: requesters ``3 r + c`` the RTC
+    caches, ``3 rtcs + s`` slave s's shading cache, ``4 rtcs + s`` its texel cache), one
+    memory port ``mem`` for the memory controller. With ``cfg.secondary_rays`` false (no
+    light registers, reflection depth 0) the slaves are eye-ray-only
+    (``Slave.elaborate_eye_only``) and there are no shading or texel caches; with
+    ``cfg.tex_cache_kb`` 0 the slaves have no texture unit and no texel caches.
 
     Host side (inputs held for the frame): the image constants ``node_base``, ``list_base``,
     ``tri_base``, ``root``, ``rec_base`` (the slave records), the scene box
@@ -191,8 +193,9 @@ class Chip(wiring.Component):
     Counters: ``cycles`` (busy cycles of the last frame), ``rays_in`` (rays into the RTCs),
     ``results_out`` (ray results; the ambient records are not counted), ``packets[s]`` (eye
     packets slave s got), per slave ``rays_eye``, ``rays_shadow``, ``rays_reflect``,
-    ``sec_busy`` (``slave_counters[s]``) and its shading cache's
-    ``shade_hits``/``shade_misses``, and :class:`RTCArray`'s (``rtc_counters``, ``hits``,
+    ``sec_busy`` (``slave_counters[s]``), its shading cache's
+    ``shade_hits``/``shade_misses`` and its texel cache's ``tex_hits``/``tex_misses`` (0
+    where there is none), and :class:`RTCArray`'s (``rtc_counters``, ``hits``,
     ``misses``, ``grants``, ``mem_reads``).
     """
 
@@ -202,18 +205,24 @@ class Chip(wiring.Component):
         from model.layout import REC_BITS
         from .cache import Cache
         from .rgs import COORD_BITS
-        from .rgs_slave import DEPTH_BITS, Slave, SlaveResult, shade_cache_geometry
+        from .rgs_slave import (DEPTH_BITS, Slave, SlaveResult, shade_cache_geometry,
+                                tex_cache_geometry)
         from .rtc_streams import vec3
         self.cfg = cfg
         n = cfg.rtcs
         self.master = RGSMaster(cfg, n)
         self.slaves = [Slave(cfg) for _ in range(n)]
         # eye rays only (no secondary-ray hardware): no shading caches, no bus requesters for
-        # them; their counters (shade_hits, shade_misses, grants[3 rtcs + s]) stay 0
+        # them; their counters (shade_hits, shade_misses, grants[3 rtcs + s]) stay 0 (as the
+        # texel caches' where there are none)
         geom = shade_cache_geometry(cfg)
         self.shade_caches = ([Cache(geom, tag_width=1) for _ in range(n)]
                              if cfg.secondary_rays else [])
-        self.array = RTCArray(cfg, tuple(len(c.mem.req.payload.tag) for c in self.shade_caches))
+        # texel caches (bus requesters 4 n + s), where the slaves have a texture unit
+        self.tex_caches = ([Cache(tex_cache_geometry(cfg), tag_width=1) for _ in range(n)]
+                           if self.slaves[0].tex is not None else [])
+        self.array = RTCArray(cfg, tuple(len(c.mem.req.payload.tag)
+                                         for c in self.shade_caches + self.tex_caches))
         assert geom.item_bits == REC_BITS
         v3 = vec3(cfg)
         L = max(1, cfg.rgs_lights)
@@ -236,10 +245,11 @@ class Chip(wiring.Component):
             "packets": Out(COUNTER_BITS).array(n),
             "slave_counters": Out(COUNTER_BITS * len(self.SLAVE_COUNTERS)).array(n),
             "shade_hits": Out(COUNTER_BITS).array(n), "shade_misses": Out(COUNTER_BITS).array(n),
+            "tex_hits": Out(COUNTER_BITS).array(n), "tex_misses": Out(COUNTER_BITS).array(n),
         }
         for name in ("mem", "rtc_counters", "hits", "misses", "mem_reads"):
             members[name] = self.array.signature.members[name]
-        members["grants"] = Out(COUNTER_BITS).array(4 * n)
+        members["grants"] = Out(COUNTER_BITS).array(5 * n)
         super().__init__(members)
 
     def elaborate(self, platform):
@@ -273,6 +283,13 @@ class Chip(wiring.Component):
                 connect_tags(m, cache.mem, arr.ext[s])
                 m.d.comb += [cache.base.eq(self.rec_base), self.shade_hits[s].eq(cache.hits),
                              self.shade_misses[s].eq(cache.misses)]
+            if self.tex_caches:
+                cache = self.tex_caches[s]
+                m.submodules[f"tex_cache{s}"] = cache
+                wiring.connect(m, slave.texel, cache.port)
+                connect_tags(m, cache.mem, arr.ext[n + s])
+                m.d.comb += [cache.base.eq(0), self.tex_hits[s].eq(cache.hits),
+                             self.tex_misses[s].eq(cache.misses)]
             for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi", "eps",
                       "light_point", "n_lights", "reflect_depth", "amb", "bg", "w_eye",
                       "eye_miss", "colour"):

@@ -35,6 +35,10 @@ Data paths::
   chip's bus), addressed by triangle.
 * **Pending buffers** (``buffers`` of ``packet_size`` rays: origin, direction, eye lane):
   secondary packets waiting for the RTC.
+* **Texture unit** (:class:`~rtl.rgs.Texture`, with ``cfg.tex_cache_kb > 0``): beside
+  SecondaryPipe, in step with it (its output queue holds as many hits as SecondaryPipe can),
+  a textured hit's kd times its filtered texels, read through the ``texel`` port (the chip's
+  texel cache); the light loop waits for it.
 
 Nothing is dropped and nothing deadlocks (``docs/chip.md``): a packet whose hits may spawn
 rays (an eye or reflection packet, when there are lights or its depth is below
@@ -69,16 +73,18 @@ from amaranth.utils import ceil_log2
 
 from model.cache import CacheGeometry
 from model.config import Config, ConfigError
-from model.layout import REC_BITS, REC_REFLECTIVE, REC_SHIN_SHIFT, REC_WORDS, SHIN_BITS
+from model.layout import (REC_BITS, REC_REFLECTIVE, REC_SHIN_SHIFT, REC_TEXTURED, REC_WORDS,
+                          SHIN_BITS)
 from model.rgs import FIX_BITS
 
 from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
-from .memport import MemReadPort
-from .rgs import COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe, _fp_const
+from .memport import WORD_BITS, MemReadPort
+from .rgs import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe, Texture,
+                  _fp_const)
 from .rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
 
 __all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
-           "shade_cache_geometry"]
+           "shade_cache_geometry", "tex_cache_geometry"]
 
 DEPTH_BITS = 4          # reflection depth of a ray (0: eye ray)
 SUB_BITS = 4            # 0: eye or reflection ray, 1 + l: shadow ray toward light l
@@ -101,6 +107,20 @@ def shade_cache_geometry(cfg: Config) -> CacheGeometry:
     return CacheGeometry(size_bytes=sets * per_set // 8, ways=cfg.cache_ways, line_items=1,
                          item_bits=REC_BITS, item_span=64 * REC_WORDS,
                          outstanding=cfg.cache_outstanding, queue=cfg.cache_queue)
+
+
+def tex_cache_geometry(cfg: Config) -> CacheGeometry:
+    """The slave's texel cache: 64-bit memory words (two RGBA8 texels each),
+    ``tex_cache_kb`` KB rounded down to a power-of-two number of sets."""
+    per_set = cfg.cache_ways * 64
+    sets = (cfg.tex_cache_kb * 1024 * 8) // per_set
+    if sets < 1:
+        raise ConfigError(f"tex_cache_kb={cfg.tex_cache_kb}: too small for one set of "
+                          f"{cfg.cache_ways} word(s)")
+    sets = 1 << (sets.bit_length() - 1)
+    return CacheGeometry(size_bytes=sets * per_set // 8, ways=cfg.cache_ways, line_items=1,
+                         item_bits=64, item_span=64, outstanding=cfg.cache_outstanding,
+                         queue=cfg.cache_queue)
 
 
 def _regs(n: int, shape, name: str) -> Array:
@@ -169,8 +189,12 @@ class Slave(wiring.Component):
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
             self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat)
             self.buffers = slave_buffers(cfg)
+            # the texture unit: in step with SecondaryPipe, as deep a queue as it can hold
+            self.tex = (Texture(cfg, 1, lat, out_depth=self.sec.latency + 2)
+                        if cfg.tex_cache_kb > 0 else None)
         else:
             self.buffers = 0
+            self.tex = None
         v3 = vec3(cfg)
         w = cfg.fmt.width
         super().__init__({
@@ -179,6 +203,8 @@ class Slave(wiring.Component):
             "results": In(stream.Signature(RayResult(cfg))),
             "out": Out(stream.Signature(SlaveResult(cfg))),
             "shade": Out(MemReadPort(addr_width=32, data_width=REC_BITS, tag_width=1)),
+            **({"texel": Out(MemReadPort(addr_width=32, data_width=WORD_BITS, tag_width=1))}
+               if self.tex is not None else {}),
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(COORD_BITS), "height": In(COORD_BITS),
             "box_lo": In(v3), "box_hi": In(v3), "eps": In(w),
@@ -481,23 +507,44 @@ class Slave(wiring.Component):
         feed_ok = ctxq.r_rdy & (~head.hit | resp.valid)
         sec_en = Signal()
         m.d.comb += sec.en.eq(sec_en)
-        feed = feed_ok & sec_en
+        feed = Signal()
         m.d.comb += [ctxq.r_en.eq(feed), resp.ready.eq(feed & head.hit)]
         rdata = resp.payload.data
         word = lambda i: from_binary32(fmt, rdata[32 * i:32 * i + 32])  # noqa: E731
         flags = rdata[32 * 12:32 * 13]
+        kd_rec = Cat(word(13), word(14), word(15))
         # the hit's colour inputs, beside SecondaryPipe (in order, at most its latency + 1 in
-        # flight): the record's material constants, the ray's weight, the packet's reservation
-        mat_lay = data.StructLayout({"kd": vec3(cfg), "ks": vec3(cfg), "kr": w,
-                                     "shin": SHIN_BITS, "wt": w, "spawn": 1})
+        # flight): the record's material constants, the ray's weight, the packet's reservation;
+        # kd through the texture unit where there is one
+        tex = self.tex
+        mat_lay = data.StructLayout({**({} if tex else {"kd": vec3(cfg)}), "ks": vec3(cfg),
+                                     "kr": w, "shin": SHIN_BITS, "wt": w, "spawn": 1})
         m.submodules.matq = matq = SyncFIFO(width=mat_lay.size, depth=sec.latency + 2)
+        if tex is not None:
+            m.submodules.tex = tex
+            wiring.connect(m, tex.mem, wiring.flipped(self.texel))
+            ti = tex.i.payload
+            m.d.comb += [
+                tex.i.valid.eq(feed_ok & sec_en), feed.eq(feed_ok & sec_en & tex.i.ready),
+                ti.u.eq(head.u), ti.v.eq(head.v),
+                ti.uv.eq(Cat(*(word(20 + k) for k in range(6)))),
+                ti.addr.eq(rdata[32 * 26:32 * 27]), ti.tw.eq(rdata[32 * 27:32 * 27 + 16]),
+                ti.th.eq(rdata[32 * 27 + 16:32 * 28]),
+                ti.on.eq(head.hit & ((flags & REC_TEXTURED) != 0) & self.colour),
+                ti.kd.eq(kd_rec)]
+            mat_kd, mat_ok = tex.o.payload.kd, tex.o.valid
+        else:
+            m.d.comb += feed.eq(feed_ok & sec_en)
+            mat_ok = 1
         mat_in = Signal(mat_lay)
-        m.d.comb += [mat_in.kd.eq(Cat(word(13), word(14), word(15))),
-                     mat_in.ks.eq(Cat(word(16), word(17), word(18))), mat_in.kr.eq(word(19)),
+        m.d.comb += [mat_in.ks.eq(Cat(word(16), word(17), word(18))), mat_in.kr.eq(word(19)),
                      mat_in.shin.eq(flags[REC_SHIN_SHIFT:REC_SHIN_SHIFT + SHIN_BITS]),
                      mat_in.wt.eq(head.wt), mat_in.spawn.eq(head.spawn),
                      matq.w_data.eq(mat_in), matq.w_en.eq(feed)]
         mat = data.View(mat_lay, matq.r_data)
+        if tex is None:
+            m.d.comb += mat_in.kd.eq(kd_rec)
+            mat_kd = mat.kd
         st = data.View(self.sec_tag, sec.tag)
         m.d.comb += [sec.i_valid.eq(feed), sec.org.eq(head.org), sec.dir.eq(head.dir),
                      sec.t.eq(head.t), sec.u.eq(head.u), sec.v.eq(head.v), sec.eps.eq(self.eps),
@@ -514,9 +561,11 @@ class Slave(wiring.Component):
         tokens_last = Mux(so.hit & (self.n_lights != 0), li == self.n_lights - 1, 1)
         amb_tok = so.hit & (li == 0) & self.colour   # the token makes the hit's ambient record
         amb_cnt = Signal(range(amb_depth + 1))   # ambient records reserved (in flight, queued)
-        loop_go = sec.o_valid & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth))
+        loop_go = sec.o_valid & mat_ok & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth))
         take = loop_go & tokens_last
         m.d.comb += [sec_en.eq(~sec.o_valid | take), matq.r_en.eq(take)]
+        if tex is not None:
+            m.d.comb += tex.o.ready.eq(take)
         with m.If(loop_go):
             m.d.sync += li.eq(Mux(tokens_last, 0, li + 1))
             m.d.sync += self.sec_busy.eq(self.sec_busy + 1)
@@ -530,7 +579,7 @@ class Slave(wiring.Component):
         m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(sec.p0), shd.g.eq(sec.g),
                      shd.light.eq(per_light(self.lights)),
                      shd.point.eq(self.light_point.bit_select(li, 1) if L else 0),
-                     shd.n.eq(sec.n), shd.r.eq(sec.r), shd.kd.eq(mat.kd), shd.ks.eq(mat.ks),
+                     shd.n.eq(sec.n), shd.r.eq(sec.r), shd.kd.eq(mat_kd), shd.ks.eq(mat.ks),
                      shd.kr.eq(mat.kr), shd.shin.eq(mat.shin), shd.wt.eq(mat.wt),
                      shd.lc.eq(per_light(self.light_col)), shd.amb.eq(self.amb),
                      shd.bg.eq(self.bg),

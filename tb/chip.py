@@ -94,8 +94,8 @@ def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None
     """What the chip must report for the frame of :func:`frame_registers`: ``(eye rays, every
     ray with its id, their hits, the model's counter totals, the pixels' fixed-point colour
     sums or None)``. With ``scene``: ``model.render.render``'s ray tree (the same rays in the
-    same packets as the slaves make them) and its colour without textures (the slaves have no
-    texture unit) — None where the chip makes no colour: eye-ray-only slaves, or a scene with
+    same packets as the slaves make them) and its colour (with textures where the slaves have
+    a texture unit, ``cfg.tex_cache_kb > 0``) — None where the chip makes no colour: eye-ray-only slaves, or a scene with
     lights rendered without shadow rays (the slaves shade only with the lights they cast
     shadow rays to); without ``scene``: ``model.rtc.trace`` of the eye rays."""
     eye = eye_rays(camera, width, height, cfg)
@@ -104,8 +104,7 @@ def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None
         return eye, eye, hits, counter_totals(ctrs), None
     from model.render import Prepared, render
     res = render(scene, cfg, width, height,
-                 prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False),
-                 textures=False)
+                 prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False))
     colour = res.colour if cfg.secondary_rays and (cfg.shadows or not scene.lights) else None
     return eye, res.rays, res.hits, res.counters, colour
 
@@ -281,7 +280,8 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
                           for r in range(cfg.rtcs)]}
     for k in ("hits", "misses", "grants"):
         counters[k] = [{**{cc: c[f"rtc{r}_{cc}_{k}"] for cc in CACHES},
-                        "shade": c[f"slave{r}_shade_{k}"]} for r in range(cfg.rtcs)]
+                        "shade": c[f"slave{r}_shade_{k}"], "tex": c[f"slave{r}_tex_{k}"]}
+                       for r in range(cfg.rtcs)]
     n_eye = len(eye)
     from model.rtc import Hits
     eye_hits = Hits(*(getattr(chip_hits, f)[:n_eye] for f in ("tri", "t", "u", "v")))

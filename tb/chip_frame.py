@@ -47,6 +47,7 @@ def chip_counter_names(cfg: Config) -> list[str]:
         names += [f"rtc{r}_{c}_{k}" for c in CACHES for k in ("hits", "misses", "grants")]
         names += [f"slave{r}_{k}" for k in Chip.SLAVE_COUNTERS]
         names += [f"slave{r}_shade_{k}" for k in ("hits", "misses", "grants")]
+        names += [f"slave{r}_tex_{k}" for k in ("hits", "misses", "grants")]
     names += [f"chip{c}_{k}" for k in ("words", "busy") for c in range(cfg.mem_chips)]
     return names
 
@@ -163,6 +164,7 @@ class ChipFrame(wiring.Component):
             values += [word[32 * i:32 * i + 32] for i in range(len(Chip.SLAVE_COUNTERS))]
             values += [chip.shade_hits[r], chip.shade_misses[r],
                        chip.grants[3 * self.cfg.rtcs + r]]
+            values += [chip.tex_hits[r], chip.tex_misses[r], chip.grants[4 * self.cfg.rtcs + r]]
         values += list(mem.words) + list(mem.busy)
         from amaranth.hdl import Cat
         m.d.comb += [self.counters.eq(Cat(*values)), self.cycles.eq(chip.cycles),

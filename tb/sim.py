@@ -126,12 +126,16 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
              "misses": sum(x["shade"] for x in c["misses"]),
              "memory_words": sum(x["shade"] for x in c["grants"])}
     shade["hit_rate"] = shade["hits"] / max(1, shade["hits"] + shade["misses"])
+    tex = {k: sum(x.get("tex", 0) for x in c[key]) for k, key in
+           (("hits", "hits"), ("misses", "misses"), ("memory_words", "grants"))}
+    tex["hit_rate"] = tex["hits"] / max(1, tex["hits"] + tex["misses"])
     return {
         "scene": scene, "resolution": [width, height], "backend": backend,
         "rays": {KIND_NAMES[k]: int(kinds[k]) for k in range(3)}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
-        "cache": cache, "shade_cache": shade, "memory": memory, "units": units,
+        "cache": cache, "shade_cache": shade, "tex_cache": tex, "memory": memory,
+        "units": units,
         "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
         "bus": {"words_per_cycle": c["mem_reads"] / cyc},
         "packets_per_rtc": c["packets"],

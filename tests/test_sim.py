@@ -53,12 +53,12 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
                                                      for p in mem["per_chip"]]
     assert 0 < stats["units"]["int"] <= 1 and 0 < stats["bus"]["words_per_cycle"] <= 1
     # the rays and hits are the chip's: equal to the golden model's render of the frame, and
-    # the image is the chip's colour, equal to that render's without textures (the slaves
-    # have no texture unit)
+    # the image is the chip's colour, equal to that render's (textured: the slaves' texture
+    # units)
     from model.render import render, to_srgb8
     scene = load_scene(ROOT / "scenes/cornell.toml")
     prep = prepare(scene, cfg, cache_dir=kd_cache)
-    want = render(scene, cfg, 16, 12, prepared=prep, textures=False)
+    want = render(scene, cfg, 16, 12, prepared=prep)
     hits = np.load(out / "hits.npz")
     assert np.array_equal(hits["tri"], want.hits.tri)
     for f in ("t", "u", "v"):

@@ -83,6 +83,11 @@ def test_for_scene_derives_what_the_scene_needs(cornell, kd_cache):
     assert (bare.rgs_lights, bare.reflect_depth, bare.secondary_rays) == (0, 0, False)
     dark = TINY.replace(shadows=False).for_scene(scene, prep.image, 32, 24)
     assert (dark.rgs_lights, dark.reflect_depth, dark.secondary_rays) == (0, 3, True)
+    # the checkered floor keeps the texture unit; without textures there is none
+    assert cfg.tex_cache_kb == TINY.tex_cache_kb > 0
+    plain = dataclasses.replace(scene, materials=[dataclasses.replace(m, texture=None)
+                                                  for m in scene.materials])
+    assert TINY.for_scene(plain, prep.image, 32, 24).tex_cache_kb == 0
     # four triangles (kd_leaf_size): the root is a leaf, one stack entry is enough, and the
     # tree built with that limit is the same
     few = _first(scene, TINY.kd_leaf_size)
@@ -106,17 +111,17 @@ def test_for_scene_names_what_the_configuration_lacks(cornell):
 @pytest.mark.filterwarnings("ignore:.*created but never used")
 def test_eye_only_slave_has_no_secondary_ray_units():
     """Without lights and reflections the slave drops the ray setup (3 + 2 div, 6 sub, 6
-    mul, 12 min/max: docs/rgs.md), the secondary datapath (43 mul, 30 add, 2 sqrt, 2 div) and
-    the light datapath (LightPipe: 59 mul, 16 add, 2 sqrt, 2 div), and its ray store and
-    pending buffers."""
+    mul, 12 min/max: docs/rgs.md), the secondary datapath (43 mul, 30 add, 2 sqrt, 2 div),
+    the light datapath (LightPipe: 59 mul, 16 add, 2 sqrt, 2 div), the texture unit
+    (12 mul, 6 add, 3 int -> FP), and its ray store and pending buffers."""
     from rtl.rgs_slave import Slave
     from tb.resources import resources
     full = resources(lambda: Slave(TINY))
     eye = resources(lambda: Slave(TINY.replace(rgs_lights=0, reflect_depth=0)))
     diff = {k: full["fp_units"].get(k, 0) - eye["fp_units"].get(k, 0)
             for k in full["fp_units"]}
-    assert {k: v for k, v in diff.items() if v} == {"div": 9, "add": 52, "mul": 108,
-                                                   "minmax": 12, "sqrt": 4}
+    assert {k: v for k, v in diff.items() if v} == {"div": 9, "add": 58, "mul": 120,
+                                                   "minmax": 12, "sqrt": 4, "int_to_fp": 3}
     assert eye["totals"]["memory_bits"] < full["totals"]["memory_bits"] / 10
 
 

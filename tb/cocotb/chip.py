@@ -109,9 +109,9 @@ def counter_ports(cfg, top: str) -> list[str]:
     n = cfg.rtcs
     names = ["cycles", "rays_in", "results_out", "mem_reads"]
     names += [f"{k}__{s}" for k in ("packets", "rtc_counters", "slave_counters", "shade_hits",
-                                    "shade_misses") for s in range(n)]
+                                    "shade_misses", "tex_hits", "tex_misses") for s in range(n)]
     names += [f"{k}__{i}" for k in ("hits", "misses") for i in range(3 * n)]
-    names += [f"grants__{i}" for i in range(4 * n)]
+    names += [f"grants__{i}" for i in range(5 * n)]
     if top == "chip_sdram":
         names += [f"mem_{k}__{c}" for k in ("words", "busy") for c in range(cfg.mem_chips)]
     return names
@@ -135,6 +135,9 @@ def counters(cfg, ports: dict[str, int]) -> dict[str, int]:
         c[f"slave{s}_shade_hits"] = v[f"shade_hits__{s}"]
         c[f"slave{s}_shade_misses"] = v[f"shade_misses__{s}"]
         c[f"slave{s}_shade_grants"] = v[f"grants__{3 * n + s}"]
+        c[f"slave{s}_tex_hits"] = v[f"tex_hits__{s}"]
+        c[f"slave{s}_tex_misses"] = v[f"tex_misses__{s}"]
+        c[f"slave{s}_tex_grants"] = v[f"grants__{4 * n + s}"]
     for k in range(cfg.mem_chips):
         if f"mem_words__{k}" in v:
             c[f"chip{k}_words"], c[f"chip{k}_busy"] = v[f"mem_words__{k}"], v[f"mem_busy__{k}"]
