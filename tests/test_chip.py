@@ -149,6 +149,17 @@ def test_chip_secondary_rays_in_amaranth_sim(cornell):
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
+def textured_hits(r, scene) -> int:
+    """Hits of eye and reflection rays on textured triangles in the chip's frame ``r``: each
+    reads its four texels through its slave's texel cache."""
+    rays, tri = r.frame_rays, np.asarray(r.frame_hits.tri)
+    kept = np.full(scene.n_scene_tris, -1, np.int64)
+    kept[scene.tri_id] = np.arange(len(scene.tri_id))
+    textured = np.array([m.texture is not None for m in scene.materials], bool)
+    on = (rays.kind != SHADOW) & (tri >= 0)
+    return int(textured[scene.material[kept[tri[on]]]].sum())
+
+
 def test_chip_secondary_rays_verilator(cornell):
     """The same 4x4 frame with secondary rays in Verilator: the same cycle count as in
     Amaranth's simulator; then 16x16 (shadows, a reflective sphere, the textured floor) under
@@ -165,6 +176,8 @@ def test_chip_secondary_rays_verilator(cornell):
                        scene=scene, progress=False, max_cycles=2_000_000)
     check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
     assert r.color is not None and r.color.max() > 0
+    tex = sum(h["tex"] + mi["tex"] for h, mi in zip(r.counters["hits"], r.counters["misses"]))
+    assert tex == 4 * textured_hits(r, scene) > 0                # the checkered floor
     rays = r.frame_rays
     assert (rays.kind == REFLECTION).any()
     assert ((rays.kind == SHADOW) & (rays.depth == 1)).any()     # shadow rays at reflection hits
