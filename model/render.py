@@ -120,6 +120,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     t1 = time.perf_counter()
     all_rays, all_hits, all_ctrs = [], [], []
     skipped = [0]                          # packets not traced (empty tiles)
+    t_trace = [0.0]                        # seconds in ray setup and tracing
     n_samples = cfg.oversampling ** 2
     acc = np.zeros((width * height, 3), np.int64)     # fixed-point colour sums (FIX_FRAC)
 
@@ -132,7 +133,9 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
             keep = live_packets(rays, setup(rays, image.bounds, cfg.fmt, skip.box_cull))
             traced, idx = select_packets(rays, keep)
             skipped[0] += int((~keep).sum())
+        t = time.perf_counter()
         got, ctrs = trace_rays(image, traced, cfg, bar, box_cull=skip.box_cull)
+        t_trace[0] += time.perf_counter() - t
         if traced is rays:
             hits = got
         else:
@@ -146,6 +149,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         return hits
 
     rays = eye_rays(scene.camera, width, height, cfg)
+    t_raygen = time.perf_counter() - t1
     col = frame_colour_registers(scene, cfg.fmt, n_samples)
     weight = np.full(len(rays), col["w_eye"], np.float32)
     miss_col = col["eye_miss"].reshape(1, 3)           # one row: every eye ray's
@@ -226,6 +230,10 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         "kdtree_from_cache": bool(prep.from_cache),
         "prepare_seconds": round(t_build, 4),
         "render_seconds": round(t_render, 4),
+        # where the render's time went: eye rays, ray setup and tracing (of every ray kind),
+        # the rest (shading, secondary rays, colour sums)
+        "render_phase_seconds": {"raygen": round(t_raygen, 4), "trace": round(t_trace[0], 4),
+                                 "shading": round(t_render - t_raygen - t_trace[0], 4)},
         "rays_per_second": round(len(rays_all) / max(t_render, 1e-9), 1),
     }
     img = colour_image(acc)
