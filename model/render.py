@@ -194,8 +194,9 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     t_render = time.perf_counter() - t1
 
     rays_all = all_rays[0] if len(all_rays) == 1 else Rays.concat(all_rays)
-    hits_all = Hits(*(np.concatenate([getattr(h, f) for h in all_hits]) if all_hits
-                      else np.zeros(0) for f in ("tri", "t", "u", "v")))
+    hits_all = all_hits[0] if len(all_hits) == 1 else Hits(
+        *(np.concatenate([getattr(h, f) for h in all_hits]) if all_hits else np.zeros(0)
+          for f in ("tri", "t", "u", "v")))
     by_kind: dict = {}
     for r, c in all_ctrs:
         name = KIND_NAMES[int(r.kind[0])] if len(r) else "eye"

@@ -221,7 +221,13 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
         return hits, ctrs, decode(rows)
     args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
     if len(rays):
-        trace_all(*args)
+        # tasks handed out one at a time as threads free up: packets differ widely in work
+        # (most miss the scene), and a thread the machine delays leaves its share to the others
+        chunk = numba.set_parallel_chunksize(1)
+        try:
+            trace_all(*args)
+        finally:
+            numba.set_parallel_chunksize(chunk)
     return out()
 
 
