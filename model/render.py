@@ -17,7 +17,7 @@ from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
-from .rtc import COUNTERS, Hits, counter_totals, trace
+from .rtc import COUNTERS, Hits, counter_totals, dynamic_tasks, trace
 from .render_kernels import add_colours, colour_image, hit_colours, light_colours
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
@@ -104,6 +104,11 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     each ray's colour contribution as the RGS slave computes it (``model.shading``), summed per
     pixel in fixed point. ``textures``: filter the textures (default: if the chip has a
     texture unit, ``cfg.tex_cache_kb > 0``); False leaves kd as the records hold it."""
+    with dynamic_tasks():
+        return _render(scene, cfg, width, height, progress, prepared, skip, textures)
+
+
+def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> RenderResult:
     if textures is None:
         textures = cfg.tex_cache_kb > 0
     t0 = time.perf_counter()

@@ -114,11 +114,12 @@ def shadow_rays(p0, g, light, point, E, M):
     lf = np.empty(3, np.float32)
     for a in range(3):
         lf[a] = flush_in(light[a], E)
-    for i in numba.prange(N):
-        ds, c = shadow_dir(p0[i], g[i], lf, point, E, M)
-        for a in range(3):
-            D[i, a] = ds[a]
-        cast[i] = c
+    for ch in numba.prange((N + CHUNK - 1) // CHUNK):
+        for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
+            ds, c = shadow_dir(p0[i], g[i], lf, point, E, M)
+            for a in range(3):
+                D[i, a] = ds[a]
+            cast[i] = c
     return D, cast
 
 
@@ -191,7 +192,9 @@ def colour_image(acc):
     """The fixed-point sums as float32 colours: ``float32(acc / 2**FIX_FRAC)``."""
     out = np.empty(acc.shape, np.float32)
     scale = np.float64(1 << FIX_FRAC)
-    for i in numba.prange(acc.shape[0]):
-        for c in range(acc.shape[1]):
-            out[i, c] = np.float32(np.float64(acc[i, c]) / scale)
+    n = acc.shape[0]
+    for ch in numba.prange((n + CHUNK - 1) // CHUNK):
+        for i in range(ch * CHUNK, min(n, ch * CHUNK + CHUNK)):
+            for c in range(acc.shape[1]):
+                out[i, c] = np.float32(np.float64(acc[i, c]) / scale)
     return out

@@ -8,6 +8,7 @@ all packets (compiled, parallel over packets) and sums the hardware's operation 
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numba
@@ -206,6 +207,18 @@ class Hits:
     v: np.ndarray        # (N,) float32
 
 
+@contextmanager
+def dynamic_tasks():
+    """Parallel loops hand their tasks to threads one at a time as threads free up (numba's
+    parallel chunk size 1): packets differ widely in work (most miss the scene), and a thread
+    the machine delays leaves its share to the others."""
+    chunk = numba.set_parallel_chunksize(1)
+    try:
+        yield
+    finally:
+        numba.set_parallel_chunksize(chunk)
+
+
 def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool = True):
     """Trace every packet of ``rays`` through ``image``.
 
@@ -221,13 +234,8 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
         return hits, ctrs, decode(rows)
     args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
     if len(rays):
-        # tasks handed out one at a time as threads free up: packets differ widely in work
-        # (most miss the scene), and a thread the machine delays leaves its share to the others
-        chunk = numba.set_parallel_chunksize(1)
-        try:
+        with dynamic_tasks():
             trace_all(*args)
-        finally:
-            numba.set_parallel_chunksize(chunk)
     return out()
 
 
