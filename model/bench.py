@@ -1,4 +1,4 @@
-"""Golden-model benchmark: rays per second next to Embree on the same rays, kd-tree build time.
+"""Golden-model benchmark: trace-kernel and whole-render rays/s next to Embree, kd-tree build.
 
     python -m model.bench --out build/bench [--mesh PATH] [--res 1024x768] [--build-copies 10]
                           [--all-rays-scene scenes/office.toml]
@@ -148,7 +148,7 @@ def _print_render(name: str, r: dict) -> None:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="build/bench", help="output directory")
-    ap.add_argument("--mesh", default=None, help="scene or mesh for the primary-ray benchmark")
+    ap.add_argument("--mesh", default=None, help="scene or mesh for the primary-ray and eye-ray render benchmarks")
     ap.add_argument("--res", default="1024x768", help="resolution, WxH")
     ap.add_argument("--repeat", type=int, default=3, help="timed repetitions (best is kept)")
     ap.add_argument("--build-copies", type=int, default=10,
