@@ -73,9 +73,10 @@ def setup_rays(org, dirn, tmax, lo, hi, inv, k, s, tnear, tfar, octant, E, M):
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def secondary_rays(org, dirn, rows, t, u, v, nf, nv, eps, E, M):
+def secondary_rays(org, dirn, rows, t, u, v, tri, nf, nv, eps, E, M):
     """``model.rgs.secondary_rays`` on the rays ``rows`` of ``org``/``dirn`` (hit i is ray
-    ``rows[i]``; ``nf`` (N, 3) and ``nv`` (N, 3, 3) per hit), hits in parallel."""
+    ``rows[i]`` on triangle ``tri[i]``, a row of the face normals ``nf`` (T, 3) and vertex
+    normals ``nv`` (T, 3, 3)), hits in parallel."""
     N = rows.shape[0]
     P0 = np.empty((N, 3), np.float32)
     G = np.empty((N, 3), np.float32)
@@ -89,12 +90,13 @@ def secondary_rays(org, dirn, rows, t, u, v, nf, nv, eps, E, M):
         nn = np.empty((3, 3), np.float32)
         for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
             ray = rows[i]
+            k = tri[i]
             for a in range(3):
                 o[a] = flush_in(org[ray, a], E)
                 d[a] = flush_in(dirn[ray, a], E)
-                f[a] = flush_in(nf[i, a], E)
+                f[a] = flush_in(nf[k, a], E)
                 for c in range(3):
-                    nn[c, a] = flush_in(nv[i, c, a], E)
+                    nn[c, a] = flush_in(nv[k, c, a], E)
             p0, g, n, r = secondary(o, d, flush_in(t[i], E), flush_in(u[i], E),
                                     flush_in(v[i], E), f, nn, e, E, M)
             for a in range(3):

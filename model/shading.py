@@ -156,7 +156,7 @@ class Shader:
         p0, g, n, r = secondary_rays(
             np.ascontiguousarray(rays.org, np.float32), np.ascontiguousarray(rays.dir, np.float32),
             np.asarray(sel, np.int64), np.asarray(t, np.float32), np.asarray(u, np.float32),
-            np.asarray(v, np.float32), self.face_n[k], self.vertex_n[k], self.eps, E, M)
+            np.asarray(v, np.float32), k, self.face_n, self.vertex_n, self.eps, E, M)
         mat = self.scene.material[k]
         albedo = self.diffuse[mat].copy()
         kd = self.rec["kd"][mat].copy()
