@@ -10,10 +10,11 @@ Writes ``<out>/model.json``:
   ``rtcIntersect1`` per ray, one thread) on the *same* rays of the same scene, measured in one
   run (best of ``--repeat``), plus hit/miss agreement between the model and Embree;
 * ``render``: the whole render (``model.render.render``: eye rays, ray setup, trace, shading
-  and the colour sums into the image; eye rays only, ``reflect_depth=0, shadows=False``, the
-  chip's colour ``textures=False``), its rays per second and seconds (best of ``--repeat``,
-  all numba threads and one) with its phases (``raygen``, ``setup``, ``trace``, ``shading``),
-  next to Embree (one thread) tracing the same eye rays in the same run, and the ratio;
+  and the colour sums into the image; eye rays only, ``reflect_depth=0, shadows=False``;
+  textures as ``Config.tex_cache_kb`` says), its rays per second and seconds (best of
+  ``--repeat``, all numba threads and one) with its phases (``raygen``, ``setup``, ``trace``,
+  ``shading``), next to Embree (one thread) tracing the same eye rays in the same run, and
+  the ratio;
 * ``render_all_rays`` (``--all-rays-scene``, default ``scenes/office.toml``): the same with
   every ray (shadows, reflections), Embree tracing all of them (closest hit, each ray's tmax);
 * ``kdtree_build``: build seconds for a >= 1M-triangle scene (``--build-copies`` copies of the
@@ -93,7 +94,7 @@ def render_speed(scene, res, repeat: int, embree, cfg: Config | None = None) -> 
     prep = prepare(scene, cfg, cache_dir=None)
 
     def run():
-        return render(scene, cfg, *res, prepared=prep, textures=False)
+        return render(scene, cfg, *res, prepared=prep)
 
     def best_run(k):
         best = None
@@ -148,7 +149,8 @@ def _print_render(name: str, r: dict) -> None:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="build/bench", help="output directory")
-    ap.add_argument("--mesh", default=None, help="scene or mesh for the primary-ray and eye-ray render benchmarks")
+    ap.add_argument("--mesh", default=None,
+                    help="scene or mesh for the primary-ray and eye-ray render benchmarks")
     ap.add_argument("--res", default="1024x768", help="resolution, WxH")
     ap.add_argument("--repeat", type=int, default=3, help="timed repetitions (best is kept)")
     ap.add_argument("--build-copies", type=int, default=10,
