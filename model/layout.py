@@ -193,14 +193,13 @@ class MemoryImage:
     def scene_ids(self, index: np.ndarray) -> np.ndarray:
         """Scene-order ids (int32) of triangles given by their index in the image (-1 stays -1:
         a miss)."""
-        ids = self._ids()[0]
-        index = np.asarray(index)
-        return np.where(index >= 0, ids[np.maximum(index, 0)], -1).astype(np.int32)
+        ids = self._ids()[2]
+        return ids[np.asarray(index)]       # index -1 reads the last entry: -1
 
     def tri_index(self, scene_id: np.ndarray) -> np.ndarray:
         """The inverse of :meth:`scene_ids`: image indices (int64) of scene-order ids (-1 stays
         -1; an id of no triangle in the image raises ``KeyError``)."""
-        ids, inv = self._ids()
+        ids, inv, _ = self._ids()
         scene_id = np.asarray(scene_id, np.int64)
         hit = scene_id >= 0
         if hit.any() and (scene_id.max() >= len(inv) or (inv[scene_id[hit]] < 0).any()):
@@ -213,7 +212,7 @@ class MemoryImage:
             ids = (w >> np.uint64(32)).astype(np.int64)
             inv = np.full(int(ids.max()) + 1 if len(ids) else 0, -1, np.int64)
             inv[ids] = np.arange(len(ids))
-            self._id_cache = (ids, inv)
+            self._id_cache = (ids, inv, np.append(ids, -1).astype(np.int32))
         return self._id_cache
 
     def shading_header(self) -> dict:

@@ -22,7 +22,8 @@ import numpy as np
 
 from .config import Config
 from .fp import FPFormat
-from .rgs import eye_packets, packet_count, setup_rays
+from .render_kernels import eye_packets, setup_rays
+from .rgs import packet_count
 
 EYE, SHADOW, REFLECTION, REFRACTION = 0, 1, 2, 3
 
@@ -142,7 +143,8 @@ def eye_rays(camera, width: int, height: int, cfg: Config) -> Rays:
     pixel = np.empty(total, np.int32)
     pk_start = np.empty(packet_count(sw, sh, tw, th) + 1, np.int64)
     eye_packets(sw, sh, tw, th, n, width, corner, dx, dy, d, pixel, pk_start, *fmt.em)
-    org = np.broadcast_to(pos, d.shape).astype(np.float32)
+    org = np.empty((total, 3), np.float32)
+    org[:] = pos
     return Rays(org, d, np.full(total, np.inf, np.float32), np.zeros(total, np.uint8),
                 pixel, pk_start)
 

@@ -17,8 +17,8 @@ from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
-from .rtc import COUNTERS, Hits, counter_totals, trace
-from .rgs import FIX_FRAC, hit_colours, light_colours
+from .rtc import COUNTERS, Hits, counter_totals, dynamic_tasks, trace
+from .render_kernels import add_colours, colour_image, hit_colours, light_colours
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
 KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
@@ -32,6 +32,7 @@ class Prepared:
     tris: np.ndarray          # quantized triangles in memory order
     build_seconds: float
     from_cache: bool
+    cached: dict = field(default_factory=dict)    # per-scene data render() reuses
 
 
 def prepare(scene, cfg: Config, cache_dir="default") -> Prepared:
@@ -48,7 +49,7 @@ def prepare(scene, cfg: Config, cache_dir="default") -> Prepared:
 def trace_rays(image: MemoryImage, rays: Rays, cfg: Config, progress=None,
                box_cull: bool = True) -> tuple[Hits, np.ndarray]:
     """Trace in chunks of packets (so a progress bar can advance); same result as one call."""
-    if rays.n_packets <= CHUNK_PACKETS:
+    if progress is None or rays.n_packets <= CHUNK_PACKETS:
         hits, ctrs = trace(image, rays, cfg, box_cull=box_cull)
         if progress is not None:
             progress.update(len(rays))
@@ -103,13 +104,18 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     each ray's colour contribution as the RGS slave computes it (``model.shading``), summed per
     pixel in fixed point. ``textures``: filter the textures (default: if the chip has a
     texture unit, ``cfg.tex_cache_kb > 0``); False leaves kd as the records hold it."""
+    with dynamic_tasks():
+        return _render(scene, cfg, width, height, progress, prepared, skip, textures)
+
+
+def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> RenderResult:
     if textures is None:
         textures = cfg.tex_cache_kb > 0
     t0 = time.perf_counter()
     prep = prepared or prepare(scene, cfg)
     t_build = time.perf_counter() - t0
     image = prep.image
-    shader = Shader(scene, cfg.fmt, eps=surface_offset(image.bounds), textures=textures)
+    shader = _shader(prep, scene, cfg.fmt, textures)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -119,6 +125,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     t1 = time.perf_counter()
     all_rays, all_hits, all_ctrs = [], [], []
     skipped = [0]                          # packets not traced (empty tiles)
+    t_trace = [0.0]                        # seconds in ray setup and tracing
     n_samples = cfg.oversampling ** 2
     acc = np.zeros((width * height, 3), np.int64)     # fixed-point colour sums (FIX_FRAC)
 
@@ -131,7 +138,9 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
             keep = live_packets(rays, setup(rays, image.bounds, cfg.fmt, skip.box_cull))
             traced, idx = select_packets(rays, keep)
             skipped[0] += int((~keep).sum())
+        t = time.perf_counter()
         got, ctrs = trace_rays(image, traced, cfg, bar, box_cull=skip.box_cull)
+        t_trace[0] += time.perf_counter() - t
         if traced is rays:
             hits = got
         else:
@@ -145,9 +154,10 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         return hits
 
     rays = eye_rays(scene.camera, width, height, cfg)
+    t_raygen = time.perf_counter() - t1
     col = frame_colour_registers(scene, cfg.fmt, n_samples)
     weight = np.full(len(rays), col["w_eye"], np.float32)
-    miss_col = np.broadcast_to(col["eye_miss"], (len(rays), 3))
+    miss_col = col["eye_miss"].reshape(1, 3)           # one row: every eye ray's
     E, M = cfg.fmt.em
     for depth in range(cfg.reflect_depth + 1):
         if len(rays) == 0:
@@ -155,7 +165,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         hits = run(rays)
         hit = np.nonzero(hits.tri >= 0)[0]
         miss = np.nonzero(hits.tri < 0)[0]
-        np.add.at(acc, rays.pixel[miss], miss_col[miss])
+        add_colours(acc, rays.pixel, miss, miss_col if len(miss_col) == 1 else miss_col[miss])
         if hit.size == 0:
             break
         surf = shader.surface(rays, hit, hits.tri[hit], hits.t[hit], hits.u[hit], hits.v[hit])
@@ -163,7 +173,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         rec = shader.rec
         amb_c, wr, cmiss = hit_colours(surf.kd, rec["kr"][mat], col["amb"], col["bg"],
                                        weight[hit], E, M)
-        np.add.at(acc, rays.pixel[hit], amb_c)
+        add_colours(acc, rays.pixel, hit, amb_c)
         for li, light in enumerate(scene.lights):
             srays, keep = shader.shadow_rays(rays, hit, surf, light,
                                              cull_behind=skip.lights_behind, light_index=li)
@@ -173,10 +183,12 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
                 continue
             lc = light_colours(srays.dir, surf.n[keep], surf.r[keep], surf.kd[keep],
                                rec["ks"][mat[keep]], rec["shin"][mat[keep]],
-                               np.tile(col["lights"][li], (len(srays), 1)),
-                               weight[hit[keep]], E, M)
-            lit = run(srays).tri < 0 if cfg.shadows else np.ones(len(srays), bool)
-            np.add.at(acc, srays.pixel[lit], lc[lit])
+                               col["lights"][li], weight[hit[keep]], E, M)
+            if cfg.shadows:
+                lit = np.flatnonzero(run(srays).tri < 0)
+                add_colours(acc, srays.pixel, lit, lc[lit])
+            else:
+                add_colours(acc, srays.pixel, np.arange(len(srays)), lc)
         if depth == cfg.reflect_depth:
             break
         rays, keep = shader.reflection_rays(rays, hit, surf, cull_matte=skip.nonreflective)
@@ -186,9 +198,10 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         bar.close()
     t_render = time.perf_counter() - t1
 
-    rays_all = Rays.concat(all_rays)
-    hits_all = Hits(*(np.concatenate([getattr(h, f) for h in all_hits]) if all_hits
-                      else np.zeros(0) for f in ("tri", "t", "u", "v")))
+    rays_all = all_rays[0] if len(all_rays) == 1 else Rays.concat(all_rays)
+    hits_all = all_hits[0] if len(all_hits) == 1 else Hits(
+        *(np.concatenate([getattr(h, f) for h in all_hits]) if all_hits else np.zeros(0)
+          for f in ("tri", "t", "u", "v")))
     by_kind: dict = {}
     for r, c in all_ctrs:
         name = KIND_NAMES[int(r.kind[0])] if len(r) else "eye"
@@ -198,14 +211,14 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
             tot_k[k] = max(tot_k[k], tot[k]) if k == "max_stack" else tot_k[k] + tot[k]
     totals = {k: (max(v[k] for v in by_kind.values()) if k == "max_stack"
                   else sum(v[k] for v in by_kind.values())) if by_kind else 0 for k in COUNTERS}
-    kinds, counts = np.unique(rays_all.kind, return_counts=True)
+    counts = np.bincount(rays_all.kind, minlength=len(KIND_NAMES))
     stats = {
         "scene": scene.name,
         "resolution": [width, height],
         "config": cfg.to_dict(),
         "triangles": int(len(scene.tris)),
         "triangles_dropped": dict(scene.dropped),
-        "rays": {KIND_NAMES[int(k)]: int(c) for k, c in zip(kinds, counts)},
+        "rays": {KIND_NAMES[k]: int(c) for k, c in enumerate(counts) if c},
         "rays_total": int(len(rays_all)),
         "packets": int(sum(r.n_packets for r in all_rays)),
         "packets_skipped": skipped[0],
@@ -217,17 +230,39 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
         "lane_utilization": {
             "trav": totals["trav_ops"] / max(1, totals["trav_steps"] * cfg.packet_size),
             "int": totals["int_ops"] / max(1, totals["int_steps"] * cfg.packet_size)},
-        "kdtree": kdtree_stats(prep.tree, len(prep.tris)) if prep.tree is not None else {},
+        "kdtree": _kdtree_stats(prep),
         "memory_image_bytes": int(image.data.nbytes),
         "build_seconds": round(prep.build_seconds, 4),
         "kdtree_from_cache": bool(prep.from_cache),
         "prepare_seconds": round(t_build, 4),
         "render_seconds": round(t_render, 4),
+        # where the render's time went: eye rays, ray setup and tracing (of every ray kind),
+        # the rest (shading, secondary rays, colour sums)
+        "render_phase_seconds": {"raygen": round(t_raygen, 4), "trace": round(t_trace[0], 4),
+                                 "shading": round(t_render - t_raygen - t_trace[0], 4)},
         "rays_per_second": round(len(rays_all) / max(t_render, 1e-9), 1),
     }
-    img = (acc / float(1 << FIX_FRAC)).astype(np.float32)
+    img = colour_image(acc)
     return RenderResult(img.reshape(height, width, 3), rays_all, hits_all, totals, by_kind,
                         stats, colour=acc)
+
+
+def _shader(prep: Prepared, scene, fmt, textures: bool) -> Shader:
+    """The scene's :class:`~model.shading.Shader`, made once per prepared scene."""
+    key = ("shader", fmt, textures)
+    shader = prep.cached.get(key)
+    if shader is None or shader.scene is not scene:
+        shader = prep.cached[key] = Shader(scene, fmt, eps=surface_offset(prep.image.bounds),
+                                           textures=textures)
+    return shader
+
+
+def _kdtree_stats(prep: Prepared) -> dict:
+    if prep.tree is None:
+        return {}
+    if "kdtree_stats" not in prep.cached:
+        prep.cached["kdtree_stats"] = kdtree_stats(prep.tree, len(prep.tris))
+    return dict(prep.cached["kdtree_stats"])
 
 
 def to_srgb8(img: np.ndarray) -> np.ndarray:

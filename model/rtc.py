@@ -8,6 +8,7 @@ all packets (compiled, parallel over packets) and sums the hardware's operation 
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numba
@@ -18,8 +19,8 @@ from .intersection import fetch_triangle, test_triangle
 from .lanes import popcount
 from .layout import LEAF, TRI_WORDS
 from .list import leaf_entries
-from .traversal import (bits_to_f32, classify, decide, decode_node, pass_mask, pop,
-                        start_packet, terminate)
+from .traversal import (bits_to_f32, classify, classify32, decide, decode_node, pass_masks,
+                        pop, start_packet, terminate)
 
 # per-packet counters; the names are the keys of the statistics
 COUNTERS = (
@@ -38,43 +39,59 @@ COUNTERS = (
 )
 C = {name: i for i, name in enumerate(COUNTERS)}
 N_COUNTERS = len(COUNTERS)
+TASK_PACKETS = 16      # packets a parallel task traces one after another (in one scratch)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def packet_scratch(depth):
+    """The per-lane state of one packet (up to 64 lanes), made once and reused for every
+    packet a task traces (:func:`trace_packet` sets every value it reads)."""
+    return (np.empty(64, np.float32), np.empty(64, np.float32), np.empty(64, np.float32),
+            np.empty(64, np.int64), np.empty(64, np.float32), np.empty(64, np.float32),
+            np.empty(64, np.float32), np.empty(depth + 1, np.int64),
+            np.empty(depth + 1, np.uint64), np.empty((depth + 1, 64), np.float32),
+            np.empty((depth + 1, 64), np.float32), np.empty(9, np.float32),
+            np.empty(64, np.int64), np.empty(64, np.int64), np.empty((3, 64), np.float32),
+            np.empty((3, 64), np.float32), np.empty(8, np.uint64))
 
 
 @numba.njit(cache=True, error_model="numpy")
 def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                  r0, n, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
-                 hit_t, hit_tri, hit_u, hit_v, ctr, E, M, pid, rec, rec_n):
-    """Trace the packet of rays ``r0 .. r0+n-1`` (lane l = ray r0 + l), packet id ``pid``.
+                 hit_t, hit_tri, hit_u, hit_v, ctr, E, M, pid, rec, rec_n, scratch):
+    """Trace the packet of rays ``r0 .. r0+n-1`` (lane l = ray r0 + l), packet id ``pid``,
+    in the arrays ``scratch`` (:func:`packet_scratch`).
 
     ``rec`` (K, 8) int64: when K > 0, every unit's input/output events are appended at row
     ``rec_n[0]`` (``model.events``); recording stops (rec_n[0] > K) when the buffer is full."""
+    (tnear, tfar, best, b_tri, b_u, b_v, dist, s_node, s_mask, s_near, s_far, tri, entries,
+     octant, lo_t, linv_t, masks) = scratch
     # the read-only ray data the units keep locally, per lane
     lo = org[r0:r0 + n]
     linv = inv[r0:r0 + n]
     lk = kk[r0:r0 + n]
     ls = ss[r0:r0 + n]
     # dynamic per-lane state: the traversal's interval, the intersection's best hit
-    tnear = tnear0[r0:r0 + n].copy()
-    tfar = tfar0[r0:r0 + n].copy()
-    best = tmax[r0:r0 + n].copy()      # hits must lie in (0, tmax)
-    b_tri = np.full(n, -1, np.int64)
-    b_u = np.zeros(n, np.float32)
-    b_v = np.zeros(n, np.float32)
-    dist = np.empty(n, np.float32)
-    s_node = np.empty(depth + 1, np.int64)
-    s_mask = np.empty(depth + 1, np.uint64)
-    s_near = np.empty((depth + 1, n), np.float32)
-    s_far = np.empty((depth + 1, n), np.float32)
-    tri = np.empty(9, np.float32)
-    entries = np.empty(64, np.int64)
-    octant = np.empty(n, np.int64)
+    for l in range(n):
+        tnear[l] = tnear0[r0 + l]
+        tfar[l] = tfar0[r0 + l]
+        best[l] = tmax[r0 + l]         # hits must lie in (0, tmax)
+        b_tri[l] = -1
+        b_u[l] = 0
+        b_v[l] = 0
     c_passes = c_trav_steps = c_trav_ops = c_node_reads = c_leaf_visits = 0
     c_list_ops = c_list_reads = c_int_ops = c_pushes = c_max_stack = 0
 
     live = start_packet(dirn, r0, n, tnear, tfar, octant)
     terminated = np.uint64(0)
+    if live:
+        for l in range(n):              # by axis, for the binary32 classify
+            for a in range(3):
+                lo_t[a, l] = lo[l, a]
+                linv_t[a, l] = linv[l, a]
+    pass_masks(octant, live, n, masks)
     for oc in range(8):
-        mask = pass_mask(oc, octant, live, n)
+        mask = masks[oc]
         if mask == 0:
             continue
         c_passes += 1
@@ -87,8 +104,12 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 # ---- traversal unit: the sub-units classify, the decide engine moves on
                 c_trav_steps += 1
                 c_trav_ops += popcount(mask)
-                mnear, mfar = classify(bits_to_f32(hi), kind, mask, n, lo, linv, tnear, tfar,
-                                       dist, E, M)
+                if E == 8 and M == 23:
+                    mnear, mfar = classify32(bits_to_f32(hi), kind, mask, n, lo_t, linv_t,
+                                             tnear, tfar, dist, lo, linv)
+                else:
+                    mnear, mfar = classify(bits_to_f32(hi), kind, mask, n, lo, linv, tnear,
+                                           tfar, dist, E, M)
                 if rec.shape[0]:
                     record(rec, rec_n, EV_NODE, pid, oc, node, mask, mnear, mfar, sp)
                 node, mask, sp, pushed = decide(oc, kind, field, mnear, mfar, sp, dist, tnear,
@@ -151,11 +172,13 @@ def trace_all(mem, node_base, list_base, tri_base, root, depth,
     n_packets = pk_start.shape[0] - 1
     no_rec = np.zeros((0, 8), np.int64)
     no_n = np.zeros(1, np.int64)
-    for p in numba.prange(n_packets):
-        trace_packet(mem, node_base, list_base, tri_base, root, depth,
-                     pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss, tnear0,
-                     tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M,
-                     p, no_rec, no_n)
+    for task in numba.prange((n_packets + TASK_PACKETS - 1) // TASK_PACKETS):
+        scratch = packet_scratch(depth)
+        for p in range(task * TASK_PACKETS, min(n_packets, (task + 1) * TASK_PACKETS)):
+            trace_packet(mem, node_base, list_base, tri_base, root, depth,
+                         pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss,
+                         tnear0, tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E,
+                         M, p, no_rec, no_n, scratch)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -163,11 +186,12 @@ def trace_recorded(mem, node_base, list_base, tri_base, root, depth,
                    pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                    hit_t, hit_tri, hit_u, hit_v, ctrs, E, M, rec, rec_n):
     """Packets one after another (packet order), appending every event to ``rec``."""
+    scratch = packet_scratch(depth)
     for p in range(pk_start.shape[0] - 1):
         trace_packet(mem, node_base, list_base, tri_base, root, depth,
                      pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss, tnear0,
                      tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M,
-                     p, rec, rec_n)
+                     p, rec, rec_n, scratch)
 
 
 @dataclass
@@ -181,6 +205,18 @@ class Hits:
     t: np.ndarray        # (N,) float32
     u: np.ndarray        # (N,) float32
     v: np.ndarray        # (N,) float32
+
+
+@contextmanager
+def dynamic_tasks():
+    """Parallel loops hand their tasks to threads one at a time as threads free up (numba's
+    parallel chunk size 1): packets differ widely in work (most miss the scene), and a thread
+    the machine delays leaves its share to the others."""
+    chunk = numba.set_parallel_chunksize(1)
+    try:
+        yield
+    finally:
+        numba.set_parallel_chunksize(chunk)
 
 
 def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool = True):
@@ -198,7 +234,8 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
         return hits, ctrs, decode(rows)
     args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
     if len(rays):
-        trace_all(*args)
+        with dynamic_tasks():
+            trace_all(*args)
     return out()
 
 
@@ -241,7 +278,8 @@ def _kernel_args(image, rays, cfg, ray_setup, box_cull):
     dirn = np.ascontiguousarray(rays.dir, np.float32)
     args = (image.data, image.node_base, image.list_base, image.tri_base, image.root,
             image.depth, np.ascontiguousarray(rays.pk_start), org, dirn, rs.inv, rs.k, rs.s,
-            rs.tnear, rs.tfar, rays.tmax.astype(np.float32), rays.anyhit.astype(np.bool_),
+            rs.tnear, rs.tfar, np.ascontiguousarray(rays.tmax, np.float32),
+            np.ascontiguousarray(rays.anyhit, np.bool_),
             hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
     return args, ctrs, lambda: (Hits(image.scene_ids(hit_tri), hit_t, hit_u, hit_v), ctrs)
 

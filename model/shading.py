@@ -35,7 +35,8 @@ import numpy as np
 from .fp import FPFormat
 from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
 from .raygen import REFLECTION, SHADOW, Rays
-from .rgs import secondary_rays, shadow_rays, texture_kd
+from .render_kernels import secondary_rays, shadow_rays
+from .rgs import texture_kd
 
 AMBIENT = np.float32(0.08)
 
@@ -153,10 +154,9 @@ class Shader:
         k = self.kept[tri]
         E, M = self.fmt.em
         p0, g, n, r = secondary_rays(
-            np.ascontiguousarray(rays.org[sel], np.float32),
-            np.ascontiguousarray(rays.dir[sel], np.float32),
-            np.asarray(t, np.float32), np.asarray(u, np.float32), np.asarray(v, np.float32),
-            self.face_n[k], self.vertex_n[k], self.eps, E, M)
+            np.ascontiguousarray(rays.org, np.float32), np.ascontiguousarray(rays.dir, np.float32),
+            np.asarray(sel, np.int64), np.asarray(t, np.float32), np.asarray(u, np.float32),
+            np.asarray(v, np.float32), k, self.face_n, self.vertex_n, self.eps, E, M)
         mat = self.scene.material[k]
         albedo = self.diffuse[mat].copy()
         kd = self.rec["kd"][mat].copy()

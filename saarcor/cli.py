@@ -44,8 +44,8 @@ BENCHES: dict[str, Command] = {
     "memory": Command("tb.bench_memory", "cache hit rates per unit and SDRAM bandwidth"),
     "threads": Command("tb.bench_threads", "RTC cycles against threads per RTC (the paper's "
                                            "speed-up)"),
-    "model": Command("model.bench", "golden-model rays per second next to Embree, kd-tree "
-                                    "build time"),
+    "model": Command("model.bench", "golden-model rays per second (trace kernel and whole "
+                                    "render) next to Embree, kd-tree build time"),
     "ladder": Command("tb.ladder", "the simulation ladder: golden model, cycle estimate, "
                                    "sampled RTL, Verilator, Amaranth: run time against fps error"),
     "stress": Command("tb.stress", "numerical stress cases of the golden model against the "
