@@ -5,7 +5,6 @@ import pytest
 
 from model import render_kernels as rk
 from model import rgs
-from model.config import Config
 from model.fp import FPFormat
 from model.traversal import classify, classify32
 
