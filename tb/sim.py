@@ -13,9 +13,8 @@ Outputs in ``--out`` (default ``build/sim``):
 
 * ``image.png``: the chip's own colour: every pixel the sum of what its RGS slaves computed
   for its rays (ambient, the Phong term of every light a shadow ray reached, reflections,
-  background; ``model.shading``), checked pixel for pixel against the golden model. The
-  slaves have no texture unit yet, so textured surfaces show their material colour
-  (``saarcor render`` draws textures). Where the chip makes no colour (eye-ray-only slaves,
+  background, textures bilinearly filtered by the slaves' texture units; ``model.shading``),
+  checked pixel for pixel against the golden model. Where the chip makes no colour (eye-ray-only slaves,
   ``--eye-only``, lights without shadow rays) the chip's hits are shaded on the host instead.
 * ``stats.json``: cycles, fps at ``clock_mhz``, the paper's relative performance (fps /
   fps_ideal), op counts, cache hit rates, memory traffic per SDRAM chip, unit and bus usage,
@@ -145,7 +144,8 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "wall_seconds": round(wall, 2),
         "build": {"built": bool(run.build and run.build.built),
                   "seconds": round(run.build.seconds, 1) if run.build else 0},
-        "image": ("the chip's colour (ambient + Phong, shadows, reflections; no textures), "
+        "image": ("the chip's colour (ambient + Phong, shadows, reflections"
+                  + (", textures" if cfg.tex_cache_kb > 0 else "; no texture unit") + "), "
                   "equal to the golden model's pixel for pixel"
                   if run.color is not None and not run.mismatches else
                   "the chip's eye-ray hits shaded on the host (ambient + Phong, unshadowed)"),
