@@ -22,8 +22,7 @@ import numpy as np
 
 from .config import Config
 from .fp import FPFormat
-from .render_kernels import eye_packets, setup_rays
-from .rgs import packet_count
+from .rgs import eye_packets, packet_count, setup_rays
 
 EYE, SHADOW, REFLECTION, REFRACTION = 0, 1, 2, 3
 

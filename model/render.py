@@ -11,14 +11,15 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numba
 import numpy as np
 
 from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
+from .rgs import CHUNK, FIX_FRAC, hit_colours, light_colours
 from .rtc import COUNTERS, Hits, counter_totals, dynamic_tasks, trace
-from .render_kernels import add_colours, colour_image, hit_colours, light_colours
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
 KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
@@ -183,7 +184,8 @@ def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> Re
                 continue
             lc = light_colours(srays.dir, surf.n[keep], surf.r[keep], surf.kd[keep],
                                rec["ks"][mat[keep]], rec["shin"][mat[keep]],
-                               col["lights"][li], weight[hit[keep]], E, M)
+                               np.broadcast_to(col["lights"][li], (len(srays), 3)),
+                               weight[hit[keep]], E, M)
             if cfg.shadows:
                 lit = np.flatnonzero(run(srays).tri < 0)
                 add_colours(acc, srays.pixel, lit, lc[lit])
@@ -263,6 +265,31 @@ def _kdtree_stats(prep: Prepared) -> dict:
     if "kdtree_stats" not in prep.cached:
         prep.cached["kdtree_stats"] = kdtree_stats(prep.tree, len(prep.tris))
     return dict(prep.cached["kdtree_stats"])
+
+
+@numba.njit(cache=True)
+def add_colours(acc, pixel, rows, vals):
+    """The per-pixel sums: ``acc[pixel[rows[i]]] += vals[i]`` for every i (``vals`` of one row:
+    the same contribution for every i). Integer sums: the order does not matter."""
+    one = vals.shape[0] == 1
+    for i in range(rows.shape[0]):
+        p = pixel[rows[i]]
+        j = 0 if one else i
+        for c in range(3):
+            acc[p, c] += vals[j, c]
+
+
+@numba.njit(cache=True, parallel=True)
+def colour_image(acc):
+    """The fixed-point sums as float32 colours: ``float32(acc / 2**FIX_FRAC)``."""
+    out = np.empty(acc.shape, np.float32)
+    scale = np.float64(1 << FIX_FRAC)
+    n = acc.shape[0]
+    for ch in numba.prange((n + CHUNK - 1) // CHUNK):
+        for i in range(ch * CHUNK, min(n, ch * CHUNK + CHUNK)):
+            for c in range(acc.shape[1]):
+                out[i, c] = np.float32(np.float64(acc[i, c]) / scale)
+    return out
 
 
 def to_srgb8(img: np.ndarray) -> np.ndarray:

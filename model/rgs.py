@@ -56,9 +56,11 @@ the cosines of the light direction with the shading normal and with the reflecte
 fixed-point number (:func:`to_fixed`: floor(x * 2**16), saturating); a pixel is their
 integer sum, the same in any order.
 
-Drivers: :func:`eye_packets` makes every packet (tile) of a frame in packet order, lanes in
-order; :func:`setup_rays` sets up an array of rays; :func:`secondary_rays` and
-:func:`shadow_rays` make the secondary rays of an array of hits.
+Drivers (compiled, rays in parallel tasks; the render and the testbenches call these):
+:func:`eye_packets` makes every packet (tile) of a frame in packet order, lanes in order;
+:func:`setup_rays` sets up an array of rays; :func:`secondary_rays` and :func:`shadow_rays`
+make the secondary rays of an array of hits; :func:`light_colours` and :func:`hit_colours`
+their colour contributions.
 """
 from __future__ import annotations
 
@@ -72,6 +74,8 @@ __all__ = ["sample_coord", "eye_ray", "ray_setup", "eye_packets", "packet_count"
            "FIX_BITS", "to_fixed", "spec_pow", "light_colour", "hit_colour", "light_colours",
            "hit_colours", "to_fixed_array", "UV_FRAC", "TEX_FRAC", "tex_coord",
            "wrap_coord", "tex_pos", "texture_kd"]
+
+CHUNK = 4096           # rows per parallel task of the drivers (scratch arrays made once per task)
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
@@ -167,27 +171,29 @@ def ray_setup(org, dirn, tmax, lo, hi, r, inv, k, s, tnear, tfar, octant, E, M):
     octant[r] = sign_bit(d0) | (sign_bit(d1) << 1) | (sign_bit(d2) << 2)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def setup_rays(org, dirn, tmax, lo, hi, inv, k, s, tnear, tfar, octant, E, M):
-    """:func:`ray_setup` for every ray. The operands are first read as the hardware reads
-    format words (denormal encodings as signed zeros; the vectorized ``FPFormat`` operations do
-    the same), so any float32 input gives the hardware's answer."""
+    """:func:`ray_setup` for every ray, in parallel tasks of ``CHUNK`` rays. The operands are
+    first read as the hardware reads format words (denormal encodings as signed zeros; the
+    vectorized ``FPFormat`` operations do the same), so any float32 input gives the hardware's
+    answer."""
     n = org.shape[0]
     lo_f = np.empty(3, np.float32)
     hi_f = np.empty(3, np.float32)
     for a in range(3):
         lo_f[a] = flush_in(lo[a], E)
         hi_f[a] = flush_in(hi[a], E)
-    o = np.empty((n, 3), np.float32)
-    d = np.empty((n, 3), np.float32)
-    t = np.empty(n, np.float32)
-    for r in range(n):
-        for a in range(3):
-            o[r, a] = flush_in(org[r, a], E)
-            d[r, a] = flush_in(dirn[r, a], E)
-        t[r] = flush_in(tmax[r], E)
-    for r in range(n):
-        ray_setup(o, d, t, lo_f, hi_f, r, inv, k, s, tnear, tfar, octant, E, M)
+    for ch in numba.prange((n + CHUNK - 1) // CHUNK):
+        o = np.empty((1, 3), np.float32)
+        d = np.empty((1, 3), np.float32)
+        t = np.empty(1, np.float32)
+        for r in range(ch * CHUNK, min(n, ch * CHUNK + CHUNK)):
+            for a in range(3):
+                o[0, a] = flush_in(org[r, a], E)
+                d[0, a] = flush_in(dirn[r, a], E)
+            t[0] = flush_in(tmax[r], E)
+            ray_setup(o, d, t, lo_f, hi_f, 0, inv[r:r + 1], k[r:r + 1], s[r:r + 1],
+                      tnear[r:r + 1], tfar[r:r + 1], octant[r:r + 1], E, M)
 
 
 @numba.njit(cache=True)
@@ -196,20 +202,21 @@ def packet_count(sw, sh, tw, th):
     return ((sw + tw - 1) // tw) * ((sh + th - 1) // th)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def eye_packets(sw, sh, tw, th, n, width, corner, dx, dy, dirn, pixel, pk_start, E, M):
     """Every eye ray of a ``sw x sh`` sample image (``n x n`` samples per pixel of a
     ``width``-pixel-wide image) in packet order: tiles of ``tw x th`` samples row-major, lanes
     row-major inside a tile; a tile at the right/bottom edge holds only the samples inside the
     image. Writes ``dirn`` (N, 3), ``pixel`` (N,: y * width + x of the sample's pixel) and
     ``pk_start`` (P + 1,). The RTL's ``EyeRays`` makes one packet per request in this lane
-    order."""
+    order. A row of tiles per parallel task (the rays above tile row ``ty`` are the
+    ``ty * th * sw`` samples of the rows above it)."""
     tiles_x = (sw + tw - 1) // tw
     tiles_y = (sh + th - 1) // th
-    r = 0
-    for ty in range(tiles_y):
+    for ty in numba.prange(tiles_y):
         y0 = ty * th
         ht = min(th, sh - y0)
+        r = y0 * sw
         for tx in range(tiles_x):
             x0 = tx * tw
             wt = min(tw, sw - x0)
@@ -225,7 +232,7 @@ def eye_packets(sw, sh, tw, th, n, width, corner, dx, dy, dirn, pixel, pk_start,
                     dirn[r, 2] = d2
                     pixel[r] = row + sx // n
                     r += 1
-    pk_start[tiles_x * tiles_y] = r
+    pk_start[tiles_x * tiles_y] = sw * sh
 
 
 # ---------------------------------------------------------------------------------------------
@@ -287,35 +294,39 @@ def secondary(o, d, t, u, v, nf, nv, eps, E, M):
     return p0, g, n, r
 
 
-@numba.njit(cache=True, error_model="numpy")
-def secondary_rays(org, dirn, t, u, v, nf, nv, eps, E, M):
-    """:func:`secondary` for every hit (rows of ``org``, ``dirn`` (N, 3), ``t``, ``u``, ``v``
-    (N,), ``nf`` (N, 3), ``nv`` (N, 3, 3)); operands read as the hardware reads format words.
-    Returns ``p0``, ``g``, ``n``, ``r``, each (N, 3)."""
-    N = org.shape[0]
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def secondary_rays(org, dirn, rows, t, u, v, tri, nf, nv, eps, E, M):
+    """:func:`secondary` for every hit, in parallel: hit i is ray ``rows[i]`` of ``org``,
+    ``dirn`` (R, 3) at ``t[i]``, ``u[i]``, ``v[i]`` on triangle ``tri[i]``, a row of the face
+    normals ``nf`` (T, 3) and vertex normals ``nv`` (T, 3, 3); operands read as the hardware
+    reads format words. Returns ``p0``, ``g``, ``n``, ``r``, each (N, 3)."""
+    N = rows.shape[0]
     P0 = np.empty((N, 3), np.float32)
     G = np.empty((N, 3), np.float32)
     NS = np.empty((N, 3), np.float32)
     R = np.empty((N, 3), np.float32)
-    o = np.empty(3, np.float32)
-    d = np.empty(3, np.float32)
-    f = np.empty(3, np.float32)
-    nn = np.empty((3, 3), np.float32)
     e = flush_in(eps, E)
-    for i in range(N):
-        for a in range(3):
-            o[a] = flush_in(org[i, a], E)
-            d[a] = flush_in(dirn[i, a], E)
-            f[a] = flush_in(nf[i, a], E)
-            for c in range(3):
-                nn[c, a] = flush_in(nv[i, c, a], E)
-        p0, g, n, r = secondary(o, d, flush_in(t[i], E), flush_in(u[i], E), flush_in(v[i], E),
-                                f, nn, e, E, M)
-        for a in range(3):
-            P0[i, a] = p0[a]
-            G[i, a] = g[a]
-            NS[i, a] = n[a]
-            R[i, a] = r[a]
+    for ch in numba.prange((N + CHUNK - 1) // CHUNK):
+        o = np.empty(3, np.float32)
+        d = np.empty(3, np.float32)
+        f = np.empty(3, np.float32)
+        nn = np.empty((3, 3), np.float32)
+        for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
+            ray = rows[i]
+            k = tri[i]
+            for a in range(3):
+                o[a] = flush_in(org[ray, a], E)
+                d[a] = flush_in(dirn[ray, a], E)
+                f[a] = flush_in(nf[k, a], E)
+                for c in range(3):
+                    nn[c, a] = flush_in(nv[k, c, a], E)
+            p0, g, n, r = secondary(o, d, flush_in(t[i], E), flush_in(u[i], E),
+                                    flush_in(v[i], E), f, nn, e, E, M)
+            for a in range(3):
+                P0[i, a] = p0[a]
+                G[i, a] = g[a]
+                NS[i, a] = n[a]
+                R[i, a] = r[a]
     return P0, G, NS, R
 
 
@@ -330,21 +341,22 @@ def shadow_dir(p0, g, light, point, E, M):
     return ds, dot3(g[0], g[1], g[2], ds[0], ds[1], ds[2], E, M) > _ZERO
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def shadow_rays(p0, g, light, point, E, M):
-    """:func:`shadow_dir` for every row of ``p0``, ``g`` (N, 3): directions (N, 3) and the
-    facing test (N,) bool."""
+    """:func:`shadow_dir` for every row of ``p0``, ``g`` (N, 3), in parallel: directions
+    (N, 3) and the facing test (N,) bool."""
     N = p0.shape[0]
     D = np.empty((N, 3), np.float32)
     cast = np.empty(N, np.bool_)
     lf = np.empty(3, np.float32)
     for a in range(3):
         lf[a] = flush_in(light[a], E)
-    for i in range(N):
-        ds, c = shadow_dir(p0[i], g[i], lf, point, E, M)
-        for a in range(3):
-            D[i, a] = ds[a]
-        cast[i] = c
+    for ch in numba.prange((N + CHUNK - 1) // CHUNK):
+        for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
+            ds, c = shadow_dir(p0[i], g[i], lf, point, E, M)
+            for a in range(3):
+                D[i, a] = ds[a]
+            cast[i] = c
     return D, cast
 
 
@@ -426,54 +438,57 @@ def hit_colour(kd, kr, amb, bg, wt, E, M):
     return amb_c, wr, miss
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def light_colours(ld, n, r, kd, ks, shin, lc, wt, E, M):
     """:func:`light_colour` then :func:`to_fixed` for every row (``ld``, ``n``, ``r``, ``kd``,
-    ``ks``, ``lc`` (N, 3), ``shin``, ``wt`` (N,)): (N, 3) int64 contributions."""
+    ``ks`` (N, 3), ``shin``, ``wt`` (N,); ``lc`` (N, 3) the light colour of each row), in
+    parallel: (N, 3) int64 contributions."""
     N = ld.shape[0]
     out = np.empty((N, 3), np.int64)
-    a = np.empty(3, np.float32)
-    b = np.empty(3, np.float32)
-    c3 = np.empty(3, np.float32)
-    d = np.empty(3, np.float32)
-    e = np.empty(3, np.float32)
-    lf = np.empty(3, np.float32)
-    for i in range(N):
-        for k in range(3):
-            lf[k] = flush_in(lc[i, k], E)
-            a[k] = flush_in(ld[i, k], E)
-            b[k] = flush_in(n[i, k], E)
-            c3[k] = flush_in(r[i, k], E)
-            d[k] = flush_in(kd[i, k], E)
-            e[k] = flush_in(ks[i, k], E)
-        col = light_colour(a, b, c3, d, e, shin[i], lf, flush_in(wt[i], E), E, M)
-        for k in range(3):
-            out[i, k] = to_fixed(col[k], E)
+    for ch in numba.prange((N + CHUNK - 1) // CHUNK):
+        a = np.empty(3, np.float32)
+        b = np.empty(3, np.float32)
+        c3 = np.empty(3, np.float32)
+        d = np.empty(3, np.float32)
+        e = np.empty(3, np.float32)
+        lf = np.empty(3, np.float32)
+        for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
+            for k in range(3):
+                a[k] = flush_in(ld[i, k], E)
+                b[k] = flush_in(n[i, k], E)
+                c3[k] = flush_in(r[i, k], E)
+                d[k] = flush_in(kd[i, k], E)
+                e[k] = flush_in(ks[i, k], E)
+                lf[k] = flush_in(lc[i, k], E)
+            col = light_colour(a, b, c3, d, e, shin[i], lf, flush_in(wt[i], E), E, M)
+            for k in range(3):
+                out[i, k] = to_fixed(col[k], E)
     return out
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, parallel=True, error_model="numpy")
 def hit_colours(kd, kr, amb, bg, wt, E, M):
     """:func:`hit_colour` for every row (``kd`` (N, 3), ``kr``, ``wt`` (N,); ``amb`` a format
-    value, ``bg`` (3,)): ambient (N, 3) int64 (fixed point), wr (N,) float32, miss (N, 3)
-    int64 (fixed point)."""
+    value, ``bg`` (3,)), in parallel: ambient (N, 3) int64 (fixed point), wr (N,) float32,
+    miss (N, 3) int64 (fixed point)."""
     N = kd.shape[0]
     amb_o = np.empty((N, 3), np.int64)
     miss_o = np.empty((N, 3), np.int64)
     wr_o = np.empty(N, np.float32)
-    k3 = np.empty(3, np.float32)
     bf = np.empty(3, np.float32)
     for k in range(3):
         bf[k] = flush_in(bg[k], E)
     am = flush_in(amb, E)
-    for i in range(N):
-        for k in range(3):
-            k3[k] = flush_in(kd[i, k], E)
-        a, wr, ms = hit_colour(k3, flush_in(kr[i], E), am, bf, flush_in(wt[i], E), E, M)
-        wr_o[i] = wr
-        for k in range(3):
-            amb_o[i, k] = to_fixed(a[k], E)
-            miss_o[i, k] = to_fixed(ms[k], E)
+    for ch in numba.prange((N + CHUNK - 1) // CHUNK):
+        k3 = np.empty(3, np.float32)
+        for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
+            for k in range(3):
+                k3[k] = flush_in(kd[i, k], E)
+            a, wr, ms = hit_colour(k3, flush_in(kr[i], E), am, bf, flush_in(wt[i], E), E, M)
+            wr_o[i] = wr
+            for k in range(3):
+                amb_o[i, k] = to_fixed(a[k], E)
+                miss_o[i, k] = to_fixed(ms[k], E)
     return amb_o, wr_o, miss_o
 
 

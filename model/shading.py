@@ -35,8 +35,7 @@ import numpy as np
 from .fp import FPFormat
 from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
 from .raygen import REFLECTION, SHADOW, Rays
-from .render_kernels import secondary_rays, shadow_rays
-from .rgs import texture_kd
+from .rgs import secondary_rays, shadow_rays, texture_kd
 
 AMBIENT = np.float32(0.08)
 

@@ -276,6 +276,14 @@ class Hits:
     def __len__(self) -> int:
         return len(self.t)
 
+    def secondary(self, fmt: FPFormat) -> tuple:
+        """``model.rgs.secondary_rays`` of every hit (hit i: ray i on triangle i): p0, g, n,
+        r."""
+        from model.rgs import secondary_rays
+        i = np.arange(len(self), dtype=np.int64)
+        return secondary_rays(self.org, self.dir, i, self.t, self.u, self.v, i, self.nf,
+                              self.nv, np.float32(self.eps), *fmt.em)
+
 
 def secondary_cases(fmt: FPFormat, n: int = 200, seed: int = 1) -> Hits:
     """Random hits plus the datapath's edge cases: face normals on either side of the ray,
@@ -319,9 +327,7 @@ def _pack_rows(fmt: FPFormat, x: np.ndarray) -> list[int]:
 def secondary_ports(hits: Hits, fmt: FPFormat, tag_width: int) -> tuple[dict, dict]:
     """``SecondaryPipe``'s port values per hit and the model's (``model.rgs.secondary_rays``)
     outputs ``p0``, ``g``, ``n``, ``r``, ``o_tag``."""
-    from model.rgs import secondary_rays
-    p0, g, nn, r = secondary_rays(hits.org, hits.dir, hits.t, hits.u, hits.v, hits.nf, hits.nv,
-                                  np.float32(hits.eps), *fmt.em)
+    p0, g, nn, r = hits.secondary(fmt)
     tag = [i % (1 << tag_width) for i in range(len(hits))]
     eps = int(fmt.to_bits(np.float32(hits.eps)))
     ins = {"org": _pack_rows(fmt, hits.org), "dir": _pack_rows(fmt, hits.dir),
@@ -350,9 +356,8 @@ def shadow_ports(hits: Hits, lights: np.ndarray, point: np.ndarray, fmt: FPForma
     and ``g`` from the model's secondary rays, light vectors ``lights`` (L, 3) of kind
     ``point`` (L,); the colour inputs stay 0 — and the model's (``model.rgs.shadow_rays``)
     ``dir``, ``tmax``, ``cast``, ``o_tag``."""
-    from model.rgs import secondary_rays, shadow_rays
-    p0, g, _, _ = secondary_rays(hits.org, hits.dir, hits.t, hits.u, hits.v, hits.nf, hits.nv,
-                                 np.float32(hits.eps), *fmt.em)
+    from model.rgs import shadow_rays
+    p0, g, _, _ = hits.secondary(fmt)
     ins = {"p0": [], "g": [], "light": [], "point": []}
     outs = {"dir": [], "tmax": [], "cast": []}
     for vec, pt in zip(lights, point):

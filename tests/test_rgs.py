@@ -198,11 +198,9 @@ def test_secondary_pipe(fmt, latencies):
 
 def test_secondary_cases_reach_every_branch():
     """The edge cases make each of the datapath's selects go both ways in the model."""
-    from model.rgs import secondary_rays
     fmt = B32
     h = secondary_cases(fmt, 200, seed=3)
-    p0, g, n, r = secondary_rays(h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps),
-                                 *fmt.em)
+    p0, g, n, r = h.secondary(fmt)
     flipped = np.all(g == -h.nf, axis=1) & np.any(h.nf != 0, axis=1)
     assert 0 < flipped.sum() < len(h)                          # face: both orientations
     assert np.all(np.sum(g.astype(np.float64) * h.dir, axis=1) <= 0)

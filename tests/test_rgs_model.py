@@ -283,10 +283,9 @@ def np_secondary(h, fmt):
 
 @pytest.mark.parametrize("fmt", FORMATS, ids=str)
 def test_secondary_matches_vectorized(fmt):
-    from model.rgs import secondary_rays
     from tb.rgs import secondary_cases
     h = secondary_cases(fmt, 3000, seed=11)
-    got = secondary_rays(h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps), *fmt.em)
+    got = h.secondary(fmt)
     for name, a, b in zip(("p0", "g", "n", "r"), got, np_secondary(h, fmt)):
         assert same(fmt, a, b), name
 
@@ -295,12 +294,10 @@ def test_secondary_geometry_float64():
     """What the steps are for, checked in float64 at binary32: the origin lies on g's side of
     the hit point's tangent plane and before it along the ray; the shading normal has unit
     length and lies on g's side; the reflection keeps |d| and mirrors d about n."""
-    from model.rgs import secondary_rays
     from tb.rgs import secondary_cases
     fmt = FPFormat(8, 23)
     h = secondary_cases(fmt, 2000, seed=12)
-    p0, g, n, r = (x.astype(np.float64) for x in secondary_rays(
-        h.org, h.dir, h.t, h.u, h.v, h.nf, h.nv, np.float32(h.eps), *fmt.em))
+    p0, g, n, r = (x.astype(np.float64) for x in h.secondary(fmt))
     d = h.dir.astype(np.float64)
     p = h.org + h.t[:, None].astype(np.float64) * d
     off = p0 - p

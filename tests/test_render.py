@@ -1,9 +1,9 @@
-"""The render's compiled drivers (``model/render_kernels.py``) and the binary32 classify give
-the bits of the serial reference functions; the bench's whole-render measurement runs."""
+"""The render's compiled pieces: ``model.rgs.secondary_rays``' indexed reads, the per-pixel
+colour sums against NumPy, the binary32 classify against the exact one; the bench's
+whole-render measurement runs."""
 import numpy as np
 import pytest
 
-from model import render_kernels as rk
 from model import rgs
 from model.fp import FPFormat
 from model.traversal import classify, classify32
@@ -33,39 +33,11 @@ def same(a, b):
 
 
 @pytest.mark.parametrize("fmt", FORMATS, ids=str)
-def test_eye_packets_and_setup_match_serial(fmt):
-    E, M = fmt.em
-    sw, sh, tw, th, n, width = 2 * 37, 2 * 21, 8, 4, 2, 37
-    corner, dx, dy = (fmt.quantize(np.array(v)).astype(np.float32)
-                      for v in ([-0.7, 0.4, -1.0], [0.013, 0.0, 0.001], [0.0, -0.019, 0.0005]))
-    total = sw * sh
-    outs = []
-    for f in (rgs.eye_packets, rk.eye_packets):
-        d = np.empty((total, 3), np.float32)
-        pixel = np.empty(total, np.int32)
-        pk = np.empty(rgs.packet_count(sw, sh, tw, th) + 1, np.int64)
-        f(sw, sh, tw, th, n, width, corner, dx, dy, d, pixel, pk, E, M)
-        outs.append((d, pixel, pk))
-    assert all(same(a, b) for a, b in zip(*outs))
-
-    rng = np.random.default_rng(1)
-    N = 5000
-    org, dirn = odd_values(rng, (N, 3), fmt), odd_values(rng, (N, 3), fmt)
-    tmax = np.abs(odd_values(rng, N, fmt))
-    lo = fmt.quantize(np.array([-1.5, -2.0, -0.5])).astype(np.float32)
-    hi = fmt.quantize(np.array([1.0, 0.5, 2.5])).astype(np.float32)
-    outs = []
-    for f in (rgs.setup_rays, rk.setup_rays):
-        o = (np.empty((N, 3), np.float32), np.empty((N, 3), np.int64),
-             np.empty((N, 3), np.float32), np.empty(N, np.float32), np.empty(N, np.float32),
-             np.empty(N, np.int64))
-        f(org, dirn, tmax, lo, hi, *o, E, M)
-        outs.append(o)
-    assert all(same(a, b) for a, b in zip(*outs))
-
-
-@pytest.mark.parametrize("fmt", FORMATS, ids=str)
-def test_shading_drivers_match_serial(fmt):
+def test_secondary_rays_reads_hits_by_index(fmt):
+    """``model.rgs.secondary_rays`` reads hit i from ray ``rows[i]`` and triangle ``tri[i]``:
+    the same bits as on arrays gathered beforehand (hit i = ray i, triangle i), over several
+    parallel tasks and with NaN, infinite, zero and tiny operands. (Its arithmetic against an
+    independent recomputation: ``tests/test_rgs_model.py``.)"""
     E, M = fmt.em
     rng = np.random.default_rng(2)
     N, H = 6000, 4500
@@ -74,33 +46,16 @@ def test_shading_drivers_match_serial(fmt):
     t, u, v = (np.abs(odd_values(rng, H, fmt)) for _ in range(3))
     nf, nv = odd_values(rng, (H, 3), fmt), odd_values(rng, (H, 3, 3), fmt)
     eps = np.float32(fmt.quantize(1e-3))
-    want = rgs.secondary_rays(org[rows], dirn[rows], t, u, v, nf, nv, eps, E, M)
+    i = np.arange(H, dtype=np.int64)
+    want = rgs.secondary_rays(org[rows], dirn[rows], i, t, u, v, i, nf, nv, eps, E, M)
     tri = rng.permutation(H).astype(np.int64)
     inv = np.argsort(tri)
-    got = rk.secondary_rays(org, dirn, rows, t, u, v, tri, nf[inv], nv[inv], eps, E, M)
+    got = rgs.secondary_rays(org, dirn, rows, t, u, v, tri, nf[inv], nv[inv], eps, E, M)
     assert all(same(a, b) for a, b in zip(want, got))
-
-    p0, g = want[0], want[1]
-    light = fmt.quantize(np.array([0.3, 5.0, -1.0])).astype(np.float32)
-    for point in (True, False):
-        assert all(same(a, b) for a, b in zip(rgs.shadow_rays(p0, g, light, point, E, M),
-                                              rk.shadow_rays(p0, g, light, point, E, M)))
-
-    kd, ks = np.abs(odd_values(rng, (H, 3), fmt)), np.abs(odd_values(rng, (H, 3), fmt))
-    shin = rng.integers(0, 1024, H).astype(np.int64)
-    wt = np.abs(odd_values(rng, H, fmt))
-    lc = fmt.quantize(np.array([0.9, 0.7, 0.2])).astype(np.float32)
-    ld = odd_values(rng, (H, 3), fmt)
-    assert same(rgs.light_colours(ld, want[2], want[3], kd, ks, shin, np.tile(lc, (H, 1)), wt,
-                                  E, M),
-                rk.light_colours(ld, want[2], want[3], kd, ks, shin, lc, wt, E, M))
-    kr = np.abs(odd_values(rng, H, fmt))
-    amb, bg = np.float32(fmt.quantize(0.08)), lc
-    assert all(same(a, b) for a, b in zip(rgs.hit_colours(kd, kr, amb, bg, wt, E, M),
-                                          rk.hit_colours(kd, kr, amb, bg, wt, E, M)))
 
 
 def test_colour_sums_match_numpy():
+    from model.render import add_colours, colour_image
     rng = np.random.default_rng(3)
     acc = rng.integers(0, 1 << 30, (500, 3)).astype(np.int64)
     pixel = rng.integers(0, 500, 4000).astype(np.int32)
@@ -109,12 +64,12 @@ def test_colour_sums_match_numpy():
     want = acc.copy()
     np.add.at(want, pixel[rows], vals)
     got = acc.copy()
-    rk.add_colours(got, pixel, rows, vals)
+    add_colours(got, pixel, rows, vals)
     assert same(want, got)
     np.add.at(want, pixel[rows], vals[:1])
-    rk.add_colours(got, pixel, rows, vals[:1])
+    add_colours(got, pixel, rows, vals[:1])
     assert same(want, got)
-    assert same(rk.colour_image(got), (got / float(1 << rgs.FIX_FRAC)).astype(np.float32))
+    assert same(colour_image(got), (got / float(1 << rgs.FIX_FRAC)).astype(np.float32))
 
 
 def test_binary32_classify_matches_exact():
