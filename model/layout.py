@@ -352,10 +352,9 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
             rec[:, 12] |= np.where(textured, REC_TEXTURED, 0).astype(np.uint32)
             uv = q(np.asarray(shading.uvs)).reshape(n_tris, 6)
             rec[textured, 20:26] = uv[textured]
-            tex_word = (tex_dir[np.maximum(tex, 0)] >> np.uint64(32)).astype(np.uint32)
-            tex_size = (tex_dir[np.maximum(tex, 0)] & np.uint64(0xFFFFFFFF)).astype(np.uint32)
-            rec[textured, 26] = tex_word[textured]
-            rec[textured, 27] = tex_size[textured]
+            entry = tex_dir[tex[textured]]                  # | texel addr | height | width |
+            rec[textured, 26] = (entry >> np.uint64(32)).astype(np.uint32)
+            rec[textured, 27] = (entry & np.uint64(0xFFFFFFFF)).astype(np.uint32)
     rec_base = put(rec.view("<u8").ravel())
     hdr[1] = _lohi(n_mat, n_tex)
     hdr[2] = _lohi(matid_base, normal_base)

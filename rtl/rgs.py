@@ -883,26 +883,24 @@ class TexFilterPipe(_Datapath):
         fmt = self.fmt
         sch = Schedule(m, self.en, fmt, self.latencies, dry)
         at = sch.at
-        conv_lat = self.latencies["conv"]
         scale = (Const(fmt.to_bits(fmt.quantize(TEX_SCALE)).item(), fmt.width), 0)
+        if not dry:                      # the blends' weights: 256 - w and w
+            nx = wire(m, TEX_ONE - self.wx, "tex_nx")
+            ny, wy = at(wire(m, TEX_ONE - self.wy, "tex_ny"), 0, 1), at(self.wy, 0, 1)
         out = []
         for c in range(3):
             conv = FPFromInt(fmt, int_width=UV_FRAC, signed=False, frac_bits=UV_FRAC,
-                             latency=conv_lat)
-            if dry:
-                conv._MustUse__silence = True
+                             latency=self.latencies["conv"])
             tex = (wire(m, conv.o, f"tex_f{c}"), 2 + conv.latency)
             kd = (wire(m, self.kd[c], f"kd{c}"), 0)
             out.append(sch.op("mul", kd, sch.op("mul", tex, scale, f"tex_s{c}"), f"tex_kd{c}"))
             if dry:
+                conv._MustUse__silence = True
                 continue
             m.submodules[f"tex_conv{c}"] = conv
             a = [self.t[k][8 * c:8 * c + 8] for k in range(4)]
-            nx = wire(m, TEX_ONE - self.wx, f"tex_nx{c}")
-            ny = at(wire(m, TEX_ONE - self.wy, f"tex_ny{c}"), 0, 1)
-            wy = at(self.wy, 0, 1)
-            r0, r1 = Signal(2 * TEX_FRAC + 1, name=f"tex_r0_{c}"), Signal(2 * TEX_FRAC + 1,
-                                                                         name=f"tex_r1_{c}")
+            r0 = Signal(2 * TEX_FRAC + 1, name=f"tex_r0_{c}")      # row y0's blend
+            r1 = Signal(2 * TEX_FRAC + 1, name=f"tex_r1_{c}")      # row y1's
             col = Signal(UV_FRAC, name=f"tex_c{c}")
             with m.If(self.en):
                 m.d.sync += [r0.eq(a[0] * nx + a[1] * self.wx), r1.eq(a[2] * nx + a[3] * self.wx),

@@ -95,32 +95,30 @@ def slave_buffers(cfg: Config) -> int:
     return 2 * (cfg.rgs_lights + 1) + 2
 
 
-def shade_cache_geometry(cfg: Config) -> CacheGeometry:
-    """The slave's shading cache: records of ``REC_BITS`` bits (``REC_WORDS`` memory words),
-    ``shade_cache_kb`` KB rounded down to a power-of-two number of sets."""
-    per_set = cfg.cache_ways * REC_BITS
-    sets = (cfg.shade_cache_kb * 1024 * 8) // per_set
+def _slave_cache(cfg: Config, kb: int, name: str, item_bits: int, words: int) -> CacheGeometry:
+    """A slave cache of ``kb`` KB (``name``: its Config field) holding items of ``item_bits``
+    bits that span ``words`` memory words, rounded down to a power-of-two number of sets."""
+    per_set = cfg.cache_ways * item_bits
+    sets = (kb * 1024 * 8) // per_set
     if sets < 1:
-        raise ConfigError(f"shade_cache_kb={cfg.shade_cache_kb}: too small for one set of "
-                          f"{cfg.cache_ways} record(s) of {REC_BITS // 8} bytes")
+        raise ConfigError(f"{name}={kb}: too small for one set of {cfg.cache_ways} item(s) of "
+                          f"{item_bits // 8} bytes")
     sets = 1 << (sets.bit_length() - 1)
     return CacheGeometry(size_bytes=sets * per_set // 8, ways=cfg.cache_ways, line_items=1,
-                         item_bits=REC_BITS, item_span=64 * REC_WORDS,
+                         item_bits=item_bits, item_span=64 * words,
                          outstanding=cfg.cache_outstanding, queue=cfg.cache_queue)
 
 
+def shade_cache_geometry(cfg: Config) -> CacheGeometry:
+    """The slave's shading cache: records of ``REC_BITS`` bits (``REC_WORDS`` memory words),
+    ``shade_cache_kb`` KB."""
+    return _slave_cache(cfg, cfg.shade_cache_kb, "shade_cache_kb", REC_BITS, REC_WORDS)
+
+
 def tex_cache_geometry(cfg: Config) -> CacheGeometry:
-    """The slave's texel cache: 64-bit memory words (two RGBA8 texels each),
-    ``tex_cache_kb`` KB rounded down to a power-of-two number of sets."""
-    per_set = cfg.cache_ways * 64
-    sets = (cfg.tex_cache_kb * 1024 * 8) // per_set
-    if sets < 1:
-        raise ConfigError(f"tex_cache_kb={cfg.tex_cache_kb}: too small for one set of "
-                          f"{cfg.cache_ways} word(s)")
-    sets = 1 << (sets.bit_length() - 1)
-    return CacheGeometry(size_bytes=sets * per_set // 8, ways=cfg.cache_ways, line_items=1,
-                         item_bits=64, item_span=64, outstanding=cfg.cache_outstanding,
-                         queue=cfg.cache_queue)
+    """The slave's texel cache: 64-bit memory words (two RGBA8 texels each), ``tex_cache_kb``
+    KB."""
+    return _slave_cache(cfg, cfg.tex_cache_kb, "tex_cache_kb", 64, 1)
 
 
 def _regs(n: int, shape, name: str) -> Array:

@@ -580,8 +580,8 @@ class TextureBench(wiring.Component):
         self.cache = Cache(CacheGeometry(size_bytes=cache_bytes, ways=1, line_items=1,
                                          item_bits=64, item_span=64, outstanding=2, queue=8),
                            tag_width=1)
-        self.mem = IdealMemory(words, addr_width=max(2, (len(words) - 1).bit_length()),
-                               tag_width=len(self.cache.mem.req.payload.tag), latency=latency)
+        self.mem = IdealMemory(words, addr_width=32, tag_width=len(self.cache.mem.req.payload.tag),
+                               latency=latency)
         super().__init__({"i": wiring.In(stream.Signature(TexIn(cfg, tag_width))),
                           "o": wiring.Out(stream.Signature(TexOut(cfg, tag_width))),
                           "hold": wiring.In(1)})
@@ -593,14 +593,8 @@ class TextureBench(wiring.Component):
         wiring.connect(m, wiring.flipped(self.i), self.tex.i)
         wiring.connect(m, self.tex.o, wiring.flipped(self.o))
         wiring.connect(m, self.tex.mem, self.cache.port)
-        aw = len(self.mem.port.req.payload.addr)
-        cm, mp = self.cache.mem, self.mem.port
-        m.d.comb += [mp.req.valid.eq(cm.req.valid), cm.req.ready.eq(mp.req.ready),
-                     mp.req.payload.addr.eq(cm.req.payload.addr[:aw]),
-                     mp.req.payload.tag.eq(cm.req.payload.tag),
-                     cm.resp.valid.eq(mp.resp.valid), mp.resp.ready.eq(cm.resp.ready),
-                     cm.resp.payload.eq(mp.resp.payload), self.mem.hold.eq(self.hold),
-                     self.cache.base.eq(0)]
+        wiring.connect(m, self.cache.mem, self.mem.port)
+        m.d.comb += [self.mem.hold.eq(self.hold), self.cache.base.eq(0)]
         return m
 
 

@@ -98,11 +98,11 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
     rtc = c["rtc"]
     trav, inter, lst = _sum(rtc, "trav_ops"), _sum(rtc, "int_ops"), _sum(rtc, "list_ops")
     perf = relative_performance(cfg, cyc, trav, inter)
-    cache = {}
-    for k in UNITS:
+    def cache_stats(k):                  # one kind of cache, summed over the RTCs / slaves
         hh, mm = sum(x[k] for x in c["hits"]), sum(x[k] for x in c["misses"])
-        cache[k] = {"hits": hh, "misses": mm, "hit_rate": hh / max(1, hh + mm),
-                    "memory_words": sum(x[k] for x in c["grants"])}
+        return {"hits": hh, "misses": mm, "hit_rate": hh / max(1, hh + mm),
+                "memory_words": sum(x[k] for x in c["grants"])}
+    cache = {k: cache_stats(k) for k in UNITS}
     seconds = cyc / (cfg.clock_mhz * 1e6)
     words = c["mem_words"]
     total = max(1, sum(words))
@@ -121,19 +121,13 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
     from model.render import KIND_NAMES
     kinds = np.bincount(run.frame_rays.kind, minlength=3)
     slaves = c.get("slave", [])
-    shade = {"hits": sum(x["shade"] for x in c["hits"]),
-             "misses": sum(x["shade"] for x in c["misses"]),
-             "memory_words": sum(x["shade"] for x in c["grants"])}
-    shade["hit_rate"] = shade["hits"] / max(1, shade["hits"] + shade["misses"])
-    tex = {k: sum(x.get("tex", 0) for x in c[key]) for k, key in
-           (("hits", "hits"), ("misses", "misses"), ("memory_words", "grants"))}
-    tex["hit_rate"] = tex["hits"] / max(1, tex["hits"] + tex["misses"])
     return {
         "scene": scene, "resolution": [width, height], "backend": backend,
         "rays": {KIND_NAMES[k]: int(kinds[k]) for k in range(3)}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
-        "cache": cache, "shade_cache": shade, "tex_cache": tex, "memory": memory,
+        "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
+        "memory": memory,
         "units": units,
         "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
         "bus": {"words_per_cycle": c["mem_reads"] / cyc},

@@ -264,12 +264,29 @@ def test_light_pipe_cases_reach_every_branch():
     assert {0, 1023} <= set(c.shin.tolist())
 
 
+def comb_on_codes(fn, fmt: FPFormat, codes, width: int) -> tuple[list, np.ndarray]:
+    """The combinational RTL function ``fn(fmt, x)`` (``width`` bits out) on every encoding in
+    ``codes``, in Amaranth's simulator: its outputs and the encodings' values (float32)."""
+    from amaranth.hdl import Module, Signal
+    from amaranth.sim import Simulator
+    m = Module()
+    x, y = Signal(fmt.width), Signal(width)
+    m.d.comb += y.eq(fn(fmt, x))
+    got = []
+
+    async def bench(ctx):
+        for code in codes:
+            ctx.set(x, int(code))
+            got.append(ctx.get(y))
+    sim = Simulator(m)
+    sim.add_testbench(bench)
+    sim.run()
+    return got, fmt.from_bits(np.asarray(codes).astype(np.uint64)).astype(np.float32)
+
+
 def test_to_fixed_rtl_exhaustive_small_format():
     """``rtl.rgs.to_fixed`` against ``model.rgs.to_fixed`` on every encoding of E5M6 and of
     E8M23's values around the fixed-point range's ends."""
-    from amaranth.hdl import Module, Signal
-    from amaranth.sim import Simulator
-
     from model.rgs import to_fixed_array
     from rtl.rgs import to_fixed
     for fmt, codes in ((FPFormat(5, 6), np.arange(1 << 12)),
@@ -278,22 +295,8 @@ def test_to_fixed_rtl_exhaustive_small_format():
                            np.arange(0x37800000 - 256, 0x37800000 + 256), [0x7F800000,
                                                                            0x7FC00000,
                                                                            0xFF800000]]))):
-        m = Module()
-        x = Signal(fmt.width)
-        y = Signal(24)
-        m.d.comb += y.eq(to_fixed(fmt, x))
-        vals = fmt.from_bits(codes.astype(np.uint64)).astype(np.float32)
-        want = to_fixed_array(vals, fmt.exp_bits)
-        got = []
-
-        async def bench(ctx):
-            for code in codes:
-                ctx.set(x, int(code))
-                got.append(ctx.get(y))
-        sim = Simulator(m)
-        sim.add_testbench(bench)
-        sim.run()
-        assert got == want.tolist(), fmt
+        got, vals = comb_on_codes(to_fixed, fmt, codes, 24)
+        assert got == to_fixed_array(vals, fmt.exp_bits).tolist(), fmt
 
 
 def test_wrap_coord_rtl_exhaustive_small_format():
@@ -301,8 +304,6 @@ def test_wrap_coord_rtl_exhaustive_small_format():
     of binary32 around 0, 1, 2**24 (where the last fraction bit leaves the window) and the
     special values."""
     import numba
-    from amaranth.hdl import Module, Signal
-    from amaranth.sim import Simulator
 
     from model.rgs import UV_FRAC, wrap_coord as model_wrap
     from rtl.rgs import wrap_coord
@@ -321,21 +322,8 @@ def test_wrap_coord_rtl_exhaustive_small_format():
                            np.arange(0x3F7FFF00, 0x3F800100), np.arange(0xBF7FFF00, 0xBF800100),
                            np.arange(0x4B7FFF00, 0x4B800100), np.arange(0xCB7FFF00, 0xCB800100),
                            [0x7F800000, 0x7FC00000, 0xFF800000, 0x7F7FFFFF, 0xFF7FFFFF]]))):
-        m = Module()
-        x = Signal(fmt.width)
-        y = Signal(UV_FRAC)
-        m.d.comb += y.eq(wrap_coord(fmt, x))
-        vals = fmt.from_bits(codes.astype(np.uint64)).astype(np.float32)
+        got, vals = comb_on_codes(wrap_coord, fmt, codes, UV_FRAC)
         want = wraps(vals, fmt.exp_bits)
-        got = []
-
-        async def bench(ctx):
-            for code in codes:
-                ctx.set(x, int(code))
-                got.append(ctx.get(y))
-        sim = Simulator(m)
-        sim.add_testbench(bench)
-        sim.run()
         assert got == want.tolist(), fmt
         assert (want == 0).any() and (want > 1 << (UV_FRAC - 1)).any()   # zero, negatives
     assert want.tolist().count((1 << UV_FRAC) - 1) > 0                  # -2**-25 etc.

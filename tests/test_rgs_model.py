@@ -487,6 +487,8 @@ def test_texture_filter_is_bilinear():
     z = np.zeros(n, np.float32)
     got = texture_kd(kd, z, z, uv, np.zeros(n, np.int64), np.full(n, 2), np.full(n, 2),
                      texels, *fmt.em)
-    want = np.array([[10, 20, 30], [50, 60, 70], [30, 40, 50], [50, 60, 70], [90, 100, 110]],
-                    np.float64) / 255
-    assert np.allclose(got, want, rtol=1e-6)
+    # the filtered channel is the texel (the mean) times 2**16 exactly, then the scale step
+    texel = np.array([[10, 20, 30], [50, 60, 70], [30, 40, 50], [50, 60, 70], [90, 100, 110]])
+    want = fmt.mul(fmt.from_fixed(texel * 2 ** 16, 24).astype(np.float32),
+                   np.float32(fmt.quantize(256 / 255)))
+    assert same(fmt, got, want)
