@@ -41,8 +41,19 @@ SHADE_HEADER_WORDS = 8
 NORMAL_WORDS = 5              # 9 x binary32 per triangle + pad
 UV_WORDS = 3                  # 6 x binary32 per triangle
 MATERIAL_WORDS = 8            # 16 x 32 bits per material
-REC_WORDS = 14                # slave record: face normal, 3 vertex normals, flags, material,
-REC_BITS = 28 * 32            # texture coordinates, texture (28 x 32 bits: see _shading_section)
+# the slave's shading record: 28 slots of 32 bits (14 memory words), by slot
+REC_NF = 0                    # 0..2: the unit face normal (format bits)
+REC_NV = 3                    # 3..11: the vertex normals A, B, C (the face normal when none)
+REC_FLAGS = 12                # 12: flags (below)
+REC_KD = 13                   # 13..15: kd x (1 - reflectivity)
+REC_KS = 16                   # 16..18: ks x (1 - reflectivity)
+REC_KR = 19                   # 19: the reflectivity
+REC_UV = 20                   # 20..25: the texture coordinates of A, B, C (textured only)
+REC_TEX_ADDR = 26             # 26: the texture's first texel word (textured only)
+REC_TEX_SIZE = 27             # 27: the texture's width | height << 16 (textured only)
+REC_SLOTS = 28
+REC_WORDS = REC_SLOTS // 2
+REC_BITS = REC_SLOTS * 32
 REC_REFLECTIVE = 1            # flags bit 0: the material reflects (reflect > 0)
 REC_TEXTURED = 2              # flags bit 1: the material has a texture (and the scene UVs)
 REC_SHIN_SHIFT = 16           # flags bits 16..25: the Phong exponent (0..1023)
@@ -334,27 +345,27 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
     # the slave's records: face normal, vertex normals A, B, C (face normal when none), flags,
     # the material's colour constants, texture coordinates, the texture's first texel word
     # and size
-    rec = np.zeros((n_tris, 2 * REC_WORDS), "<u4")
+    rec = np.zeros((n_tris, REC_SLOTS), "<u4")
     if n_tris:
         fn = face_normals(tris, fmt)
-        rec[:, 0:3] = _f32_bits(fn)
+        rec[:, REC_NF:REC_NF + 3] = _f32_bits(fn)
         vn = np.repeat(fn[:, None, :], 3, axis=1) if shading.normals is None else shading.normals
-        rec[:, 3:12] = q(vn).reshape(n_tris, 9)
+        rec[:, REC_NV:REC_NV + 9] = q(vn).reshape(n_tris, 9)
         mc = rec_material(mats, fmt)
-        rec[:, 12] = (np.where(mats["reflect"][mat_id] > 0, REC_REFLECTIVE, 0)
-                      | (mc["shin"][mat_id] << REC_SHIN_SHIFT).astype(np.uint32))
-        rec[:, 13:16] = _f32_bits(mc["kd"][mat_id])
-        rec[:, 16:19] = _f32_bits(mc["ks"][mat_id])
-        rec[:, 19] = _f32_bits(mc["kr"][mat_id])
+        rec[:, REC_FLAGS] = (np.where(mats["reflect"][mat_id] > 0, REC_REFLECTIVE, 0)
+                             | (mc["shin"][mat_id] << REC_SHIN_SHIFT).astype(np.uint32))
+        rec[:, REC_KD:REC_KD + 3] = _f32_bits(mc["kd"][mat_id])
+        rec[:, REC_KS:REC_KS + 3] = _f32_bits(mc["ks"][mat_id])
+        rec[:, REC_KR] = _f32_bits(mc["kr"][mat_id])
         tex = mats["texture"][mat_id]
         textured = (tex >= 0) & (shading.uvs is not None)
         if textured.any():
-            rec[:, 12] |= np.where(textured, REC_TEXTURED, 0).astype(np.uint32)
+            rec[:, REC_FLAGS] |= np.where(textured, REC_TEXTURED, 0).astype(np.uint32)
             uv = q(np.asarray(shading.uvs)).reshape(n_tris, 6)
-            rec[textured, 20:26] = uv[textured]
+            rec[textured, REC_UV:REC_UV + 6] = uv[textured]
             entry = tex_dir[tex[textured]]                  # | texel addr | height | width |
-            rec[textured, 26] = (entry >> np.uint64(32)).astype(np.uint32)
-            rec[textured, 27] = (entry & np.uint64(0xFFFFFFFF)).astype(np.uint32)
+            rec[textured, REC_TEX_ADDR] = (entry >> np.uint64(32)).astype(np.uint32)
+            rec[textured, REC_TEX_SIZE] = (entry & np.uint64(0xFFFFFFFF)).astype(np.uint32)
     rec_base = put(rec.view("<u8").ravel())
     hdr[1] = _lohi(n_mat, n_tex)
     hdr[2] = _lohi(matid_base, normal_base)

@@ -73,8 +73,9 @@ from amaranth.utils import ceil_log2
 
 from model.cache import CacheGeometry
 from model.config import Config, ConfigError
-from model.layout import (REC_BITS, REC_REFLECTIVE, REC_SHIN_SHIFT, REC_TEXTURED, REC_WORDS,
-                          SHIN_BITS)
+from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_NF, REC_NV,
+                          REC_REFLECTIVE, REC_SHIN_SHIFT, REC_TEX_ADDR, REC_TEX_SIZE, REC_TEXTURED,
+                          REC_UV, REC_WORDS, SHIN_BITS)
 from model.rgs import FIX_BITS
 
 from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
@@ -508,9 +509,11 @@ class Slave(wiring.Component):
         feed = Signal()
         m.d.comb += [ctxq.r_en.eq(feed), resp.ready.eq(feed & head.hit)]
         rdata = resp.payload.data
-        word = lambda i: from_binary32(fmt, rdata[32 * i:32 * i + 32])  # noqa: E731
-        flags = rdata[32 * 12:32 * 13]
-        kd_rec = Cat(word(13), word(14), word(15))
+        slot = lambda i: rdata[32 * i:32 * i + 32]                      # noqa: E731
+        word = lambda i: from_binary32(fmt, slot(i))                      # noqa: E731
+        vec = lambda i, n: Cat(*(word(i + k) for k in range(n)))          # noqa: E731
+        flags = slot(REC_FLAGS)
+        kd_rec = vec(REC_KD, 3)
         # the hit's colour inputs, beside SecondaryPipe (in order, at most its latency + 1 in
         # flight): the record's material constants, the ray's weight, the packet's reservation;
         # kd through the texture unit where there is one
@@ -525,9 +528,9 @@ class Slave(wiring.Component):
             m.d.comb += [
                 tex.i.valid.eq(feed_ok & sec_en), feed.eq(feed_ok & sec_en & tex.i.ready),
                 ti.u.eq(head.u), ti.v.eq(head.v),
-                ti.uv.eq(Cat(*(word(20 + k) for k in range(6)))),
-                ti.addr.eq(rdata[32 * 26:32 * 27]), ti.tw.eq(rdata[32 * 27:32 * 27 + 16]),
-                ti.th.eq(rdata[32 * 27 + 16:32 * 28]),
+                ti.uv.eq(vec(REC_UV, 6)),
+                ti.addr.eq(slot(REC_TEX_ADDR)), ti.tw.eq(slot(REC_TEX_SIZE)[:16]),
+                ti.th.eq(slot(REC_TEX_SIZE)[16:]),
                 ti.on.eq(head.hit & ((flags & REC_TEXTURED) != 0) & self.colour),
                 ti.kd.eq(kd_rec)]
             mat_kd, mat_ok = tex.o.payload.kd, tex.o.valid
@@ -535,7 +538,7 @@ class Slave(wiring.Component):
             m.d.comb += feed.eq(feed_ok & sec_en)
             mat_ok = 1
         mat_in = Signal(mat_lay)
-        m.d.comb += [mat_in.ks.eq(Cat(word(16), word(17), word(18))), mat_in.kr.eq(word(19)),
+        m.d.comb += [mat_in.ks.eq(vec(REC_KS, 3)), mat_in.kr.eq(word(REC_KR)),
                      mat_in.shin.eq(flags[REC_SHIN_SHIFT:REC_SHIN_SHIFT + SHIN_BITS]),
                      mat_in.wt.eq(head.wt), mat_in.spawn.eq(head.spawn),
                      matq.w_data.eq(mat_in), matq.w_en.eq(feed)]
@@ -546,8 +549,8 @@ class Slave(wiring.Component):
         st = data.View(self.sec_tag, sec.tag)
         m.d.comb += [sec.i_valid.eq(feed), sec.org.eq(head.org), sec.dir.eq(head.dir),
                      sec.t.eq(head.t), sec.u.eq(head.u), sec.v.eq(head.v), sec.eps.eq(self.eps),
-                     sec.nf.eq(Cat(word(0), word(1), word(2))),
-                     sec.nv.eq(Cat(*(word(3 + i) for i in range(9)))),
+                     sec.nf.eq(vec(REC_NF, 3)),
+                     sec.nv.eq(vec(REC_NV, 9)),
                      st.lane.eq(head.lane), st.hit.eq(head.hit), st.last.eq(head.last),
                      st.refl.eq((flags & REC_REFLECTIVE) != 0), st.packet.eq(head.packet),
                      st.depth.eq(head.depth)]
