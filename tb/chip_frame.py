@@ -94,7 +94,9 @@ class ChipFrame(wiring.Component):
     """The chip on a loadable SDRAM model, for whole frames in Verilator (simulation only):
     the same outside as :class:`tb.frame.RTCFrame` (``tb/verilator_main.cpp`` drives both).
 
-    Load (``ld_sel``): 0 the memory image into the SDRAM model's words; 2 constant ``ld_addr``
+    Load (``ld_sel``): 0 the memory image into the SDRAM model's words (in Verilator the
+    model's memory takes them at time 0 instead: ``VerilogMemory(preload=True)``); 2 constant
+    ``ld_addr``
     of :func:`chip_consts` (the chip's registers, result back-pressure and its LFSR seed). No
     ray memory: the chip makes its rays (``cap_ray_slots`` = 0). After ``start`` the chip and
     the memory model leave reset and the chip renders the frame; every result transfer shows on
@@ -120,8 +122,8 @@ class ChipFrame(wiring.Component):
         init = [] if preload is None else [int(w) for w in preload["image"]]
         if len(init) > self.mem_words:
             raise ValueError(f"memory image of {len(init)} words > mem_words={mem_words}")
-        store = (VerilogMemory(width=64, depth=self.mem_words) if verilog_memories else
-                 Memory(shape=64, depth=self.mem_words, init=init))
+        store = (VerilogMemory(width=64, depth=self.mem_words, preload=True)
+                 if verilog_memories else Memory(shape=64, depth=self.mem_words, init=init))
         self.memory = SDRAMMemory(None, addr_width=32,
                                   tag_width=len(self.chip.mem.req.payload.tag),
                                   chips=cfg.mem_chips, chip_bits=cfg.mem_chip_bits,

