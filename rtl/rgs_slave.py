@@ -509,10 +509,10 @@ class Slave(wiring.Component):
         feed = Signal()
         m.d.comb += [ctxq.r_en.eq(feed), resp.ready.eq(feed & head.hit)]
         rdata = resp.payload.data
-        slot = lambda i: rdata[32 * i:32 * i + 32]                      # noqa: E731
-        word = lambda i: from_binary32(fmt, slot(i))                      # noqa: E731
+        field = lambda i: rdata[32 * i:32 * i + 32]                     # noqa: E731
+        word = lambda i: from_binary32(fmt, field(i))                     # noqa: E731
         vec = lambda i, n: Cat(*(word(i + k) for k in range(n)))          # noqa: E731
-        flags = slot(REC_FLAGS)
+        flags = field(REC_FLAGS)
         kd_rec = vec(REC_KD, 3)
         # the hit's colour inputs, beside SecondaryPipe (in order, at most its latency + 1 in
         # flight): the record's material constants, the ray's weight, the packet's reservation;
@@ -529,8 +529,8 @@ class Slave(wiring.Component):
                 tex.i.valid.eq(feed_ok & sec_en), feed.eq(feed_ok & sec_en & tex.i.ready),
                 ti.u.eq(head.u), ti.v.eq(head.v),
                 ti.uv.eq(vec(REC_UV, 6)),
-                ti.addr.eq(slot(REC_TEX_ADDR)), ti.tw.eq(slot(REC_TEX_SIZE)[:16]),
-                ti.th.eq(slot(REC_TEX_SIZE)[16:]),
+                ti.addr.eq(field(REC_TEX_ADDR)), ti.tw.eq(field(REC_TEX_SIZE)[:16]),
+                ti.th.eq(field(REC_TEX_SIZE)[16:]),
                 ti.on.eq(head.hit & ((flags & REC_TEXTURED) != 0) & self.colour),
                 ti.kd.eq(kd_rec)]
             mat_kd, mat_ok = tex.o.payload.kd, tex.o.valid

@@ -53,7 +53,8 @@ def test_cornell_frame_matches_model(kd_cache):
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
     assert r.counters["node_mem_reads"] == r.model["node_reads"]
     assert r.counters["tri_mem_reads"] == r.model["int_reads"]
-    assert r.load_cycles >= len(image.data) + 8 * len(rays)
+    # the image is preloaded at time 0; only the rays and the constants take load cycles
+    assert 8 * len(rays) <= r.load_cycles < 8 * len(rays) + 256
 
 
 def test_same_cycles_as_pysim(kd_cache):
