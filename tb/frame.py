@@ -4,6 +4,8 @@ clocked by ``tb/verilator_main.cpp``, see ``tb/verilator.py``).
 The memory contents are not part of the design: a load port writes the memory image, the
 rays and a few constants before ``start``, so one compiled simulation per configuration and
 memory size serves every scene, resolution (up to ``ray_slots`` rays), seed and bubble rate.
+In Verilator the image memories take the image at time 0 instead (``VerilogMemory(preload=
+True)``, ``tb/frame_mem.sv``), so only the rays and constants take load cycles.
 
 Load port (one 64-bit word per cycle while ``ld_valid``; ``ld_sel`` picks the target):
 
@@ -186,7 +188,8 @@ class RTCFrame(wiring.Component):
     and ``queue`` (requests in flight per memory, default ``mem_latency + 8`` and at least
     ``cfg.threads`` for the node memory, as ``rtl.rtc.RTCSim``).
 
-    Load: one word per cycle. Run: the RTC's latency and throughput, one result per cycle out.
+    Load: one word per cycle (the image preloaded in Verilator). Run: the RTC's latency and
+    throughput, one result per cycle out.
     """
 
     def __init__(self, cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int = 20,
