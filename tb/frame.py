@@ -142,8 +142,9 @@ class VerilogMemory(Elaboratable):
             raise ValueError("VerilogMemory needs its read and its write port")
         m.submodules.store = Instance(
             "frame_mem", p_ABITS=self.abits, p_WIDTH=self.width, p_GRAN=wr.granularity,
-            p_SYNC_READ=int(rd.sync), p_PRELOAD=int(self.preload), i_clk=ClockSignal(), i_r_addr=rd.addr, i_r_en=rd.en,
-            o_r_data=rd.data, i_w_addr=wr.addr, i_w_en=wr.en, i_w_data=wr.data)
+            p_SYNC_READ=int(rd.sync), p_PRELOAD=int(self.preload), i_clk=ClockSignal(),
+            i_r_addr=rd.addr, i_r_en=rd.en, o_r_data=rd.data,
+            i_w_addr=wr.addr, i_w_en=wr.en, i_w_data=wr.data)
         return m
 
 
@@ -202,12 +203,13 @@ class RTCFrame(wiring.Component):
                 "tri": len(self.tri_reader.mem.req.payload.tag)}
         self.mem_words = 1 << max(1, ceil_log2(max(1, mem_words)))
         # pysim cannot run the Verilog memories: Amaranth Memory for small runs there
-        store = ((lambda w, d, pre=False: VerilogMemory(width=w, depth=d, preload=pre))
-                 if verilog_memories else (lambda w, d, pre=False: Memory(shape=w, depth=d,
-                                                                          init=[])))
+        def store(width, depth, image=False):      # image: preloaded with the memory image
+            if verilog_memories:
+                return VerilogMemory(width=width, depth=depth, preload=image)
+            return Memory(shape=width, depth=depth, init=[])
         self.mems = {name: IdealMemory(None, addr_width=32, tag_width=tags[name],
                                        latency=mem_latency, load=True,
-                                       store=store(64, self.mem_words, True),
+                                       store=store(64, self.mem_words, image=True),
                                        queue=max(q, cfg.threads) if name == "node" else q)
                      for name in MEMS}
         self.ray_slots = 1 << max(1, ceil_log2(max(1, ray_slots)))
