@@ -5,7 +5,8 @@ paper's relative performance is :func:`tb.sim.relative_performance`).
 
 Run: ``.venv/bin/python -m tb.bench_chip [--scene S] [--res WxH] [config options] [--out DIR]``
 (``--help``); writes ``DIR/chip_<scene>_<W>x<H>.json``. With ``--seeds N`` it runs the frame
-N times instead on one Verilator binary, run i with its own LFSR seed i, result
+N times instead on one Verilator binary (seeds 1..N, or from ``--first-seed K`` on: a long
+bench split over machines), run i with its own LFSR seed i, result
 back-pressure (i mod 16) / 16 and random memory latency (SDRAM responses held in
 (7 i mod 13) / 16 of the cycles), and checks that no ray is lost or duplicated, every ray is
 bit-exact and no run deadlocks (``DIR/chip_stalls_<scene>_<W>x<H>.json``).
@@ -45,6 +46,9 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=0,
                     help="run N seeds of back-pressure and memory-latency jitter instead "
                          "(stall bench); default 0")
+    ap.add_argument("--first-seed", type=int, default=1,
+                    help="the stall bench's first seed: seeds K..K+N-1 (default 1), to split a "
+                         "long bench into parts that run on different machines")
     ap.add_argument("--eye-only", action="store_true",
                     help="eye rays only (no shadow or reflection rays)")
     ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
@@ -57,10 +61,12 @@ def main(argv=None) -> int:
     frame_scene = None if args.eye_only else scene
     tag = "_eye" if args.eye_only else ""
     if args.seeds:
+        part = f"_from{args.first_seed}" if args.first_seed != 1 else ""
         return stall_bench(cfg, prep.image, scene.camera, w, h, args.seeds,
                            Path(args.out) /
-                           f"chip_stalls_{Path(args.scene).stem}_{w}x{h}{tag}.json",
-                           max_cycles=args.max_cycles, scene=frame_scene)
+                           f"chip_stalls_{Path(args.scene).stem}_{w}x{h}{tag}{part}.json",
+                           max_cycles=args.max_cycles, scene=frame_scene,
+                           first_seed=args.first_seed)
     t0 = time.perf_counter()
     try:
         r = run_chip_frame(cfg, prep.image, scene.camera, w, h, stall=args.stall,
@@ -82,10 +88,12 @@ def main(argv=None) -> int:
 
 
 def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path, *,
-                max_cycles: int = 2_000_000, scene=None) -> int:
+                max_cycles: int = 2_000_000, scene=None, first_seed: int = 1) -> int:
     """Run the frame (with ``scene``: its secondary rays too) with ``seeds`` patterns of result
-    back-pressure and memory-latency jitter; every run must deliver every ray exactly once,
-    bit-exact, before the cycle limit."""
+    back-pressure and memory-latency jitter (seeds ``first_seed`` … ``first_seed + seeds - 1``);
+    every run must deliver every ray exactly once, bit-exact, before the cycle limit."""
+    if first_seed < 1:
+        raise ValueError(f"first_seed={first_seed}: the LFSR seeds start at 1")
     from tqdm import tqdm
 
     from tb.compare import ResultError
@@ -93,7 +101,7 @@ def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path, *,
     from .chip import run_chip_frame
     from .verilator import FrameError
     runs, failures = [], []
-    for seed in tqdm(range(1, seeds + 1), desc="stall seeds", unit="run"):
+    for seed in tqdm(range(first_seed, first_seed + seeds), desc="stall seeds", unit="run"):
         kw = {"stall": (seed % 16) / 16, "mem_stall": (7 * seed % 13) / 16, "seed": seed}
         try:
             r = run_chip_frame(cfg, image, camera, w, h, progress=False,
@@ -105,13 +113,13 @@ def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path, *,
             failures.append({**kw, "what": str(e)})
     cyc = [x["cycles"] for x in runs]
     out = {"runs": len(runs), "failures": failures, "cycles_min": min(cyc, default=0),
-           "secondary_rays": scene is not None,
+           "secondary_rays": scene is not None, "first_seed": first_seed,
            "cycles_max": max(cyc, default=0), "config": cfg.to_dict(), "res": [w, h],
            "per_run": runs}
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
-    print(f"{seeds} seeds: {len(failures)} failures (lost, duplicated, wrong or deadlocked), "
-          f"cycles {out['cycles_min']}..{out['cycles_max']}; -> {path}")
+    print(f"{seeds} seeds ({first_seed}..{first_seed + seeds - 1}): {len(failures)} failures "
+          f"(lost, duplicated, wrong or deadlocked), cycles {out['cycles_min']}..{out['cycles_max']}; -> {path}")
     return 1 if failures else 0
 
 

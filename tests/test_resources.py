@@ -28,3 +28,24 @@ def test_cache_memory_bits_hold_its_data():
     r = resources(lambda: Cache(g))
     assert r["fp_units"] == {}
     assert r["totals"]["memory_bits"] > g.size_bytes * 8       # data and tags
+
+
+@pytest.mark.filterwarnings("ignore:.*created but never used")
+def test_yosys_counts_agree_with_the_netlist():
+    """Through Yosys (proc, flatten, opt) a cache keeps every memory bit and the secondary-ray
+    datapath one ``$mul`` per FP multiplier; optimization only removes flip-flops (constant or
+    unused bits), it never adds any."""
+    from rtl.cache import Cache
+    from rtl.rgs import SecondaryPipe
+    from tb.resources import yosys_resources
+    g = cache_geometry(Config(trav_cache_kb=1), "trav")
+    net, y = resources(lambda: Cache(g)), yosys_resources(lambda: Cache(g), "cache")
+    assert y["memory_bits"] == net["totals"]["memory_bits"] > g.size_bytes * 8
+    assert 0 < y["flipflop_bits"] <= net["totals"]["flipflop_bits"]
+    assert y["mul_cells"] == 0
+    make = lambda: SecondaryPipe(FPFormat(6, 10), tag_width=2)    # noqa: E731
+    net, y = resources(make), yosys_resources(make, "sec")
+    assert y["mul_cells"] == net["fp_units"]["mul"] == 43
+    assert y["memory_bits"] == 0
+    assert 0.5 * net["totals"]["flipflop_bits"] < y["flipflop_bits"] \
+        <= net["totals"]["flipflop_bits"]
