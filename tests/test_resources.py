@@ -49,3 +49,25 @@ def test_yosys_counts_agree_with_the_netlist():
     assert y["memory_bits"] == 0
     assert 0.5 * net["totals"]["flipflop_bits"] < y["flipflop_bits"] \
         <= net["totals"]["flipflop_bits"]
+
+
+def test_parse_stat_reads_wide_counts():
+    """A count as wide as its column (no leading space: 26 M memory bits) is still read, and a
+    report with memories but no memory-bit count is refused."""
+    from tb.resources import parse_stat
+    report = """
+=== chip ===
+   166138 cells
+       12   $dff_48
+        3   $dffe_1
+      596   $mul_48
+        4   $mul_40
+       42 memories
+26351616 memory bits
+"""
+    r = parse_stat(report)
+    assert r["memory_bits"] == 26351616 and r["memories"] == 42 and r["cells"] == 166138
+    assert r["flipflop_bits"] == 12 * 48 + 3 and r["mul_cells"] == 600
+    assert r["mul_cells_by_width"] == {40: 4, 48: 596}
+    with pytest.raises(ValueError, match="memory-bit count"):
+        parse_stat(report.replace("26351616 memory bits", ""))
