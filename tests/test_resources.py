@@ -51,23 +51,20 @@ def test_yosys_counts_agree_with_the_netlist():
         <= net["totals"]["flipflop_bits"]
 
 
-def test_parse_stat_reads_wide_counts():
-    """A count as wide as its column (no leading space: 26 M memory bits) is still read, and a
-    report with memories but no memory-bit count is refused."""
+def test_parse_stat_counts_flip_flop_bits_and_products():
+    """Yosys' JSON statistics: flip-flop bits are count x width over every flip-flop kind,
+    ``$mul`` cells by width; a report that is not one module's statistics is refused."""
+    import json
+
     from tb.resources import parse_stat
-    report = """
-=== chip ===
-   166138 cells
-       12   $dff_48
-        3   $dffe_1
-      596   $mul_48
-        4   $mul_40
-       42 memories
-26351616 memory bits
-"""
-    r = parse_stat(report)
-    assert r["memory_bits"] == 26351616 and r["memories"] == 42 and r["cells"] == 166138
-    assert r["flipflop_bits"] == 12 * 48 + 3 and r["mul_cells"] == 600
+    mod = {"num_cells": 166138, "num_memories": 216, "num_memory_bits": 26354240,
+           "num_cells_by_type": {"$dff_48": 12, "$dffe_1": 3, "$sdffe_7": 2, "$mul_48": 596,
+                                 "$mul_40": 4, "$add_28": 396, "$mem_v2": 216}}
+    r = parse_stat(json.dumps({"modules": {"\\chip": mod}}))
+    assert r["memory_bits"] == 26354240 and r["memories"] == 216 and r["cells"] == 166138
+    assert r["flipflop_bits"] == 12 * 48 + 3 + 2 * 7 and r["mul_cells"] == 600
     assert r["mul_cells_by_width"] == {40: 4, 48: 596}
-    with pytest.raises(ValueError, match="memory-bit count"):
-        parse_stat(report.replace("26351616 memory bits", ""))
+    with pytest.raises(ValueError, match="one module"):
+        parse_stat(json.dumps({"modules": {"\\a": mod, "\\b": mod}}))
+    with pytest.raises(ValueError, match="one module"):
+        parse_stat("2.64E+07 memory bits")
