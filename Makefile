@@ -59,7 +59,7 @@ bench: setup
 	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 $(CHIP_SMALL) \
 	    --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench $(EYE_ONLY_FLAG)
-	$(SAARCOR) bench resources --json build/bench/resources.json
+	$(SAARCOR) bench resources --yosys --json build/bench/resources.json
 	$(SAARCOR) bench skipping --scene scenes/office.toml --res 128x96 --rtl --second-run
 	$(SAARCOR) bench skipping --scene scenes/cornell.toml --res 128x96 --rtl
 	$(SAARCOR) bench skipping --scene scenes/game.toml --res 128x96 --elab

@@ -168,8 +168,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", metavar="FILE", help="also write the figures as JSON")
     ap.add_argument("--yosys", action="store_true",
                     help="also count flip-flop bits, memory bits and multipliers after Yosys' "
-                         "proc/flatten/opt (minutes for a small chip; the standard chip takes "
-                         "tens of minutes and several GB)")
+                         "proc/flatten/opt (minutes for a small chip; the standard chip about "
+                         "ten minutes and several GB)")
     add_config_args(ap)
     args = ap.parse_args(argv)
     cfg = config_from_args(args)
