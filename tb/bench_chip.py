@@ -119,7 +119,8 @@ def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path, *,
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(out, indent=1))
     print(f"{seeds} seeds ({first_seed}..{first_seed + seeds - 1}): {len(failures)} failures "
-          f"(lost, duplicated, wrong or deadlocked), cycles {out['cycles_min']}..{out['cycles_max']}; -> {path}")
+          f"(lost, duplicated, wrong or deadlocked), cycles "
+          f"{out['cycles_min']}..{out['cycles_max']}; -> {path}")
     return 1 if failures else 0
 
 

