@@ -448,10 +448,12 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: float) -> int:
+def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: float,
+                 extra: dict | None = None) -> int:
     """``saarcor sim --fidelity estimate|sampled``: ``stats.json`` with the estimated cycles
-    and fps (marked as estimates), ``image.png``, ``rays.npz`` and ``hits.npz`` from the
-    golden model's eye-ray hits (shaded as ``saarcor sim`` shades the chip's)."""
+    and fps (marked as estimates) and the entries of ``extra``, ``image.png``, ``rays.npz``
+    and ``hits.npz`` from the golden model's eye-ray hits (shaded as ``saarcor sim`` shades
+    the chip's)."""
     import json
     import sys
     from pathlib import Path
@@ -504,7 +506,7 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
                   "wall_seconds": round(time.perf_counter() - t0, 2),
                   "image": "the golden model's eye-ray hits shaded on the host (ambient + "
                            "Phong, unshadowed), as for --fidelity rtl",
-                  "config": cfg.to_dict()})
+                  "config": cfg.to_dict(), **(extra or {})})
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "stats.json").write_text(json.dumps(stats, indent=1))

@@ -246,11 +246,17 @@ def rays_per_second(prep, rays: Rays, cfg: Config, repeat: int = 3) -> float:
 # ------------------------------------------------------------------------------------------
 
 def study_scene(scene, formats, width: int, height: int, repeat: int = 3,
-                reflect_depth: int = 3, log=print) -> dict:
-    """Every measure except leaks and hardware cost, per format, for one scene."""
+                reflect_depth: int = 3, log=print, *, reference=None,
+                quick: bool = False) -> dict:
+    """Every measure except leaks and hardware cost, per format, for one scene.
+    ``reference``: the float64 tracer and image ``(Reference, image)`` when already made;
+    ``quick``: the image and eye-ray measures only (no shadow rays, memory or timing)."""
     t0 = time.perf_counter()
-    ref = Reference(scene)
-    ref_img, _ = render64(ref, width, height, reflect_depth)
+    if reference is None:
+        ref = Reference(scene)
+        ref_img, _ = render64(ref, width, height, reflect_depth)
+    else:
+        ref, ref_img = reference
     out = {"scene": scene.name, "triangles": int(len(scene.tris)), "resolution": [width, height],
            "reference_seconds": time.perf_counter() - t0, "formats": {}}
     for fmt in formats:
@@ -273,12 +279,16 @@ def study_scene(scene, formats, width: int, height: int, repeat: int = 3,
         r_tri, r_t, _, _ = ref.trace(er.org, er.dir)
         row = {"image": image_error(res.image, ref_img),
                "eye": ray_error(eh.tri, eh.t, r_tri, r_t),
-               "shadow": shadow_error(scene, prep, cfg, er, eh, ref),
-               "memory": memory_bytes(prep, fmt),
-               "rays_per_second": rays_per_second(prep, er, cfg, repeat),
                "rays_traced": int(len(res.rays)),
-               "kdtree_depth": int(prep.tree.depth),
-               "seconds": time.perf_counter() - t1}
+               "kdtree_depth": int(prep.tree.depth)}
+        if quick:
+            row["seconds"] = time.perf_counter() - t1
+            out["formats"][str(fmt)] = row
+            continue
+        row.update({"shadow": shadow_error(scene, prep, cfg, er, eh, ref),
+                    "memory": memory_bytes(prep, fmt),
+                    "rays_per_second": rays_per_second(prep, er, cfg, repeat),
+                    "seconds": time.perf_counter() - t1})
         out["formats"][str(fmt)] = row
         log(f"  {scene.name} {fmt}: PSNR {row['image']['psnr_db']:.1f} dB, eye flips "
             f"{row['eye']['flips']}, wrong tri {row['eye']['wrong_triangle']}, self "
@@ -302,6 +312,52 @@ def smallest_m(scene_row: dict, leak_rows: dict, psnr_min=40.0, flip_max=1e-3) -
             break
         best = m
     return best
+
+
+NARROW_CANDIDATES = tuple(FPFormat(8, m) for m in (23, 20, 18, 16, 14, 13, 12, 11, 10))
+
+
+def narrowest_format(scene, width: int, height: int, *, candidates=NARROW_CANDIDATES,
+                     psnr_min: float = 40.0, flip_max: float = 1e-3, leak_rays: int = 2000,
+                     reflect_depth: int = 3, log=None) -> dict:
+    """The narrowest FP format that renders ``scene`` safely by the study's rule: walking
+    ``candidates`` from the first (the widest) on, a format passes when the golden model's
+    ``width x height`` image at that format is within ``psnr_min`` dB PSNR of the float64
+    render, fewer than ``flip_max`` of its eye rays flip between hit and miss, and no ray of
+    the closed meshes (``leak_rays`` per mesh) leaks through; the walk stops at the first
+    format that fails, so the answer and every wider candidate pass.
+
+    Returns ``{"fmt": FPFormat or None (not even the first candidate passes), "formats":
+    {name: {"psnr_db", "flip_share", "leaks", "ok"} or {"error", "ok"}}, "rule", "seconds"}``.
+    The cost is a float64 render and one model render per format tried (about a second each
+    at 64x48 for the shipped scenes, with compiled kernels)."""
+    t0 = time.perf_counter()
+    ref = Reference(scene)
+    ref_img, _ = render64(ref, width, height, reflect_depth)
+    meshes = closed_meshes(None) if leak_rays else {}
+    best, rows = None, {}
+    for fmt in candidates:
+        r = study_scene(scene, [fmt], width, height, reflect_depth=reflect_depth,
+                        reference=(ref, ref_img), quick=True, log=lambda s: None)
+        r = r["formats"][str(fmt)]
+        if "error" in r:
+            row = {"error": r["error"], "ok": False}
+        else:
+            n_leaks = sum(leaks(m, fmt, leak_rays)["leaks"] for m in meshes.values())
+            row = {"psnr_db": float(r["image"]["psnr_db"]),
+                   "flip_share": float(r["eye"]["flip_share"]), "leaks": n_leaks}
+            row["ok"] = bool(row["psnr_db"] >= psnr_min and row["flip_share"] < flip_max
+                             and n_leaks == 0)
+        rows[str(fmt)] = row
+        if log is not None:
+            print(f"narrowest format: {fmt}: {row}", file=log, flush=True)
+        if not row["ok"]:
+            break
+        best = fmt
+    return {"fmt": best, "formats": rows, "resolution": [width, height],
+            "rule": {"psnr_min_db": psnr_min, "flip_share_max": flip_max,
+                     "leak_rays_per_mesh": leak_rays, "leak_meshes": sorted(meshes)},
+            "seconds": round(time.perf_counter() - t0, 2)}
 
 
 def scene_paths(args) -> list[tuple[str, Path]]:

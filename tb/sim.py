@@ -245,7 +245,20 @@ def build_parser() -> argparse.ArgumentParser:
                     help="eye rays only: the slaves make no shadow or reflection rays (the "
                          "image is then the eye hits shaded on the host, unshadowed)")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--for-scene", action="store_true",
+                    help="build the chip for what the scene needs (Config.for_scene): the "
+                         "stack as deep as its kd-tree, as many light registers as it has "
+                         "lights, no reflection hardware without mirrors, no texture unit "
+                         "without textures; the frame is the same, the chip smaller")
     add_config_args(ap)
+    ap.add_argument(
+        "--narrowest-fmt", action="store_true",
+        help="instead of --fmt, the narrowest FP format (E8, M from 23 down) whose golden-model "
+             "render of the scene stays within 40 dB PSNR of a float64 render, flips fewer "
+             "than 0.1 %% of the eye rays and lets no ray through a closed mesh "
+             "(tb.precision.narrowest_format, on a 128-pixel-wide image of the frame's "
+             "aspect); "
+             "the choice goes to stats.json")
     return ap
 
 
@@ -271,11 +284,23 @@ def main(argv=None) -> int:
         scene = load_scene(args.scene)
     except SceneError as e:
         raise SystemExit(f"sim: {e}")
+    extra = {}
+    if args.narrowest_fmt:
+        if args.fmt:
+            raise SystemExit("sim: give --fmt or --narrowest-fmt, not both")
+        narrow = pick_format(scene, w, h, cfg, quiet=args.quiet)
+        cfg = cfg.replace(fmt=narrow["fmt"])
+        extra["narrowest_fmt"] = {**narrow, "fmt": str(narrow["fmt"])}
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
+    if args.for_scene:
+        try:
+            cfg = cfg.for_scene(scene, prep.image, w, h)
+        except ValueError as e:
+            raise SystemExit(f"sim: {e}")
     frame_scene = None if args.eye_only else scene
     if args.fidelity != "rtl":
         from .ladder import sim_estimate
-        return sim_estimate(args, cfg, scene, prep, w, h, t0)
+        return sim_estimate(args, cfg, scene, prep, w, h, t0, extra)
     n_rays = w * h * cfg.oversampling ** 2
     every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 200)
     log = sys.stderr
@@ -301,6 +326,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     stats = frame_stats(cfg, r, scene=args.scene, width=w, height=h, backend=args.backend,
                         wall=wall)
+    stats.update(extra)
     (out / "stats.json").write_text(json.dumps(stats, indent=1))
     from PIL import Image
     if r.color is not None and not r.mismatches:
@@ -328,6 +354,26 @@ def main(argv=None) -> int:
               "(and --trace-from CYCLE to skip the frame's start)", file=log)
         return 1
     return 0
+
+
+def pick_format(scene, w: int, h: int, cfg: Config, *, quiet: bool = False) -> dict:
+    """:func:`tb.precision.narrowest_format` for ``scene`` with ``cfg``'s reflection depth,
+    on a 128-pixel-wide image of the frame's aspect ratio (``w x h``) with an odd height (a
+    centred camera's diagonals, where a room's corner is an exact closest-hit tie, then miss
+    the pixel centres; a few such pixels would decide the PSNR of a tiny image); exits naming
+    the scene when not even binary32 passes."""
+    from .precision import narrowest_format
+    sw = 128
+    sh = max(1, round(sw * h / w)) | 1
+    r = narrowest_format(scene, sw, sh, reflect_depth=cfg.reflect_depth,
+                         log=None if quiet else sys.stderr)
+    if r["fmt"] is None:
+        raise SystemExit(f"sim: --narrowest-fmt: {scene.name} fails the precision rule even "
+                         f"at binary32 ({r['formats']}); run without --narrowest-fmt")
+    if not quiet:
+        print(f"sim: narrowest safe format {r['fmt']} (checked at {sw}x{sh} in "
+              f"{r['seconds']:.1f} s)", file=sys.stderr)
+    return r
 
 
 def _guess_cycles(cfg: Config, rays: int) -> int:

@@ -123,20 +123,32 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
     """The small chip (1 RTC of 2 threads, 1 KB caches) as configured and built for the scene
     (``Config.for_scene``): FP units, flip-flop and memory bits from the netlist
     (``tb.resources``), the same after Yosys' proc/flatten/opt (``tb.resources.yosys_resources``),
-    the Verilator build and a ``width x height`` frame (every ray checked against the model)."""
+    the Verilator build and a ``width x height`` frame (every ray checked against the model);
+    and, when it is narrower than the configured one, the ``for_scene`` chip at the narrowest
+    safe FP format (:func:`tb.precision.narrowest_format` on a 128x95 image)."""
     from rtl.chip import Chip
     from tb.chip import run_chip_frame
+    from tb.precision import narrowest_format
     from tb.resources import chip_resources, yosys_resources
     log = sys.stderr if log is None else log
     small = base.replace(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2,
                          trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9, mem_latency=8)
     prep = prepare(scene, small)
     fit = small.for_scene(scene, prep.image, width, height)
-    out: dict = {"frame": [width, height]}
-    for name, cfg in (("as_configured", small), ("for_scene", fit)):
+    # the narrowest safe format, judged on a 128x95 image (tb.sim.pick_format's size for 4:3)
+    narrow = narrowest_format(scene, 128, 95, reflect_depth=small.reflect_depth)
+    out: dict = {"frame": [width, height],
+                 "narrowest_fmt": {**narrow, "fmt": str(narrow["fmt"])}}
+    chips = [("as_configured", small, prep), ("for_scene", fit, prep)]
+    if narrow["fmt"] is not None and narrow["fmt"] != fit.fmt:
+        nprep = prepare(scene, small.replace(fmt=narrow["fmt"]))
+        nfit = small.replace(fmt=narrow["fmt"]).for_scene(scene, nprep.image, width, height)
+        chips.append(("for_scene_narrowest_fmt", nfit, nprep))
+    for name, cfg, prep in chips:
         r = chip_resources(cfg)
         row = {"config": {k: getattr(cfg, k) for k in ("kd_max_depth", "rgs_lights",
-                                                      "reflect_depth", "secondary_rays")},
+                                                      "reflect_depth", "secondary_rays")}
+                         | {"fmt": str(cfg.fmt)},
                "fp_units": r["totals"]["fp_units"], "fp_units_by_kind": r["fp_units"],
                "flipflop_bits": r["totals"]["flipflop_bits"],
                "memory_bits": r["totals"]["memory_bits"], "elaborate_s": r["seconds"],
@@ -158,6 +170,7 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
         print(f"elaboration {name}: {row}", file=log, flush=True)
     # the builder splits down to kd_max_depth, so a shallower stack means a shallower tree:
     # the stack's memory bits against the work of a frame (the golden model's eye rays)
+    prep = chips[1][2]
     trade = []
     for depth in (12, 16, 20, fit.kd_max_depth):
         cfg = fit.replace(kd_max_depth=depth)

@@ -11,7 +11,8 @@ from model.reference import Reference, render64
 from model.render import prepare, render
 from model.rtc import trace
 from model.scene import load_scene
-from tb.precision import (image_error, leaks, ray_error, smallest_m, study_scene)
+from tb.precision import (image_error, leaks, narrowest_format, ray_error, smallest_m,
+                          study_scene)
 
 from .conftest import ROOT
 
@@ -127,3 +128,36 @@ def test_smallest_m_needs_every_larger_m_to_pass():
     assert smallest_m(scene, {"box": {"E8M16": {"leaks": 1}}}) == 23
     scene["formats"]["E8M23"] = row(39, 0)
     assert smallest_m(scene, {}) is None
+
+
+NARROW = (FPFormat(8, 23), FPFormat(8, 16), FPFormat(8, 14), FPFormat(8, 12), FPFormat(8, 10))
+
+
+def test_narrowest_format_walks_down_and_stops_at_the_first_failure(cornell):
+    """The chosen format and every wider one pass the rule, the next narrower one fails and
+    the walk ends there; M = 10 never passes on Cornell (its PSNR is far below 40 dB)."""
+    r = narrowest_format(cornell, W, H, candidates=NARROW, leak_rays=300)
+    names = list(r["formats"])
+    assert names == [str(f) for f in NARROW[:len(names)]]
+    assert r["fmt"] is not None and r["fmt"] != FPFormat(8, 10)
+    k = names.index(str(r["fmt"]))
+    assert all(r["formats"][n]["ok"] for n in names[:k + 1])
+    assert names[k + 1:] and not r["formats"][names[k + 1]]["ok"] and len(names) == k + 2
+    for n in names[:k + 1]:
+        row = r["formats"][n]
+        assert row["psnr_db"] >= 40 and row["flip_share"] < 1e-3 and row["leaks"] == 0
+    # the image measure is the study's own
+    study = study_scene(cornell, [r["fmt"]], W, H, quick=True, log=lambda s: None)
+    assert study["formats"][str(r["fmt"])]["image"]["psnr_db"] == r["formats"][names[k]]["psnr_db"]
+
+
+def test_narrowest_format_needs_no_leak_and_can_find_none(cornell, monkeypatch):
+    import tb.precision as tp
+    # a leak at every format below binary32 stops the walk at binary32
+    monkeypatch.setattr(tp, "leaks", lambda mesh, fmt, n: {"leaks": int(fmt.frac_bits < 23)})
+    r = narrowest_format(cornell, W, H, candidates=NARROW, leak_rays=10)
+    assert r["fmt"] == FPFormat(8, 23) and list(r["formats"]) == ["E8M23", "E8M16"]
+    assert r["formats"]["E8M16"]["leaks"] > 0
+    # a rule nothing meets: no format, and the walk stops at the first
+    r = narrowest_format(cornell, W, H, candidates=NARROW, psnr_min=1e9, leak_rays=0)
+    assert r["fmt"] is None and list(r["formats"]) == ["E8M23"]

@@ -81,6 +81,27 @@ def test_sim_errors_name_the_problem(tmp_path):
         main(["--rtcs", "0", "--out", str(tmp_path)])
     with pytest.raises(SystemExit, match="VCD"):
         main(["--backend", "amaranth", "--trace", "x.fst", "--out", str(tmp_path)])
+    with pytest.raises(SystemExit, match="--fmt or --narrowest-fmt"):
+        main(["--fmt", "E8M16", "--narrowest-fmt", "--out", str(tmp_path)])
+
+
+def test_sim_narrowest_format_for_the_scene(tmp_path, kd_cache):
+    """--narrowest-fmt --for-scene: the chip's configuration in stats.json has the chosen
+    format (below binary32 on Cornell) and the scene's light and reflection needs."""
+    from tb.sim import main
+    out = tmp_path / "sim"
+    rc = main(["--scene", str(ROOT / "scenes/cornell.toml"), "--res", "16x12", "--out",
+               str(out), "--kd-cache", str(kd_cache), "--quiet", "--fidelity", "estimate",
+               "--narrowest-fmt", "--for-scene", "--rgs-lights", "8", *TINY_ARGS])
+    assert rc == 0
+    stats = json.loads((out / "stats.json").read_text())
+    chosen = stats["narrowest_fmt"]
+    assert chosen["resolution"] == [128, 97]
+    assert chosen["formats"][chosen["fmt"]]["ok"] and chosen["fmt"] != "E8M23"
+    m = int(chosen["fmt"].split("M")[1])
+    assert stats["config"]["fmt"] == {"exp_bits": 8, "frac_bits": m}
+    scene = load_scene(ROOT / "scenes/cornell.toml")
+    assert stats["config"]["rgs_lights"] == len(scene.lights) < 8
 
 
 def test_a_mismatch_names_the_rays_pixel_kind_and_packet():
