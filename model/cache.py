@@ -111,7 +111,8 @@ def cache_geometry(cfg: Config, unit: str, **overrides) -> CacheGeometry:
                  item_bits=cfg.int_item_bits, item_span=5 * 64)
     else:
         raise ValueError(f"cache unit {unit!r}: must be one of {UNITS}")
-    g.update(ways=cfg.cache_ways, outstanding=cfg.cache_outstanding, queue=cfg.cache_queue)
+    g.update(ways=cfg.cache_ways, outstanding=cfg.cache_outstanding, queue=cfg.cache_queue,
+             addr_width=cfg.addr_bits, mem_addr_width=cfg.addr_bits)
     g.update(overrides)
     return CacheGeometry(**g)
 

@@ -81,6 +81,9 @@ class Config:
     cache_queue: int = 16          # requests in flight inside one cache (in-order response queue)
     int_item_bits: int = 288       # bits of a triangle the int-cache keeps (288: 9 floats; 320: +id)
     mem_chip_queue: int = 4        # requests queued per SDRAM chip in the memory controller
+    addr_bits: int = 32            # memory word address bits of every memory port, cache tag,
+                                   # bus and base register (2**addr_bits words of 8 bytes);
+                                   # for_scene narrows it to the scene's memory image
 
     def __post_init__(self) -> None:
         for name in ("rtcs", "threads", "trav_subunits", "tile_w", "tile_h", "kd_max_depth",
@@ -132,6 +135,10 @@ class Config:
         if self.int_item_bits not in (288, 320):
             raise ConfigError(f"int_item_bits={self.int_item_bits} must be 288 (the 9 vertex "
                               "floats) or 320 (the whole 5-word triangle, id included)")
+        if not self.min_addr_bits <= self.addr_bits <= 32:
+            raise ConfigError(f"addr_bits={self.addr_bits} must be in {self.min_addr_bits}..32 "
+                              "(at least the index bits of the largest cache: "
+                              f"{self.min_addr_bits} here)")
         if self.mem_chips & (self.mem_chips - 1):
             raise ConfigError(f"mem_chips={self.mem_chips} must be a power of two (1, 2, 4, 8): "
                               "the controller hashes addresses over chips by XOR-folding")
@@ -158,6 +165,15 @@ class Config:
         return self.rgs_lights > 0 or self.reflect_depth > 0
 
     @property
+    def min_addr_bits(self) -> int:
+        """The narrowest memory address this configuration's caches can index: enough bits
+        to number every 32-bit item of the largest cache (a cache's set and line-offset
+        bits come out of the address; the rest is its tag)."""
+        kb = max(self.trav_cache_kb, self.list_cache_kb, self.int_cache_kb,
+                 self.shade_cache_kb, self.tex_cache_kb)
+        return max(1, (kb * 1024 * 8 // 32 - 1).bit_length())
+
+    @property
     def thread_bits(self) -> int:
         return max(1, (self.threads - 1).bit_length())
 
@@ -181,13 +197,15 @@ class Config:
         for a scene without lights and mirrors no secondary-ray hardware:
         :attr:`secondary_rays`), no texture unit if no triangle is textured. Rebuilding the
         tree with the derived ``kd_max_depth`` gives the same tree (the limit was not
-        reached below it). Raises :class:`ConfigError` if the scene needs more than this
+        reached below it). Memory addresses get as many bits as the image's words need (at
+        least :attr:`min_addr_bits`). Raises :class:`ConfigError` if the scene needs more than this
         configuration provides (:meth:`check_scene`)."""
         self.check_scene(scene, image, width, height)
         need = scene_needs(scene, image, self)
         return self.replace(kd_max_depth=max(1, need["stack_depth"]),
                             rgs_lights=need["lights"], reflect_depth=need["reflect_depth"],
-                            tex_cache_kb=need["tex_cache_kb"])
+                            tex_cache_kb=need["tex_cache_kb"],
+                            addr_bits=max(self.min_addr_bits, need["addr_bits"]))
 
     def check_scene(self, scene, image, width: int, height: int) -> None:
         """Raise :class:`ConfigError` naming what ``scene`` (with its memory ``image``) at
@@ -202,6 +220,10 @@ class Config:
             raise ConfigError(f"the scene casts shadows from {need['lights']} lights, the RGS "
                               f"slaves hold rgs_lights={self.rgs_lights}: raise rgs_lights "
                               "(or turn shadows off)")
+        if need["addr_bits"] > self.addr_bits:
+            raise ConfigError(f"the scene's memory image is {len(image.data)} words, the chip "
+                              f"addresses 2**{self.addr_bits} (addr_bits={self.addr_bits}): "
+                              f"raise addr_bits to {need['addr_bits']}")
         for name, n in (("width", width), ("height", height)):
             if not 1 <= n * self.oversampling < 1 << COORD_BITS:
                 raise ConfigError(f"{name}={n} x oversampling {self.oversampling}: the RGS "
@@ -244,7 +266,7 @@ def scene_needs(scene, image, cfg: Config) -> dict:
     ``stack_depth`` (the kd-tree's depth), ``lights`` (shadow-casting lights: 0 without
     ``cfg.shadows``), ``reflect_depth`` (``cfg.reflect_depth``, 0 if no triangle's material
     reflects), ``tex_cache_kb`` (``cfg.tex_cache_kb``, 0 if no triangle's material has a
-    texture)."""
+    texture), ``addr_bits`` (memory word address bits the image's words need)."""
     import numpy as np
     reflect = np.array([m.reflect for m in scene.materials], np.float64)
     reflective = bool(len(scene.material) and (reflect[scene.material] > 0).any())
@@ -253,7 +275,8 @@ def scene_needs(scene, image, cfg: Config) -> dict:
     return {"stack_depth": int(image.depth),
             "lights": len(scene.lights) if cfg.shadows else 0,
             "reflect_depth": cfg.reflect_depth if reflective else 0,
-            "tex_cache_kb": cfg.tex_cache_kb if textured else 0}
+            "tex_cache_kb": cfg.tex_cache_kb if textured else 0,
+            "addr_bits": max(1, (len(image.data) - 1).bit_length())}
 
 
 DEFAULT = Config()

@@ -52,18 +52,19 @@ class RTCArray(wiring.Component):
         tag = max(len(mi.mem(c).req.payload.tag) for mi in self.mis for c in CACHES)
         tag = max(tag, *extra_tag_widths) if extra_tag_widths else tag
         self.n_extra = len(extra_tag_widths)
-        self.bus = RoundRobinBus(3 * n + self.n_extra, addr_width=32, tag_width=tag)
+        self.bus = RoundRobinBus(3 * n + self.n_extra, addr_width=cfg.addr_bits, tag_width=tag)
         self.names = counter_names(cfg)
         super().__init__({
             "rays": In(stream.Signature(RayIn(cfg))).array(n),
             "results": Out(stream.Signature(RayResult(cfg))).array(n),
             "mem": Out(self.bus.mem.signature),
-            "node_base": In(32), "list_base": In(32), "tri_base": In(32), "root": In(NODE_BITS),
+            "node_base": In(cfg.addr_bits), "list_base": In(cfg.addr_bits),
+            "tri_base": In(cfg.addr_bits), "root": In(NODE_BITS),
             "rtc_counters": Out(COUNTER_BITS * len(self.names)).array(n),
             "hits": Out(COUNTER_BITS).array(3 * n), "misses": Out(COUNTER_BITS).array(3 * n),
             "grants": Out(COUNTER_BITS).array(3 * n + self.n_extra),
             "mem_reads": Out(COUNTER_BITS),
-            **({"ext": In(MemReadPort(addr_width=32, data_width=WORD_BITS,
+            **({"ext": In(MemReadPort(addr_width=cfg.addr_bits, data_width=WORD_BITS,
                                       tag_width=tag)).array(self.n_extra)}
                if self.n_extra else {}),
         })
@@ -228,8 +229,8 @@ class Chip(wiring.Component):
         L = max(1, cfg.rgs_lights)
         members = {
             "start": In(1), "busy": Out(1), "done": Out(1),
-            "node_base": In(32), "list_base": In(32), "tri_base": In(32), "root": In(NODE_BITS),
-            "rec_base": In(32),
+            "node_base": In(cfg.addr_bits), "list_base": In(cfg.addr_bits),
+            "tri_base": In(cfg.addr_bits), "root": In(NODE_BITS), "rec_base": In(cfg.addr_bits),
             "box_lo": In(v3), "box_hi": In(v3),
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(COORD_BITS), "height": In(COORD_BITS),

@@ -62,12 +62,12 @@ class RTCTop(wiring.Component):
         else:
             self.reader = tri_reader(cfg, rtc)
             ports = [rtc.node_mem, rtc.list_mem, self.reader.mem]
-        self.bus = RoundRobinBus(3, addr_width=32,
+        self.bus = RoundRobinBus(3, addr_width=cfg.addr_bits,
                                  tag_width=max(len(p.req.payload.tag) for p in ports))
         members = {name: m for name, m in rtc.signature.members.items()
                    if not name.endswith("_mem")}
         members.update({
-            "tri_base": In(32),
+            "tri_base": In(cfg.addr_bits),
             "mem": Out(self.bus.mem.signature),
             "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
             "mem_reads": Out(COUNTER_BITS),

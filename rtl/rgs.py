@@ -967,7 +967,8 @@ class Texture(wiring.Component):
         super().__init__({
             "i": In(stream.Signature(TexIn(cfg, tag_width))),
             "o": Out(stream.Signature(TexOut(cfg, tag_width))),
-            "mem": Out(MemReadPort(addr_width=32, data_width=WORD_BITS, tag_width=1)),
+            "mem": Out(MemReadPort(addr_width=cfg.addr_bits, data_width=WORD_BITS,
+                                   tag_width=1)),
         })
 
     def elaborate(self, platform):

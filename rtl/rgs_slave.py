@@ -107,7 +107,8 @@ def _slave_cache(cfg: Config, kb: int, name: str, item_bits: int, words: int) ->
     sets = 1 << (sets.bit_length() - 1)
     return CacheGeometry(size_bytes=sets * per_set // 8, ways=cfg.cache_ways, line_items=1,
                          item_bits=item_bits, item_span=64 * words,
-                         outstanding=cfg.cache_outstanding, queue=cfg.cache_queue)
+                         outstanding=cfg.cache_outstanding, queue=cfg.cache_queue,
+                         addr_width=cfg.addr_bits, mem_addr_width=cfg.addr_bits)
 
 
 def shade_cache_geometry(cfg: Config) -> CacheGeometry:
@@ -201,8 +202,8 @@ class Slave(wiring.Component):
             "rays": Out(stream.Signature(RayIn(cfg))),
             "results": In(stream.Signature(RayResult(cfg))),
             "out": Out(stream.Signature(SlaveResult(cfg))),
-            "shade": Out(MemReadPort(addr_width=32, data_width=REC_BITS, tag_width=1)),
-            **({"texel": Out(MemReadPort(addr_width=32, data_width=WORD_BITS, tag_width=1))}
+            "shade": Out(MemReadPort(addr_width=cfg.addr_bits, data_width=REC_BITS, tag_width=1)),
+            **({"texel": Out(MemReadPort(addr_width=cfg.addr_bits, data_width=WORD_BITS, tag_width=1))}
                if self.tex is not None else {}),
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(COORD_BITS), "height": In(COORD_BITS),

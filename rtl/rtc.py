@@ -96,8 +96,9 @@ class RTC(wiring.Component):
     packets are in flight.
     """
 
-    def __init__(self, cfg: Config, *, addr_width: int = 32):
+    def __init__(self, cfg: Config, *, addr_width: int | None = None):
         self.cfg = cfg
+        addr_width = cfg.addr_bits if addr_width is None else addr_width
         self.trav = Traversal(cfg, addr_width=addr_width)
         self.list = ListUnit(cfg, addr_width=addr_width)
         self.int = IntersectionUnit(cfg, addr_width=addr_width)
@@ -168,11 +169,12 @@ class RTCSim(wiring.Component):
         q = queue if queue is not None else mem_latency + 8
         self.tri_reader = tri_reader(cfg, self.rtc)
         self.mems = {
-            "node": IdealMemory(image.data, addr_width=32, tag_width=cfg.thread_bits,
+            "node": IdealMemory(image.data, addr_width=cfg.addr_bits, tag_width=cfg.thread_bits,
                                 latency=mem_latency, queue=max(q, cfg.threads)),
-            "list": IdealMemory(image.data, addr_width=32, tag_width=self.rtc.list.tag_width,
+            "list": IdealMemory(image.data, addr_width=cfg.addr_bits,
+                                tag_width=self.rtc.list.tag_width,
                                 latency=mem_latency, queue=q),
-            "tri": IdealMemory(image.data, addr_width=32,
+            "tri": IdealMemory(image.data, addr_width=cfg.addr_bits,
                                tag_width=len(self.tri_reader.mem.req.payload.tag),
                                latency=mem_latency, queue=q),
         }

@@ -44,7 +44,8 @@ def word_cache_geometry(cfg: Config, kb: int) -> CacheGeometry:
     size = 1 << ((kb * 1024).bit_length() - 1)
     return CacheGeometry(size_bytes=size, line_items=cfg.cache_line_words, item_bits=64,
                          item_span=64, ways=cfg.cache_ways, outstanding=cfg.cache_outstanding,
-                         queue=cfg.cache_queue)
+                         queue=cfg.cache_queue, addr_width=cfg.addr_bits,
+                         mem_addr_width=cfg.addr_bits)
 
 
 def _int_geometry(cfg: Config) -> CacheGeometry:
@@ -88,7 +89,7 @@ class RTCMI(wiring.Component):
                                   tag_width=len(port.req.payload.tag)))
         members = {
             "node": server("trav"), "list": server("list"), "tri": server("int"),
-            "tri_base": In(32),
+            "tri_base": In(cfg.addr_bits),
             "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
         }
         for name in CACHES:

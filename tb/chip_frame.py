@@ -118,13 +118,14 @@ class ChipFrame(wiring.Component):
         from .lfsr import LFSR
         self.cfg = cfg
         self.chip = Chip(cfg)
-        self.mem_words = 1 << max(1, ceil_log2(max(1, mem_words)))
+        # no more words than the chip's addresses reach (cfg.addr_bits)
+        self.mem_words = 1 << min(cfg.addr_bits, max(1, ceil_log2(max(1, mem_words))))
         init = [] if preload is None else [int(w) for w in preload["image"]]
         if len(init) > self.mem_words:
             raise ValueError(f"memory image of {len(init)} words > mem_words={mem_words}")
         store = (VerilogMemory(width=64, depth=self.mem_words, preload=True)
                  if verilog_memories else Memory(shape=64, depth=self.mem_words, init=init))
-        self.memory = SDRAMMemory(None, addr_width=32,
+        self.memory = SDRAMMemory(None, addr_width=cfg.addr_bits,
                                   tag_width=len(self.chip.mem.req.payload.tag),
                                   chips=cfg.mem_chips, chip_bits=cfg.mem_chip_bits,
                                   clock_ratio=cfg.mem_clock_ratio, latency=cfg.mem_latency,

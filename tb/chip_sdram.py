@@ -70,7 +70,7 @@ class ChipOnSDRAM(wiring.Component):
         self.cfg = cfg
         self.chip = Chip(cfg)
         self.mem_depth = mem_words
-        self.memory = SDRAMMemory(None, addr_width=32,
+        self.memory = SDRAMMemory(None, addr_width=cfg.addr_bits,
                                   tag_width=len(self.chip.mem.req.payload.tag),
                                   chips=cfg.mem_chips, chip_bits=cfg.mem_chip_bits,
                                   clock_ratio=cfg.mem_clock_ratio, latency=cfg.mem_latency,

@@ -201,13 +201,14 @@ class RTCFrame(wiring.Component):
         self.tri_reader = tri_reader(cfg, rtc)
         tags = {"node": cfg.thread_bits, "list": rtc.list.tag_width,
                 "tri": len(self.tri_reader.mem.req.payload.tag)}
-        self.mem_words = 1 << max(1, ceil_log2(max(1, mem_words)))
+        # no more words than the chip's addresses reach (cfg.addr_bits)
+        self.mem_words = 1 << min(cfg.addr_bits, max(1, ceil_log2(max(1, mem_words))))
         # pysim cannot run the Verilog memories: Amaranth Memory for small runs there
         def store(width, depth, image=False):      # image: preloaded with the memory image
             if verilog_memories:
                 return VerilogMemory(width=width, depth=depth, preload=image)
             return Memory(shape=width, depth=depth, init=[])
-        self.mems = {name: IdealMemory(None, addr_width=32, tag_width=tags[name],
+        self.mems = {name: IdealMemory(None, addr_width=cfg.addr_bits, tag_width=tags[name],
                                        latency=mem_latency, load=True,
                                        store=store(64, self.mem_words, image=True),
                                        queue=max(q, cfg.threads) if name == "node" else q)

@@ -578,9 +578,11 @@ class TextureBench(wiring.Component):
         from rtl.rgs import TexIn, TexOut, Texture
         self.tex = Texture(cfg, tag_width)
         self.cache = Cache(CacheGeometry(size_bytes=cache_bytes, ways=1, line_items=1,
-                                         item_bits=64, item_span=64, outstanding=2, queue=8),
+                                         item_bits=64, item_span=64, outstanding=2, queue=8,
+                                         addr_width=cfg.addr_bits,
+                                         mem_addr_width=cfg.addr_bits),
                            tag_width=1)
-        self.mem = IdealMemory(words, addr_width=32, tag_width=len(self.cache.mem.req.payload.tag),
+        self.mem = IdealMemory(words, addr_width=cfg.addr_bits, tag_width=len(self.cache.mem.req.payload.tag),
                                latency=latency)
         super().__init__({"i": wiring.In(stream.Signature(TexIn(cfg, tag_width))),
                           "o": wiring.Out(stream.Signature(TexOut(cfg, tag_width))),

@@ -139,7 +139,10 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
     narrow = narrowest_format(scene, 128, 95, reflect_depth=small.reflect_depth)
     out: dict = {"frame": [width, height],
                  "narrowest_fmt": {**narrow, "fmt": str(narrow["fmt"])}}
-    chips = [("as_configured", small, prep), ("for_scene", fit, prep)]
+    # for_scene with the configured 32-bit addresses: what the narrower addresses save
+    chips = [("as_configured", small, prep),
+             ("for_scene_32bit_addresses", fit.replace(addr_bits=small.addr_bits), prep),
+             ("for_scene", fit, prep)]
     if narrow["fmt"] is not None and narrow["fmt"] != fit.fmt:
         nprep = prepare(scene, small.replace(fmt=narrow["fmt"]))
         nfit = small.replace(fmt=narrow["fmt"]).for_scene(scene, nprep.image, width, height)
@@ -147,7 +150,8 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
     for name, cfg, prep in chips:
         r = chip_resources(cfg)
         row = {"config": {k: getattr(cfg, k) for k in ("kd_max_depth", "rgs_lights",
-                                                      "reflect_depth", "secondary_rays")}
+                                                      "reflect_depth", "secondary_rays",
+                                                      "addr_bits")}
                          | {"fmt": str(cfg.fmt)},
                "fp_units": r["totals"]["fp_units"], "fp_units_by_kind": r["fp_units"],
                "flipflop_bits": r["totals"]["flipflop_bits"],
@@ -170,7 +174,6 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
         print(f"elaboration {name}: {row}", file=log, flush=True)
     # the builder splits down to kd_max_depth, so a shallower stack means a shallower tree:
     # the stack's memory bits against the work of a frame (the golden model's eye rays)
-    prep = chips[1][2]
     trade = []
     for depth in (12, 16, 20, fit.kd_max_depth):
         cfg = fit.replace(kd_max_depth=depth)

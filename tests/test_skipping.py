@@ -108,6 +108,42 @@ def test_for_scene_names_what_the_configuration_lacks(cornell):
         TINY.check_scene(scene, prep.image, 70000, 24)
 
 
+def test_for_scene_narrows_addresses_to_the_image(cornell):
+    """Memory addresses get the bits the image's words need; a narrower address than the
+    image needs, or than the caches index, is refused naming addr_bits."""
+    scene, prep = cornell
+    words = len(prep.image.data)
+    fit = TINY.for_scene(scene, prep.image, 32, 24)
+    assert TINY.addr_bits == 32 and TINY.min_addr_bits == 13
+    assert fit.addr_bits == (words - 1).bit_length() < 32
+    assert 1 << (fit.addr_bits - 1) < words <= 1 << fit.addr_bits
+    with pytest.raises(ConfigError, match=f"{words} words.*addr_bits={fit.addr_bits - 1}"):
+        TINY.replace(addr_bits=fit.addr_bits - 1).check_scene(scene, prep.image, 32, 24)
+    with pytest.raises(ConfigError, match="addr_bits=12 must be in 13..32"):
+        TINY.replace(addr_bits=12)
+    with pytest.raises(ConfigError, match="addr_bits=33"):
+        TINY.replace(addr_bits=33)
+
+
+@pytest.mark.filterwarnings("ignore:.*created but never used")
+def test_narrow_addresses_shrink_the_cache_tags():
+    """Each line's tag loses the address bits the chip no longer has: 32 - addr_bits bits a
+    line of tag memory, on every cache of the RTC-MI and the slaves."""
+    from rtl.cache import Cache
+    from rtl.rgs_slave import shade_cache_geometry
+    from rtl.rtcmi import rtcmi_geometries
+    from tb.resources import resources
+    for a in (32, 18):
+        assert all(g.mem_addr_width == g.addr_width == a for g in
+                   [*rtcmi_geometries(TINY.replace(addr_bits=a)).values(),
+                    shade_cache_geometry(TINY.replace(addr_bits=a))])
+    wide, narrow = (rtcmi_geometries(TINY.replace(addr_bits=a))["int"] for a in (32, 18))
+    assert wide.tag_bits - narrow.tag_bits == 14
+    bits = [resources(lambda: Cache(g, tag_width=2))["totals"] for g in (wide, narrow)]
+    assert bits[0]["memory_bits"] - bits[1]["memory_bits"] == wide.sets * wide.ways * 14
+    assert bits[1]["flipflop_bits"] < bits[0]["flipflop_bits"]
+
+
 @pytest.mark.filterwarnings("ignore:.*created but never used")
 def test_eye_only_slave_has_no_secondary_ray_units():
     """Without lights and reflections the slave drops the ray setup (3 + 2 div, 6 sub, 6
@@ -126,14 +162,18 @@ def test_eye_only_slave_has_no_secondary_ray_units():
 
 
 def test_eye_only_chip_same_frame_same_cycles(cornell):
-    """The chip without secondary-ray hardware renders an eye-ray frame bit-exact, in the
-    same cycles as the whole chip (``tests/test_chip.py``, same frame, stall and seed)."""
+    """The chip without secondary-ray hardware and with addresses as narrow as the image
+    renders an eye-ray frame bit-exact, in the same cycles as the whole chip
+    (``tests/test_chip.py``, same frame, stall and seed)."""
+    from rtl.chip import Chip
     from tb.chip import run_chip
 
     from .test_chip import check_frame
     scene, prep = cornell
-    cfg = TINY.replace(rgs_lights=0, reflect_depth=0)
-    assert not cfg.secondary_rays
+    cfg = TINY.replace(rgs_lights=0, reflect_depth=0,
+                       addr_bits=(len(prep.image.data) - 1).bit_length())
+    assert not cfg.secondary_rays and cfg.addr_bits < 32
+    assert len(Chip(cfg).mem.req.payload.addr) == cfg.addr_bits
     r = run_chip(cfg, prep.image, scene.camera, 8, 4, stall=0.25, seed=3)
     check_frame(r, cfg, prep.image, eye_rays(scene.camera, 8, 4, cfg))
     name = "chip/cornell_8x4_rtcs1"
