@@ -249,7 +249,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="build the chip for what the scene needs (Config.for_scene): the "
                          "stack as deep as its kd-tree, as many light registers as it has "
                          "lights, no reflection hardware without mirrors, no texture unit "
-                         "without textures; the frame is the same, the chip smaller")
+                         "without textures, memory addresses as wide as its image; the frame "
+                         "is the same, the chip smaller")
     add_config_args(ap)
     ap.add_argument(
         "--narrowest-fmt", action="store_true",
