@@ -180,7 +180,8 @@ class Chip(wiring.Component):
 
     Host side (inputs held for the frame): the image constants ``node_base``, ``list_base``,
     ``tri_base``, ``root``, ``rec_base`` (the slave records), the scene box
-    ``box_lo``/``box_hi``; the camera ``pos``, ``corner``, ``dx``, ``dy`` (format words, as
+    ``box_lo``/``box_hi`` and ``box_cull`` (1, the default: rays that miss the box never
+    enter traversal; 0 only to measure what that saves); the camera ``pos``, ``corner``, ``dx``, ``dy`` (format words, as
     ``model.raygen.eye_rays`` quantizes them for the sample image), ``width``/``height``
     (pixels), ``tiles_x``/``tiles_y`` (tiles of the sample image); ``eps``, ``lights``,
     ``light_point``, ``n_lights``, ``reflect_depth`` (the slaves' secondary rays);
@@ -231,7 +232,7 @@ class Chip(wiring.Component):
             "start": In(1), "busy": Out(1), "done": Out(1),
             "node_base": In(cfg.addr_bits), "list_base": In(cfg.addr_bits),
             "tri_base": In(cfg.addr_bits), "root": In(NODE_BITS), "rec_base": In(cfg.addr_bits),
-            "box_lo": In(v3), "box_hi": In(v3),
+            "box_lo": In(v3), "box_hi": In(v3), "box_cull": In(1, init=1),
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(COORD_BITS), "height": In(COORD_BITS),
             "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS),
@@ -291,7 +292,8 @@ class Chip(wiring.Component):
                 connect_tags(m, cache.mem, arr.ext[n + s])
                 m.d.comb += [cache.base.eq(0), self.tex_hits[s].eq(cache.hits),
                              self.tex_misses[s].eq(cache.misses)]
-            for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi", "eps",
+            for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi",
+                      "box_cull", "eps",
                       "light_point", "n_lights", "reflect_depth", "amb", "bg", "w_eye",
                       "eye_miss", "colour"):
                 m.d.comb += getattr(slave, k).eq(getattr(self, k))

@@ -276,11 +276,20 @@ def _stall(m: Module, o) -> Signal:
     return en
 
 
-def _ray_out(pipe: RaySetupPipe, ray, packet, lane, last, anyhit) -> list:
-    """Assignments of a ``RayIn`` view ``ray`` from the setup pipe's outputs."""
+def _ray_out(m: Module, pipe: RaySetupPipe, ray, packet, lane, last, anyhit,
+             box_cull: Value) -> list:
+    """Assignments of a ``RayIn`` view ``ray`` from the setup pipe's outputs. With
+    ``box_cull`` = 0 a ray whose clipped interval is empty (``not tnear <= tfar``, the
+    traversal's test) gets ``[+0, tmax]`` instead and is traversed like any other
+    (``model.raygen.setup(box_cull=False)``: only to measure what the cull saves); a
+    combinational compare and two muxes on the output registers, no cycle."""
+    from .fp.cmp import compare
+    keep = Signal(name="box_keep")
+    m.d.comb += keep.eq(box_cull | compare(pipe.fmt, pipe.tnear, pipe.tfar).le)
     return [ray.packet.eq(packet), ray.lane.eq(lane), ray.last.eq(last),
             ray.org.eq(pipe.o_org), ray.inv.eq(pipe.inv), ray.octant.eq(pipe.octant),
-            ray.tnear.eq(pipe.tnear), ray.tfar.eq(pipe.tfar), ray.k.eq(pipe.k),
+            ray.tnear.eq(Mux(keep, pipe.tnear, _fp_const(pipe.fmt, "+0"))),
+            ray.tfar.eq(Mux(keep, pipe.tfar, pipe.o_tmax)), ray.k.eq(pipe.k),
             ray.s.eq(pipe.s), ray.tmax.eq(pipe.o_tmax), ray.anyhit.eq(anyhit)]
 
 
@@ -289,7 +298,8 @@ class RaySetup(wiring.Component):
 
     Ports: ``i`` (In stream, :func:`RaySetupIn`): org, dir, tmax, anyhit, packet, lane, last;
     ``box_lo``, ``box_hi`` (In, 3 format words each: the scene box, constant while rays are in
-    flight); ``o`` (Out stream, ``RayIn``).
+    flight); ``box_cull`` (In, 1 by default: 0 turns the box cull off, see :func:`_ray_out`);
+    ``o`` (Out stream, ``RayIn``).
     Latency: ``latency`` cycles (= ``RaySetupPipe.latency``, 15 for binary32 with the default
     FP latencies) from a ray's input transfer to its ``o.valid``, when ``o`` is not stalled.
     Throughput: one ray per cycle; ``i.ready = ~o.valid | o.ready`` (the whole pipeline holds
@@ -305,7 +315,7 @@ class RaySetup(wiring.Component):
         self.latency = self.pipe.latency
         super().__init__({
             "i": In(stream.Signature(RaySetupIn(cfg))),
-            "box_lo": In(vec3(cfg)), "box_hi": In(vec3(cfg)),
+            "box_lo": In(vec3(cfg)), "box_hi": In(vec3(cfg)), "box_cull": In(1, init=1),
             "o": Out(stream.Signature(RayIn(cfg))),
         })
 
@@ -324,7 +334,8 @@ class RaySetup(wiring.Component):
         ]
         tag = data.View(self.tag, pipe.o_tag)
         m.d.comb += self.o.valid.eq(pipe.o_valid)
-        m.d.comb += _ray_out(pipe, self.o.payload, tag.packet, tag.lane, tag.last, tag.anyhit)
+        m.d.comb += _ray_out(m, pipe, self.o.payload, tag.packet, tag.lane, tag.last,
+                             tag.anyhit, self.box_cull)
         return m
 
 
@@ -408,7 +419,8 @@ class EyeRays(wiring.Component):
         is every ray's origin.
     ``width``, ``height`` (In, ``coord_bits``): the image in pixels; the sample image is
         ``width*n x height*n`` (n = ``cfg.oversampling``), below 2**``coord_bits`` each.
-    ``box_lo``, ``box_hi`` (In, 3 format words each): the scene box of ray setup.
+    ``box_lo``, ``box_hi`` (In, 3 format words each): the scene box of ray setup;
+    ``box_cull`` (In, 1 by default; 0: no box cull, :func:`_ray_out`).
     The camera, image size and box are registers of the slave: hold them while rays are in
     flight.
 
@@ -440,7 +452,7 @@ class EyeRays(wiring.Component):
             "o": Out(stream.Signature(EyeRay(cfg))),
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(coord_bits), "height": In(coord_bits),
-            "box_lo": In(v3), "box_hi": In(v3),
+            "box_lo": In(v3), "box_hi": In(v3), "box_cull": In(1, init=1),
         })
 
     def elaborate(self, platform):
@@ -503,7 +515,8 @@ class EyeRays(wiring.Component):
         out = data.View(self.setup_tag, setup.o_tag)
         m.d.comb += [self.o.valid.eq(setup.o_valid), self.o.payload.pixel.eq(out.pixel),
                      self.o.payload.dir.eq(setup.o_dir)]
-        m.d.comb += _ray_out(setup, self.o.payload.ray, out.packet, out.lane, out.last, 0)
+        m.d.comb += _ray_out(m, setup, self.o.payload.ray, out.packet, out.lane, out.last, 0,
+                             self.box_cull)
         return m
 
 

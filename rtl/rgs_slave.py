@@ -207,7 +207,7 @@ class Slave(wiring.Component):
                if self.tex is not None else {}),
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(COORD_BITS), "height": In(COORD_BITS),
-            "box_lo": In(v3), "box_hi": In(v3), "eps": In(w),
+            "box_lo": In(v3), "box_hi": In(v3), "box_cull": In(1, init=1), "eps": In(w),
             "lights": In(v3).array(max(1, L)), "light_point": In(max(1, L)),
             "n_lights": In(range(L + 1)), "reflect_depth": In(DEPTH_BITS),
             "light_col": In(v3).array(max(1, L)), "amb": In(w), "bg": In(v3), "w_eye": In(w),
@@ -221,7 +221,8 @@ class Slave(wiring.Component):
     def _eye(self, m: Module) -> EyeRays:
         """The eye-ray generator, on the camera and scene-box registers."""
         m.submodules.eye = eye = self.eye
-        for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi"):
+        for k in ("pos", "corner", "dx", "dy", "width", "height", "box_lo", "box_hi",
+                  "box_cull"):
             m.d.comb += getattr(eye, k).eq(getattr(self, k))
         return eye
 
@@ -324,7 +325,8 @@ class Slave(wiring.Component):
         m.submodules.setup = setup = self.setup
         m.submodules.sec = sec = self.sec
         m.submodules.shd = shd = self.shd
-        m.d.comb += [setup.box_lo.eq(self.box_lo), setup.box_hi.eq(self.box_hi)]
+        m.d.comb += [setup.box_lo.eq(self.box_lo), setup.box_hi.eq(self.box_hi),
+                     setup.box_cull.eq(self.box_cull)]
         K = Signal(range(L + 2))
         m.d.comb += K.eq(self.n_lights + 1)
 

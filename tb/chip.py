@@ -37,11 +37,12 @@ __all__ = ["CHIP_MIN_MEM_WORDS", "chip_build", "frame_registers", "ChipFrame", "
 
 
 def frame_registers(cfg: Config, image, camera, width: int, height: int,
-                    scene=None) -> dict:
+                    scene=None, box_cull: bool = True) -> dict:
     """The chip's host registers for a ``width x height`` frame of ``camera`` (values as the
     chip's ports take them: format words as their bit patterns). With ``scene`` the slaves make
     its secondary rays (a shadow ray per light, if ``cfg.shadows``; reflections to
-    ``cfg.reflect_depth``) from the image's slave records; without, eye rays only."""
+    ``cfg.reflect_depth``) from the image's slave records; without, eye rays only.
+    ``box_cull=False`` turns the slaves' box cull off (only to measure what it saves)."""
     from model.shading import Shader, frame_colour_registers, surface_offset
     fmt, n = cfg.fmt, cfg.oversampling
     sw, sh = width * n, height * n
@@ -82,6 +83,7 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
         "w_eye": bits([col["w_eye"]])[0] if col is not None else 0,
         "eye_miss": [int(x) for x in col["eye_miss"]] if col is not None else [0, 0, 0],
         "colour": int(col is not None and cfg.secondary_rays),
+        "box_cull": int(box_cull),
     }
     for li, v in enumerate(vecs):
         regs[f"light{li}"] = v
@@ -93,7 +95,8 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
 _GOLDEN: list = []      # the last golden frame: (its inputs, its result)
 
 
-def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None):
+def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None,
+                 box_cull: bool = True):
     """What the chip must report for the frame of :func:`frame_registers`: ``(eye rays, every
     ray with its id, their hits, the model's counter totals, the pixels' fixed-point colour
     sums or None)``. With ``scene``: ``model.render.render``'s ray tree (the same rays in the
@@ -102,25 +105,28 @@ def golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None
     eye-ray-only slaves, or a scene with lights rendered without shadow rays (the slaves shade
     only with the lights they cast shadow rays to); without ``scene``: ``model.rtc.trace`` of
     the eye rays. The last frame's result is kept: a stall bench asks for the same frame with
-    every seed (the same objects, configuration and size give the same result)."""
-    objects, values = (image, camera, scene), (cfg, width, height)
+    every seed (the same objects, configuration and size give the same result).
+    ``box_cull=False``: the frame without the box cull (``model.render.Skip``)."""
+    objects, values = (image, camera, scene), (cfg, width, height, box_cull)
     if _GOLDEN:
         (o, v), out = _GOLDEN[0]
         if all(a is b for a, b in zip(o, objects)) and v == values:
             return out
-    out = _golden_frame(cfg, image, camera, width, height, scene)
+    out = _golden_frame(cfg, image, camera, width, height, scene, box_cull)
     _GOLDEN[:] = [((objects, values), out)]
     return out
 
 
-def _golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None):
+def _golden_frame(cfg: Config, image, camera, width: int, height: int, scene=None,
+                  box_cull: bool = True):
     eye = eye_rays(camera, width, height, cfg)
     if scene is None:
-        hits, ctrs = trace(image, eye, cfg)
+        hits, ctrs = trace(image, eye, cfg, box_cull=box_cull)
         return eye, eye, hits, counter_totals(ctrs), None
-    from model.render import Prepared, render
+    from model.render import Prepared, Skip, render
     res = render(scene, cfg, width, height,
-                 prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False))
+                 prepared=Prepared(image, None, np.zeros((0, 3, 3), np.float32), 0.0, False),
+                 skip=Skip(box_cull=box_cull))
     colour = res.colour if cfg.secondary_rays and (cfg.shadows or not scene.lights) else None
     return eye, res.rays, res.hits, res.counters, colour
 
@@ -198,20 +204,20 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                    seed: int = 1, mem_stall: float = 0.0, max_cycles: int = 100_000_000,
                    trace_file=None, trace_from: int = 0, progress: bool = True,
                    mem_words: int | None = None, build_root=None, log=None,
-                   sample_every: int = 0, scene=None) -> ChipRun:
+                   sample_every: int = 0, scene=None, box_cull: bool = True) -> ChipRun:
     """One frame through :class:`ChipFrame` in Verilator (built once per configuration),
     every ray compared with the golden model as :func:`run_chip` does in pysim. ``stall``:
     result back-pressure; ``mem_stall``: random memory latency (both fractions of cycles,
     LFSRs seeded by ``seed``); ``trace_file`` from run cycle ``trace_from``; the counters
-    every ``sample_every`` cycles in ``ChipRun.samples``; ``scene``: with its secondary rays
-    (:func:`frame_registers`)."""
+    every ``sample_every`` cycles in ``ChipRun.samples``; ``scene``: with its secondary rays,
+    ``box_cull``: the slaves' box cull on or off (:func:`frame_registers`)."""
     import sys
 
     from rtl.rgs_slave import SlaveResult
 
     from .verilator import FrameError, _field, _trace_kind, run_binary, write_blocks
     log = sys.stderr if log is None else log
-    regs = frame_registers(cfg, image, camera, width, height, scene)
+    regs = frame_registers(cfg, image, camera, width, height, scene, box_cull)
     rays = eye_rays(camera, width, height, cfg)
     words = len(image.data)
     if mem_words is not None and words > mem_words:
@@ -223,7 +229,7 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     # the golden model traces the frame while the simulation runs (another process)
     from concurrent.futures import ThreadPoolExecutor
     pool = ThreadPoolExecutor(max_workers=1)
-    golden = pool.submit(golden_frame, cfg, image, camera, width, height, scene)
+    golden = pool.submit(golden_frame, cfg, image, camera, width, height, scene, box_cull)
     pool.shutdown(wait=False)
     out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs, stall=stall,
                                                               seed=seed, mem_stall=mem_stall)),
@@ -312,16 +318,17 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
 
 def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: float = 0.0,
              seed: int = 1, mem_stall: float = 0.0, max_cycles: int = 1_000_000,
-             sample_every: int = 0, vcd: str | None = None, scene=None) -> ChipRun:
+             sample_every: int = 0, vcd: str | None = None, scene=None,
+             box_cull: bool = True) -> ChipRun:
     """One frame through :class:`ChipFrame` in Amaranth's simulator (memory image and
     registers preloaded), every ray compared with the golden model; the same cycles as
     :func:`run_chip_frame` in Verilator for the same ``stall`` and ``seed``; ``sample_every``
     and the samples as there; ``vcd``: a waveform of the whole run; ``scene``: with its
-    secondary rays."""
+    secondary rays; ``box_cull`` as there."""
     from amaranth.sim import Simulator
 
     from rtl.rgs_slave import SlaveResult
-    regs = frame_registers(cfg, image, camera, width, height, scene)
+    regs = frame_registers(cfg, image, camera, width, height, scene, box_cull)
     rays = eye_rays(camera, width, height, cfg)
     top = ChipFrame(cfg, mem_words=len(image.data), verilog_memories=False,
                     preload={"image": image.data,
@@ -368,7 +375,7 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
                for name, off, wd in compare.record_fields(lay)}
     c = dict(zip(names, unpack(info["counters"])))
     run = _finish(cfg, image, records, info["cycles"], info["seconds"], c,
-                  golden_frame(cfg, image, camera, width, height, scene))
+                  golden_frame(cfg, image, camera, width, height, scene, box_cull))
     if sample_every:
         rows.append([info["cycles"], len(got), *unpack(info["counters"])])
         run.samples = np.array(rows, np.int64)

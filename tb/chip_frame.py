@@ -35,7 +35,7 @@ REGISTERS = {"node_base": 0, "list_base": 0, "tri_base": 0, "root": 0, "rec_base
              "box_lo": 1, "box_hi": 1, "pos": 1, "corner": 1, "dx": 1, "dy": 1, "width": 0,
              "height": 0, "tiles_x": 0, "tiles_y": 0, "eps": 0, "light_point": 0,
              "n_lights": 0, "reflect_depth": 0, "amb": 0, "bg": 1, "w_eye": 0,
-             "eye_miss": 1, "colour": 0}                  # 1: a vector of 3 words
+             "eye_miss": 1, "colour": 0, "box_cull": 0}   # 1: a vector of 3 words
 
 
 def chip_counter_names(cfg: Config) -> list[str]:

@@ -83,6 +83,7 @@ def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = F
                                                           "int_ops": run.model["int_ops"]}
         out["rtl_shadow_rays_32x24"] = {"rays": int(len(sel)), **cyc}
         out["rtl_eye_rays_64x48"] = rtl_box_cull(scene, tiny, 64, 48, log)
+        out["chip_eye_rays_64x48"] = chip_box_cull(scene, cfg, 64, 48, log)
     if elab:
         out["elaboration"] = elaboration(scene, cfg, log=log)
     return out
@@ -116,6 +117,36 @@ def rtl_box_cull(scene, cfg: Config, width: int, height: int, log) -> dict:
     live, _ = select_packets(rays, keep)
     out["empty_tiles_skipped"] = _rtc_run(prep.image, live, cfg)
     print(f"RTC eye rays, empty tiles skipped: {out['empty_tiles_skipped']}", file=log)
+    return out
+
+
+def chip_box_cull(scene, base: Config, width: int, height: int, log) -> dict:
+    """The eye rays of a ``width x height`` frame through the small chip (1 RTC of 2 threads,
+    2 sub-units, 4x4 packets, caches 1/1/9 KB, SDRAM latency 8) in Verilator, with the slaves'
+    box cull on and off (the host's ``box_cull`` register), every ray and counter checked
+    against the model's frame with and without the cull. One binary serves both."""
+    from tb.chip import run_chip_frame
+    small = base.replace(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2,
+                         trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9, mem_latency=8)
+    prep = prepare(scene, small)
+    out = {}
+    for cull in (True, False):
+        t = time.perf_counter()
+        run = run_chip_frame(small, prep.image, scene.camera, width, height, box_cull=cull,
+                             progress=False, log=log)
+        wall = time.perf_counter() - t
+        if run.mismatches:
+            raise AssertionError(f"chip and model disagree: {run.mismatches[:4]}")
+        rtc = run.counters["rtc"]
+        got = {k: sum(x[k] for x in rtc) for k in ("trav_ops", "int_ops")}
+        if got != {k: run.model[k] for k in got}:
+            raise AssertionError(f"chip counters {got} differ from the model's {run.model}")
+        out["culled" if cull else "not_culled"] = {
+            "rays": run.rays, "cycles": run.cycles,
+            "fps": round(small.clock_mhz * 1e6 / run.cycles, 1), **got,
+            "binary_built": run.build.built, "wall_s": round(wall, 2)}
+        print(f"chip eye rays, box cull {'on' if cull else 'off'}: "
+              f"{out['culled' if cull else 'not_culled']}", file=log, flush=True)
     return out
 
 
@@ -222,7 +253,8 @@ def main(argv=None) -> int:
     ap.add_argument("--res", default="128x96", help="WxH (default 128x96)")
     ap.add_argument("--rtl", action="store_true",
                     help="also measure on the RTC in Verilator: shadow-ray cycles (32x24) and "
-                         "eye rays with and without the box cull and empty tiles (64x48)")
+                         "eye rays with and without the box cull and empty tiles (64x48); "
+                         "and on the small chip eye rays with its box cull on and off (64x48)")
     ap.add_argument("--elab", action="store_true",
                     help="also the small chip as configured against the chip built for the "
                          "scene (Config.for_scene): resources, Verilator build and a 16x16 "

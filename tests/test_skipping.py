@@ -178,3 +178,24 @@ def test_eye_only_chip_same_frame_same_cycles(cornell):
     check_frame(r, cfg, prep.image, eye_rays(scene.camera, 8, 4, cfg))
     name = "chip/cornell_8x4_rtcs1"
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+
+
+def test_chip_box_cull_off_traverses_the_missing_rays(cornell):
+    """With the slaves' box cull turned off (the ``box_cull`` register at 0) the 16 of Cornell
+    8x4's 32 eye rays that miss the box are traversed with ``[0, +inf]``: every ray bit-exact
+    with the model's frame without the cull and the RTC's counters equal to its counters,
+    which have more traversal work than the culled frame's (same hits)."""
+    from tb.chip import golden_frame, run_chip
+
+    from .test_chip import check_frame
+    scene, prep = cornell
+    cfg = TINY.replace(rgs_lights=0, reflect_depth=0)
+    eye = eye_rays(scene.camera, 8, 4, cfg)
+    rs = setup(eye, prep.image.bounds, cfg.fmt)
+    assert box_misses(rs.tnear, rs.tfar).sum() == 16
+    r = run_chip(cfg, prep.image, scene.camera, 8, 4, box_cull=False)
+    check_frame(r, cfg, prep.image, eye)
+    _, _, hits_on, on, _ = golden_frame(cfg, prep.image, scene.camera, 8, 4)
+    _, _, hits_off, off, _ = golden_frame(cfg, prep.image, scene.camera, 8, 4, box_cull=False)
+    assert r.model == off and off["trav_ops"] > on["trav_ops"]
+    assert np.array_equal(hits_off.tri, hits_on.tri)
