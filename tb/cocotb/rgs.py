@@ -41,7 +41,7 @@ def run_ray_setup(rays, bounds, cfg, sim: str, run_dir, *, seed: int = 1, idle: 
     inputs, want = ray_setup_streams(rays, bounds, cfg)
     w = cfg.fmt.width
     consts = {"box_lo": _vector(_words(cfg.fmt, bounds[0]), w),
-              "box_hi": _vector(_words(cfg.fmt, bounds[1]), w)}
+              "box_hi": _vector(_words(cfg.fmt, bounds[1]), w), "box_cull": 1}
     return _run("ray_setup", cfg, sim, run_dir, consts, inputs, want, in_port="i",
                 out_port="o", seed=seed, idle=idle, stall=stall, **build_kw)
 
@@ -55,7 +55,7 @@ def run_eye_rays(camera, width: int, height: int, cfg, bounds, sim: str, run_dir
     regs, reqs, want = eye_ray_streams(camera, width, height, cfg, bounds, tiles=tiles,
                                        packet_ids=packet_ids)
     consts = {k: _vector(v, cfg.fmt.width) for k, v in regs.items()}
-    consts.update(width=width, height=height)
+    consts.update(width=width, height=height, box_cull=1)
     return _run("rgs_eye", cfg, sim, run_dir, consts, reqs, want, in_port="req",
                 out_port="o", seed=seed, idle=idle, stall=stall, **build_kw)
 
