@@ -167,7 +167,7 @@ def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat, box_cull: bool = True) 
     inactive: it never enters traversal (the box cull). ``box_cull=False`` is the setup without
     the cull, only to measure what it saves: such a ray gets its unclipped interval
     ``[0, tmax]`` and goes through traversal like any other; the rays that meet the box keep
-    their clipped interval."""
+    their clipped interval (the RTL: the slaves' ``box_cull`` register, ``rtl.rgs._ray_out``)."""
     n = len(rays)
     inv = np.empty((n, 3), np.float32)
     s = np.empty((n, 3), np.float32)

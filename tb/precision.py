@@ -297,18 +297,21 @@ def study_scene(scene, formats, width: int, height: int, repeat: int = 3,
     return out
 
 
+def passes(row: dict, n_leaks: int, psnr_min: float = 40.0, flip_max: float = 1e-3) -> bool:
+    """The study's rule for one format: its ``study_scene`` row rendered (no error), PSNR >=
+    ``psnr_min``, eye-ray flips below ``flip_max``, and no leak (``n_leaks``)."""
+    return bool("error" not in row and row["image"]["psnr_db"] >= psnr_min
+                and row["eye"]["flip_share"] < flip_max and n_leaks == 0)
+
+
 def smallest_m(scene_row: dict, leak_rows: dict, psnr_min=40.0, flip_max=1e-3) -> int | None:
-    """Smallest M (E = 8) such that it and every larger M in the study pass: PSNR >= psnr_min,
-    no leaks, eye-ray flips below ``flip_max``."""
+    """Smallest M (E = 8) such that it and every larger M in the study pass (:func:`passes`)."""
     ms = sorted((int(k.split("M")[1]) for k in scene_row["formats"] if k.startswith("E8M")),
                 reverse=True)
     best = None
     for m in ms:
-        r = scene_row["formats"][f"E8M{m}"]
-        ok = ("error" not in r and r["image"]["psnr_db"] >= psnr_min
-              and r["eye"]["flip_share"] < flip_max
-              and all(v.get(f"E8M{m}", {"leaks": 0})["leaks"] == 0 for v in leak_rows.values()))
-        if not ok:
+        n_leaks = sum(v.get(f"E8M{m}", {"leaks": 0})["leaks"] for v in leak_rows.values())
+        if not passes(scene_row["formats"][f"E8M{m}"], n_leaks, psnr_min, flip_max):
             break
         best = m
     return best
@@ -320,12 +323,12 @@ NARROW_CANDIDATES = tuple(FPFormat(8, m) for m in (23, 20, 18, 16, 14, 13, 12, 1
 def narrowest_format(scene, width: int, height: int, *, candidates=NARROW_CANDIDATES,
                      psnr_min: float = 40.0, flip_max: float = 1e-3, leak_rays: int = 2000,
                      reflect_depth: int = 3, log=None) -> dict:
-    """The narrowest FP format that renders ``scene`` safely by the study's rule: walking
-    ``candidates`` from the first (the widest) on, a format passes when the golden model's
-    ``width x height`` image at that format is within ``psnr_min`` dB PSNR of the float64
-    render, fewer than ``flip_max`` of its eye rays flip between hit and miss, and no ray of
-    the closed meshes (``leak_rays`` per mesh) leaks through; the walk stops at the first
-    format that fails, so the answer and every wider candidate pass.
+    """The narrowest FP format that renders ``scene`` safely by the study's rule
+    (:func:`passes`): walking ``candidates`` from the first (the widest) on, a format passes
+    when the golden model's ``width x height`` image at that format is within ``psnr_min`` dB
+    PSNR of the float64 render, fewer than ``flip_max`` of its eye rays flip between hit and
+    miss, and no ray of the closed meshes (``leak_rays`` per mesh) leaks through; the walk
+    stops at the first format that fails, so the answer and every wider candidate pass.
 
     Returns ``{"fmt": FPFormat or None (not even the first candidate passes), "formats":
     {name: {"psnr_db", "flip_share", "leaks", "ok"} or {"error", "ok"}}, "rule", "seconds"}``.
@@ -345,9 +348,8 @@ def narrowest_format(scene, width: int, height: int, *, candidates=NARROW_CANDID
         else:
             n_leaks = sum(leaks(m, fmt, leak_rays)["leaks"] for m in meshes.values())
             row = {"psnr_db": float(r["image"]["psnr_db"]),
-                   "flip_share": float(r["eye"]["flip_share"]), "leaks": n_leaks}
-            row["ok"] = bool(row["psnr_db"] >= psnr_min and row["flip_share"] < flip_max
-                             and n_leaks == 0)
+                   "flip_share": float(r["eye"]["flip_share"]), "leaks": n_leaks,
+                   "ok": passes(r, n_leaks, psnr_min, flip_max)}
         rows[str(fmt)] = row
         if log is not None:
             print(f"narrowest format: {fmt}: {row}", file=log, flush=True)

@@ -120,14 +120,19 @@ def rtl_box_cull(scene, cfg: Config, width: int, height: int, log) -> dict:
     return out
 
 
+# the small chip of the chip measurements: 1 RTC of 2 threads, 2 sub-units, 4x4 packets,
+# caches 1/1/9 KB, SDRAM latency 8
+SMALL_CHIP = dict(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1,
+                  list_cache_kb=1, int_cache_kb=9, mem_latency=8)
+
+
 def chip_box_cull(scene, base: Config, width: int, height: int, log) -> dict:
     """The eye rays of a ``width x height`` frame through the small chip (1 RTC of 2 threads,
     2 sub-units, 4x4 packets, caches 1/1/9 KB, SDRAM latency 8) in Verilator, with the slaves'
     box cull on and off (the host's ``box_cull`` register), every ray and counter checked
     against the model's frame with and without the cull. One binary serves both."""
     from tb.chip import run_chip_frame
-    small = base.replace(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2,
-                         trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9, mem_latency=8)
+    small = base.replace(**SMALL_CHIP)
     prep = prepare(scene, small)
     out = {}
     for cull in (True, False):
@@ -162,11 +167,10 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
     from tb.precision import narrowest_format
     from tb.resources import chip_resources, yosys_resources
     log = sys.stderr if log is None else log
-    small = base.replace(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2,
-                         trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9, mem_latency=8)
+    small = base.replace(**SMALL_CHIP)
     prep = prepare(scene, small)
     fit = small.for_scene(scene, prep.image, width, height)
-    # the narrowest safe format, judged on a 128x95 image (tb.sim.pick_format's size for 4:3)
+    # the narrowest safe format, judged on a 128x95 image of the scene (4:3, odd height)
     narrow = narrowest_format(scene, 128, 95, reflect_depth=small.reflect_depth)
     out: dict = {"frame": [width, height],
                  "narrowest_fmt": {**narrow, "fmt": str(narrow["fmt"])}}
