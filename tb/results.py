@@ -160,11 +160,27 @@ def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: b
             client.close()
         if cluster is not None:
             cluster.close()
-    if threads and plan.threads:
-        run.threads = run_threads(plan.threads, out_dir, log)
-    if scaling and "scaling" in plan.sweeps:
-        run.scaling = measure_scaling(plan.sweeps["scaling"], log, kd_cache)
+    if plan.threads:
+        run.threads = (run_threads(plan.threads, out_dir, log) if threads
+                       else _kept(out_dir / "threads.json", log))
+    if "scaling" in plan.sweeps:
+        if scaling:
+            run.scaling = measure_scaling(plan.sweeps["scaling"], log, kd_cache)
+            out_dir.mkdir(parents=True, exist_ok=True)
+            (out_dir / "scaling.json").write_text(json.dumps(run.scaling, indent=1))
+        else:
+            run.scaling = _kept(out_dir / "scaling.json", log)
     return run
+
+
+def _kept(path: Path, log) -> dict | None:
+    """A skipped measurement's JSON from an earlier run (``None`` when there is none)."""
+    try:
+        res = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    print(f"results: {path} kept from an earlier run", file=log, flush=True)
+    return res
 
 
 def run_threads(t: dict, out_dir: Path, log) -> dict:
@@ -247,6 +263,11 @@ def _one(rows, **match):
 def _res(rows) -> str:
     rs = sorted({f"{r['width']}×{r['height']}" for r in rows})
     return ", ".join(rs) if rs else "—"
+
+
+def _rtcs(rows) -> str:
+    n = sorted({int(r["rtcs"]) for r in rows})
+    return " and ".join(map(str, n)) + (" RTC" if n == [1] else " RTCs")
 
 
 def _frac(rows) -> str:
@@ -568,10 +589,10 @@ in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
         self.add(f"""
 ## Table 3: int-cache size and memory bandwidth
 
-`{scene}`, 4 RTCs, {rays_text(rows)}, at {_res(rows)}
+`{scene}`, {_rtcs(rows)}, {rays_text(rows)}, at {_res(rows)}
 through the chip (`{self._spec('intcache')}`); int-cache {', '.join(f'{k} KB' for k in kbs)} ×
 {' and '.join(str(c) for c in chips)} SDRAM chips. In brackets: fps relative to the standard
-chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 1024×768.
+chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 4 RTCs, 1024×768.
 
 """ + _md_table(["bandwidth", *[f"{k} KB" for k in kbs], *[f"paper {k} KB" for k in kbs]],
                 body) + self.note("intcache") + f"\n\n{figure}")
@@ -1008,9 +1029,12 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--workers", type=int, default=2, help="local Dask workers (default 2)")
     ap.add_argument("--kd-cache", default="default", metavar="DIR",
                     help="kd-tree cache directory (default: the model's)")
-    ap.add_argument("--skip-threads", action="store_true", help="no threads bench")
+    ap.add_argument("--skip-threads", action="store_true",
+                    help="no threads bench: the page shows the one kept in WORK/threads.json "
+                         "by an earlier run, if any")
     ap.add_argument("--skip-scaling", action="store_true",
-                    help="no 1- and 2-worker timing of the scaling spec")
+                    help="no 1- and 2-worker timing of the scaling spec: the page shows the "
+                         "one kept in WORK/scaling.json by an earlier run, if any")
     return ap
 
 

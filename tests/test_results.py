@@ -4,7 +4,9 @@ The golden-model sweeps run for real (Cornell 8x8); the chip points are put in t
 cache beforehand (a chip frame needs a Verilator build of minutes), with figures made up here,
 so the test checks that each table shows what its sweep measured."""
 import csv
+import json
 import re
+from pathlib import Path
 
 import pytest
 
@@ -82,7 +84,8 @@ def make_plan(tmp_path, scenes=(CORNELL,)):
         f'title = "tiny"\nusage_scene = "cornell"\n[class]\n{classes}[sweeps]\n'
         'rays = "rays.toml"\nrtcs = "rtcs.toml"\nintcache = "intcache.toml"\n'
         f'raykinds = "raykinds.toml"\nraykinds_chip = "raykinds_chip.toml"\n'
-        f'scaling = "{TINY}"\n')
+        f'scaling = "{TINY}"\n[threads]\nscene = "{CORNELL}"\nres = "16x16"\n'
+        'counts = [1, 8]\n')
     return d
 
 
@@ -158,11 +161,23 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     assert len(table(text, "## Sweeps on more workers")) == 2
     for name in ("rtcs", "intcache", "raykinds", "usage"):
         assert (page.parent / "img" / f"results_{name}.png").stat().st_size > 1000
-    # a second run computes no point of the plan
+    assert "4 RTCs, " in text[text.index("## Table 3"):text.index("## Table 5")]
+    # a second run computes no point of the plan; the skipped timing and threads bench are
+    # the ones an earlier run kept in the work directory
+    (work / "threads.json").write_text(json.dumps({
+        "scene": str(CORNELL), "res": [16, 16], "mem_latency": 20,
+        "runs": [{"threads": 1, "cycles": 9000, "speedup": 1.0, "wall_s": 3.0},
+                 {"threads": 8, "cycles": 1500, "speedup": 6.0, "wall_s": 2.0}]}))
     rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page), "--work", str(work),
                        "--cache", str(cache), "--skip-threads", "--skip-scaling",
                        "--kd-cache", str(kd_cache)])
-    assert rc == 0 and "; 0 point(s) computed, 0 failed" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert rc == 0 and "; 0 point(s) computed, 0 failed" in out
+    assert "threads.json kept from an earlier run" in out
+    assert "scaling.json kept from an earlier run" in out
+    text = page.read_text()
+    assert len(table(text, "## Sweeps on more workers")) == 2
+    assert table(text, "## Threads")[1][:3] == ["8", "1,500", "6.00"]
 
 
 def test_failed_point_leaves_a_gap_and_fails(tmp_path, kd_cache, capsys):
@@ -220,3 +235,16 @@ def test_table3_not_in_the_plan_says_why(tmp_path):
     w = results.Writer(plan, results.Run(), tmp_path / "img", tmp_path / "r.md")
     w.table3()
     assert w.parts == []
+
+
+def test_shipped_plan_and_its_specs_load():
+    """The plan `make results` runs, and every sweep it names, parse; Table 3 is the ship's
+    int-cache x SDRAM-chip grid on one RTC (eye rays), as its note says."""
+    plan = results.load_plan(results.PLAN)
+    assert set(plan.sweeps) >= {"rays", "rtcs", "intcache", "raykinds", "raykinds_chip"}
+    specs = {k: sweep.load_spec(p) for k, p in plan.sweeps.items()}
+    grid = {(p.cfg().int_cache_kb, p.cfg().mem_chips) for p in specs["intcache"].points}
+    assert grid == {(k, c) for k in (144, 288, 576) for c in (4, 8)}
+    for p in specs["intcache"].points:
+        assert Path(p.scene_path).stem == "ship" and p.cfg().rtcs == 1 and p.cfg().reflect_depth == 0
+    assert "One RTC where the paper has four" in plan.notes["intcache"]
