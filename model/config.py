@@ -44,6 +44,10 @@ class Config:
     # they feed arithmetic or control, the per-thread selects of the traversal control cut in
     # two, the caches' lookup in two stages. False keeps every unit's cycle timing as it was.
     fast_clock: bool = False
+    # delays of at least this many cycles in the fixed-latency datapaths (intersection test,
+    # ray setup, eye rays, shading) are ring buffers in small memories (LUT-RAM on an FPGA)
+    # instead of flip-flop chains; the same cycles. 0: flip-flops only (docs/fpga.md)
+    delay_ram: int = 0
     tile_w: int = 8                # a packet is a tile_w x tile_h tile of eye rays
     tile_h: int = 8
 
@@ -96,6 +100,9 @@ class Config:
             if not 0 <= getattr(self, name) <= 64:
                 raise ConfigError(f"{name}={getattr(self, name)} must be in 0..64 (pipeline "
                                   "stages of that FP unit; 0 = the unit's default)")
+        if self.delay_ram == 1 or self.delay_ram < 0:
+            raise ConfigError(f"delay_ram={self.delay_ram} must be 0 (flip-flop delays) or "
+                              ">= 2 (the shortest delay kept in a ring buffer)")
         if self.int_tri_slots < 2 or not _pow2(self.int_tri_slots):
             raise ConfigError(f"int_tri_slots={self.int_tri_slots} must be a power of two >= 2 "
                               "(one triangle is tested while the next ones are fetched)")
@@ -184,10 +191,10 @@ class Config:
     def fp_latencies(self) -> dict:
         """``{"add": n, "mul": n, "div": n, "sqrt": n, "cmp": n}`` for the RTL's FP units
         (``cmp``: compare and min/max of the traversal and intersection units); None = the
-        unit's default."""
+        unit's default; ``delay_ram``: :attr:`delay_ram` for the datapaths' delays."""
         return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
                 "div": self.fp_div_latency or None, "sqrt": self.fp_sqrt_latency or None,
-                "cmp": self.fp_cmp_latency or None}
+                "cmp": self.fp_cmp_latency or None, "delay_ram": self.delay_ram}
 
     def for_scene(self, scene, image, width: int, height: int) -> "Config":
         """The smallest chip of this configuration that renders ``scene`` at ``width x

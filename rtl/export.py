@@ -146,7 +146,7 @@ def _unit(path: str, cls: str) -> Callable:
 
 def _pipe(cfg: Config, latency):
     from .intersection import IntersectPipe
-    return IntersectPipe(cfg.fmt)
+    return IntersectPipe(cfg.fmt, latencies=cfg.fp_latencies())
 
 
 # top name -> (factory(cfg, latency) -> component, description)

@@ -143,6 +143,8 @@ class IntersectPipe(wiring.Component):
             self.pre_tag.eq(sch.at(self.tag, 0, L - 1)),
             self.pre2_tag.eq(sch.at(self.tag, 0, L - 2)),
         ]
+        if not dry:     # the delay storage built (``Config.delay_ram``): flip-flop, ring bits
+            self.delay_bits = (sch.reg_bits, sch.ring_bits)
         return m, L
 
     @staticmethod

@@ -14,7 +14,7 @@ SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
     ("fp_add_latency", -1), ("fp_mul_latency", 65), ("fp_div_latency", -3),
     ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
     ("list_outstanding", 1), ("fp_sqrt_latency", 65), ("rgs_lights", 15), ("reflect_depth", 16),
-    ("shade_cache_kb", 0)])
+    ("shade_cache_kb", 0), ("delay_ram", 1), ("delay_ram", -2)])
 def test_bad_rtl_parameters_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         Config(**{field: value})
@@ -25,7 +25,7 @@ def test_units_take_latencies_and_sizes_from_config():
     slow = base.replace(fp_add_latency=5, fp_mul_latency=4, int_tri_slots=16,
                         list_outstanding=4)
     assert base.fp_latencies() == {"add": None, "mul": None, "div": None, "sqrt": None,
-                                   "cmp": None}
+                                   "cmp": None, "delay_ram": 0}
     assert slow.replace(fp_sqrt_latency=11).fp_latencies()["sqrt"] == 11
     sub0, sub1 = TravSubunit(base), TravSubunit(slow)
     assert (sub0.add.latency, sub0.mul.latency) == (3, 3)

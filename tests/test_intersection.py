@@ -123,6 +123,27 @@ def test_pipe_reduced_formats_exact_cycle(fmt):
     assert r.mismatches == [] and r.outputs == r.tests == 60
 
 
+@pytest.mark.parametrize("lat", [{}, {"add": 8, "mul": 5, "div": 29}], ids=["default", "deep"])
+def test_pipe_delay_rings_exact_cycle(lat):
+    """``Config.delay_ram``: the datapath's delays as ring buffers give every output at its
+    exact cycle under random bubbles and stalls (the pointers advance only when enabled),
+    including delays longer than one ring (the deep divider's 29 cycles)."""
+    from amaranth.hdl import Fragment
+    from rtl.intersection import IntersectPipe
+    fmt = FPFormat(6, 10)
+    on = dict(lat, delay_ram=2)
+    r = run_pipe(random_tests(60, fmt, seed=5), fmt, seed=5, p_bubble=0.3, p_stall=0.3,
+                 latencies=on)
+    assert r.mismatches == [] and r.outputs == r.tests == 60
+    bits = {}
+    for k in (0, 2, 4):
+        pipe = IntersectPipe(fmt, tag_width=8, latencies=dict(lat, delay_ram=k))
+        Fragment.get(pipe, None)
+        bits[k] = pipe.delay_bits
+    assert bits[0][1] == 0 and bits[2][0] < bits[4][0] < bits[0][0] / 2
+    assert bits[2][1] > 0 and bits[4][1] > 0
+
+
 @pytest.mark.slow
 def test_unit_reduced_format(kd_cache):
     """E8M16: triangles come from memory as binary32 patterns and are sliced to the format."""

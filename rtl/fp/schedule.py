@@ -6,10 +6,17 @@ unit per operation, starts it in the cycle its latest operand is ready and bring
 operands to that cycle through delay registers (shared: a value delayed to cycle t is one
 register chain however many operations read it). Every register loads when ``en`` is 1 and
 holds otherwise, so the whole datapath stalls as one.
+
+With ``latencies["delay_ram"] = n`` (``Config.delay_ram``, n >= 2) a delay of n or more cycles
+is a ring buffer instead: a small memory written and read at one pointer that advances when
+``en`` is 1 (at most :data:`RING_MAX` deep; longer delays are rings in series). It gives every
+value in the same cycle as the register chain; on an FPGA the memory is LUT-RAM (ECP5:
+``TRELLIS_DPR16X4``, 16 x 4 bits) where the chain was ``n`` flip-flops per bit.
 """
 from __future__ import annotations
 
-from amaranth.hdl import Const, Module, Signal, Value
+from amaranth.hdl import Const, Module, Mux, Signal, Value
+from amaranth.lib.memory import Memory
 
 from model.fp import FPFormat
 
@@ -19,7 +26,9 @@ from .div import FPDiv
 from .mul import FPMul
 from .sqrt import FPSqrt
 
-__all__ = ["Schedule"]
+__all__ = ["Schedule", "RING_MAX"]
+
+RING_MAX = 16          # the deepest ring buffer (the depth of one LUT-RAM cell on the ECP5)
 
 
 class Schedule:
@@ -28,15 +37,20 @@ class Schedule:
 
     ``latencies``: ``{kind: cycles}`` for the kinds used (:meth:`default_latencies` fills in
     the units' defaults). ``dry=True`` instantiates nothing and only computes ready cycles (to
-    learn a datapath's latency before building it)."""
+    learn a datapath's latency before building it). ``latencies["delay_ram"]`` (optional, 0:
+    off): delays at least this long are ring buffers (module docstring)."""
 
     UNITS = {"add": FPAdd, "sub": FPAdd, "mul": FPMul, "div": FPDiv, "sqrt": FPSqrt,
              "min": FPMinMax, "max": FPMinMax}
 
     def __init__(self, m: Module, en: Value, fmt: FPFormat, latencies: dict, dry: bool = False):
         self.m, self.en, self.fmt, self.lat, self.dry = m, en, fmt, latencies, dry
-        self.taps: dict[int, list[Signal]] = {}
+        self.taps: dict[int, dict[int, Value]] = {}
+        self.ptrs: dict[int, Signal] = {}        # one write/read pointer per ring depth
+        self.ram_min = int(latencies.get("delay_ram") or 0)
+        assert self.ram_min == 0 or self.ram_min >= 2, self.ram_min
         self.n = 0
+        self.reg_bits = self.ring_bits = 0       # delay storage: flip-flops, ring memory bits
 
     @classmethod
     def default_latencies(cls, fmt: FPFormat, latencies: dict | None = None) -> dict:
@@ -56,6 +70,7 @@ class Schedule:
                 out[kind] = given[kind]
         out["sub"] = out["add"]
         out["min"] = out["max"] = out.pop("minmax")
+        out["delay_ram"] = given.get("delay_ram") or 0
         return out
 
     def at(self, value, t0: int, t: int) -> Value:
@@ -64,15 +79,42 @@ class Schedule:
         if isinstance(value, Const) or t == t0:
             return value
         assert t > t0, f"value ready at cycle {t0} read at cycle {t}"
-        chain = self.taps.setdefault(id(value), [value])     # chain[0] keeps id() unique
-        while len(chain) <= t - t0:
-            prev = chain[-1]
-            reg = Signal.like(prev, name=f"dly{self.n}", reset_less=True)
-            self.n += 1
+        taps = self.taps.setdefault(id(value), {0: value})  # taps[0] keeps id() unique
+        d = t - t0
+        while d not in taps:                  # extend from the longest delay made so far
+            e = max(k for k in taps if k < d)
+            if self.ram_min and d - e >= self.ram_min:
+                n = min(d - e, RING_MAX)
+                taps[e + n] = self._ring(taps[e], n)
+            else:
+                reg = Signal.like(taps[e], name=f"dly{self.n}", reset_less=True)
+                self.n += 1
+                with self.m.If(self.en):
+                    self.m.d.sync += reg.eq(taps[e])
+                taps[e + 1] = reg
+                self.reg_bits += len(reg)
+        return taps[d]
+
+    def _ring(self, value: Value, n: int) -> Signal:
+        """``value`` delayed by ``n`` enabled cycles in a ring buffer of ``n`` words: each
+        enabled cycle reads the word written ``n`` enabled cycles ago and writes ``value``
+        in its place (the read is combinational, before the write)."""
+        if self.dry:                          # ready cycles only: no memory to elaborate
+            return Signal.like(value)
+        ptr = self.ptrs.get(n)
+        if ptr is None:
+            ptr = self.ptrs[n] = Signal(range(n), name=f"ring{n}_ptr")
             with self.m.If(self.en):
-                self.m.d.sync += reg.eq(prev)
-            chain.append(reg)
-        return chain[t - t0]
+                self.m.d.sync += ptr.eq(Mux(ptr == n - 1, 0, ptr + 1))
+        mem = Memory(shape=len(value), depth=n, init=[])
+        self.m.submodules[f"ring{self.n}"] = mem
+        wr, rd = mem.write_port(), mem.read_port(domain="comb")
+        out = Signal.like(value, name=f"dly{self.n}")
+        self.n += 1
+        self.ring_bits += n * len(value)
+        self.m.d.comb += [wr.addr.eq(ptr), wr.data.eq(value), wr.en.eq(self.en),
+                          rd.addr.eq(ptr), out.eq(rd.data)]
+        return out
 
     def op(self, kind: str, a: tuple, b: tuple | None, name: str) -> tuple:
         """``(value, ready cycle)`` of ``a kind b`` (``sqrt``: of ``a``, ``b`` is None);
