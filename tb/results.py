@@ -362,13 +362,18 @@ def _os_text(eye, os_row) -> str:
 
 
 def _commit() -> str:
+    """The checkout's commit, ``-dirty`` when the sources the points depend on (those of
+    ``tb.sweep.code_hash``) differ from it; the plan, the specs and this page writer may."""
     import subprocess
+    paths = [*sw.CODE_DIRS, *(f":!{p}" for p in sw.CODE_EXCLUDE)]
     try:
-        c = subprocess.run(["git", "-C", str(ROOT), "describe", "--always", "--dirty"],
+        c = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
                            capture_output=True, text=True, timeout=10).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--", *paths],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
     except (OSError, subprocess.SubprocessError):
-        c = ""
-    return f"`{c}`" if c else "unknown"
+        c = dirty = ""
+    return f"`{c}{'-dirty' if dirty else ''}`" if c else "unknown"
 
 
 def _build_text(root: Path = ROOT / "build" / "verilator") -> str:
@@ -985,9 +990,11 @@ model's* columns are its operation counts (the ops the chip's units perform: the
 counters equal the model's on every frame checked). Estimates are marked as such.
 {self.plan.resolution_note}
 
-Code: commit {self.commit or _commit()}. This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
+Code: commit {self.commit or _commit()} (the sources of `rtl/`, `model/` and `tb/` every
+point ran). This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
 {load[1]:.2f} before / after, on a 2-core machine shared with other work);
-{sum(len(v) for v in self.run.rows.values())} sweep points.
+{sum(len(v) for v in self.run.rows.values())} sweep points (their own times when they were
+computed: the last section).
 """
         return head + "\n" + "\n".join(self.parts)
 
