@@ -186,7 +186,8 @@ POINT = np.array([1, 0, 1])
 
 @pytest.mark.parametrize("fmt,latencies", [
     (B32, None), (FPFormat(8, 12), {"add": 1, "mul": 2, "div": 3, "sqrt": 2}),
-    (FPFormat(6, 10), {"add": 5, "mul": 4, "div": 12, "sqrt": 11})], ids=str)
+    (FPFormat(6, 10), {"add": 5, "mul": 4, "div": 12, "sqrt": 11}),
+    (FPFormat(6, 10), {"add": 5, "mul": 4, "div": 12, "sqrt": 11, "delay_ram": 3})], ids=str)
 def test_secondary_pipe(fmt, latencies):
     """Every output of every hit (random and edge cases) at its exact cycle, bit for bit with
     ``model.rgs.secondary_rays``, with 20 % input bubbles and 20 % stalls."""
@@ -237,7 +238,8 @@ def test_shadow_pipe(fmt):
 
 @pytest.mark.parametrize("fmt,latencies", [
     (B32, None), (FPFormat(8, 12), {"add": 1, "mul": 2, "div": 3, "sqrt": 2}),
-    (FPFormat(6, 10), {"add": 2, "mul": 1, "div": 5, "sqrt": 4})], ids=str)
+    (FPFormat(6, 10), {"add": 2, "mul": 1, "div": 5, "sqrt": 4}),
+    (FPFormat(6, 10), {"add": 2, "mul": 1, "div": 5, "sqrt": 4, "delay_ram": 2})], ids=str)
 def test_light_pipe(fmt, latencies):
     """The shadow ray and every colour output of every (hit, light) pair (random and edge
     cases, point and parallel lights) at its exact cycle, bit for bit with the model
