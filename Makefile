@@ -83,10 +83,11 @@ verilog: setup
 	$(SAARCOR) verilog --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
-##   (YoWASP Yosys + nextpnr, an hour or more on 2 cores; not in CI) -> build/fpga/report.json, README.md
-##   deep FP pipelines and the fast_clock registers (docs/fpga.md); FPGA_DEEP= for the default timing
+##   (YoWASP Yosys + nextpnr: about 25 min, Yosys 2.5 + placement 9 + routing 12; not in CI) -> build/fpga/report.json, README.md
+##   deep FP pipelines, the fast_clock registers, delays in LUT-RAM, router1 (60 MHz routed, docs/fpga.md);
+##   FPGA_DEEP= for the default timing
 FPGA_TOP    ?= rtc
-FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 5 --fp-div-latency 29 --fp-cmp-latency 3 --fast-clock 1
+FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 5 --fp-div-latency 29 --fp-cmp-latency 3 --fast-clock 1 --delay-ram 4 --router router1
 FPGA_CONFIG ?= --threads 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8 $(FPGA_DEEP)
 fpga: setup
 	$(VENV)/bin/pip install -q -e ".[fpga]"
