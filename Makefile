@@ -83,7 +83,7 @@ verilog: setup
 	$(SAARCOR) verilog --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
-##   (YoWASP Yosys + nextpnr: about 25 min, Yosys 2.5 + placement 9 + routing 12; not in CI) -> build/fpga/report.json, README.md
+##   (YoWASP Yosys + nextpnr: 25-35 min, Yosys 2.5-10 + placement 9-13 + routing 12; not in CI) -> build/fpga/report.json, README.md
 ##   deep FP pipelines, the fast_clock registers, delays in LUT-RAM, router1 (60 MHz routed, docs/fpga.md);
 ##   FPGA_DEEP= for the default timing
 FPGA_TOP    ?= rtc

@@ -164,12 +164,8 @@ def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: b
         run.threads = (run_threads(plan.threads, out_dir, log) if threads
                        else _kept(out_dir / "threads.json", log))
     if "scaling" in plan.sweeps:
-        if scaling:
-            run.scaling = measure_scaling(plan.sweeps["scaling"], log, kd_cache)
-            out_dir.mkdir(parents=True, exist_ok=True)
-            (out_dir / "scaling.json").write_text(json.dumps(run.scaling, indent=1))
-        else:
-            run.scaling = _kept(out_dir / "scaling.json", log)
+        run.scaling = (measure_scaling(plan.sweeps["scaling"], out_dir, log, kd_cache)
+                       if scaling else _kept(out_dir / "scaling.json", log))
     return run
 
 
@@ -198,8 +194,9 @@ def run_threads(t: dict, out_dir: Path, log) -> dict:
     return res
 
 
-def measure_scaling(spec_path: Path, log, kd_cache: str = "default") -> dict:
-    """The same small spec with 1 and 2 local workers, each with an empty result cache."""
+def measure_scaling(spec_path: Path, out_dir: Path, log, kd_cache: str = "default") -> dict:
+    """The same small spec with 1 and 2 local workers, each with an empty result cache, kept
+    as JSON."""
     from distributed import Client, LocalCluster
     spec = sw.load_spec(spec_path)
     out = {"spec": spec.name, "points": len(spec.points), "runs": []}
@@ -218,6 +215,8 @@ def measure_scaling(spec_path: Path, log, kd_cache: str = "default") -> dict:
                             "failed": res["failed"], "load_before": load})
         print(f"results: scaling {spec.name}: {n} worker(s) {wall:.1f} s "
               f"(jobs {jobs:.1f} s)", file=log, flush=True)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "scaling.json").write_text(json.dumps(out, indent=1))
     return out
 
 

@@ -127,10 +127,10 @@ SMALL_CHIP = dict(rtcs=1, threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_c
 
 
 def chip_box_cull(scene, base: Config, width: int, height: int, log) -> dict:
-    """The eye rays of a ``width x height`` frame through the small chip (1 RTC of 2 threads,
-    2 sub-units, 4x4 packets, caches 1/1/9 KB, SDRAM latency 8) in Verilator, with the slaves'
-    box cull on and off (the host's ``box_cull`` register), every ray and counter checked
-    against the model's frame with and without the cull. One binary serves both."""
+    """The eye rays of a ``width x height`` frame through the small chip (:data:`SMALL_CHIP`)
+    in Verilator, with the slaves' box cull on and off (the host's ``box_cull`` register),
+    every ray and counter checked against the model's frame with and without the cull. One
+    binary serves both."""
     from tb.chip import run_chip_frame
     small = base.replace(**SMALL_CHIP)
     prep = prepare(scene, small)
