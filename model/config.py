@@ -66,6 +66,12 @@ class Config:
     shade_cache_kb: int = 28       # each RGS slave's cache of shading records (face and vertex
                                    # normals, flags, colour constants, texture coordinates and
                                    # texture: 112 bytes a triangle; 28 KB = 256 records)
+    # FP units of each RGS slave datapath (eye rays, ray setup, secondary rays, light and
+    # colour): 0 = one pipelined unit per operation (a ray a cycle); n = at most n adders
+    # (multipliers), shared in a modulo schedule: the datapath takes a ray every ii cycles,
+    # ii = ceil(operations / n) (docs/rgs.md). The paper's slave has 3 adders, 4 multipliers.
+    rgs_fp_adders: int = 0
+    rgs_fp_muls: int = 0
     tex_cache_kb: int = 4          # each RGS slave's texel cache (64-bit words, two RGBA8
                                    # texels each); 0: no texture unit (a textured surface shows
                                    # its material's colour)
@@ -117,6 +123,9 @@ class Config:
                               "registers per RGS slave)")
         if self.shade_cache_kb < 1:
             raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
+        if self.rgs_fp_adders < 0 or self.rgs_fp_muls < 0:
+            raise ConfigError(f"rgs_fp_adders={self.rgs_fp_adders}, rgs_fp_muls="
+                              f"{self.rgs_fp_muls} must be >= 0 (0: a unit per operation)")
         if self.tex_cache_kb < 0:
             raise ConfigError(f"tex_cache_kb={self.tex_cache_kb} must be >= 0 (0: no texture "
                               "unit)")
@@ -195,6 +204,13 @@ class Config:
         return {"add": self.fp_add_latency or None, "mul": self.fp_mul_latency or None,
                 "div": self.fp_div_latency or None, "sqrt": self.fp_sqrt_latency or None,
                 "cmp": self.fp_cmp_latency or None, "delay_ram": self.delay_ram}
+
+    def rgs_budget(self) -> dict | None:
+        """The RGS slave datapaths' FP unit budget (``rtl.rgs``): ``{"add": n, "mul": n}`` of
+        :attr:`rgs_fp_adders`, :attr:`rgs_fp_muls` (the nonzero ones), or None: a unit per
+        operation."""
+        b = {k: n for k, n in (("add", self.rgs_fp_adders), ("mul", self.rgs_fp_muls)) if n}
+        return b or None
 
     def for_scene(self, scene, image, width: int, height: int) -> "Config":
         """The smallest chip of this configuration that renders ``scene`` at ``width x

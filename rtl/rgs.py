@@ -36,7 +36,7 @@ from model.rgs import FIX_BITS, FIX_FRAC, FIX_MAX, TEX_FRAC, TEX_ONE, TEX_SCALE,
 
 from .fp.common import bits_for, unpack, wire
 from .fp.conv import FPFromInt
-from .fp.schedule import Schedule
+from .fp.schedule import Schedule, Share
 from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
 
@@ -132,18 +132,49 @@ def _latencies(fmt: FPFormat, latencies: dict | None) -> dict:
 class _Datapath(wiring.Component):
     """A bare fixed-latency datapath of FP units (``Schedule``): ``inputs`` and ``outputs``
     ports plus ``tag`` (carried along), ``i_valid``, ``en`` (0 holds every stage),
-    ``o_valid`` and ``o_tag``. A subclass writes ``_build(m, dry)``, which returns the
-    latency; ``latency`` comes from a dry build (ready cycles only, no units)."""
+    ``i_slot`` (1 in the cycles in which an input is taken), ``o_valid`` and ``o_tag``. A
+    subclass writes ``_build(m, dry)``, which returns the latency; ``latency`` comes from a
+    dry build (ready cycles only, no units).
+
+    ``budget`` (``{"add": n, "mul": n}``, optional; :meth:`Config.rgs_budget`): at most n FP
+    adders and n multipliers, shared in a modulo schedule (:class:`~rtl.fp.schedule.Share`):
+    the datapath then takes an input every ``ii`` enabled cycles (``i_slot``; an ``i_valid``
+    outside its slot is ignored) and ``units`` gives the units of each class. Two more keys:
+    ``"ii"``, the least interval (to run in step with another datapath), and ``"offset"``:
+    the first slot comes ``offset`` enabled cycles after reset (the latency of a datapath of
+    the same interval that feeds this one, so that its outputs meet this one's slots).
+    Without a budget, ``ii`` is 1 and every operation has its own unit."""
 
     def __init__(self, fmt: FPFormat, tag_width: int, latencies: dict | None,
-                 inputs: dict, outputs: dict):
+                 inputs: dict, outputs: dict, budget: dict | None = None):
         self.fmt, self.tag_width = fmt, tag_width
         self.latencies = _latencies(fmt, latencies)
         super().__init__({**inputs, "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
-                          "o_valid": Out(1), **outputs, "o_tag": Out(tag_width)})
-        dry = Module()
-        dry._MustUse__silence = True
-        self.latency = self._build(dry, dry=True)
+                          "i_slot": Out(1), "o_valid": Out(1), **outputs,
+                          "o_tag": Out(tag_width)})
+        self.share = None
+        self.latency = self._build(self._dry(), dry=True)
+        self.counts = dict(self._sch.counts)            # operations per FP unit class
+        budget = dict(budget or {})
+        min_ii, offset = budget.pop("ii", 1), budget.pop("offset", 0)
+        if budget or min_ii > 1:
+            self.share = Share.for_budget(self.counts, budget, min_ii, offset)
+            if self.share.ii > 1:
+                self.latency = self._build(self._dry(), dry=True)
+            else:
+                self.share = None
+        self.ii = 1 if self.share is None else self.share.ii
+        self.units = dict(self.counts if self.share is None else self.share.units)
+
+    @staticmethod
+    def _dry() -> Module:
+        m = Module()
+        m._MustUse__silence = True
+        return m
+
+    def _schedule(self, m: Module, dry: bool) -> Schedule:
+        self._sch = Schedule(m, self.en, self.fmt, self.latencies, dry, self.share)
+        return self._sch
 
     def _build(self, m: Module, dry: bool = False) -> int:
         raise TypeError(f"{type(self).__name__}: a datapath defines _build(m, dry) (its "
@@ -152,6 +183,7 @@ class _Datapath(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         self._build(m)
+        m.d.comb += self.i_slot.eq(self._sch.slot)
         return m
 
 
@@ -183,7 +215,7 @@ class RaySetupPipe(_Datapath):
     STATIC = ("org", "tmax")
 
     def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None,
-                 static: tuple = ()):
+                 static: tuple = (), budget: dict | None = None):
         if set(static) - set(self.STATIC):
             raise ValueError(f"RaySetupPipe static={static!r}: only {self.STATIC} may be static")
         self.static = tuple(static)
@@ -194,11 +226,11 @@ class RaySetupPipe(_Datapath):
                           "hi": In(v3)},
                          {"o_org": Out(v3), "o_dir": Out(v3), "inv": Out(v3), "octant": Out(3),
                           "k": Out(data.ArrayLayout(2, 3)), "s": Out(v3), "tnear": Out(w),
-                          "tfar": Out(w), "o_tmax": Out(w)})
+                          "tfar": Out(w), "o_tmax": Out(w)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
-        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        sch = self._schedule(m, dry)
         d = [wire(m, self.dir[a], f"d{a}") for a in range(3)]
         org = [wire(m, self.org[a], f"o{a}") for a in range(3)]
         tmax = wire(m, self.tmax, "tmax")
@@ -223,8 +255,8 @@ class RaySetupPipe(_Datapath):
         dky = (wire(m, _pick(d1, sch.at(ky, 0, t1)), "shear_dky"), t1)
         s_x = sch.op("div", dkx, dz, "shear_sx")
         s_y = sch.op("div", dky, dz, "shear_sy")
-        ti = inv[0][1]
-        s_z = (wire(m, _pick([x[0] for x in inv], sch.at(kz, 0, ti)), "shear_sz"), ti)
+        ti = max(x[1] for x in inv)       # (one cycle unless the dividers are shared)
+        s_z = (wire(m, _pick([sch.at(*x, ti) for x in inv], sch.at(kz, 0, ti)), "shear_sz"), ti)
         # -- slab, flat, order per axis -----------------------------------------------------------
         near, far = [], []
         for a in range(3):
@@ -254,7 +286,7 @@ class RaySetupPipe(_Datapath):
         at = lambda x: sch.at(x[0], x[1], L)
         keep = lambda x, name: x if name in self.static else sch.at(x, 0, L)
         m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
             self.o_org.eq(Cat(*(keep(x, "org") for x in org))),
             self.o_dir.eq(Cat(*(sch.at(x, 0, L) for x in d))),
             self.inv.eq(Cat(*(at(x) for x in inv))),
@@ -303,7 +335,8 @@ class RaySetup(wiring.Component):
     Latency: ``latency`` cycles (= ``RaySetupPipe.latency``, 15 for binary32 with the default
     FP latencies) from a ray's input transfer to its ``o.valid``, when ``o`` is not stalled.
     Throughput: one ray per cycle; ``i.ready = ~o.valid | o.ready`` (the whole pipeline holds
-    while the output ray waits).
+    while the output ray waits). With :meth:`Config.rgs_budget` (shared FP units) one ray
+    every ``pipe.ii`` cycles: ``i.ready`` also waits for the pipe's input slot.
     """
 
     def __init__(self, cfg: Config, latencies: dict | None = None):
@@ -311,7 +344,8 @@ class RaySetup(wiring.Component):
         self.tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": lane_bits(cfg),
                                       "last": 1, "anyhit": 1})
         self.pipe = RaySetupPipe(cfg.fmt, self.tag.size,
-                                 cfg.fp_latencies() if latencies is None else latencies)
+                                 cfg.fp_latencies() if latencies is None else latencies,
+                                 budget=cfg.rgs_budget())
         self.latency = self.pipe.latency
         super().__init__({
             "i": In(stream.Signature(RaySetupIn(cfg))),
@@ -326,7 +360,7 @@ class RaySetup(wiring.Component):
         p = self.i.payload
         tag_in = data.View(self.tag, pipe.tag)
         m.d.comb += [
-            self.i.ready.eq(en), pipe.en.eq(en), pipe.i_valid.eq(self.i.valid),
+            self.i.ready.eq(en & pipe.i_slot), pipe.en.eq(en), pipe.i_valid.eq(self.i.valid),
             pipe.org.eq(p.org), pipe.dir.eq(p.dir), pipe.tmax.eq(p.tmax),
             pipe.lo.eq(self.box_lo), pipe.hi.eq(self.box_hi),
             tag_in.packet.eq(p.packet), tag_in.lane.eq(p.lane), tag_in.last.eq(p.last),
@@ -356,17 +390,18 @@ class EyeRayPipe(_Datapath):
     """
 
     def __init__(self, fmt: FPFormat, oversampling: int = 1, tag_width: int = 1,
-                 latencies: dict | None = None, coord_bits: int = COORD_BITS):
+                 latencies: dict | None = None, coord_bits: int = COORD_BITS,
+                 budget: dict | None = None):
         self.n, self.coord_bits = oversampling, coord_bits
         v3 = data.ArrayLayout(fmt.width, 3)
         super().__init__(fmt, tag_width, latencies,
                          {"sx": In(coord_bits), "sy": In(coord_bits), "corner": In(v3),
                           "dx": In(v3), "dy": In(v3), "width": In(coord_bits)},
-                         {"dir": Out(v3), "pixel": Out(PIXEL_BITS)})
+                         {"dir": Out(v3), "pixel": Out(PIXEL_BITS)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
-        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        sch = self._schedule(m, dry)
         # -- sample: (2*s + 1) * 2**-1 rounded once -----------------------------------------------
         pts = []
         for name, s in (("x", self.sx), ("y", self.sy)):
@@ -395,7 +430,7 @@ class EyeRayPipe(_Datapath):
         if dry:
             return L
         m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
             self.dir.eq(Cat(*(sch.at(x[0], x[1], L) for x in d))),
             self.pixel.eq(sch.at(pixel, 1, L)),
             self.o_tag.eq(sch.at(self.tag, 0, L)),
@@ -431,7 +466,11 @@ class EyeRays(wiring.Component):
     first ray's ``o.valid`` (binary32 with the default FP latencies: 1 + 11 + 15 = 27), when
     the sequencer is idle and ``o`` not stalled. Throughput: one ray per cycle,
     including from one packet to the next (the next request is taken in the cycle its
-    predecessor's last lane issues).
+    predecessor's last lane issues). With :meth:`Config.rgs_budget` (shared FP units) both
+    datapaths run at one interval ``ii`` (the larger of the two the budget gives), the
+    sequencer issues in the eye-ray datapath's slots and ray setup's slots are offset by the
+    eye-ray datapath's latency, so each direction meets a slot: one ray every ``ii`` cycles;
+    the first ray waits up to ``ii - 1`` more cycles for a slot.
     """
 
     def __init__(self, cfg: Config, latencies: dict | None = None,
@@ -443,8 +482,17 @@ class EyeRays(wiring.Component):
                                       "last": 1})
         self.setup_tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": self.lane_bits,
                                             "last": 1, "pixel": PIXEL_BITS})
-        self.gen = EyeRayPipe(cfg.fmt, cfg.oversampling, self.tag.size, lat, coord_bits)
-        self.setup = RaySetupPipe(cfg.fmt, self.setup_tag.size, lat, static=("org", "tmax"))
+        budget = cfg.rgs_budget()
+        self.gen = EyeRayPipe(cfg.fmt, cfg.oversampling, self.tag.size, lat, coord_bits, budget)
+        self.setup = RaySetupPipe(cfg.fmt, self.setup_tag.size, lat, static=("org", "tmax"),
+                                  budget=budget)
+        ii = max(self.gen.ii, self.setup.ii)
+        if ii > 1:                     # one interval; setup's slots meet gen's outputs
+            self.gen._MustUse__silence = self.setup._MustUse__silence = True
+            self.gen = EyeRayPipe(cfg.fmt, cfg.oversampling, self.tag.size, lat, coord_bits,
+                                  {**budget, "ii": ii})
+            self.setup = RaySetupPipe(cfg.fmt, self.setup_tag.size, lat, static=("org", "tmax"),
+                                      budget={**budget, "ii": ii, "offset": self.gen.latency})
         self.latency = 1 + self.gen.latency + self.setup.latency
         v3 = vec3(cfg)
         super().__init__({
@@ -472,7 +520,7 @@ class EyeRays(wiring.Component):
         lane = Signal(self.lane_bits)
         end_x = wire(m, lx == wt - 1, "seq_end_x")
         last = wire(m, end_x & (ly == ht - 1), "seq_last")
-        issue = wire(m, busy & en, "seq_issue")
+        issue = wire(m, busy & en & gen.i_slot, "seq_issue")
         with m.If(issue):
             m.d.sync += [lx.eq(Mux(end_x, 0, lx + 1)), lane.eq(lane + 1)]
             with m.If(end_x):
@@ -570,17 +618,18 @@ class SecondaryPipe(_Datapath):
     ``latencies``: optional ``{"add": n, "mul": n, "div": n, "sqrt": n}``.
     """
 
-    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None,
+                 budget: dict | None = None):
         w = fmt.width
         v3 = data.ArrayLayout(w, 3)
         super().__init__(fmt, tag_width, latencies,
                          {"org": In(v3), "dir": In(v3), "t": In(w), "u": In(w), "v": In(w),
                           "nf": In(v3), "nv": In(data.ArrayLayout(v3, 3)), "eps": In(w)},
-                         {"p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3)})
+                         {"p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
-        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        sch = self._schedule(m, dry)
         at = sch.at
         vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), 0) for a in range(3)]  # noqa: E731
         d, o, nf = vec(self.dir, "d"), vec(self.org, "o"), vec(self.nf, "nf")
@@ -610,9 +659,9 @@ class SecondaryPipe(_Datapath):
         q = _dot(sch, s, s, "nrm_dot")
         rn = sch.op("div", one, sch.op("sqrt", q, None, "nrm_len"), "nrm_rcp")
         s1 = [sch.op("mul", s[a], rn, f"nrm_n{a}") for a in range(3)]
-        tn = s1[0][1]
+        tn = max(x[1] for x in s1)
         zero = wire(m, unpack(fmt, at(q[0], q[1], tn)).zero, "nrm_zero")
-        n1 = [(wire(m, Mux(zero, at(g[a][0], g[a][1], tn), s1[a][0]), f"nrm_sel{a}"), tn)
+        n1 = [(wire(m, Mux(zero, at(g[a][0], g[a][1], tn), at(*s1[a], tn)), f"nrm_sel{a}"), tn)
               for a in range(3)]
         side = _dot(sch, n1, g, "side_dot")
         back = wire(m, _negative(fmt, side[0]), "side_flip")
@@ -627,7 +676,7 @@ class SecondaryPipe(_Datapath):
             return L
         out = lambda xs: Cat(*(at(x[0], x[1], L) for x in xs))  # noqa: E731
         m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
             self.p0.eq(out(p0)), self.g.eq(out(g)), self.n.eq(out(n)), self.r.eq(out(r)),
             self.o_tag.eq(at(self.tag, 0, L)),
         ]
@@ -680,7 +729,8 @@ class LightPipe(_Datapath):
     Throughput: one pair per enabled cycle.
     """
 
-    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None,
+                 budget: dict | None = None):
         w = fmt.width
         v3 = data.ArrayLayout(w, 3)
         f3 = data.ArrayLayout(FIX_BITS, 3)
@@ -691,17 +741,18 @@ class LightPipe(_Datapath):
                           "bg": In(v3)},
                          {"o_p0": Out(v3), "o_r": Out(v3), "dir": Out(v3), "tmax": Out(w),
                           "cast": Out(1), "col": Out(f3), "amb_col": Out(f3), "wr": Out(w),
-                          "rmiss": Out(f3)})
+                          "rmiss": Out(f3)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
-        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        sch = self._schedule(m, dry)
         at = sch.at
         # -- the shadow ray (model.rgs.shadow_dir) ----------------------------------------------
         point = wire(m, self.point, "point")
         sub = [sch.op("sub", (self.light[a], 0), (self.p0[a], 0), f"ldir{a}") for a in range(3)]
-        ts = sub[0][1]
-        ds = [(wire(m, Mux(at(point, 0, ts), sub[a][0], at(self.light[a], 0, ts)), f"dir{a}"),
+        ts = max(x[1] for x in sub)
+        ds = [(wire(m, Mux(at(point, 0, ts), at(*sub[a], ts), at(self.light[a], 0, ts)),
+                    f"dir{a}"),
                ts) for a in range(3)]
         face = _dot(sch, [(self.g[a], 0) for a in range(3)], ds, "face_dot")
         vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), 0) for a in range(3)]  # noqa: E731
@@ -750,7 +801,7 @@ class LightPipe(_Datapath):
                                                f"{name}{c}"), F, L)
                                        for c, x in enumerate(xs)))
         m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
             self.o_p0.eq(Cat(*(at(self.p0[a], 0, L) for a in range(3)))),
             self.o_r.eq(Cat(*(at(x[0], x[1], L) for x in r))),
             self.dir.eq(Cat(*(at(x[0], x[1], L) for x in ds))),
@@ -832,7 +883,7 @@ class TexCoordPipe(_Datapath):
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
-        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        sch = self._schedule(m, dry)
         at = sch.at
         u, v = (wire(m, self.u, "u"), 0), (wire(m, self.v, "v"), 0)
         uv = [(wire(m, self.uv[k], f"uv{k}"), 0) for k in range(6)]
@@ -864,7 +915,7 @@ class TexCoordPipe(_Datapath):
         x0d, x1d = reg(r["x0"], "tex_x0d"), reg(r["x1"], "tex_x1d")
         j = [(row + x)[:TEX_INDEX_BITS] for row in (row0, row1) for x in (x0d, x1d)]
         m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
             self.j.eq(Cat(*j)), self.wx.eq(reg(r["wx"], "tex_wxd")),
             self.wy.eq(reg(r["wy"], "tex_wyd")), self.o_tag.eq(at(self.tag, 0, L)),
         ]
@@ -894,7 +945,7 @@ class TexFilterPipe(_Datapath):
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
-        sch = Schedule(m, self.en, fmt, self.latencies, dry)
+        sch = self._schedule(m, dry)
         at = sch.at
         scale = (Const(fmt.to_bits(fmt.quantize(TEX_SCALE)).item(), fmt.width), 0)
         if not dry:                      # the blends' weights: 256 - w and w
@@ -924,7 +975,7 @@ class TexFilterPipe(_Datapath):
             return L
         on = at(self.on, 0, L)
         m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, self.i_valid, L, "valid")),
+            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
             self.kd_o.eq(Cat(*(Mux(on, x[0], at(self.kd[c], 0, L)) for c, x in enumerate(out)))),
             self.o_tag.eq(at(self.tag, 0, L)),
         ]

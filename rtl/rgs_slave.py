@@ -179,7 +179,7 @@ class Slave(wiring.Component):
             self.sec_tag = data.StructLayout({
                 "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-            self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat)
+            self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget())
             # hit: a shadow ray is wanted (a hit, lights); rhit: the ray hit; first: the hit's
             # first token; tlast: its last; last: the packet's last token; spawn: the packet
             # reserved pending buffers
@@ -187,7 +187,7 @@ class Slave(wiring.Component):
                 "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "rhit": 1,
                 "refl": 1, "first": 1, "tlast": 1, "last": 1, "spawn": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-            self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat)
+            self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat, cfg.rgs_budget())
             self.buffers = slave_buffers(cfg)
             # the texture unit: in step with SecondaryPipe, as deep a queue as it can hold
             self.tex = (Texture(cfg, 1, lat, out_depth=self.sec.latency + 2)
@@ -529,7 +529,8 @@ class Slave(wiring.Component):
             wiring.connect(m, tex.mem, wiring.flipped(self.texel))
             ti = tex.i.payload
             m.d.comb += [
-                tex.i.valid.eq(feed_ok & sec_en), feed.eq(feed_ok & sec_en & tex.i.ready),
+                tex.i.valid.eq(feed_ok & sec_en & sec.i_slot),
+                feed.eq(feed_ok & sec_en & sec.i_slot & tex.i.ready),
                 ti.u.eq(head.u), ti.v.eq(head.v),
                 ti.uv.eq(vec(REC_UV, 6)),
                 ti.addr.eq(field(REC_TEX_ADDR)), ti.tw.eq(field(REC_TEX_SIZE)[:16]),
@@ -538,7 +539,7 @@ class Slave(wiring.Component):
                 ti.kd.eq(kd_rec)]
             mat_kd, mat_ok = tex.o.payload.kd, tex.o.valid
         else:
-            m.d.comb += feed.eq(feed_ok & sec_en)
+            m.d.comb += feed.eq(feed_ok & sec_en & sec.i_slot)
             mat_ok = 1
         mat_in = Signal(mat_lay)
         m.d.comb += [mat_in.ks.eq(vec(REC_KS, 3)), mat_in.kr.eq(word(REC_KR)),
@@ -565,7 +566,8 @@ class Slave(wiring.Component):
         tokens_last = Mux(so.hit & (self.n_lights != 0), li == self.n_lights - 1, 1)
         amb_tok = so.hit & (li == 0) & self.colour   # the token makes the hit's ambient record
         amb_cnt = Signal(range(amb_depth + 1))   # ambient records reserved (in flight, queued)
-        loop_go = sec.o_valid & mat_ok & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth))
+        loop_go = (sec.o_valid & mat_ok & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth)) &
+                   shd.i_slot)
         take = loop_go & tokens_last
         m.d.comb += [sec_en.eq(~sec.o_valid | take), matq.r_en.eq(take)]
         if tex is not None:

@@ -156,7 +156,9 @@ def run_fixed_pipe(dut, inputs: dict, expected: dict, *, seed: int = 0, p_bubble
                    p_stall: float = 0.2, describe=None) -> FixedPipeRun:
     """Drive a bare fixed-latency datapath (``i_valid``, ``en`` in, ``o_valid`` out, latency
     ``dut.latency`` enabled cycles) with random bubbles and stalls and compare every output at
-    its exact cycle.
+    its exact cycle. A datapath with shared units (``dut.ii`` > 1) takes an input only in its
+    slot (every ``ii``-th enabled cycle, ``i_slot``; checked): an item offered outside it is
+    offered again.
 
     ``inputs``: port name -> one int per item (lib.data ports packed, element 0 lowest; in a
     bubble every port but ``tag`` gets random bits, ``tag`` 0); ``expected``: output port
@@ -174,9 +176,11 @@ def run_fixed_pipe(dut, inputs: dict, expected: dict, *, seed: int = 0, p_bubble
     mismatches: list = []
     stats = {"outputs": 0}
 
+    ii = getattr(dut, "ii", 1)
+
     async def bench(ctx):
         pipe = deque([None] * L)
-        i = cycle = 0
+        i = cycle = phase = 0
         while i < n or any(x is not None for x in pipe):
             en = rnd.random() >= p_stall
             valid = i < n and rnd.random() >= p_bubble
@@ -185,6 +189,12 @@ def run_fixed_pipe(dut, inputs: dict, expected: dict, *, seed: int = 0, p_bubble
                         0 if k == "tag" else rnd.getrandbits(len(ports[k])))
             ctx.set(dut.i_valid, valid)
             ctx.set(dut.en, en)
+            taken = valid
+            if ii > 1:
+                slot = ctx.get(dut.i_slot)
+                if slot != (phase == 0):
+                    mismatches.append(f"cycle {cycle}: i_slot={slot} in phase {phase} of {ii}")
+                taken = valid and phase == 0
             head = pipe[-1]
             o_valid = ctx.get(dut.o_valid)
             if o_valid != (head is not None):
@@ -200,9 +210,10 @@ def run_fixed_pipe(dut, inputs: dict, expected: dict, *, seed: int = 0, p_bubble
                                           + (f"; {describe(head)}" if describe else ""))
             if en:
                 pipe.pop()
-                pipe.appendleft(i if valid else None)
-                if valid:
+                pipe.appendleft(i if taken else None)
+                if taken:
                     i += 1
+                phase = (phase + 1) % ii
             await ctx.tick()
             cycle += 1
         stats["cycles"] = cycle

@@ -340,12 +340,13 @@ def secondary_ports(hits: Hits, fmt: FPFormat, tag_width: int) -> tuple[dict, di
 
 
 def run_secondary(hits: Hits, fmt: FPFormat, *, latencies=None, seed: int = 0,
-                  p_bubble: float = 0.2, p_stall: float = 0.2):
+                  p_bubble: float = 0.2, p_stall: float = 0.2, budget: dict | None = None):
     """Every hit through ``SecondaryPipe`` with random bubbles and stalls, every output checked
     at its exact cycle against the model (``tb.common.FixedPipeRun``)."""
     from rtl.rgs import SecondaryPipe
     from .common import run_fixed_pipe
-    dut = SecondaryPipe(fmt, tag_width=max(1, len(hits).bit_length()), latencies=latencies)
+    dut = SecondaryPipe(fmt, tag_width=max(1, len(hits).bit_length()), latencies=latencies,
+                        budget=budget)
     ins, outs = secondary_ports(hits, fmt, dut.tag_width)
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
 
@@ -376,13 +377,13 @@ def shadow_ports(hits: Hits, lights: np.ndarray, point: np.ndarray, fmt: FPForma
 
 
 def run_shadow(hits: Hits, lights, point, fmt: FPFormat, *, latencies=None, seed: int = 0,
-               p_bubble: float = 0.2, p_stall: float = 0.2):
+               p_bubble: float = 0.2, p_stall: float = 0.2, budget: dict | None = None):
     """Every (hit, light) pair through ``LightPipe``, its shadow ray checked like
     :func:`run_secondary`."""
     from rtl.rgs import LightPipe
     from .common import run_fixed_pipe
     n = len(hits) * len(lights)
-    dut = LightPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies)
+    dut = LightPipe(fmt, tag_width=max(1, n.bit_length()), latencies=latencies, budget=budget)
     ins, outs = shadow_ports(hits, np.asarray(lights, np.float64), np.asarray(point), fmt,
                              dut.tag_width)
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
@@ -479,12 +480,13 @@ def light_ports(c: ColourCases, lights: np.ndarray, point: np.ndarray, fmt: FPFo
 
 
 def run_light(c: ColourCases, lights, point, fmt: FPFormat, *, latencies=None, seed: int = 0,
-              p_bubble: float = 0.2, p_stall: float = 0.2):
+              p_bubble: float = 0.2, p_stall: float = 0.2, budget: dict | None = None):
     """Every colour case through ``LightPipe`` (light ``i % len(lights)`` for case i), every
     output checked at its exact cycle against the model (``tb.common.FixedPipeRun``)."""
     from rtl.rgs import LightPipe
     from .common import run_fixed_pipe
-    dut = LightPipe(fmt, tag_width=max(1, len(c).bit_length()), latencies=latencies)
+    dut = LightPipe(fmt, tag_width=max(1, len(c).bit_length()), latencies=latencies,
+                    budget=budget)
     ins, outs = light_ports(c, lights, point, fmt, dut.tag_width)
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
 

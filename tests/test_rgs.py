@@ -13,7 +13,7 @@ from amaranth.sim import Simulator
 from model.config import Config
 from model.fp import FPFormat
 from model.raygen import eye_rays
-from rtl.rgs import (COORD_BITS, EyeRays, LightPipe, RaySetupPipe, SecondaryPipe,
+from rtl.rgs import (COORD_BITS, EyeRays, LightPipe, RaySetup, RaySetupPipe, SecondaryPipe,
                      div_const_params, sample_converter)
 from tb.rgs import (AXIS_BOX, axis_camera, edge_rays, oblique_camera, run_eye_rays,
                     run_ray_setup, run_secondary, run_shadow, secondary_cases, tile_grid)
@@ -342,3 +342,97 @@ def test_texture(fmt, seed):
     bad, cycles = run_texture(c, cfg, seed=seed)
     assert bad == []
     assert (c.tex < 0).any() and (c.tex >= 0).sum() > 80
+
+
+# ----------------------------------------------------------------------------------------------
+# shared FP units (Config.rgs_fp_adders, rgs_fp_muls)
+# ----------------------------------------------------------------------------------------------
+
+SHARED = [(B32, None, {"add": 3, "mul": 4}),
+          (FPFormat(6, 10), {"add": 5, "mul": 4, "div": 12, "sqrt": 11}, {"add": 1, "mul": 2}),
+          (FPFormat(8, 12), {"add": 1, "mul": 2, "div": 3, "sqrt": 2}, {"mul": 7})]
+
+
+@pytest.mark.parametrize("fmt,latencies,budget", SHARED, ids=str)
+def test_shared_secondary_and_light_pipes(fmt, latencies, budget):
+    """With an FP unit budget, SecondaryPipe and LightPipe take a hit every ``ii`` cycles and
+    every output of every hit still comes at its exact cycle, bit for bit with the model,
+    under 20 % bubbles and 20 % stalls (an input offered outside its slot waits)."""
+    from tb.rgs import colour_cases, run_light
+    hits = secondary_cases(fmt, 30, seed=fmt.frac_bits)
+    r = run_secondary(hits, fmt, latencies=latencies, budget=budget)
+    assert r.mismatches == [], r.mismatches[:5]
+    assert r.outputs == len(hits)
+    c = colour_cases(fmt, 30, seed=fmt.frac_bits)
+    r = run_light(c, LIGHTS, POINT, fmt, latencies=latencies, budget=budget)
+    assert r.mismatches == [], r.mismatches[:5]
+    assert r.outputs == len(c)
+
+
+@pytest.mark.parametrize("cls", [SecondaryPipe, LightPipe, RaySetupPipe], ids=lambda c: c.__name__)
+def test_shared_units_fit_the_budget(cls):
+    """The interval is the least at which the budget's units take every operation
+    (ceil(operations / units)); no class has more units than its operations need at that
+    interval; sharing lengthens the latency by no more than the waits for a unit (at most
+    ii - 1 per operation on the longest path, so well below ii times the operations)."""
+    free = cls(B32)
+    for budget in ({"add": 3, "mul": 4}, {"add": 1, "mul": 1}, {"mul": 2}):
+        p = cls(B32, budget=budget)
+        want = max([1] + [-(-free.counts[k] // n) for k, n in budget.items() if free.counts[k]])
+        assert p.ii == want, (budget, p.ii)
+        for k, n in free.counts.items():
+            if n:
+                assert p.units[k] == -(-n // p.ii), (budget, k)
+                if k in budget:
+                    assert p.units[k] <= budget[k]
+        assert p.counts == free.counts
+        assert free.latency <= p.latency < free.latency + p.ii * sum(free.counts.values())
+    assert SecondaryPipe(B32, budget={"add": 3, "mul": 4}).units["mul"] == 4
+
+
+def test_shared_budget_errors():
+    with pytest.raises(ValueError, match="at least one unit"):
+        SecondaryPipe(B32, budget={"add": 0})
+    with pytest.raises(ValueError, match="latency of at"):
+        RaySetupPipe(FPFormat(8, 10), latencies={"add": 1, "mul": 2, "div": 3, "minmax": 0},
+                     budget={"add": 1})
+    from model.config import ConfigError
+    with pytest.raises(ConfigError, match="rgs_fp_adders"):
+        Config(rgs_fp_adders=-1)
+
+
+@pytest.mark.parametrize("adders,muls", [(3, 4), (1, 1)])
+def test_shared_eye_rays(adders, muls):
+    """Eye rays with shared units: both datapaths at one interval, ray setup's slots offset by
+    the eye-ray datapath's latency; every ray bit for bit under bubbles and back-pressure,
+    and without them one ray every ``ii`` cycles (the first one after up to ``ii - 1`` cycles
+    waiting for a slot)."""
+    cfg = Config(rgs_fp_adders=adders, rgs_fp_muls=muls, tile_w=4, tile_h=4, trav_subunits=1)
+    dut = EyeRays(cfg)
+    for unit in (dut, dut.gen, dut.setup):
+        unit._MustUse__silence = True
+    ii = dut.gen.ii
+    assert ii == dut.setup.ii > 1
+    r = run_eye_rays(oblique_camera(), 9, 7, cfg, OBLIQUE_BOX, idle=0.3, stall=0.3, seed=4)
+    check(r)
+    r = run_eye_rays(oblique_camera(), 9, 7, cfg, OBLIQUE_BOX)
+    check(r)
+    assert r.latency <= r.out_cycles[0] - r.in_cycles[0] < r.latency + ii   # waits for a slot
+    assert np.all(np.diff(r.out_cycles) == ii)
+
+
+def test_shared_ray_setup():
+    """RaySetup with shared units: every ray bit for bit under bubbles and stalls; without
+    them one ray every ``ii`` cycles, each ``latency`` cycles after it entered."""
+    fmt = FPFormat(8, 14)
+    cfg = Config(fmt=fmt, rgs_fp_adders=1, rgs_fp_muls=2, tile_w=4, tile_h=4, trav_subunits=1)
+    bounds = fmt.quantize(OBLIQUE_BOX)
+    rays = edge_rays(fmt, bounds, n_random=30, seed=8)
+    r = run_ray_setup(rays, bounds, cfg, idle=0.25, stall=0.35, seed=2)
+    check(r)
+    r = run_ray_setup(rays, bounds, cfg)
+    check(r)
+    ii = RaySetup(cfg).pipe.ii
+    assert ii > 1
+    assert np.all(np.diff(r.in_cycles) == ii)
+    assert r.out_cycles == [c + r.latency for c in r.in_cycles]
