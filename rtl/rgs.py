@@ -873,13 +873,14 @@ class TexCoordPipe(_Datapath):
     Throughput: one hit per enabled cycle.
     """
 
-    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None,
+                 budget: dict | None = None):
         w = fmt.width
         super().__init__(fmt, tag_width, latencies,
                          {"u": In(w), "v": In(w), "uv": In(data.ArrayLayout(w, 6)),
                           "tw": In(TEX_SIZE_BITS), "th": In(TEX_SIZE_BITS)},
                          {"j": Out(data.ArrayLayout(TEX_INDEX_BITS, 4)), "wx": Out(TEX_FRAC),
-                          "wy": Out(TEX_FRAC)})
+                          "wy": Out(TEX_FRAC)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
@@ -936,12 +937,13 @@ class TexFilterPipe(_Datapath):
     (10 at the binary32 defaults). Throughput: one hit per enabled cycle.
     """
 
-    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
+    def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None,
+                 budget: dict | None = None):
         v3 = data.ArrayLayout(fmt.width, 3)
         super().__init__(fmt, tag_width, latencies,
                          {"t": In(data.ArrayLayout(32, 4)), "wx": In(TEX_FRAC),
                           "wy": In(TEX_FRAC), "kd": In(v3), "on": In(1)},
-                         {"kd_o": Out(v3)})
+                         {"kd_o": Out(v3)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
         fmt = self.fmt
@@ -976,7 +978,8 @@ class TexFilterPipe(_Datapath):
         on = at(self.on, 0, L)
         m.d.comb += [
             self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
-            self.kd_o.eq(Cat(*(Mux(on, x[0], at(self.kd[c], 0, L)) for c, x in enumerate(out)))),
+            self.kd_o.eq(Cat(*(Mux(on, at(*x, L), at(self.kd[c], 0, L))
+                               for c, x in enumerate(out)))),
             self.o_tag.eq(at(self.tag, 0, L)),
         ]
         return L
@@ -1014,7 +1017,9 @@ class Texture(wiring.Component):
     while it is full). An untextured hit requests nothing and passes in order.
     Latency: TexCoordPipe + 1 + TexFilterPipe + 1 (29 at the binary32 defaults) for an
     untextured hit; a textured one adds the memory's latency and 3 cycles.
-    Throughput: one untextured hit a cycle, one textured hit per 4 cycles (4 words).
+    Throughput: one untextured hit a cycle, one textured hit per 4 cycles (4 words); with
+    :meth:`Config.rgs_budget` (shared FP units) at most one hit per ``ii`` cycles of either
+    pipe.
     """
 
     def __init__(self, cfg: Config, tag_width: int = 1, latencies: dict | None = None,
@@ -1023,10 +1028,10 @@ class Texture(wiring.Component):
         fmt = cfg.fmt
         lat = cfg.fp_latencies() if latencies is None else latencies
         self.carry = data.StructLayout({"addr": 32, "on": 1, "kd": vec3(cfg), "tag": tag_width})
-        self.coord = TexCoordPipe(fmt, self.carry.size, lat)
+        self.coord = TexCoordPipe(fmt, self.carry.size, lat, cfg.rgs_budget())
         self.wait = data.StructLayout({"kd": vec3(cfg), "tag": tag_width, "on": 1, "half": 4,
                                        "wx": TEX_FRAC, "wy": TEX_FRAC})
-        self.filter = TexFilterPipe(fmt, tag_width, lat)
+        self.filter = TexFilterPipe(fmt, tag_width, lat, cfg.rgs_budget())
         self.latency = self.coord.latency + 1 + self.filter.latency + 1
         super().__init__({
             "i": In(stream.Signature(TexIn(cfg, tag_width))),
@@ -1047,7 +1052,8 @@ class Texture(wiring.Component):
         # -- TexCoordPipe: held while its output hit is not yet queued ---------------------------
         en_a = Signal()
         ci = data.View(self.carry, cp.tag)
-        m.d.comb += [cp.en.eq(en_a), cp.i_valid.eq(self.i.valid), self.i.ready.eq(en_a),
+        m.d.comb += [cp.en.eq(en_a), cp.i_valid.eq(self.i.valid),
+                     self.i.ready.eq(en_a & cp.i_slot),
                      cp.u.eq(p.u), cp.v.eq(p.v), cp.uv.eq(p.uv), cp.tw.eq(p.tw), cp.th.eq(p.th),
                      ci.addr.eq(p.addr), ci.on.eq(p.on), ci.kd.eq(p.kd), ci.tag.eq(p.tag)]
         # -- issue: a textured hit's four requests, the hit queued with the first ---------------
@@ -1077,14 +1083,15 @@ class Texture(wiring.Component):
         en_f = Signal()
         m.d.comb += en_f.eq(~fp.o_valid | outq.w_rdy)
         last = got == 3
-        m.d.comb += resp.ready.eq(waitq.r_rdy & head.on & (~last | en_f))
+        go_f = en_f & fp.i_slot          # the filter takes a hit (its slot, with shared units)
+        m.d.comb += resp.ready.eq(waitq.r_rdy & head.on & (~last | go_f))
         take = resp.valid & resp.ready
         with m.If(take):
             m.d.sync += got.eq(got + 1)
             for k in range(3):
                 with m.If(got == k):
                     m.d.sync += held[k].eq(texel)
-        feed = waitq.r_rdy & en_f & Mux(head.on, resp.valid & last, 1)
+        feed = waitq.r_rdy & go_f & Mux(head.on, resp.valid & last, 1)
         m.d.comb += [waitq.r_en.eq(feed), fp.en.eq(en_f), fp.i_valid.eq(feed),
                      fp.t.eq(Cat(*held, texel)), fp.wx.eq(head.wx), fp.wy.eq(head.wy),
                      fp.kd.eq(head.kd), fp.on.eq(head.on), fp.tag.eq(head.tag)]

@@ -266,3 +266,28 @@ def test_colour_check_finds_a_wrong_pixel():
     p = int(eye.pixel[eye.pk_start[recs["packet"][5]] + recs["lane"][5]])
     assert [(b[0], b[1]) for b in bad] == [(p, "colour")]
     assert bad[0][2] - bad[0][3] == 1 << 24
+
+
+def test_chip_shared_fp_units_verilator(cornell):
+    """The slaves with the paper's budget of FP units per datapath (3 adders, 4 multipliers,
+    shared in time: ``Config.rgs_fp_adders``, ``rgs_fp_muls``): Cornell 16x16 with its
+    shadows, the mirror sphere and the textured floor, under back-pressure and random memory
+    latency: every ray and every pixel bit-exact; the slaves take a ray every ``ii`` cycles,
+    so the frame takes more cycles than with a unit per operation."""
+    from rtl.rgs_slave import Slave
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4)
+    slave = Slave(cfg)
+    slave._MustUse__silence = True
+    assert slave.shd.ii > 1 and slave.shd.units["mul"] <= 4 and slave.sec.units["add"] <= 3
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
+                       scene=scene, progress=False, max_cycles=2_000_000)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    assert r.color is not None and r.color.max() > 0
+    assert (r.frame_rays.kind == REFLECTION).any()
+    full = run_chip_frame(cfg.replace(rgs_fp_adders=0, rgs_fp_muls=0), image, scene.camera, 16,
+                          16, stall=0.25, mem_stall=0.5, seed=5, scene=scene, progress=False,
+                          max_cycles=2_000_000)
+    assert full.mismatches == [] and full.rays == r.rays
+    assert r.cycles > full.cycles

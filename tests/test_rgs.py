@@ -369,6 +369,21 @@ def test_shared_secondary_and_light_pipes(fmt, latencies, budget):
     assert r.outputs == len(c)
 
 
+def test_shared_texture():
+    """The texture unit with shared units (both pipes at ``ii`` 2 or more): every hit's kd
+    bit-exact, in order, with misses, memory holds, gaps and back-pressure."""
+    from tb.rgs import run_texture, texture_cases
+    from rtl.rgs import Texture
+    cfg = Config(rgs_fp_adders=1, rgs_fp_muls=2)
+    tex = Texture(cfg)
+    tex._MustUse__silence = True
+    assert tex.coord.ii > 1 and tex.filter.ii > 1
+    c = texture_cases(B32, 60, seed=6)
+    bad, cycles = run_texture(c, cfg, seed=6)
+    assert bad == []
+    assert (c.tex < 0).any() and (c.tex >= 0).sum() > 40
+
+
 @pytest.mark.parametrize("cls", [SecondaryPipe, LightPipe, RaySetupPipe], ids=lambda c: c.__name__)
 def test_shared_units_fit_the_budget(cls):
     """The interval is the least at which the budget's units take every operation
