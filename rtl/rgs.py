@@ -166,6 +166,13 @@ class _Datapath(wiring.Component):
         self.ii = 1 if self.share is None else self.share.ii
         self.units = dict(self.counts if self.share is None else self.share.units)
 
+    @property
+    def in_flight(self) -> int:
+        """The most inputs inside the datapath at once, the one held at its output included
+        (inputs enter at least ``ii`` enabled cycles apart and leave after ``latency``):
+        ``latency // ii + 1``."""
+        return self.latency // self.ii + 1
+
     @staticmethod
     def _dry() -> Module:
         m = Module()

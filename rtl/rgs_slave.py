@@ -52,7 +52,8 @@ finished.
 Every result of an eye or reflection ray goes through the shading path (context queue,
 SecondaryPipe, light loop, LightPipe), hit or miss, so that its packet's last token commits
 the packet's secondary packets; the ambient records are reserved at the light loop (a queue
-as deep as LightPipe's latency + 8, rounded up to a power of two), so LightPipe never stalls.
+as deep as the tokens LightPipe holds at once + 7, rounded up to a power of two), so LightPipe
+never stalls.
 
 Throughput: one ray into the RTC per cycle; one result per cycle; a hit takes
 ``max(1, lights)`` cycles of the light loop. Latency of a hit's secondary rays: the shading
@@ -190,7 +191,7 @@ class Slave(wiring.Component):
             self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat, cfg.rgs_budget())
             self.buffers = slave_buffers(cfg)
             # the texture unit: in step with SecondaryPipe, as deep a queue as it can hold
-            self.tex = (Texture(cfg, 1, lat, out_depth=self.sec.latency + 2)
+            self.tex = (Texture(cfg, 1, lat, out_depth=self.sec.in_flight + 1)
                         if cfg.tex_cache_kb > 0 else None)
         else:
             self.buffers = 0
@@ -480,7 +481,7 @@ class Slave(wiring.Component):
                                      "t": w, "u": w, "v": w, "wt": w, "spawn": 1})
         m.submodules.ctx = ctxq = SyncFIFO(width=ctx_lay.size, depth=4 + cfg.cache_queue)
         # ambient records: as many as LightPipe can hold in flight, reserved at the light loop
-        amb_depth = 1 << ceil_log2(self.shd.latency + 8)
+        amb_depth = 1 << ceil_log2(self.shd.in_flight + 7)
         m.submodules.ambq = ambq = SyncFIFO(width=SlaveResult(cfg).size, depth=amb_depth)
         outq = self._host_out(m, ambq)
         rq = self.shade.req
@@ -517,13 +518,13 @@ class Slave(wiring.Component):
         vec = lambda i, n: Cat(*(word(i + k) for k in range(n)))          # noqa: E731
         flags = field(REC_FLAGS)
         kd_rec = vec(REC_KD, 3)
-        # the hit's colour inputs, beside SecondaryPipe (in order, at most its latency + 1 in
+        # the hit's colour inputs, beside SecondaryPipe (in order, at most its `in_flight` in
         # flight): the record's material constants, the ray's weight, the packet's reservation;
         # kd through the texture unit where there is one
         tex = self.tex
         mat_lay = data.StructLayout({**({} if tex else {"kd": vec3(cfg)}), "ks": vec3(cfg),
                                      "kr": w, "shin": SHIN_BITS, "wt": w, "spawn": 1})
-        m.submodules.matq = matq = SyncFIFO(width=mat_lay.size, depth=sec.latency + 2)
+        m.submodules.matq = matq = SyncFIFO(width=mat_lay.size, depth=sec.in_flight + 1)
         if tex is not None:
             m.submodules.tex = tex
             wiring.connect(m, tex.mem, wiring.flipped(self.texel))
