@@ -9,7 +9,8 @@ N times instead on one Verilator binary (seeds 1..N, or from ``--first-seed K`` 
 bench split over machines), run i with its own LFSR seed i, result
 back-pressure (i mod 16) / 16 and random memory latency (SDRAM responses held in
 (7 i mod 13) / 16 of the cycles), and checks that no ray is lost or duplicated, every ray is
-bit-exact and no run deadlocks (``DIR/chip_stalls_<scene>_<W>x<H>.json``).
+bit-exact and no run deadlocks (``DIR/chip_stalls_<scene>_<W>x<H>.json``; with the slaves'
+FP units shared, ``..._add<A>_mul<M>.json``).
 """
 from __future__ import annotations
 
@@ -60,6 +61,8 @@ def main(argv=None) -> int:
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
     frame_scene = None if args.eye_only else scene
     tag = "_eye" if args.eye_only else ""
+    if cfg.rgs_budget():                 # the slaves' FP units shared: a file of its own
+        tag += f"_add{cfg.rgs_fp_adders}_mul{cfg.rgs_fp_muls}"
     if args.seeds:
         part = f"_from{args.first_seed}" if args.first_seed != 1 else ""
         return stall_bench(cfg, prep.image, scene.camera, w, h, args.seeds,
