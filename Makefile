@@ -58,7 +58,7 @@ bench: setup
 	$(SAARCOR) bench chip --res 256x192 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 $(CHIP_SMALL) \
 	    --out build/bench $(EYE_ONLY_FLAG)
-	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 200 $(CHIP_SMALL) \
+	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 $(CHIP_SMALL) \
 	    --rgs-fp-adders 3 --rgs-fp-muls 4 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench resources --yosys --json build/bench/resources.json
