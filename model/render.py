@@ -18,7 +18,7 @@ from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
-from .rgs import CHUNK, FIX_FRAC, hit_colours, light_colours
+from .rgs import CHUNK, FIX_FRAC
 from .rtc import COUNTERS, Hits, counter_totals, dynamic_tasks, trace
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
@@ -159,43 +159,34 @@ def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> Re
     col = frame_colour_registers(scene, cfg.fmt, n_samples)
     weight = np.full(len(rays), col["w_eye"], np.float32)
     miss_col = col["eye_miss"].reshape(1, 3)           # one row: every eye ray's
-    E, M = cfg.fmt.em
     for depth in range(cfg.reflect_depth + 1):
         if len(rays) == 0:
             break
         hits = run(rays)
-        hit = np.nonzero(hits.tri >= 0)[0]
-        miss = np.nonzero(hits.tri < 0)[0]
+        hit = np.flatnonzero(hits.tri >= 0)
+        miss = np.flatnonzero(hits.tri < 0)
         add_colours(acc, rays.pixel, miss, miss_col if len(miss_col) == 1 else miss_col[miss])
         if hit.size == 0:
             break
-        surf = shader.surface(rays, hit, hits.tri[hit], hits.t[hit], hits.u[hit], hits.v[hit])
-        mat = surf.mat
-        rec = shader.rec
-        amb_c, wr, cmiss = hit_colours(surf.kd, rec["kr"][mat], col["amb"], col["bg"],
-                                       weight[hit], E, M)
-        add_colours(acc, rays.pixel, hit, amb_c)
-        for li, light in enumerate(scene.lights):
-            srays, keep = shader.shadow_rays(rays, hit, surf, light,
-                                             cull_behind=skip.lights_behind, light_index=li)
+        sh = shader.shade(rays, hit, hits.tri, hits.t, hits.u, hits.v, weight, col,
+                          cull_behind=skip.lights_behind)
+        add_colours(acc, rays.pixel, hit, sh.ambient)
+        for li in range(len(scene.lights)):
+            if not cfg.shadows:
+                add_colours(acc, rays.pixel, hit, sh.light[li])     # zero where not cast
+                continue
+            srays, keep = shader.shaded_shadow_rays(rays, hit, sh, li)
             if not skip.anyhit:
                 srays.anyhit = np.zeros(len(srays), bool)
             if not len(srays):
                 continue
-            lc = light_colours(srays.dir, surf.n[keep], surf.r[keep], surf.kd[keep],
-                               rec["ks"][mat[keep]], rec["shin"][mat[keep]],
-                               np.broadcast_to(col["lights"][li], (len(srays), 3)),
-                               weight[hit[keep]], E, M)
-            if cfg.shadows:
-                lit = np.flatnonzero(run(srays).tri < 0)
-                add_colours(acc, srays.pixel, lit, lc[lit])
-            else:
-                add_colours(acc, srays.pixel, np.arange(len(srays)), lc)
+            lit = np.flatnonzero(run(srays).tri < 0)
+            add_colours(acc, srays.pixel, lit, sh.light[li][keep[lit]])
         if depth == cfg.reflect_depth:
             break
-        rays, keep = shader.reflection_rays(rays, hit, surf, cull_matte=skip.nonreflective)
-        weight = wr[keep]
-        miss_col = cmiss[keep]
+        rays, keep = shader.reflection_rays(rays, hit, sh, cull_matte=skip.nonreflective)
+        weight = sh.wr[keep]
+        miss_col = sh.miss[keep]
     if bar is not None:
         bar.close()
     t_render = time.perf_counter() - t1

@@ -19,6 +19,8 @@ from .intersection import fetch_triangle, test_triangle
 from .lanes import popcount
 from .layout import LEAF, TRI_WORDS
 from .list import leaf_entries
+from .fp import flush_in
+from .rgs import flushed_box, setup_one
 from .traversal import (bits_to_f32, classify, classify32, decide, decode_node, pass_masks,
                         pop, start_packet, terminate)
 
@@ -181,6 +183,36 @@ def trace_all(mem, node_base, list_base, tri_base, root, depth,
                          M, p, no_rec, no_n, scratch)
 
 
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, lo, hi, scene_ids,
+                    pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
+                    hit_t, hit_tri, hit_u, hit_v, ctrs, E, M):
+    """:func:`trace_all` with the ray setup of ``model.rgs.setup_rays`` (box ``[lo, hi]``, the
+    box cull on) in the same tasks: each packet's rays are set up (into ``inv`` ... ``tfar0``)
+    just before it is traced. ``hit_tri`` gets the scene-order ids (``scene_ids``: the image's
+    ids with -1 appended, so a miss stays -1)."""
+    n_packets = pk_start.shape[0] - 1
+    no_rec = np.zeros((0, 8), np.int64)
+    no_n = np.zeros(1, np.int64)
+    lo_f, hi_f = flushed_box(lo, hi, E)
+    for task in numba.prange((n_packets + TASK_PACKETS - 1) // TASK_PACKETS):
+        scratch = packet_scratch(depth)
+        for p in range(task * TASK_PACKETS, min(n_packets, (task + 1) * TASK_PACKETS)):
+            r0 = pk_start[p]
+            r1 = pk_start[p + 1]
+            for r in range(r0, r1):
+                (inv[r, 0], inv[r, 1], inv[r, 2], kk[r, 0], kk[r, 1], kk[r, 2], ss[r, 0],
+                 ss[r, 1], ss[r, 2], tnear0[r], tfar0[r], _) = setup_one(
+                    flush_in(org[r, 0], E), flush_in(org[r, 1], E), flush_in(org[r, 2], E),
+                    flush_in(dirn[r, 0], E), flush_in(dirn[r, 1], E),
+                    flush_in(dirn[r, 2], E), flush_in(tmax[r], E), lo_f, hi_f, E, M)
+            trace_packet(mem, node_base, list_base, tri_base, root, depth,
+                         r0, r1 - r0, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
+                         hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M, p, no_rec, no_n, scratch)
+            for r in range(r0, r1):
+                hit_tri[r] = scene_ids[hit_tri[r]]
+
+
 @numba.njit(cache=True, error_model="numpy")
 def trace_recorded(mem, node_base, list_base, tri_base, root, depth,
                    pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
@@ -232,11 +264,32 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
     if record:
         hits, ctrs, rows = trace_rows(image, rays, cfg, ray_setup, box_cull)
         return hits, ctrs, decode(rows)
+    if ray_setup is None and box_cull:
+        return _trace_with_setup(image, rays, cfg)
     args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
     if len(rays):
         with dynamic_tasks():
             trace_all(*args)
     return out()
+
+
+def _trace_with_setup(image, rays, cfg):
+    """:func:`trace` with the ray setup done in the tracing kernel (``trace_all_setup``)."""
+    from .raygen import RaySetup
+    n = len(rays)
+    rs = RaySetup(np.empty((n, 3), np.float32), np.empty((n, 3), np.int64),
+                  np.empty((n, 3), np.float32), np.empty(n, np.float32), np.empty(n, np.float32))
+    args, ctrs, out = _kernel_args(image, rays, cfg, rs, True)
+    if not n:
+        return out()
+    (mem, node_base, list_base, tri_base, root, depth, pk_start, org, dirn, inv, kk, ss,
+     tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M) = args
+    b = np.asarray(image.bounds, np.float32)
+    with dynamic_tasks():
+        trace_all_setup(mem, node_base, list_base, tri_base, root, depth, b[0].copy(),
+                        b[1].copy(), image.scene_id_table(), pk_start, org, dirn, inv, kk, ss,
+                        tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
+    return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs
 
 
 def trace_rows(image, rays, cfg, ray_setup=None, box_cull: bool = True):
