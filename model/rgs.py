@@ -71,6 +71,7 @@ import numba
 import numpy as np
 
 from .fp import fadd, fdiv, fmax, fmin, fmul, flush_in, fsqrt, fsub, round_exact, sign_bit
+from .lanes import borrow
 
 __all__ = ["sample_coord", "eye_ray", "ray_setup", "eye_packets", "packet_count", "setup_rays",
            "dot3", "secondary", "secondary_rays", "shadow_dir", "shadow_rays", "FIX_FRAC",
@@ -132,7 +133,7 @@ def _slab(lo, hi, o, inv, E, M):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def setup_one(o0, o1, o2, d0, d1, d2, tmax, lo, hi, E, M):
+def setup_one(o0, o1, o2, d0, d1, d2, tmax, lo0, lo1, lo2, hi0, hi1, hi2, E, M):
     """Set up one ray (origin ``o``, direction ``d``, ``tmax``) against the box ``[lo, hi]``
     (the module docstring's steps, in order). Returns ``(i0, i1, i2, kx, ky, kz, s0, s1, s2,
     tnear, tfar, octant)``."""
@@ -158,9 +159,9 @@ def setup_one(o0, o1, o2, d0, d1, d2, tmax, lo, hi, E, M):
     s1 = fdiv(_pick(d0, d1, d2, ky), dz, E, M)
     s2 = _pick(i0, i1, i2, kz)
     # slab, flat, order
-    n0, f0 = _slab(lo[0], hi[0], o0, i0, E, M)
-    n1, f1 = _slab(lo[1], hi[1], o1, i1, E, M)
-    n2, f2 = _slab(lo[2], hi[2], o2, i2, E, M)
+    n0, f0 = _slab(lo0, hi0, o0, i0, E, M)
+    n1, f1 = _slab(lo1, hi1, o1, i1, E, M)
+    n2, f2 = _slab(lo2, hi2, o2, i2, E, M)
     # clip
     tnear = fmax(fmax(fmax(_ZERO, n0), n1), n2)
     tfar = fmin(fmin(fmin(tmax, f0), f1), f2)
@@ -175,7 +176,8 @@ def ray_setup(org, dirn, tmax, lo, hi, r, inv, k, s, tnear, tfar, octant, E, M):
     ``octant[r]`` (:func:`setup_one`)."""
     (inv[r, 0], inv[r, 1], inv[r, 2], k[r, 0], k[r, 1], k[r, 2], s[r, 0], s[r, 1], s[r, 2],
      tnear[r], tfar[r], octant[r]) = setup_one(org[r, 0], org[r, 1], org[r, 2], dirn[r, 0],
-                                               dirn[r, 1], dirn[r, 2], tmax[r], lo, hi, E, M)
+                                               dirn[r, 1], dirn[r, 2], tmax[r], lo[0], lo[1], lo[2],
+                                               hi[0], hi[1], hi[2], E, M)
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
@@ -186,7 +188,7 @@ def setup_flushed(org, dirn, tmax, lo_f, hi_f, r, inv, k, s, tnear, tfar, octant
      tnear[r], tfar[r], octant[r]) = setup_one(
         flush_in(org[r, 0], E), flush_in(org[r, 1], E), flush_in(org[r, 2], E),
         flush_in(dirn[r, 0], E), flush_in(dirn[r, 1], E), flush_in(dirn[r, 2], E),
-        flush_in(tmax[r], E), lo_f, hi_f, E, M)
+        flush_in(tmax[r], E), lo_f[0], lo_f[1], lo_f[2], hi_f[0], hi_f[1], hi_f[2], E, M)
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -730,6 +732,18 @@ def _shade_rows(i0, i1, org, dirn, rows, tri, t, u, v, weight, kept, tri_mat, nf
                 SD, CAST, LC, E, M):
     """:func:`shade_hits`' work on hits ``i0 .. i1-1`` (one task's; a function of its own, so
     the parallel loop stays small for the compiler)."""
+    org, dirn, rows, tri, t, u, v, weight = (borrow(org), borrow(dirn), borrow(rows), borrow(tri),
+                                             borrow(t), borrow(u), borrow(v), borrow(weight))
+    kept, tri_mat, nf, nv, uv, rec_kd, rec_ks = (borrow(kept), borrow(tri_mat), borrow(nf),
+                                                 borrow(nv), borrow(uv), borrow(rec_kd),
+                                                 borrow(rec_ks))
+    rec_shin, rec_kr, tex_first, tex_w, tex_h, texels = (borrow(rec_shin), borrow(rec_kr),
+                                                         borrow(tex_first), borrow(tex_w),
+                                                         borrow(tex_h), borrow(texels))
+    lf, point, lcf, P0, R, MAT, AMB, WR, MISS = (borrow(lf), borrow(point), borrow(lcf),
+                                                 borrow(P0), borrow(R), borrow(MAT), borrow(AMB),
+                                                 borrow(WR), borrow(MISS))
+    SD, CAST, LC = borrow(SD), borrow(CAST), borrow(LC)
     for i in range(i0, i1):
         ray = rows[i]
         k = kept[tri[ray]]

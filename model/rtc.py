@@ -16,7 +16,7 @@ import numpy as np
 
 from .events import EV_DONE, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI, decode, record
 from .intersection import fetch_triangle, test_triangle
-from .lanes import popcount
+from .lanes import borrow, popcount
 from .layout import LEAF, TRI_WORDS
 from .list import leaf_entries
 from .fp import flush_in
@@ -68,11 +68,26 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     ``rec_n[0]`` (``model.events``); recording stops (rec_n[0] > K) when the buffer is full."""
     (tnear, tfar, best, b_tri, b_u, b_v, dist, s_node, s_mask, s_near, s_far, tri, entries,
      octant, lo_t, linv_t, masks) = scratch
+    # every array as a borrowed view (the caller keeps them alive): no reference counting
+    # in the loops below
+    mem, org, dirn, tnear0, tfar0, tmax, anyhit = (borrow(mem), borrow(org), borrow(dirn),
+                                                   borrow(tnear0), borrow(tfar0), borrow(tmax),
+                                                   borrow(anyhit))
+    hit_t, hit_tri, hit_u, hit_v, ctr, rec, rec_n = (borrow(hit_t), borrow(hit_tri),
+                                                     borrow(hit_u), borrow(hit_v), borrow(ctr),
+                                                     borrow(rec), borrow(rec_n))
+    tnear, tfar, best, b_tri, b_u, b_v, dist = (borrow(tnear), borrow(tfar), borrow(best),
+                                                borrow(b_tri), borrow(b_u), borrow(b_v),
+                                                borrow(dist))
+    s_node, s_mask, s_near, s_far, tri, entries = (borrow(s_node), borrow(s_mask),
+                                                   borrow(s_near), borrow(s_far), borrow(tri),
+                                                   borrow(entries))
+    octant, lo_t, linv_t, masks = borrow(octant), borrow(lo_t), borrow(linv_t), borrow(masks)
     # the read-only ray data the units keep locally, per lane
-    lo = org[r0:r0 + n]
-    linv = inv[r0:r0 + n]
-    lk = kk[r0:r0 + n]
-    ls = ss[r0:r0 + n]
+    lo = borrow(org[r0:r0 + n])
+    linv = borrow(inv[r0:r0 + n])
+    lk = borrow(kk[r0:r0 + n])
+    ls = borrow(ss[r0:r0 + n])
     # dynamic per-lane state: the traversal's interval, the intersection's best hit
     for l in range(n):
         tnear[l] = tnear0[r0 + l]
@@ -205,7 +220,8 @@ def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, lo, hi, sc
                  ss[r, 1], ss[r, 2], tnear0[r], tfar0[r], _) = setup_one(
                     flush_in(org[r, 0], E), flush_in(org[r, 1], E), flush_in(org[r, 2], E),
                     flush_in(dirn[r, 0], E), flush_in(dirn[r, 1], E),
-                    flush_in(dirn[r, 2], E), flush_in(tmax[r], E), lo_f, hi_f, E, M)
+                    flush_in(dirn[r, 2], E), flush_in(tmax[r], E), lo_f[0], lo_f[1],
+                    lo_f[2], hi_f[0], hi_f[1], hi_f[2], E, M)
             trace_packet(mem, node_base, list_base, tri_base, root, depth,
                          r0, r1 - r0, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                          hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M, p, no_rec, no_n, scratch)
