@@ -164,17 +164,16 @@ def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> Re
             break
         hits = run(rays)
         hit = np.flatnonzero(hits.tri >= 0)
-        miss = np.flatnonzero(hits.tri < 0)
-        add_colours(acc, rays.pixel, miss, miss_col if len(miss_col) == 1 else miss_col[miss])
         if hit.size == 0:
+            add_misses(acc, rays.pixel, hits.tri, miss_col)
             break
         sh = shader.shade(rays, hit, hits.tri, hits.t, hits.u, hits.v, weight, col,
                           cull_behind=skip.lights_behind)
-        add_colours(acc, rays.pixel, hit, sh.ambient)
-        for li in range(len(scene.lights)):
-            if not cfg.shadows:
-                add_colours(acc, rays.pixel, hit, sh.light[li])     # zero where not cast
-                continue
+        # misses, ambient terms and, without shadow rays, every light's term (zero where no
+        # shadow ray is cast) in one pass
+        add_trace_colours(acc, rays.pixel, hits.tri, miss_col, hit, sh.ambient, sh.light,
+                          not cfg.shadows)
+        for li in range(len(scene.lights) if cfg.shadows else 0):
             srays, keep = shader.shaded_shadow_rays(rays, hit, sh, li)
             if not skip.anyhit:
                 srays.anyhit = np.zeros(len(srays), bool)
@@ -268,6 +267,35 @@ def add_colours(acc, pixel, rows, vals):
         j = 0 if one else i
         for c in range(3):
             acc[p, c] += vals[j, c]
+
+
+@numba.njit(cache=True)
+def add_misses(acc, pixel, tri, miss_col):
+    """``acc[pixel[r]] += miss_col[r]`` for every ray r that missed (``tri[r] < 0``;
+    ``miss_col`` of one row: the same for every ray)."""
+    one = miss_col.shape[0] == 1
+    for r in range(tri.shape[0]):
+        if tri[r] < 0:
+            p = pixel[r]
+            j = 0 if one else r
+            for c in range(3):
+                acc[p, c] += miss_col[j, c]
+
+
+@numba.njit(cache=True)
+def add_trace_colours(acc, pixel, tri, miss_col, hit, ambient, light, lights):
+    """The sums of one trace's own contributions: :func:`add_misses`, then for every hit i
+    (ray ``hit[i]``) ``ambient[i]`` and, if ``lights``, ``light[j, i]`` of every light j.
+    Integer sums: the same as adding them one kind after another."""
+    add_misses(acc, pixel, tri, miss_col)
+    for i in range(hit.shape[0]):
+        p = pixel[hit[i]]
+        for c in range(3):
+            v = ambient[i, c]
+            if lights:
+                for j in range(light.shape[0]):
+                    v += light[j, i, c]
+            acc[p, c] += v
 
 
 @numba.njit(cache=True, parallel=True)
