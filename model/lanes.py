@@ -27,6 +27,19 @@ def popcount(x):
     return np.int64((x * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
+@numba.njit(cache=True, inline="always")
+def highest_lane(m):
+    """Index of the highest set bit of a non-zero lane mask."""
+    m = np.uint64(m)
+    m |= m >> np.uint64(1)
+    m |= m >> np.uint64(2)
+    m |= m >> np.uint64(4)
+    m |= m >> np.uint64(8)
+    m |= m >> np.uint64(16)
+    m |= m >> np.uint64(32)
+    return lowest_lane(m ^ (m >> np.uint64(1)))
+
+
 @intrinsic
 def borrow(typingctx, arr):
     """A view of array ``arr`` that holds no reference (its memory-info pointer is null, so

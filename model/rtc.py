@@ -54,7 +54,9 @@ def packet_scratch(depth):
             np.empty(depth + 1, np.uint64), np.empty((depth + 1, 64), np.float32),
             np.empty((depth + 1, 64), np.float32), np.empty(9, np.float32),
             np.empty(64, np.int64), np.empty(64, np.int64), np.empty((3, 64), np.float32),
-            np.empty((3, 64), np.float32), np.empty(8, np.uint64))
+            np.empty((3, 64), np.float32), np.empty(8, np.uint64), np.empty((3, 64), np.int64),
+            np.empty((3, 64), np.float32), np.empty(64, np.int8), np.empty(64, np.float32),
+            np.empty(64, np.float32), np.empty(64, np.float32))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -67,7 +69,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     ``rec`` (K, 8) int64: when K > 0, every unit's input/output events are appended at row
     ``rec_n[0]`` (``model.events``); recording stops (rec_n[0] > K) when the buffer is full."""
     (tnear, tfar, best, b_tri, b_u, b_v, dist, s_node, s_mask, s_near, s_far, tri, entries,
-     octant, lo_t, linv_t, masks) = scratch
+     octant, lo_t, linv_t, masks, lk_t, ls_t, st, ht, hu, hv) = scratch
     # every array as a borrowed view (the caller keeps them alive): no reference counting
     # in the loops below
     mem, org, dirn, tnear0, tfar0, tmax, anyhit = (borrow(mem), borrow(org), borrow(dirn),
@@ -83,6 +85,9 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                                                    borrow(s_near), borrow(s_far), borrow(tri),
                                                    borrow(entries))
     octant, lo_t, linv_t, masks = borrow(octant), borrow(lo_t), borrow(linv_t), borrow(masks)
+    # the intersection unit's lanes by component, and its per-lane outcomes
+    lanes = (lo_t, borrow(lk_t), borrow(ls_t), borrow(st), borrow(ht), borrow(hu), borrow(hv))
+    lk_t, ls_t = lanes[1], lanes[2]
     # the read-only ray data the units keep locally, per lane
     lo = borrow(org[r0:r0 + n])
     linv = borrow(inv[r0:r0 + n])
@@ -102,10 +107,12 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     live = start_packet(dirn, r0, n, tnear, tfar, octant)
     terminated = np.uint64(0)
     if live:
-        for l in range(n):              # by axis, for the binary32 classify
+        for l in range(n):              # by axis, for the binary32 classify and intersection
             for a in range(3):
                 lo_t[a, l] = lo[l, a]
                 linv_t[a, l] = linv[l, a]
+                lk_t[a, l] = lk[l, a]
+                ls_t[a, l] = ls[l, a]
     pass_masks(octant, live, n, masks)
     for oc in range(8):
         mask = masks[oc]
@@ -152,7 +159,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 if rec.shape[0]:
                     record(rec, rec_n, EV_TRI, pid, oc, ti, mask, sid, 0, 0)
                 c_int_ops += test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v,
-                                           E, M, rec, rec_n, pid)
+                                           E, M, rec, rec_n, pid, n, lanes)
             # back in traversal; a shadow ray keeps testing the rest of the leaf it hits in
             # (its lane is in the leaf's mask), as the pipelined hardware does
             terminated = terminate(mask, terminated, b_tri, anyhit, r0, best, tfar)

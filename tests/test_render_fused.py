@@ -97,3 +97,49 @@ def test_borrowed_view_reads_and_writes_the_array():
 
     a = np.arange(10, dtype=np.float64)
     assert twice(a) == 90 and a[3] == 6
+
+
+def test_lanes_intersection_matches_exact():
+    """``model.intersection.intersect32_lanes`` (every lane of a packet at once) resolved as
+    ``test_triangle`` resolves it gives, lane by lane, the exact-operation ``intersect``'s
+    outcome, at scales down to the underflow band."""
+    import numba
+
+    from model.intersection import _intersect_exact32, intersect, intersect32_lanes
+
+    from .test_model_intersection import cases
+
+    @numba.njit(error_model="numpy")
+    def run(tris, org, k, s):
+        n = org.shape[0]
+        out = np.zeros((tris.shape[0], n, 2, 4), np.float32)
+        o_t = np.ascontiguousarray(org.T)
+        k_t = np.ascontiguousarray(k.T)
+        s_t = np.ascontiguousarray(s.T)
+        st = np.empty(n, np.int8)
+        ht = np.empty(n, np.float32)
+        hu = np.empty(n, np.float32)
+        hv = np.empty(n, np.float32)
+        for i in range(tris.shape[0]):
+            intersect32_lanes(tris[i], 0, n, o_t, k_t, s_t, st, ht, hu, hv)
+            for l in range(n):
+                h, t, u, v = intersect(tris[i], org[l, 0], org[l, 1], org[l, 2], k[l, 0],
+                                       k[l, 1], k[l, 2], s[l, 0], s[l, 1], s[l, 2], 8, 23)
+                out[i, l, 0] = (np.float32(h), t, u, v)
+                if st[l] == 2:
+                    h, t, u, v = _intersect_exact32(tris[i], org[l, 0], org[l, 1], org[l, 2],
+                                                    k[l, 0], k[l, 1], k[l, 2], s[l, 0],
+                                                    s[l, 1], s[l, 2])
+                else:
+                    h, t, u, v = st[l] == 1, ht[l], hu[l], hv[l]
+                out[i, l, 1] = (np.float32(h), t, u, v)
+        return out
+
+    rng = np.random.default_rng(7)
+    for scale_exp in (0, -40, -60, -62, -64, -70, 20):
+        tris, org, k, s = cases(rng, 64 * 8, scale_exp)
+        out = run(tris[:8], org[:64], k[:64], s[:64])
+        hit = out[..., 0] == 1
+        want, got = out[:, :, 0], out[:, :, 1]
+        assert same(want[..., 0], got[..., 0])
+        assert same(want[..., 1:][hit[..., 0]], got[..., 1:][hit[..., 0]])
