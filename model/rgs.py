@@ -60,7 +60,7 @@ Drivers (compiled, rays in parallel tasks; the render and the testbenches call t
 :func:`eye_packets` makes every packet (tile) of a frame in packet order, lanes in order;
 :func:`setup_rays` sets up an array of rays; :func:`secondary_rays` and :func:`shadow_rays`
 make the secondary rays of an array of hits; :func:`light_colours` and :func:`hit_colours`
-their colour contributions; :func:`shade_hits` does all of that for a set of hits in one
+their colour contributions; :func:`shade_batch` does all of that for a set of hits in one
 pass (the render's). The per-ray arithmetic is written once, on scalars (``setup_one``,
 ``secondary_one``, ``shadow_one``, ``light_one``, ``hit_one``, ``texture_one``); the array
 functions call it.
@@ -680,7 +680,7 @@ def _texel_channel(kd, t00, t10, t01, t11, wx, wy, sh, scale, E, M):
 # ---------------------------------------------------------------------------------------------
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def shade_hits(org, dirn, rows, tri, t, u, v, weight, kept, tri_mat, nf, nv, uv, rec_kd,
+def shade_batch(org, dirn, rows, tri, t, u, v, weight, kept, tri_mat, nf, nv, uv, rec_kd,
                rec_ks, rec_shin, rec_kr, tex_first, tex_w, tex_h, texels, textures, amb, bg,
                eps, lights, point, light_col, cull_behind, E, M):
     """Everything the slave computes from the hits of rays ``rows`` (ray i of ``org``,
@@ -730,7 +730,7 @@ def _shade_rows(i0, i1, org, dirn, rows, tri, t, u, v, weight, kept, tri_mat, nf
                 rec_kd, rec_ks, rec_shin, rec_kr, tex_first, tex_w, tex_h, texels, textures, am,
                 b0, b1, b2, e, lf, point, lcf, cull_behind, scale, P0, R, MAT, AMB, WR, MISS,
                 SD, CAST, LC, E, M):
-    """:func:`shade_hits`' work on hits ``i0 .. i1-1`` (one task's; a function of its own, so
+    """:func:`shade_batch`' work on hits ``i0 .. i1-1`` (one task's; a function of its own, so
     the parallel loop stays small for the compiler)."""
     org, dirn, rows, tri, t, u, v, weight = (borrow(org), borrow(dirn), borrow(rows), borrow(tri),
                                              borrow(t), borrow(u), borrow(v), borrow(weight))

@@ -35,7 +35,7 @@ import numpy as np
 from .fp import FPFormat
 from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
 from .raygen import REFLECTION, SHADOW, Rays
-from .rgs import secondary_rays, shade_hits, shadow_rays, texture_kd
+from .rgs import secondary_rays, shade_batch, shadow_rays, texture_kd
 
 AMBIENT = np.float32(0.08)
 
@@ -196,7 +196,7 @@ class Shader:
     def shade(self, rays: Rays, sel: np.ndarray, tri: np.ndarray, t, u, v, weight,
               colours: dict, cull_behind: bool = True) -> Shaded:
         """The slave's work on the hits of rays ``sel`` in one compiled pass
-        (``model.rgs.shade_hits``): :meth:`surface`'s arithmetic, the hit colours of rays of
+        (``model.rgs.shade_batch``): :meth:`surface`'s arithmetic, the hit colours of rays of
         weight ``weight`` and every light's shadow ray and colour, with the frame's colour
         registers ``colours`` (``frame_colour_registers``). ``tri``, ``t``, ``u``, ``v`` and
         ``weight`` are per ray of ``rays`` (only the rows ``sel`` are read)."""
@@ -221,7 +221,7 @@ class Shader:
         (tri_mat, nf, nv, uv, kd, ks, shin, kr, tex_first, tex_w, tex_h, lvec,
          point) = self._arrays
         lc = np.ascontiguousarray(colours["lights"], np.float32).reshape(-1, 3)
-        out = shade_hits(
+        out = shade_batch(
             np.ascontiguousarray(rays.org, np.float32), np.ascontiguousarray(rays.dir, np.float32),
             np.asarray(sel, np.int64), np.asarray(tri), np.asarray(t, np.float32),
             np.asarray(u, np.float32), np.asarray(v, np.float32),

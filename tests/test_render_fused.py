@@ -1,5 +1,5 @@
 """The render's one-pass kernels against the staged ones, bit for bit: ``Shader.shade``
-(``model.rgs.shade_hits``) against ``Shader.surface``, ``hit_colours``, ``shadow_rays`` and
+(``model.rgs.shade_batch``) against ``Shader.surface``, ``hit_colours``, ``shadow_rays`` and
 ``light_colours``; the trace kernel with the ray setup inside (``trace_all_setup``) against
 ``setup`` then ``trace``; the borrowed array views."""
 import numpy as np
