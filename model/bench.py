@@ -87,8 +87,9 @@ def render_speed(scene, res, repeat: int, embree, cfg: Config | None = None) -> 
     """The whole render's rays per second (eye rays only unless ``cfg`` says otherwise) and
     Embree's on the same rays, in one run: best of ``repeat``, all numba threads and one.
     ``phase_seconds`` (of the best run with all threads): ``raygen`` (eye rays), ``setup``
-    (ray setup of every ray, timed apart), ``trace`` (the render's trace phase less
-    ``setup``), ``shading`` (the rest: secondary rays, colours, sums, statistics)."""
+    (ray setup of every ray, timed apart: the render sets rays up inside its trace kernel),
+    ``trace`` (the render's trace phase less ``setup``), ``shading`` (the rest: secondary
+    rays, colours, sums, statistics)."""
     import numba
     cfg = cfg or Config(reflect_depth=0, shadows=False)
     prep = prepare(scene, cfg, cache_dir=None)

@@ -12,7 +12,7 @@ import numpy as np
 
 from .events import EV_INT, record
 from .fp import fadd, fdiv, fmul, fsub
-from .lanes import lowest_lane
+from .lanes import highest_lane, lowest_lane, popcount
 from .layout import TRI_WORDS
 
 _ONE = np.float32(1.0)
@@ -66,6 +66,7 @@ def intersect(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz, E, M):
 
 
 _FLT_MIN = np.float32(2.0 ** -126)
+VECTOR_LANES = 8        # test_triangle tests the lanes together from this many active lanes
 
 
 @numba.njit(cache=True, inline="always")
@@ -152,6 +153,88 @@ def intersect32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
     return True, t, u, v
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def intersect32_lanes(tri, l0, l1, o_t, k_t, s_t, st, ht, hu, hv):
+    """:func:`intersect32` for lanes ``l0 .. l1-1`` at once, in a loop the compiler turns into
+    vector instructions (every lane computes every step; a lane's outcome is selected at the
+    end). ``o_t``, ``k_t``, ``s_t``: the packet's origins, shear axes and shear constants by
+    component, (3, lanes). Writes per lane ``st`` = 0 (no hit), 1 (hit at ``ht``, ``hu``,
+    ``hv``) or 2 (a value in the band where IEEE and the hardware can differ: redo the lane
+    with the exact operations) -- the outcomes of :func:`intersect32`'s branches."""
+    A0, A1, A2, B0, B1, B2, C0, C1, C2 = (tri[0], tri[1], tri[2], tri[3], tri[4], tri[5],
+                                          tri[6], tri[7], tri[8])
+    ox, oy, oz = o_t[0], o_t[1], o_t[2]
+    kxs, kys, kzs = k_t[0], k_t[1], k_t[2]
+    sxs, sys_, szs = s_t[0], s_t[1], s_t[2]
+    for l in range(l0, l1):
+        kx, ky, kz = kxs[l], kys[l], kzs[l]
+        sx, sy, sz = sxs[l], sys_[l], szs[l]
+        a0 = A0 - ox[l]
+        a1 = A1 - oy[l]
+        a2 = A2 - oz[l]
+        b0 = B0 - ox[l]
+        b1 = B1 - oy[l]
+        b2 = B2 - oz[l]
+        c0 = C0 - ox[l]
+        c1 = C1 - oy[l]
+        c2 = C2 - oz[l]
+        az = pick(a0, a1, a2, kz)
+        bz = pick(b0, b1, b2, kz)
+        cz = pick(c0, c1, c2, kz)
+        pax = sx * az
+        pay = sy * az
+        pbx = sx * bz
+        pby = sy * bz
+        pcx = sx * cz
+        pcy = sy * cz
+        ax = pick(a0, a1, a2, kx) - pax
+        ay = pick(a0, a1, a2, ky) - pay
+        bx = pick(b0, b1, b2, kx) - pbx
+        by = pick(b0, b1, b2, ky) - pby
+        cx = pick(c0, c1, c2, kx) - pcx
+        cy = pick(c0, c1, c2, ky) - pcy
+        p0 = cx * by
+        p1 = cy * bx
+        p2 = ax * cy
+        p3 = ay * cx
+        p4 = bx * ay
+        p5 = by * ax
+        eu = p0 - p1
+        ev = p2 - p3
+        ew = p4 - p5
+        bad = (_tiny(a0) | _tiny(a1) | _tiny(a2) | _tiny(b0) | _tiny(b1) | _tiny(b2)
+               | _tiny(c0) | _tiny(c1) | _tiny(c2) | _tiny(pax) | _tiny(pay) | _tiny(pbx)
+               | _tiny(pby) | _tiny(pcx) | _tiny(pcy) | _tiny(ax) | _tiny(ay) | _tiny(bx)
+               | _tiny(by) | _tiny(cx) | _tiny(cy) | _tiny(p0) | _tiny(p1) | _tiny(p2)
+               | _tiny(p3) | _tiny(p4) | _tiny(p5) | _tiny(eu) | _tiny(ev) | _tiny(ew))
+        edge_miss = (((eu < _ZERO) | (ev < _ZERO) | (ew < _ZERO))
+                     & ((eu > _ZERO) | (ev > _ZERO) | (ew > _ZERO)))
+        s0 = eu + ev
+        det = s0 + ew
+        qa = sz * az
+        qb = sz * bz
+        qc = sz * cz
+        ta = eu * qa
+        tb = ev * qb
+        tc = ew * qc
+        t0 = ta + tb
+        tz = t0 + tc
+        rcp = _ONE / det
+        t = tz * rcp
+        u = ev * rcp
+        v = ew * rcp
+        bad2 = (_tiny(s0) | _tiny(det) | _tiny(qa) | _tiny(qb) | _tiny(qc) | _tiny(ta)
+                | _tiny(tb) | _tiny(tc) | _tiny(t0) | _tiny(tz) | _tiny(rcp) | _tiny(t)
+                | _tiny(u) | _tiny(v))
+        r = np.int8(2) if bad2 else np.int8(1)
+        r = (np.int8(2) if _tiny(s0) else np.int8(0)) if det == _ZERO else r
+        r = np.int8(0) if edge_miss else r
+        st[l] = np.int8(2) if bad else r
+        ht[l] = t
+        hu[l] = u
+        hv[l] = v
+
+
 @numba.njit(cache=True, inline="always")
 def fetch_triangle(mem, tri_base, i, out):
     """Read triangle ``i`` (5 words) into ``out`` (9 float32); returns its scene-order id."""
@@ -169,13 +252,40 @@ def fetch_triangle(mem, tri_base, i, out):
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, rec, rec_n, pid):
+def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, rec, rec_n, pid,
+                  n, lanes):
     """The intersection unit on one triangle: test every lane of ``mask`` in lane order (the
     issue stage), and keep the closest hit (best-hit update): a hit is accepted when
     ``0 < t < best``. ``lo``/``lk``/``ls`` are the packet's ray store (origin, shear axes and
     constants), ``best``/``b_tri``/``b_u``/``b_v`` its best-hit store (the triangle's index
     in memory, as the hardware knows it; ``sid``, the scene-order id, is only recorded).
+    ``lanes``: the packet's ``n`` lanes' store by component and per-lane outcome arrays
+    (:func:`intersect32_lanes`): at binary32, with at least ``VECTOR_LANES`` lanes in the mask
+    and no event log, the lanes are tested together first (the same results).
     Returns the int-ops done."""
+    if E == 8 and M == 23 and rec.shape[0] == 0 and popcount(mask) >= VECTOR_LANES:
+        o_t, k_t, s_t, st, ht, hu, hv = lanes
+        l0 = lowest_lane(mask)
+        l1 = min(n, (highest_lane(mask) + 16) & ~15)
+        intersect32_lanes(tri, l0 & ~15, l1, o_t, k_t, s_t, st, ht, hu, hv)
+        ops = 0
+        m = mask
+        while m:
+            l = lowest_lane(m)
+            m &= m - np.uint64(1)
+            ops += 1
+            if st[l] == 2:
+                hit, t, u, v = _intersect_exact32(tri, lo[l, 0], lo[l, 1], lo[l, 2], lk[l, 0],
+                                                  lk[l, 1], lk[l, 2], ls[l, 0], ls[l, 1],
+                                                  ls[l, 2])
+            else:
+                hit, t, u, v = st[l] == 1, ht[l], hu[l], hv[l]
+            if hit and t > _ZERO and t < best[l]:
+                best[l] = t
+                b_tri[l] = ti
+                b_u[l] = u
+                b_v[l] = v
+        return ops
     ops = 0
     m = mask
     while m:

@@ -207,6 +207,11 @@ class MemoryImage:
         ids = self._ids()[2]
         return ids[np.asarray(index)]       # index -1 reads the last entry: -1
 
+    def scene_id_table(self) -> np.ndarray:
+        """:meth:`scene_ids` as a table (int32): entry i is triangle i's scene-order id, the
+        last entry -1 (a miss)."""
+        return self._ids()[2]
+
     def tri_index(self, scene_id: np.ndarray) -> np.ndarray:
         """The inverse of :meth:`scene_ids`: image indices (int64) of scene-order ids (-1 stays
         -1; an id of no triangle in the image raises ``KeyError``)."""

@@ -143,7 +143,8 @@ def eye_rays(camera, width: int, height: int, cfg: Config) -> Rays:
     pk_start = np.empty(packet_count(sw, sh, tw, th) + 1, np.int64)
     eye_packets(sw, sh, tw, th, n, width, corner, dx, dy, d, pixel, pk_start, *fmt.em)
     org = np.empty((total, 3), np.float32)
-    org[:] = pos
+    for a in range(3):                  # by column: a few times faster than broadcasting a row
+        org[:, a] = pos[a]
     return Rays(org, d, np.full(total, np.inf, np.float32), np.zeros(total, np.uint8),
                 pixel, pk_start)
 

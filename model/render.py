@@ -18,7 +18,7 @@ from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
-from .rgs import CHUNK, FIX_FRAC, hit_colours, light_colours
+from .rgs import CHUNK, FIX_FRAC
 from .rtc import COUNTERS, Hits, counter_totals, dynamic_tasks, trace
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
@@ -159,43 +159,33 @@ def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> Re
     col = frame_colour_registers(scene, cfg.fmt, n_samples)
     weight = np.full(len(rays), col["w_eye"], np.float32)
     miss_col = col["eye_miss"].reshape(1, 3)           # one row: every eye ray's
-    E, M = cfg.fmt.em
     for depth in range(cfg.reflect_depth + 1):
         if len(rays) == 0:
             break
         hits = run(rays)
-        hit = np.nonzero(hits.tri >= 0)[0]
-        miss = np.nonzero(hits.tri < 0)[0]
-        add_colours(acc, rays.pixel, miss, miss_col if len(miss_col) == 1 else miss_col[miss])
+        hit = np.flatnonzero(hits.tri >= 0)
         if hit.size == 0:
+            add_misses(acc, rays.pixel, hits.tri, miss_col)
             break
-        surf = shader.surface(rays, hit, hits.tri[hit], hits.t[hit], hits.u[hit], hits.v[hit])
-        mat = surf.mat
-        rec = shader.rec
-        amb_c, wr, cmiss = hit_colours(surf.kd, rec["kr"][mat], col["amb"], col["bg"],
-                                       weight[hit], E, M)
-        add_colours(acc, rays.pixel, hit, amb_c)
-        for li, light in enumerate(scene.lights):
-            srays, keep = shader.shadow_rays(rays, hit, surf, light,
-                                             cull_behind=skip.lights_behind, light_index=li)
+        sh = shader.shade(rays, hit, hits.tri, hits.t, hits.u, hits.v, weight, col,
+                          cull_behind=skip.lights_behind)
+        # misses, ambient terms and, without shadow rays, every light's term (zero where no
+        # shadow ray is cast) in one pass
+        add_trace_colours(acc, rays.pixel, hits.tri, miss_col, hit, sh.ambient, sh.light,
+                          not cfg.shadows)
+        for li in range(len(scene.lights) if cfg.shadows else 0):
+            srays, keep = shader.shaded_shadow_rays(rays, hit, sh, li)
             if not skip.anyhit:
                 srays.anyhit = np.zeros(len(srays), bool)
             if not len(srays):
                 continue
-            lc = light_colours(srays.dir, surf.n[keep], surf.r[keep], surf.kd[keep],
-                               rec["ks"][mat[keep]], rec["shin"][mat[keep]],
-                               np.broadcast_to(col["lights"][li], (len(srays), 3)),
-                               weight[hit[keep]], E, M)
-            if cfg.shadows:
-                lit = np.flatnonzero(run(srays).tri < 0)
-                add_colours(acc, srays.pixel, lit, lc[lit])
-            else:
-                add_colours(acc, srays.pixel, np.arange(len(srays)), lc)
+            lit = np.flatnonzero(run(srays).tri < 0)
+            add_colours(acc, srays.pixel, lit, sh.light[li][keep[lit]])
         if depth == cfg.reflect_depth:
             break
-        rays, keep = shader.reflection_rays(rays, hit, surf, cull_matte=skip.nonreflective)
-        weight = wr[keep]
-        miss_col = cmiss[keep]
+        rays, keep = shader.reflection_rays(rays, hit, sh, cull_matte=skip.nonreflective)
+        weight = sh.wr[keep]
+        miss_col = sh.miss[keep]
     if bar is not None:
         bar.close()
     t_render = time.perf_counter() - t1
@@ -277,6 +267,35 @@ def add_colours(acc, pixel, rows, vals):
         j = 0 if one else i
         for c in range(3):
             acc[p, c] += vals[j, c]
+
+
+@numba.njit(cache=True)
+def add_misses(acc, pixel, tri, miss_col):
+    """``acc[pixel[r]] += miss_col[r]`` for every ray r that missed (``tri[r] < 0``;
+    ``miss_col`` of one row: the same for every ray)."""
+    one = miss_col.shape[0] == 1
+    for r in range(tri.shape[0]):
+        if tri[r] < 0:
+            p = pixel[r]
+            j = 0 if one else r
+            for c in range(3):
+                acc[p, c] += miss_col[j, c]
+
+
+@numba.njit(cache=True)
+def add_trace_colours(acc, pixel, tri, miss_col, hit, ambient, light, lights):
+    """The sums of one trace's own contributions: :func:`add_misses`, then for every hit i
+    (ray ``hit[i]``) ``ambient[i]`` and, if ``lights``, ``light[j, i]`` of every light j.
+    Integer sums: the same as adding them one kind after another."""
+    add_misses(acc, pixel, tri, miss_col)
+    for i in range(hit.shape[0]):
+        p = pixel[hit[i]]
+        for c in range(3):
+            v = ambient[i, c]
+            if lights:
+                for j in range(light.shape[0]):
+                    v += light[j, i, c]
+            acc[p, c] += v
 
 
 @numba.njit(cache=True, parallel=True)

@@ -60,7 +60,10 @@ Drivers (compiled, rays in parallel tasks; the render and the testbenches call t
 :func:`eye_packets` makes every packet (tile) of a frame in packet order, lanes in order;
 :func:`setup_rays` sets up an array of rays; :func:`secondary_rays` and :func:`shadow_rays`
 make the secondary rays of an array of hits; :func:`light_colours` and :func:`hit_colours`
-their colour contributions.
+their colour contributions; :func:`shade_batch` does all of that for a set of hits in one
+pass (the render's). The per-ray arithmetic is written once, on scalars (``setup_one``,
+``secondary_one``, ``shadow_one``, ``light_one``, ``hit_one``, ``texture_one``); the array
+functions call it.
 """
 from __future__ import annotations
 
@@ -68,6 +71,7 @@ import numba
 import numpy as np
 
 from .fp import fadd, fdiv, fmax, fmin, fmul, flush_in, fsqrt, fsub, round_exact, sign_bit
+from .lanes import borrow
 
 __all__ = ["sample_coord", "eye_ray", "ray_setup", "eye_packets", "packet_count", "setup_rays",
            "dot3", "secondary", "secondary_rays", "shadow_dir", "shadow_rays", "FIX_FRAC",
@@ -128,12 +132,11 @@ def _slab(lo, hi, o, inv, E, M):
     return fmin(t0, t1), fmax(t0, t1)
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def ray_setup(org, dirn, tmax, lo, hi, r, inv, k, s, tnear, tfar, octant, E, M):
-    """Set up ray ``r`` (row ``r`` of ``org``/``dirn``, ``tmax[r]``) against the box
-    ``[lo, hi]``: writes ``inv[r]``, ``k[r]`` (kx, ky, kz), ``s[r]``, ``tnear[r]``, ``tfar[r]``,
-    ``octant[r]`` (the module docstring's steps, in order)."""
-    d0, d1, d2 = dirn[r, 0], dirn[r, 1], dirn[r, 2]
+@numba.njit(cache=True, error_model="numpy")
+def setup_one(o0, o1, o2, d0, d1, d2, tmax, lo0, lo1, lo2, hi0, hi1, hi2, E, M):
+    """Set up one ray (origin ``o``, direction ``d``, ``tmax``) against the box ``[lo, hi]``
+    (the module docstring's steps, in order). Returns ``(i0, i1, i2, kx, ky, kz, s0, s1, s2,
+    tnear, tfar, octant)``."""
     # inv
     i0 = fdiv(_ONE, d0, E, M)
     i1 = fdiv(_ONE, d1, E, M)
@@ -152,23 +155,51 @@ def ray_setup(org, dirn, tmax, lo, hi, r, inv, k, s, tnear, tfar, octant, E, M):
     if dz < _ZERO:
         kx, ky = ky, kx
     # shear
-    s[r, 0] = fdiv(_pick(d0, d1, d2, kx), dz, E, M)
-    s[r, 1] = fdiv(_pick(d0, d1, d2, ky), dz, E, M)
-    s[r, 2] = _pick(i0, i1, i2, kz)
+    s0 = fdiv(_pick(d0, d1, d2, kx), dz, E, M)
+    s1 = fdiv(_pick(d0, d1, d2, ky), dz, E, M)
+    s2 = _pick(i0, i1, i2, kz)
     # slab, flat, order
-    n0, f0 = _slab(lo[0], hi[0], org[r, 0], i0, E, M)
-    n1, f1 = _slab(lo[1], hi[1], org[r, 1], i1, E, M)
-    n2, f2 = _slab(lo[2], hi[2], org[r, 2], i2, E, M)
+    n0, f0 = _slab(lo0, hi0, o0, i0, E, M)
+    n1, f1 = _slab(lo1, hi1, o1, i1, E, M)
+    n2, f2 = _slab(lo2, hi2, o2, i2, E, M)
     # clip
-    tnear[r] = fmax(fmax(fmax(_ZERO, n0), n1), n2)
-    tfar[r] = fmin(fmin(fmin(tmax[r], f0), f1), f2)
-    inv[r, 0] = i0
-    inv[r, 1] = i1
-    inv[r, 2] = i2
-    k[r, 0] = kx
-    k[r, 1] = ky
-    k[r, 2] = kz
-    octant[r] = sign_bit(d0) | (sign_bit(d1) << 1) | (sign_bit(d2) << 2)
+    tnear = fmax(fmax(fmax(_ZERO, n0), n1), n2)
+    tfar = fmin(fmin(fmin(tmax, f0), f1), f2)
+    octant = sign_bit(d0) | (sign_bit(d1) << 1) | (sign_bit(d2) << 2)
+    return i0, i1, i2, kx, ky, kz, s0, s1, s2, tnear, tfar, octant
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def ray_setup(org, dirn, tmax, lo, hi, r, inv, k, s, tnear, tfar, octant, E, M):
+    """Set up ray ``r`` (row ``r`` of ``org``/``dirn``, ``tmax[r]``) against the box
+    ``[lo, hi]``: writes ``inv[r]``, ``k[r]`` (kx, ky, kz), ``s[r]``, ``tnear[r]``, ``tfar[r]``,
+    ``octant[r]`` (:func:`setup_one`)."""
+    (inv[r, 0], inv[r, 1], inv[r, 2], k[r, 0], k[r, 1], k[r, 2], s[r, 0], s[r, 1], s[r, 2],
+     tnear[r], tfar[r], octant[r]) = setup_one(org[r, 0], org[r, 1], org[r, 2], dirn[r, 0],
+                                               dirn[r, 1], dirn[r, 2], tmax[r], lo[0], lo[1], lo[2],
+                                               hi[0], hi[1], hi[2], E, M)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def setup_flushed(org, dirn, tmax, lo_f, hi_f, r, inv, k, s, tnear, tfar, octant, E, M):
+    """:func:`ray_setup` of ray ``r`` with its operands first read as the hardware reads
+    format words (denormal encodings as signed zeros); ``lo_f``/``hi_f`` already read so."""
+    (inv[r, 0], inv[r, 1], inv[r, 2], k[r, 0], k[r, 1], k[r, 2], s[r, 0], s[r, 1], s[r, 2],
+     tnear[r], tfar[r], octant[r]) = setup_one(
+        flush_in(org[r, 0], E), flush_in(org[r, 1], E), flush_in(org[r, 2], E),
+        flush_in(dirn[r, 0], E), flush_in(dirn[r, 1], E), flush_in(dirn[r, 2], E),
+        flush_in(tmax[r], E), lo_f[0], lo_f[1], lo_f[2], hi_f[0], hi_f[1], hi_f[2], E, M)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def flushed_box(lo, hi, E):
+    """The box corners read as the hardware reads format words: (lo, hi), each (3,)."""
+    lo_f = np.empty(3, np.float32)
+    hi_f = np.empty(3, np.float32)
+    for a in range(3):
+        lo_f[a] = flush_in(lo[a], E)
+        hi_f[a] = flush_in(hi[a], E)
+    return lo_f, hi_f
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -178,22 +209,10 @@ def setup_rays(org, dirn, tmax, lo, hi, inv, k, s, tnear, tfar, octant, E, M):
     vectorized ``FPFormat`` operations do the same), so any float32 input gives the hardware's
     answer."""
     n = org.shape[0]
-    lo_f = np.empty(3, np.float32)
-    hi_f = np.empty(3, np.float32)
-    for a in range(3):
-        lo_f[a] = flush_in(lo[a], E)
-        hi_f[a] = flush_in(hi[a], E)
+    lo_f, hi_f = flushed_box(lo, hi, E)
     for ch in numba.prange((n + CHUNK - 1) // CHUNK):
-        o = np.empty((1, 3), np.float32)
-        d = np.empty((1, 3), np.float32)
-        t = np.empty(1, np.float32)
         for r in range(ch * CHUNK, min(n, ch * CHUNK + CHUNK)):
-            for a in range(3):
-                o[0, a] = flush_in(org[r, a], E)
-                d[0, a] = flush_in(dirn[r, a], E)
-            t[0] = flush_in(tmax[r], E)
-            ray_setup(o, d, t, lo_f, hi_f, 0, inv[r:r + 1], k[r:r + 1], s[r:r + 1],
-                      tnear[r:r + 1], tfar[r:r + 1], octant[r:r + 1], E, M)
+            setup_flushed(org, dirn, tmax, lo_f, hi_f, r, inv, k, s, tnear, tfar, octant, E, M)
 
 
 @numba.njit(cache=True)
@@ -256,42 +275,72 @@ def _unit(x0, x1, x2, E, M):
     return fmul(x0, r, E, M), fmul(x1, r, E, M), fmul(x2, r, E, M), q
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def secondary_one(o0, o1, o2, d0, d1, d2, t, u, v, f0, f1, f2, a0, a1, a2, b0, b1, b2,
+                  c0, c1, c2, eps, E, M):
+    """The module docstring's steps for one hit, on scalars: origin ``o``, direction ``d``,
+    face normal ``f``, vertex normals ``a`` (A), ``b`` (B), ``c`` (C). Returns the 12 values
+    ``p0``, ``g``, ``n``, ``r`` (3 each, in that order)."""
+    # face
+    flip = dot3(f0, f1, f2, d0, d1, d2, E, M) > _ZERO
+    g0 = -f0 if flip else f0
+    g1 = -f1 if flip else f1
+    g2 = -f2 if flip else f2
+    # dir_norm
+    w0, w1, w2, _ = _unit(d0, d1, d2, E, M)
+    # hit, offset
+    p00 = fsub(fadd(fadd(o0, fmul(t, d0, E, M), E, M), fmul(eps, g0, E, M), E, M),
+               fmul(eps, w0, E, M), E, M)
+    p01 = fsub(fadd(fadd(o1, fmul(t, d1, E, M), E, M), fmul(eps, g1, E, M), E, M),
+               fmul(eps, w1, E, M), E, M)
+    p02 = fsub(fadd(fadd(o2, fmul(t, d2, E, M), E, M), fmul(eps, g2, E, M), E, M),
+               fmul(eps, w2, E, M), E, M)
+    # normal
+    bb = fsub(fsub(_ONE, u, E, M), v, E, M)
+    s0 = fadd(fadd(fmul(bb, a0, E, M), fmul(u, b0, E, M), E, M), fmul(v, c0, E, M), E, M)
+    s1 = fadd(fadd(fmul(bb, a1, E, M), fmul(u, b1, E, M), E, M), fmul(v, c1, E, M), E, M)
+    s2 = fadd(fadd(fmul(bb, a2, E, M), fmul(u, b2, E, M), E, M), fmul(v, c2, E, M), E, M)
+    n0, n1, n2, q = _unit(s0, s1, s2, E, M)
+    if q == _ZERO:
+        n0, n1, n2 = g0, g1, g2
+    if dot3(n0, n1, n2, g0, g1, g2, E, M) < _ZERO:
+        n0, n1, n2 = -n0, -n1, -n2
+    # reflect
+    k = fmul(_TWO, dot3(d0, d1, d2, n0, n1, n2, E, M), E, M)
+    r0 = fsub(d0, fmul(k, n0, E, M), E, M)
+    r1 = fsub(d1, fmul(k, n1, E, M), E, M)
+    r2 = fsub(d2, fmul(k, n2, E, M), E, M)
+    return p00, p01, p02, g0, g1, g2, n0, n1, n2, r0, r1, r2
+
+
 @numba.njit(cache=True, error_model="numpy")
 def secondary(o, d, t, u, v, nf, nv, eps, E, M):
     """The module docstring's steps for one hit: ``o``, ``d``, ``nf`` (3,), ``nv`` (3, 3) vertex
     normals A, B, C. Returns (p0, g, n, r), each a (3,) float32 array."""
+    x = secondary_one(o[0], o[1], o[2], d[0], d[1], d[2], t, u, v, nf[0], nf[1], nf[2],
+                      nv[0, 0], nv[0, 1], nv[0, 2], nv[1, 0], nv[1, 1], nv[1, 2],
+                      nv[2, 0], nv[2, 1], nv[2, 2], eps, E, M)
     p0 = np.empty(3, np.float32)
     g = np.empty(3, np.float32)
     n = np.empty(3, np.float32)
     r = np.empty(3, np.float32)
-    # face
-    flip = dot3(nf[0], nf[1], nf[2], d[0], d[1], d[2], E, M) > _ZERO
-    for a in range(3):
-        g[a] = -nf[a] if flip else nf[a]
-    # dir_norm
-    w0, w1, w2, _ = _unit(d[0], d[1], d[2], E, M)
-    # hit, offset
-    w = (w0, w1, w2)
-    for a in range(3):
-        p = fadd(o[a], fmul(t, d[a], E, M), E, M)
-        p0[a] = fsub(fadd(p, fmul(eps, g[a], E, M), E, M), fmul(eps, w[a], E, M), E, M)
-    # normal
-    b = fsub(fsub(_ONE, u, E, M), v, E, M)
-    s = np.empty(3, np.float32)
-    for a in range(3):
-        s[a] = fadd(fadd(fmul(b, nv[0, a], E, M), fmul(u, nv[1, a], E, M), E, M),
-                    fmul(v, nv[2, a], E, M), E, M)
-    n0, n1, n2, q = _unit(s[0], s[1], s[2], E, M)
-    if q == _ZERO:
-        n0, n1, n2 = g[0], g[1], g[2]
-    if dot3(n0, n1, n2, g[0], g[1], g[2], E, M) < _ZERO:
-        n0, n1, n2 = -n0, -n1, -n2
-    n[0], n[1], n[2] = n0, n1, n2
-    # reflect
-    k = fmul(_TWO, dot3(d[0], d[1], d[2], n0, n1, n2, E, M), E, M)
-    for a in range(3):
-        r[a] = fsub(d[a], fmul(k, n[a], E, M), E, M)
+    p0[0], p0[1], p0[2], g[0], g[1], g[2], n[0], n[1], n[2], r[0], r[1], r[2] = x
     return p0, g, n, r
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def secondary_at(org, dirn, ray, t, u, v, nf, nv, k, eps, E, M):
+    """:func:`secondary_one` of ray ``ray`` of ``org``/``dirn`` on triangle row ``k`` of
+    ``nf``/``nv``, every operand read as the hardware reads format words (``eps`` already)."""
+    return secondary_one(
+        flush_in(org[ray, 0], E), flush_in(org[ray, 1], E), flush_in(org[ray, 2], E),
+        flush_in(dirn[ray, 0], E), flush_in(dirn[ray, 1], E), flush_in(dirn[ray, 2], E),
+        flush_in(t, E), flush_in(u, E), flush_in(v, E),
+        flush_in(nf[k, 0], E), flush_in(nf[k, 1], E), flush_in(nf[k, 2], E),
+        flush_in(nv[k, 0, 0], E), flush_in(nv[k, 0, 1], E), flush_in(nv[k, 0, 2], E),
+        flush_in(nv[k, 1, 0], E), flush_in(nv[k, 1, 1], E), flush_in(nv[k, 1, 2], E),
+        flush_in(nv[k, 2, 0], E), flush_in(nv[k, 2, 1], E), flush_in(nv[k, 2, 2], E),
+        eps, E, M)
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -307,27 +356,23 @@ def secondary_rays(org, dirn, rows, t, u, v, tri, nf, nv, eps, E, M):
     R = np.empty((N, 3), np.float32)
     e = flush_in(eps, E)
     for ch in numba.prange((N + CHUNK - 1) // CHUNK):
-        o = np.empty(3, np.float32)
-        d = np.empty(3, np.float32)
-        f = np.empty(3, np.float32)
-        nn = np.empty((3, 3), np.float32)
         for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
-            ray = rows[i]
-            k = tri[i]
-            for a in range(3):
-                o[a] = flush_in(org[ray, a], E)
-                d[a] = flush_in(dirn[ray, a], E)
-                f[a] = flush_in(nf[k, a], E)
-                for c in range(3):
-                    nn[c, a] = flush_in(nv[k, c, a], E)
-            p0, g, n, r = secondary(o, d, flush_in(t[i], E), flush_in(u[i], E),
-                                    flush_in(v[i], E), f, nn, e, E, M)
-            for a in range(3):
-                P0[i, a] = p0[a]
-                G[i, a] = g[a]
-                NS[i, a] = n[a]
-                R[i, a] = r[a]
+            (P0[i, 0], P0[i, 1], P0[i, 2], G[i, 0], G[i, 1], G[i, 2], NS[i, 0], NS[i, 1],
+             NS[i, 2], R[i, 0], R[i, 1], R[i, 2]) = secondary_at(org, dirn, rows[i], t[i], u[i],
+                                                                 v[i], nf, nv, tri[i], e, E, M)
     return P0, G, NS, R
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def shadow_one(p0, p1, p2, g0, g1, g2, l0, l1, l2, point, E, M):
+    """:func:`shadow_dir` on scalars: (d0, d1, d2, cast)."""
+    if point:
+        d0 = fsub(l0, p0, E, M)
+        d1 = fsub(l1, p1, E, M)
+        d2 = fsub(l2, p2, E, M)
+    else:
+        d0, d1, d2 = l0, l1, l2
+    return d0, d1, d2, dot3(g0, g1, g2, d0, d1, d2, E, M) > _ZERO
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
@@ -336,9 +381,9 @@ def shadow_dir(p0, g, light, point, E, M):
     (direction (3,), cast). ``light``: the point light's position (``point``) or the parallel
     light's reversed direction."""
     ds = np.empty(3, np.float32)
-    for a in range(3):
-        ds[a] = fsub(light[a], p0[a], E, M) if point else light[a]
-    return ds, dot3(g[0], g[1], g[2], ds[0], ds[1], ds[2], E, M) > _ZERO
+    ds[0], ds[1], ds[2], cast = shadow_one(p0[0], p0[1], p0[2], g[0], g[1], g[2], light[0],
+                                           light[1], light[2], point, E, M)
+    return ds, cast
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
@@ -353,10 +398,9 @@ def shadow_rays(p0, g, light, point, E, M):
         lf[a] = flush_in(light[a], E)
     for ch in numba.prange((N + CHUNK - 1) // CHUNK):
         for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
-            ds, c = shadow_dir(p0[i], g[i], lf, point, E, M)
-            for a in range(3):
-                D[i, a] = ds[a]
-            cast[i] = c
+            D[i, 0], D[i, 1], D[i, 2], cast[i] = shadow_one(
+                p0[i, 0], p0[i, 1], p0[i, 2], g[i, 0], g[i, 1], g[i, 2], lf[0], lf[1], lf[2],
+                point, E, M)
     return D, cast
 
 
@@ -396,6 +440,24 @@ def spec_pow(x, k, E, M):
     return acc
 
 
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def light_one(l0, l1, l2, n0, n1, n2, r0, r1, r2, kd0, kd1, kd2, ks0, ks1, ks2, shin,
+              lc0, lc1, lc2, wt, E, M):
+    """:func:`light_colour` on scalars (``l`` the shadow ray's direction): its 3 channels."""
+    il = fdiv(_ONE, fsqrt(dot3(l0, l1, l2, l0, l1, l2, E, M), E, M), E, M)
+    ir = fdiv(_ONE, fsqrt(dot3(r0, r1, r2, r0, r1, r2, E, M), E, M), E, M)
+    ndl = fmax(fmul(dot3(n0, n1, n2, l0, l1, l2, E, M), il, E, M), _ZERO)
+    rdl = fmax(fmul(fmul(dot3(r0, r1, r2, l0, l1, l2, E, M), il, E, M), ir, E, M), _ZERO)
+    spec = spec_pow(rdl, shin, E, M)
+    c0 = fmul(fadd(fmul(kd0, ndl, E, M), fmul(ks0, spec, E, M), E, M), fmul(lc0, wt, E, M),
+              E, M)
+    c1 = fmul(fadd(fmul(kd1, ndl, E, M), fmul(ks1, spec, E, M), E, M), fmul(lc1, wt, E, M),
+              E, M)
+    c2 = fmul(fadd(fmul(kd2, ndl, E, M), fmul(ks2, spec, E, M), E, M), fmul(lc2, wt, E, M),
+              E, M)
+    return c0, c1, c2
+
+
 @numba.njit(cache=True, error_model="numpy")
 def light_colour(ld, n, r, kd, ks, shin, lc, wt, E, M):
     """The light one shadow ray brings if it reaches its light (Phong): ``ld`` the shadow
@@ -411,16 +473,19 @@ def light_colour(ld, n, r, kd, ks, shin, lc, wt, E, M):
 
     Returns (3,) float32."""
     out = np.empty(3, np.float32)
-    il = fdiv(_ONE, fsqrt(dot3(ld[0], ld[1], ld[2], ld[0], ld[1], ld[2], E, M), E, M), E, M)
-    ir = fdiv(_ONE, fsqrt(dot3(r[0], r[1], r[2], r[0], r[1], r[2], E, M), E, M), E, M)
-    ndl = fmax(fmul(dot3(n[0], n[1], n[2], ld[0], ld[1], ld[2], E, M), il, E, M), _ZERO)
-    rdl = fmax(fmul(fmul(dot3(r[0], r[1], r[2], ld[0], ld[1], ld[2], E, M), il, E, M),
-                    ir, E, M), _ZERO)
-    spec = spec_pow(rdl, shin, E, M)
-    for c in range(3):
-        out[c] = fmul(fadd(fmul(kd[c], ndl, E, M), fmul(ks[c], spec, E, M), E, M),
-                      fmul(lc[c], wt, E, M), E, M)
+    out[0], out[1], out[2] = light_one(ld[0], ld[1], ld[2], n[0], n[1], n[2], r[0], r[1], r[2],
+                                       kd[0], kd[1], kd[2], ks[0], ks[1], ks[2], shin,
+                                       lc[0], lc[1], lc[2], wt, E, M)
     return out
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def hit_one(kd0, kd1, kd2, kr, amb, bg0, bg1, bg2, wt, E, M):
+    """:func:`hit_colour` on scalars: (ambient 3 channels, wr, miss 3 channels)."""
+    wr = fmul(wt, kr, E, M)
+    return (fmul(fmul(kd0, amb, E, M), wt, E, M), fmul(fmul(kd1, amb, E, M), wt, E, M),
+            fmul(fmul(kd2, amb, E, M), wt, E, M), wr, fmul(bg0, wr, E, M),
+            fmul(bg1, wr, E, M), fmul(bg2, wr, E, M))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -431,10 +496,8 @@ def hit_colour(kd, kr, amb, bg, wt, E, M):
     (ambient (3,), wr, miss (3,))."""
     amb_c = np.empty(3, np.float32)
     miss = np.empty(3, np.float32)
-    wr = fmul(wt, kr, E, M)
-    for c in range(3):
-        amb_c[c] = fmul(fmul(kd[c], amb, E, M), wt, E, M)
-        miss[c] = fmul(bg[c], wr, E, M)
+    amb_c[0], amb_c[1], amb_c[2], wr, miss[0], miss[1], miss[2] = hit_one(
+        kd[0], kd[1], kd[2], kr, amb, bg[0], bg[1], bg[2], wt, E, M)
     return amb_c, wr, miss
 
 
@@ -446,23 +509,18 @@ def light_colours(ld, n, r, kd, ks, shin, lc, wt, E, M):
     N = ld.shape[0]
     out = np.empty((N, 3), np.int64)
     for ch in numba.prange((N + CHUNK - 1) // CHUNK):
-        a = np.empty(3, np.float32)
-        b = np.empty(3, np.float32)
-        c3 = np.empty(3, np.float32)
-        d = np.empty(3, np.float32)
-        e = np.empty(3, np.float32)
-        lf = np.empty(3, np.float32)
         for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
-            for k in range(3):
-                a[k] = flush_in(ld[i, k], E)
-                b[k] = flush_in(n[i, k], E)
-                c3[k] = flush_in(r[i, k], E)
-                d[k] = flush_in(kd[i, k], E)
-                e[k] = flush_in(ks[i, k], E)
-                lf[k] = flush_in(lc[i, k], E)
-            col = light_colour(a, b, c3, d, e, shin[i], lf, flush_in(wt[i], E), E, M)
-            for k in range(3):
-                out[i, k] = to_fixed(col[k], E)
+            c0, c1, c2 = light_one(
+                flush_in(ld[i, 0], E), flush_in(ld[i, 1], E), flush_in(ld[i, 2], E),
+                flush_in(n[i, 0], E), flush_in(n[i, 1], E), flush_in(n[i, 2], E),
+                flush_in(r[i, 0], E), flush_in(r[i, 1], E), flush_in(r[i, 2], E),
+                flush_in(kd[i, 0], E), flush_in(kd[i, 1], E), flush_in(kd[i, 2], E),
+                flush_in(ks[i, 0], E), flush_in(ks[i, 1], E), flush_in(ks[i, 2], E), shin[i],
+                flush_in(lc[i, 0], E), flush_in(lc[i, 1], E), flush_in(lc[i, 2], E),
+                flush_in(wt[i], E), E, M)
+            out[i, 0] = to_fixed(c0, E)
+            out[i, 1] = to_fixed(c1, E)
+            out[i, 2] = to_fixed(c2, E)
     return out
 
 
@@ -475,20 +533,20 @@ def hit_colours(kd, kr, amb, bg, wt, E, M):
     amb_o = np.empty((N, 3), np.int64)
     miss_o = np.empty((N, 3), np.int64)
     wr_o = np.empty(N, np.float32)
-    bf = np.empty(3, np.float32)
-    for k in range(3):
-        bf[k] = flush_in(bg[k], E)
+    b0, b1, b2 = flush_in(bg[0], E), flush_in(bg[1], E), flush_in(bg[2], E)
     am = flush_in(amb, E)
     for ch in numba.prange((N + CHUNK - 1) // CHUNK):
-        k3 = np.empty(3, np.float32)
         for i in range(ch * CHUNK, min(N, ch * CHUNK + CHUNK)):
-            for k in range(3):
-                k3[k] = flush_in(kd[i, k], E)
-            a, wr, ms = hit_colour(k3, flush_in(kr[i], E), am, bf, flush_in(wt[i], E), E, M)
+            a0, a1, a2, wr, m0, m1, m2 = hit_one(
+                flush_in(kd[i, 0], E), flush_in(kd[i, 1], E), flush_in(kd[i, 2], E),
+                flush_in(kr[i], E), am, b0, b1, b2, flush_in(wt[i], E), E, M)
             wr_o[i] = wr
-            for k in range(3):
-                amb_o[i, k] = to_fixed(a[k], E)
-                miss_o[i, k] = to_fixed(ms[k], E)
+            amb_o[i, 0] = to_fixed(a0, E)
+            amb_o[i, 1] = to_fixed(a1, E)
+            amb_o[i, 2] = to_fixed(a2, E)
+            miss_o[i, 0] = to_fixed(m0, E)
+            miss_o[i, 1] = to_fixed(m1, E)
+            miss_o[i, 2] = to_fixed(m2, E)
     return amb_o, wr_o, miss_o
 
 
@@ -569,30 +627,155 @@ def texture_kd(kd, u, v, uv, tex, tw, th, texels, E, M):
     Returns (N, 3) float32."""
     N = kd.shape[0]
     out = np.empty((N, 3), np.float32)
-    scale = round_exact(np.float64(TEX_SCALE), E, M)
+    scale = tex_scale(E, M)
     for i in range(N):
-        for c in range(3):
-            out[i, c] = kd[i, c]
-        if tex[i] < 0:
-            continue
-        uu = flush_in(u[i], E)
-        vv = flush_in(v[i], E)
-        s = tex_coord(uu, vv, flush_in(uv[i, 0], E), flush_in(uv[i, 2], E),
-                      flush_in(uv[i, 4], E), E, M)
-        t = tex_coord(uu, vv, flush_in(uv[i, 1], E), flush_in(uv[i, 3], E),
-                      flush_in(uv[i, 5], E), E, M)
-        x0, x1, wx = tex_pos(wrap_coord(s, E), np.int64(tw[i]))
-        y0, y1, wy = tex_pos((1 << UV_FRAC) - wrap_coord(t, E), np.int64(th[i]))
-        r0 = tex[i] + y0 * tw[i]
-        r1 = tex[i] + y1 * tw[i]
-        t00, t10 = np.int64(texels[r0 + x0]), np.int64(texels[r0 + x1])
-        t01, t11 = np.int64(texels[r1 + x0]), np.int64(texels[r1 + x1])
-        for c in range(3):
-            sh = 8 * c
-            a00, a10 = (t00 >> sh) & 255, (t10 >> sh) & 255
-            a01, a11 = (t01 >> sh) & 255, (t11 >> sh) & 255
-            f = ((a00 * (TEX_ONE - wx) + a10 * wx) * (TEX_ONE - wy)
-                 + (a01 * (TEX_ONE - wx) + a11 * wx) * wy)
-            val = fmul(round_exact(np.float64(f) * 2.0 ** -24, E, M), scale, E, M)
-            out[i, c] = fmul(flush_in(kd[i, c], E), val, E, M)
+        out[i, 0], out[i, 1], out[i, 2] = texture_one(
+            kd[i, 0], kd[i, 1], kd[i, 2], u[i], v[i], uv, i, tex[i], tw[i], th[i], texels,
+            scale, E, M)
     return out
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def tex_scale(E, M):
+    """``scale``'s constant: 256/255 in the format."""
+    return round_exact(np.float64(TEX_SCALE), E, M)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def texture_one(kd0, kd1, kd2, u, v, uv, j, tex, tw, th, texels, scale, E, M):
+    """:func:`texture_kd` of one hit (``uv[j]`` its triangle's texture coordinates,
+    ``scale`` = :func:`tex_scale`): its 3 channels (``kd`` unchanged if ``tex < 0``)."""
+    if tex < 0:
+        return kd0, kd1, kd2
+    uu = flush_in(u, E)
+    vv = flush_in(v, E)
+    s = tex_coord(uu, vv, flush_in(uv[j, 0], E), flush_in(uv[j, 2], E),
+                  flush_in(uv[j, 4], E), E, M)
+    t = tex_coord(uu, vv, flush_in(uv[j, 1], E), flush_in(uv[j, 3], E),
+                  flush_in(uv[j, 5], E), E, M)
+    x0, x1, wx = tex_pos(wrap_coord(s, E), np.int64(tw))
+    y0, y1, wy = tex_pos((1 << UV_FRAC) - wrap_coord(t, E), np.int64(th))
+    r0 = tex + y0 * tw
+    r1 = tex + y1 * tw
+    t00, t10 = np.int64(texels[r0 + x0]), np.int64(texels[r0 + x1])
+    t01, t11 = np.int64(texels[r1 + x0]), np.int64(texels[r1 + x1])
+    return (_texel_channel(kd0, t00, t10, t01, t11, wx, wy, 0, scale, E, M),
+            _texel_channel(kd1, t00, t10, t01, t11, wx, wy, 8, scale, E, M),
+            _texel_channel(kd2, t00, t10, t01, t11, wx, wy, 16, scale, E, M))
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _texel_channel(kd, t00, t10, t01, t11, wx, wy, sh, scale, E, M):
+    """``filter``, ``scale`` and ``kd`` of one channel (bits ``sh`` .. ``sh + 7`` of a texel)."""
+    a00, a10 = (t00 >> sh) & 255, (t10 >> sh) & 255
+    a01, a11 = (t01 >> sh) & 255, (t11 >> sh) & 255
+    f = ((a00 * (TEX_ONE - wx) + a10 * wx) * (TEX_ONE - wy)
+         + (a01 * (TEX_ONE - wx) + a11 * wx) * wy)
+    val = fmul(round_exact(np.float64(f) * 2.0 ** -24, E, M), scale, E, M)
+    return fmul(flush_in(kd, E), val, E, M)
+
+
+# ---------------------------------------------------------------------------------------------
+# the slave's work on a set of hits, in one pass
+# ---------------------------------------------------------------------------------------------
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def shade_batch(org, dirn, rows, tri, t, u, v, weight, kept, tri_mat, nf, nv, uv, rec_kd,
+               rec_ks, rec_shin, rec_kr, tex_first, tex_w, tex_h, texels, textures, amb, bg,
+               eps, lights, point, light_col, cull_behind, E, M):
+    """Everything the slave computes from the hits of rays ``rows`` (ray i of ``org``,
+    ``dirn``, ``tri`` (scene-order ids), ``t``, ``u``, ``v``, ``weight``, all indexed by ray),
+    in parallel, with the arithmetic of :func:`secondary_rays`, :func:`texture_kd` (if
+    ``textures``), :func:`hit_colours`, :func:`shadow_rays` and :func:`light_colours`: hit i's
+    triangle row is ``kept[tri[rows[i]]]`` (of ``tri_mat``, ``nf``, ``nv``, ``uv``), its
+    material that row's ``tri_mat`` (a row of the ``rec_*`` constants and ``tex_*``).
+    Light j: ``lights[j]`` (position or reversed direction), ``point[j]``, ``light_col[j]``.
+
+    Returns ``p0``, ``r`` (N, 3) float32, ``mat`` (N,) int64, the fixed-point ``ambient``
+    (N, 3), ``wr`` (N,) float32, the fixed-point ``miss`` (N, 3), and per light the shadow
+    directions (L, N, 3) float32, ``cast`` (L, N) bool (the light faces the surface, or
+    always without ``cull_behind``) and the fixed-point light colours (L, N, 3), zero where
+    not ``cast``."""
+    N = rows.shape[0]
+    L = lights.shape[0]
+    P0 = np.empty((N, 3), np.float32)
+    R = np.empty((N, 3), np.float32)
+    MAT = np.empty(N, np.int64)
+    AMB = np.empty((N, 3), np.int64)
+    WR = np.empty(N, np.float32)
+    MISS = np.empty((N, 3), np.int64)
+    SD = np.empty((L, N, 3), np.float32)
+    CAST = np.empty((L, N), np.bool_)
+    LC = np.empty((L, N, 3), np.int64)
+    e = flush_in(eps, E)
+    am = flush_in(amb, E)
+    b0, b1, b2 = flush_in(bg[0], E), flush_in(bg[1], E), flush_in(bg[2], E)
+    lf = np.empty((L, 3), np.float32)
+    lcf = np.empty((L, 3), np.float32)
+    for j in range(L):
+        for a in range(3):
+            lf[j, a] = flush_in(lights[j, a], E)
+            lcf[j, a] = flush_in(light_col[j, a], E)
+    scale = tex_scale(E, M)
+    for ch in numba.prange((N + CHUNK - 1) // CHUNK):
+        _shade_rows(ch * CHUNK, min(N, ch * CHUNK + CHUNK), org, dirn, rows, tri, t, u, v,
+                    weight, kept, tri_mat, nf, nv, uv, rec_kd, rec_ks, rec_shin, rec_kr,
+                    tex_first, tex_w, tex_h, texels, textures, am, b0, b1, b2, e, lf, point,
+                    lcf, cull_behind, scale, P0, R, MAT, AMB, WR, MISS, SD, CAST, LC, E, M)
+    return P0, R, MAT, AMB, WR, MISS, SD, CAST, LC
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _shade_rows(i0, i1, org, dirn, rows, tri, t, u, v, weight, kept, tri_mat, nf, nv, uv,
+                rec_kd, rec_ks, rec_shin, rec_kr, tex_first, tex_w, tex_h, texels, textures, am,
+                b0, b1, b2, e, lf, point, lcf, cull_behind, scale, P0, R, MAT, AMB, WR, MISS,
+                SD, CAST, LC, E, M):
+    """:func:`shade_batch`' work on hits ``i0 .. i1-1`` (one task's; a function of its own, so
+    the parallel loop stays small for the compiler)."""
+    org, dirn, rows, tri, t, u, v, weight = (borrow(org), borrow(dirn), borrow(rows), borrow(tri),
+                                             borrow(t), borrow(u), borrow(v), borrow(weight))
+    kept, tri_mat, nf, nv, uv, rec_kd, rec_ks = (borrow(kept), borrow(tri_mat), borrow(nf),
+                                                 borrow(nv), borrow(uv), borrow(rec_kd),
+                                                 borrow(rec_ks))
+    rec_shin, rec_kr, tex_first, tex_w, tex_h, texels = (borrow(rec_shin), borrow(rec_kr),
+                                                         borrow(tex_first), borrow(tex_w),
+                                                         borrow(tex_h), borrow(texels))
+    lf, point, lcf, P0, R, MAT, AMB, WR, MISS = (borrow(lf), borrow(point), borrow(lcf),
+                                                 borrow(P0), borrow(R), borrow(MAT), borrow(AMB),
+                                                 borrow(WR), borrow(MISS))
+    SD, CAST, LC = borrow(SD), borrow(CAST), borrow(LC)
+    for i in range(i0, i1):
+        ray = rows[i]
+        k = kept[tri[ray]]
+        m = tri_mat[k]
+        MAT[i] = m
+        p00, p01, p02, g0, g1, g2, n0, n1, n2, r0, r1, r2 = secondary_at(
+            org, dirn, ray, t[ray], u[ray], v[ray], nf, nv, k, e, E, M)
+        P0[i, 0], P0[i, 1], P0[i, 2] = p00, p01, p02
+        R[i, 0], R[i, 1], R[i, 2] = r0, r1, r2
+        kd0, kd1, kd2 = rec_kd[m, 0], rec_kd[m, 1], rec_kd[m, 2]
+        if textures:
+            kd0, kd1, kd2 = texture_one(kd0, kd1, kd2, u[ray], v[ray], uv, k, tex_first[m],
+                                        tex_w[m], tex_h[m], texels, scale, E, M)
+        kd0, kd1, kd2 = flush_in(kd0, E), flush_in(kd1, E), flush_in(kd2, E)
+        wt = flush_in(weight[ray], E)
+        a0, a1, a2, wr, m0, m1, m2 = hit_one(kd0, kd1, kd2, flush_in(rec_kr[m], E), am, b0, b1, b2,
+                                             wt, E, M)
+        WR[i] = wr
+        AMB[i, 0], AMB[i, 1], AMB[i, 2] = to_fixed(a0, E), to_fixed(a1, E), to_fixed(a2, E)
+        MISS[i, 0], MISS[i, 1], MISS[i, 2] = to_fixed(m0, E), to_fixed(m1, E), to_fixed(m2, E)
+        ks0, ks1, ks2 = (flush_in(rec_ks[m, 0], E), flush_in(rec_ks[m, 1], E),
+                         flush_in(rec_ks[m, 2], E))
+        for j in range(lf.shape[0]):
+            d0, d1, d2, c = shadow_one(p00, p01, p02, g0, g1, g2, lf[j, 0], lf[j, 1], lf[j, 2],
+                                       point[j], E, M)
+            c = c or not cull_behind
+            SD[j, i, 0], SD[j, i, 1], SD[j, i, 2] = d0, d1, d2
+            CAST[j, i] = c
+            if c:
+                c0, c1, c2 = light_one(d0, d1, d2, n0, n1, n2, r0, r1, r2, kd0, kd1, kd2, ks0, ks1,
+                                       ks2, rec_shin[m], lcf[j, 0], lcf[j, 1], lcf[j, 2], wt, E, M)
+                LC[j, i, 0], LC[j, i, 1], LC[j, i, 2] = (to_fixed(c0, E), to_fixed(c1, E),
+                                                         to_fixed(c2, E))
+            else:
+                LC[j, i, 0], LC[j, i, 1], LC[j, i, 2] = 0, 0, 0

@@ -16,9 +16,11 @@ import numpy as np
 
 from .events import EV_DONE, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI, decode, record
 from .intersection import fetch_triangle, test_triangle
-from .lanes import popcount
+from .lanes import borrow, popcount
 from .layout import LEAF, TRI_WORDS
 from .list import leaf_entries
+from .fp import flush_in
+from .rgs import flushed_box, setup_one
 from .traversal import (bits_to_f32, classify, classify32, decide, decode_node, pass_masks,
                         pop, start_packet, terminate)
 
@@ -52,7 +54,9 @@ def packet_scratch(depth):
             np.empty(depth + 1, np.uint64), np.empty((depth + 1, 64), np.float32),
             np.empty((depth + 1, 64), np.float32), np.empty(9, np.float32),
             np.empty(64, np.int64), np.empty(64, np.int64), np.empty((3, 64), np.float32),
-            np.empty((3, 64), np.float32), np.empty(8, np.uint64))
+            np.empty((3, 64), np.float32), np.empty(8, np.uint64), np.empty((3, 64), np.int64),
+            np.empty((3, 64), np.float32), np.empty(64, np.int8), np.empty(64, np.float32),
+            np.empty(64, np.float32), np.empty(64, np.float32))
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -65,12 +69,30 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     ``rec`` (K, 8) int64: when K > 0, every unit's input/output events are appended at row
     ``rec_n[0]`` (``model.events``); recording stops (rec_n[0] > K) when the buffer is full."""
     (tnear, tfar, best, b_tri, b_u, b_v, dist, s_node, s_mask, s_near, s_far, tri, entries,
-     octant, lo_t, linv_t, masks) = scratch
+     octant, lo_t, linv_t, masks, lk_t, ls_t, st, ht, hu, hv) = scratch
+    # every array as a borrowed view (the caller keeps them alive): no reference counting
+    # in the loops below
+    mem, org, dirn, tnear0, tfar0, tmax, anyhit = (borrow(mem), borrow(org), borrow(dirn),
+                                                   borrow(tnear0), borrow(tfar0), borrow(tmax),
+                                                   borrow(anyhit))
+    hit_t, hit_tri, hit_u, hit_v, ctr, rec, rec_n = (borrow(hit_t), borrow(hit_tri),
+                                                     borrow(hit_u), borrow(hit_v), borrow(ctr),
+                                                     borrow(rec), borrow(rec_n))
+    tnear, tfar, best, b_tri, b_u, b_v, dist = (borrow(tnear), borrow(tfar), borrow(best),
+                                                borrow(b_tri), borrow(b_u), borrow(b_v),
+                                                borrow(dist))
+    s_node, s_mask, s_near, s_far, tri, entries = (borrow(s_node), borrow(s_mask),
+                                                   borrow(s_near), borrow(s_far), borrow(tri),
+                                                   borrow(entries))
+    octant, lo_t, linv_t, masks = borrow(octant), borrow(lo_t), borrow(linv_t), borrow(masks)
+    # the intersection unit's lanes by component, and its per-lane outcomes
+    lanes = (lo_t, borrow(lk_t), borrow(ls_t), borrow(st), borrow(ht), borrow(hu), borrow(hv))
+    lk_t, ls_t = lanes[1], lanes[2]
     # the read-only ray data the units keep locally, per lane
-    lo = org[r0:r0 + n]
-    linv = inv[r0:r0 + n]
-    lk = kk[r0:r0 + n]
-    ls = ss[r0:r0 + n]
+    lo = borrow(org[r0:r0 + n])
+    linv = borrow(inv[r0:r0 + n])
+    lk = borrow(kk[r0:r0 + n])
+    ls = borrow(ss[r0:r0 + n])
     # dynamic per-lane state: the traversal's interval, the intersection's best hit
     for l in range(n):
         tnear[l] = tnear0[r0 + l]
@@ -85,10 +107,12 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     live = start_packet(dirn, r0, n, tnear, tfar, octant)
     terminated = np.uint64(0)
     if live:
-        for l in range(n):              # by axis, for the binary32 classify
+        for l in range(n):              # by axis, for the binary32 classify and intersection
             for a in range(3):
                 lo_t[a, l] = lo[l, a]
                 linv_t[a, l] = linv[l, a]
+                lk_t[a, l] = lk[l, a]
+                ls_t[a, l] = ls[l, a]
     pass_masks(octant, live, n, masks)
     for oc in range(8):
         mask = masks[oc]
@@ -135,7 +159,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 if rec.shape[0]:
                     record(rec, rec_n, EV_TRI, pid, oc, ti, mask, sid, 0, 0)
                 c_int_ops += test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v,
-                                           E, M, rec, rec_n, pid)
+                                           E, M, rec, rec_n, pid, n, lanes)
             # back in traversal; a shadow ray keeps testing the rest of the leaf it hits in
             # (its lane is in the leaf's mask), as the pipelined hardware does
             terminated = terminate(mask, terminated, b_tri, anyhit, r0, best, tfar)
@@ -179,6 +203,37 @@ def trace_all(mem, node_base, list_base, tri_base, root, depth,
                          pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss,
                          tnear0, tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E,
                          M, p, no_rec, no_n, scratch)
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, lo, hi, scene_ids,
+                    pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
+                    hit_t, hit_tri, hit_u, hit_v, ctrs, E, M):
+    """:func:`trace_all` with the ray setup of ``model.rgs.setup_rays`` (box ``[lo, hi]``, the
+    box cull on) in the same tasks: each packet's rays are set up (into ``inv`` ... ``tfar0``)
+    just before it is traced. ``hit_tri`` gets the scene-order ids (``scene_ids``: the image's
+    ids with -1 appended, so a miss stays -1)."""
+    n_packets = pk_start.shape[0] - 1
+    no_rec = np.zeros((0, 8), np.int64)
+    no_n = np.zeros(1, np.int64)
+    lo_f, hi_f = flushed_box(lo, hi, E)
+    for task in numba.prange((n_packets + TASK_PACKETS - 1) // TASK_PACKETS):
+        scratch = packet_scratch(depth)
+        for p in range(task * TASK_PACKETS, min(n_packets, (task + 1) * TASK_PACKETS)):
+            r0 = pk_start[p]
+            r1 = pk_start[p + 1]
+            for r in range(r0, r1):
+                (inv[r, 0], inv[r, 1], inv[r, 2], kk[r, 0], kk[r, 1], kk[r, 2], ss[r, 0],
+                 ss[r, 1], ss[r, 2], tnear0[r], tfar0[r], _) = setup_one(
+                    flush_in(org[r, 0], E), flush_in(org[r, 1], E), flush_in(org[r, 2], E),
+                    flush_in(dirn[r, 0], E), flush_in(dirn[r, 1], E),
+                    flush_in(dirn[r, 2], E), flush_in(tmax[r], E), lo_f[0], lo_f[1],
+                    lo_f[2], hi_f[0], hi_f[1], hi_f[2], E, M)
+            trace_packet(mem, node_base, list_base, tri_base, root, depth,
+                         r0, r1 - r0, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
+                         hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M, p, no_rec, no_n, scratch)
+            for r in range(r0, r1):
+                hit_tri[r] = scene_ids[hit_tri[r]]
 
 
 @numba.njit(cache=True, error_model="numpy")
@@ -232,11 +287,32 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
     if record:
         hits, ctrs, rows = trace_rows(image, rays, cfg, ray_setup, box_cull)
         return hits, ctrs, decode(rows)
+    if ray_setup is None and box_cull:
+        return _trace_with_setup(image, rays, cfg)
     args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
     if len(rays):
         with dynamic_tasks():
             trace_all(*args)
     return out()
+
+
+def _trace_with_setup(image, rays, cfg):
+    """:func:`trace` with the ray setup done in the tracing kernel (``trace_all_setup``)."""
+    from .raygen import RaySetup
+    n = len(rays)
+    rs = RaySetup(np.empty((n, 3), np.float32), np.empty((n, 3), np.int64),
+                  np.empty((n, 3), np.float32), np.empty(n, np.float32), np.empty(n, np.float32))
+    args, ctrs, out = _kernel_args(image, rays, cfg, rs, True)
+    if not n:
+        return out()
+    (mem, node_base, list_base, tri_base, root, depth, pk_start, org, dirn, inv, kk, ss,
+     tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M) = args
+    b = np.asarray(image.bounds, np.float32)
+    with dynamic_tasks():
+        trace_all_setup(mem, node_base, list_base, tri_base, root, depth, b[0].copy(),
+                        b[1].copy(), image.scene_id_table(), pk_start, org, dirn, inv, kk, ss,
+                        tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
+    return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs
 
 
 def trace_rows(image, rays, cfg, ray_setup=None, box_cull: bool = True):

@@ -35,7 +35,7 @@ import numpy as np
 from .fp import FPFormat
 from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
 from .raygen import REFLECTION, SHADOW, Rays
-from .rgs import secondary_rays, shadow_rays, texture_kd
+from .rgs import secondary_rays, shade_batch, shadow_rays, texture_kd
 
 AMBIENT = np.float32(0.08)
 
@@ -115,6 +115,24 @@ class Surface:
     kd: np.ndarray
 
 
+@dataclass
+class Shaded:
+    """What the slave computes from a set of hits (``Shader.shade``), per hit: ``p0`` the
+    secondary rays' origin, ``r`` the reflected direction, ``mat`` the material, ``ambient``
+    and ``miss`` (fixed point) and ``wr`` as :func:`~model.rgs.hit_colours` gives them; per
+    light and hit: ``shadow_dir``, ``cast`` (a shadow ray is cast) and ``light`` (its fixed-point
+    colour if it reaches the light, zero where not cast)."""
+    p0: np.ndarray
+    r: np.ndarray
+    mat: np.ndarray
+    ambient: np.ndarray
+    wr: np.ndarray
+    miss: np.ndarray
+    shadow_dir: np.ndarray
+    cast: np.ndarray
+    light: np.ndarray
+
+
 class Shader:
     """Surface data of a scene, indexed by the scene-order triangle id the RTC returns."""
 
@@ -146,6 +164,7 @@ class Shader:
         self.tex_w = sizes[ti, 1]
         self.tex_h = sizes[ti, 0]
         self.uv = fmt.quantize(np.asarray(scene.uv, np.float64)).astype(np.float32)
+        self._arrays = None         # shade()'s contiguous tables, made on first use
 
     def surface(self, rays: Rays, sel: np.ndarray, tri: np.ndarray, t, u, v) -> Surface:
         """The slave's secondary-ray arithmetic (``model.rgs.secondary_rays``) and the
@@ -174,6 +193,44 @@ class Shader:
                             self.texels, E, M)
         return Surface(p0, g, n, r, mat, albedo, kd)
 
+    def shade(self, rays: Rays, sel: np.ndarray, tri: np.ndarray, t, u, v, weight,
+              colours: dict, cull_behind: bool = True) -> Shaded:
+        """The slave's work on the hits of rays ``sel`` in one compiled pass
+        (``model.rgs.shade_batch``): :meth:`surface`'s arithmetic, the hit colours of rays of
+        weight ``weight`` and every light's shadow ray and colour, with the frame's colour
+        registers ``colours`` (``frame_colour_registers``). ``tri``, ``t``, ``u``, ``v`` and
+        ``weight`` are per ray of ``rays`` (only the rows ``sel`` are read)."""
+        E, M = self.fmt.em
+        if self._arrays is None:
+            lights = self.scene.lights
+            vecs = [self.light_vector(lt) for lt in lights]
+            self._arrays = (
+                np.ascontiguousarray(self.scene.material, np.int64),
+                np.ascontiguousarray(self.face_n, np.float32),
+                np.ascontiguousarray(self.vertex_n, np.float32),
+                np.ascontiguousarray(self.uv.reshape(-1, 6), np.float32),
+                np.ascontiguousarray(self.rec["kd"], np.float32),
+                np.ascontiguousarray(self.rec["ks"], np.float32),
+                np.ascontiguousarray(self.rec["shin"], np.int64),
+                np.ascontiguousarray(self.rec["kr"], np.float32),
+                np.ascontiguousarray(self.tex_first, np.int64),
+                np.ascontiguousarray(self.tex_w, np.int64),
+                np.ascontiguousarray(self.tex_h, np.int64),
+                np.array([v for v, _ in vecs], np.float32).reshape(-1, 3),
+                np.array([pt for _, pt in vecs], np.bool_))
+        (tri_mat, nf, nv, uv, kd, ks, shin, kr, tex_first, tex_w, tex_h, lvec,
+         point) = self._arrays
+        lc = np.ascontiguousarray(colours["lights"], np.float32).reshape(-1, 3)
+        out = shade_batch(
+            np.ascontiguousarray(rays.org, np.float32), np.ascontiguousarray(rays.dir, np.float32),
+            np.asarray(sel, np.int64), np.asarray(tri), np.asarray(t, np.float32),
+            np.asarray(u, np.float32), np.asarray(v, np.float32),
+            np.asarray(weight, np.float32), self.kept, tri_mat, nf, nv, uv, kd, ks, shin, kr,
+            tex_first, tex_w, tex_h, self.texels, bool(self.textures), np.float32(colours["amb"]),
+            np.asarray(colours["bg"], np.float32), self.eps, lvec, point, lc, bool(cull_behind),
+            E, M)
+        return Shaded(*out)
+
     def light_vector(self, light) -> tuple[np.ndarray, bool]:
         """The slave's light register: a point light's position or a parallel light's reversed
         direction, in the format; and whether it is a point light."""
@@ -193,9 +250,20 @@ class Shader:
             facing = np.ones(len(d), bool)
         return _packetize(src, sel, facing, surf.p0, d, tmax, SHADOW, light=light_index)
 
-    def reflection_rays(self, src: Rays, sel, surf: Surface,
-                        cull_matte: bool = True) -> tuple[Rays, np.ndarray]:
-        """One reflection ray per hit on a reflective material (``reflect > 0``)."""
+    def shaded_shadow_rays(self, src: Rays, sel, sh: Shaded, light_index: int
+                           ) -> tuple[Rays, np.ndarray]:
+        """:meth:`shadow_rays` from :meth:`shade`'s result ``sh`` (the rays ``sel`` of ``src``
+        hit) toward light ``light_index``: the rays where ``sh.cast``, and per ray its index
+        into ``sel``."""
+        point = self.scene.lights[light_index].kind == "point"
+        tmax = np.full(len(sel), 1.0 if point else np.inf, np.float32)
+        return _packetize(src, sel, sh.cast[light_index], sh.p0, sh.shadow_dir[light_index],
+                          tmax, SHADOW, light=light_index)
+
+    def reflection_rays(self, src: Rays, sel, surf, cull_matte: bool = True
+                        ) -> tuple[Rays, np.ndarray]:
+        """One reflection ray per hit on a reflective material (``reflect > 0``); ``surf`` a
+        :class:`Surface` or :class:`Shaded` (its ``mat``, ``p0`` and ``r``)."""
         want = self.reflect[surf.mat] > 0 if cull_matte else np.ones(len(surf.r), bool)
         return _packetize(src, sel, want, surf.p0, surf.r,
                           np.full(len(surf.r), np.inf, np.float32), REFLECTION)

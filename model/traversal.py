@@ -35,7 +35,7 @@ def bits_to_f32(b):
     return np.uint32(b).view(np.float32)  # noqa
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def classify(split, axis, mask, n, org, inv, tnear, tfar, dist, E, M):
     """Per active lane: dist to the split plane, and which children the ray needs.
 
@@ -70,7 +70,7 @@ def lane_on(mask, l):
 _FLT_MIN = np.float32(2.0 ** -126)
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def classify32(split, axis, mask, n, org_t, inv_t, tnear, tfar, dist, org, inv):
     """:func:`classify` for binary32, faster: every lane in plain IEEE float32 (``org_t``,
     ``inv_t``: the packet's origins and inverse directions by axis, (3, n)); if an active
@@ -95,7 +95,7 @@ def classify32(split, axis, mask, n, org_t, inv_t, tnear, tfar, dist, org, inv):
     return mnear & mask, mfar & mask
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def clip_near(mask, dist, tfar, n):
     """Rays descending into the near child: tfar = min(tfar, dist)."""
     for l in range(n):
@@ -103,7 +103,7 @@ def clip_near(mask, dist, tfar, n):
         tfar[l] = v if lane_on(mask, l) else tfar[l]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def clip_far(mask, dist, tnear, n):
     """Rays descending into the far child: tnear = max(tnear, dist)."""
     for l in range(n):
@@ -111,7 +111,7 @@ def clip_far(mask, dist, tnear, n):
         tnear[l] = v if lane_on(mask, l) else tnear[l]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def push(sp, node, mask, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     """Push the far child: its mask and, per ray, the far interval [max(tnear, dist), tfar]
     (written for every lane; only the mask's lanes are ever read back)."""
@@ -123,7 +123,7 @@ def push(sp, node, mask, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     return sp + 1
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     """Pop entries until one has a live ray. Returns (sp, node, mask); mask 0 = packet done."""
     while sp > 0:
@@ -140,7 +140,7 @@ def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
 
 # ---- the traversal unit's control: passes, the decide step, termination -----------------------
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def start_packet(dirn, r0, n, tnear, tfar, octant):
     """Load a packet: per lane its direction octant (sign bits x | y << 1 | z << 2) into
     ``octant``; returns the live mask (rays whose clipped interval is non-empty)."""
