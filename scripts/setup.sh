@@ -36,7 +36,7 @@ fi
 # ($SAARCOR_CACHE/numba or ~/.cache/saarcor/numba, keyed on the model's sources; see
 # model/__init__.py): compile them here, with a tiny render, rather than in the first real one.
 echo "setup: compiling the golden model's numba kernels with an 8x8 Cornell-box render" \
-     "(about 90 s of CPU once; later runs load them from the cache)"
+     "(about 130 s of CPU once; later runs load them from the cache)"
 WARM="$(mktemp -d)"
 trap 'rm -rf "$WARM"' EXIT
 "$VENV/bin/saarcor" render scenes/cornell.toml --res 8x8 --out "$WARM" --quiet --no-cache
