@@ -82,20 +82,19 @@ def _intersect_exact32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def intersect32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
-    """:func:`intersect` for binary32, faster: the same operations in plain IEEE float32 with
-    no per-operation check; if any result lies where IEEE and the hardware can differ (see
-    ``_tiny``) the test is redone with the exact operations. Bit-identical to ``intersect``
-    (tests compare the two)."""
-    a0 = tri[0] - ox
-    a1 = tri[1] - oy
-    a2 = tri[2] - oz
-    b0 = tri[3] - ox
-    b1 = tri[4] - oy
-    b2 = tri[5] - oz
-    c0 = tri[6] - ox
-    c1 = tri[7] - oy
-    c2 = tri[8] - oz
+def _edges32(A0, A1, A2, B0, B1, B2, C0, C1, C2, ox, oy, oz, kx, ky, kz, sx, sy):
+    """The edge functions of :func:`intersect` in plain IEEE float32: ``az``, ``bz``, ``cz``,
+    ``eu``, ``ev``, ``ew`` and ``bad`` (a value lies where IEEE and the hardware can differ,
+    see ``_tiny``)."""
+    a0 = A0 - ox
+    a1 = A1 - oy
+    a2 = A2 - oz
+    b0 = B0 - ox
+    b1 = B1 - oy
+    b2 = B2 - oz
+    c0 = C0 - ox
+    c1 = C1 - oy
+    c2 = C2 - oz
     az = pick(a0, a1, a2, kz)
     bz = pick(b0, b1, b2, kz)
     cz = pick(c0, c1, c2, kz)
@@ -125,16 +124,15 @@ def intersect32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
            | _tiny(pcx) | _tiny(pcy) | _tiny(ax) | _tiny(ay) | _tiny(bx) | _tiny(by) | _tiny(cx)
            | _tiny(cy) | _tiny(p0) | _tiny(p1) | _tiny(p2) | _tiny(p3) | _tiny(p4) | _tiny(p5)
            | _tiny(eu) | _tiny(ev) | _tiny(ew))
-    if bad:
-        return _intersect_exact32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz)
-    if (eu < _ZERO or ev < _ZERO or ew < _ZERO) and (eu > _ZERO or ev > _ZERO or ew > _ZERO):
-        return False, _ZERO, _ZERO, _ZERO
+    return az, bz, cz, eu, ev, ew, bad
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _hit32(az, bz, cz, eu, ev, ew, sz):
+    """The rest of :func:`intersect` in plain IEEE float32: ``s0``, ``det``, ``t``, ``u``,
+    ``v`` and ``bad`` (as :func:`_edges32`; meaningless where ``det`` is 0)."""
     s0 = eu + ev
     det = s0 + ew
-    if det == _ZERO:
-        if _tiny(s0):
-            return _intersect_exact32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz)
-        return False, _ZERO, _ZERO, _ZERO
     qa = sz * az
     qb = sz * bz
     qc = sz * cz
@@ -147,8 +145,30 @@ def intersect32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
     t = tz * rcp
     u = ev * rcp
     v = ew * rcp
-    if (_tiny(s0) | _tiny(det) | _tiny(qa) | _tiny(qb) | _tiny(qc) | _tiny(ta) | _tiny(tb)
-            | _tiny(tc) | _tiny(t0) | _tiny(tz) | _tiny(rcp) | _tiny(t) | _tiny(u) | _tiny(v)):
+    bad = (_tiny(s0) | _tiny(det) | _tiny(qa) | _tiny(qb) | _tiny(qc) | _tiny(ta) | _tiny(tb)
+           | _tiny(tc) | _tiny(t0) | _tiny(tz) | _tiny(rcp) | _tiny(t) | _tiny(u) | _tiny(v))
+    return s0, det, t, u, v, bad
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def intersect32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
+    """:func:`intersect` for binary32, faster: the same operations in plain IEEE float32 with
+    no per-operation check; if any result lies where IEEE and the hardware can differ (see
+    ``_tiny``) the test is redone with the exact operations. Bit-identical to ``intersect``
+    (tests compare the two)."""
+    az, bz, cz, eu, ev, ew, bad = _edges32(tri[0], tri[1], tri[2], tri[3], tri[4], tri[5],
+                                           tri[6], tri[7], tri[8], ox, oy, oz, kx, ky, kz,
+                                           sx, sy)
+    if bad:
+        return _intersect_exact32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz)
+    if (eu < _ZERO or ev < _ZERO or ew < _ZERO) and (eu > _ZERO or ev > _ZERO or ew > _ZERO):
+        return False, _ZERO, _ZERO, _ZERO
+    s0, det, t, u, v, bad = _hit32(az, bz, cz, eu, ev, ew, sz)
+    if det == _ZERO:
+        if _tiny(s0):
+            return _intersect_exact32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz)
+        return False, _ZERO, _ZERO, _ZERO
+    if bad:
         return _intersect_exact32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz)
     return True, t, u, v
 
@@ -167,65 +187,12 @@ def intersect32_lanes(tri, l0, l1, o_t, k_t, s_t, st, ht, hu, hv):
     kxs, kys, kzs = k_t[0], k_t[1], k_t[2]
     sxs, sys_, szs = s_t[0], s_t[1], s_t[2]
     for l in range(l0, l1):
-        kx, ky, kz = kxs[l], kys[l], kzs[l]
-        sx, sy, sz = sxs[l], sys_[l], szs[l]
-        a0 = A0 - ox[l]
-        a1 = A1 - oy[l]
-        a2 = A2 - oz[l]
-        b0 = B0 - ox[l]
-        b1 = B1 - oy[l]
-        b2 = B2 - oz[l]
-        c0 = C0 - ox[l]
-        c1 = C1 - oy[l]
-        c2 = C2 - oz[l]
-        az = pick(a0, a1, a2, kz)
-        bz = pick(b0, b1, b2, kz)
-        cz = pick(c0, c1, c2, kz)
-        pax = sx * az
-        pay = sy * az
-        pbx = sx * bz
-        pby = sy * bz
-        pcx = sx * cz
-        pcy = sy * cz
-        ax = pick(a0, a1, a2, kx) - pax
-        ay = pick(a0, a1, a2, ky) - pay
-        bx = pick(b0, b1, b2, kx) - pbx
-        by = pick(b0, b1, b2, ky) - pby
-        cx = pick(c0, c1, c2, kx) - pcx
-        cy = pick(c0, c1, c2, ky) - pcy
-        p0 = cx * by
-        p1 = cy * bx
-        p2 = ax * cy
-        p3 = ay * cx
-        p4 = bx * ay
-        p5 = by * ax
-        eu = p0 - p1
-        ev = p2 - p3
-        ew = p4 - p5
-        bad = (_tiny(a0) | _tiny(a1) | _tiny(a2) | _tiny(b0) | _tiny(b1) | _tiny(b2)
-               | _tiny(c0) | _tiny(c1) | _tiny(c2) | _tiny(pax) | _tiny(pay) | _tiny(pbx)
-               | _tiny(pby) | _tiny(pcx) | _tiny(pcy) | _tiny(ax) | _tiny(ay) | _tiny(bx)
-               | _tiny(by) | _tiny(cx) | _tiny(cy) | _tiny(p0) | _tiny(p1) | _tiny(p2)
-               | _tiny(p3) | _tiny(p4) | _tiny(p5) | _tiny(eu) | _tiny(ev) | _tiny(ew))
+        az, bz, cz, eu, ev, ew, bad = _edges32(A0, A1, A2, B0, B1, B2, C0, C1, C2, ox[l],
+                                               oy[l], oz[l], kxs[l], kys[l], kzs[l], sxs[l],
+                                               sys_[l])
         edge_miss = (((eu < _ZERO) | (ev < _ZERO) | (ew < _ZERO))
                      & ((eu > _ZERO) | (ev > _ZERO) | (ew > _ZERO)))
-        s0 = eu + ev
-        det = s0 + ew
-        qa = sz * az
-        qb = sz * bz
-        qc = sz * cz
-        ta = eu * qa
-        tb = ev * qb
-        tc = ew * qc
-        t0 = ta + tb
-        tz = t0 + tc
-        rcp = _ONE / det
-        t = tz * rcp
-        u = ev * rcp
-        v = ew * rcp
-        bad2 = (_tiny(s0) | _tiny(det) | _tiny(qa) | _tiny(qb) | _tiny(qc) | _tiny(ta)
-                | _tiny(tb) | _tiny(tc) | _tiny(t0) | _tiny(tz) | _tiny(rcp) | _tiny(t)
-                | _tiny(u) | _tiny(v))
+        s0, det, t, u, v, bad2 = _hit32(az, bz, cz, eu, ev, ew, szs[l])
         r = np.int8(2) if bad2 else np.int8(1)
         r = (np.int8(2) if _tiny(s0) else np.int8(0)) if det == _ZERO else r
         r = np.int8(0) if edge_miss else r
