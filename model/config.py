@@ -63,6 +63,10 @@ class Config:
     oversampling: int = 1          # rays per pixel side: n x n rays on a regular sub-pixel grid
     shadows: bool = True           # every light casts shadows
     rgs_lights: int = 4            # light registers per RGS slave (the most lights a scene has)
+    # pending secondary packets per RGS slave (packet_size rays each); 0: enough to keep every
+    # RTC thread busy, threads + rgs_lights + 1 (at least 2 (rgs_lights + 1) + 2, the fewest
+    # that cannot deadlock: docs/chip.md)
+    rgs_buffers: int = 0
     shade_cache_kb: int = 28       # each RGS slave's cache of shading records (face and vertex
                                    # normals, flags, colour constants, texture coordinates and
                                    # texture: 112 bytes a triangle; 28 KB = 256 records)
@@ -123,6 +127,12 @@ class Config:
                               "registers per RGS slave)")
         if self.shade_cache_kb < 1:
             raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
+        if self.rgs_buffers and self.rgs_buffers < 2 * (self.rgs_lights + 1) + 2:
+            raise ConfigError(f"rgs_buffers={self.rgs_buffers} is too few for rgs_lights="
+                              f"{self.rgs_lights}: a slave needs at least 2 (rgs_lights + 1) "
+                              f"+ 2 = {2 * (self.rgs_lights + 1) + 2} pending buffers (or 0: "
+                              "the default) so that a reflection packet always finds its "
+                              "reservation")
         if self.rgs_fp_adders < 0 or self.rgs_fp_muls < 0:
             raise ConfigError(f"rgs_fp_adders={self.rgs_fp_adders}, rgs_fp_muls="
                               f"{self.rgs_fp_muls} must be >= 0 (0: a unit per operation)")

@@ -93,8 +93,16 @@ SUB_BITS = 4            # 0: eye or reflection ray, 1 + l: shadow ray toward lig
 
 
 def slave_buffers(cfg: Config) -> int:
-    """Pending secondary packets a slave holds: ``2 * (rgs_lights + 1) + 2``."""
-    return 2 * (cfg.rgs_lights + 1) + 2
+    """Pending secondary packets a slave holds: ``cfg.rgs_buffers``, or by default
+    ``threads + rgs_lights + 1``, at least ``2 * (rgs_lights + 1) + 2``.
+
+    The fewest that cannot deadlock is ``2 * (rgs_lights + 1) + 2`` (the module docstring), but
+    then only ``buffers // (lights + 1)`` eye packets (3 of 12 with 3 lights) hold a
+    reservation at a time, and with their shadow packets they keep about 12 of the RTC's 16
+    threads busy. ``threads + rgs_lights + 1`` lets ``threads / (lights + 1)`` eye packets
+    and their ``lights`` shadow packets each fill every thread."""
+    least = 2 * (cfg.rgs_lights + 1) + 2
+    return cfg.rgs_buffers or max(least, cfg.threads + cfg.rgs_lights + 1)
 
 
 def _slave_cache(cfg: Config, kb: int, name: str, item_bits: int, words: int) -> CacheGeometry:

@@ -14,7 +14,7 @@ SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
     ("fp_add_latency", -1), ("fp_mul_latency", 65), ("fp_div_latency", -3),
     ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
     ("list_outstanding", 1), ("fp_sqrt_latency", 65), ("rgs_lights", 15), ("reflect_depth", 16),
-    ("shade_cache_kb", 0), ("delay_ram", 1), ("delay_ram", -2)])
+    ("shade_cache_kb", 0), ("delay_ram", 1), ("delay_ram", -2), ("rgs_buffers", 11)])
 def test_bad_rtl_parameters_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         Config(**{field: value})
@@ -82,3 +82,15 @@ def test_reflect_depth_enters_the_hardware_key_as_secondary_rays():
     dark = [Config(rgs_lights=0, reflect_depth=d).hardware_dict() for d in (0, 1, 3)]
     assert dark[1] == dark[2] != dark[0] and dark[0]["secondary_rays"] is False
     assert dark[0] != lit[0]
+
+
+def test_slave_buffers_fill_the_threads():
+    """The slave's pending buffers: by default enough for ``threads / (lights + 1)`` eye
+    packets with their reservations (``threads + rgs_lights + 1``), never fewer than the
+    deadlock-free ``2 (rgs_lights + 1) + 2``; ``rgs_buffers`` sets them."""
+    from rtl.rgs_slave import slave_buffers
+    assert slave_buffers(Config()) == 16 + 4 + 1
+    assert slave_buffers(Config(threads=2)) == 2 * (4 + 1) + 2
+    assert slave_buffers(Config(rgs_lights=1, threads=4)) == 6
+    assert slave_buffers(Config(rgs_buffers=13)) == 13
+    assert Config(rgs_lights=2, rgs_buffers=8).rgs_buffers == 8
