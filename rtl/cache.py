@@ -38,7 +38,7 @@ from amaranth.utils import ceil_log2
 from model.cache import CacheGeometry
 
 from .memport import WORD_BITS, MemReadPort
-from .common import COUNTER_BITS
+from .common import COUNTER_BITS, lowest
 
 __all__ = ["Cache"]
 
@@ -51,8 +51,9 @@ class Cache(wiring.Component):
     (``hit_latency``): ``port.req.ready`` is a register (a skid register takes a request
     while the lookup stalls), the tag row is read a stage before the compare and goes
     straight into a register (the tag and data block RAMs' outputs feed only registers; a
-    tag write the read missed is forwarded), and the data word is registered before
-    ``port.resp``). The hit/miss sequence is the same either way.
+    tag write the read missed is forwarded), the data word is registered before
+    ``port.resp``, the line's memory address is formed as the request enters S1 and the
+    lowest free MSHR is kept in a register). The hit/miss sequence is the same either way.
     """
 
     def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
@@ -136,12 +137,13 @@ class Cache(wiring.Component):
         mshr_addr = [Signal(g.mem_addr_width, name=f"mshr{i}_addr") for i in range(O)]
         mshr_cnt = [Signal(range(LW), name=f"mshr{i}_cnt") for i in range(O)]
         mshr_buf = [Signal(LW * WORD_BITS, name=f"mshr{i}_buf") for i in range(O)]
-        free = Signal(range(O))
-        any_free = Signal()
-        m.d.comb += any_free.eq(~mshr_valid.all())
-        for i in reversed(range(O)):
-            with m.If(~mshr_valid[i]):
-                m.d.comb += free.eq(i)
+        free = Signal(range(O))                 # the lowest free MSHR
+        any_free = Signal(init=int(self.fast))  # fast: a register (all free at reset)
+        if not self.fast:
+            m.d.comb += any_free.eq(~mshr_valid.all())
+            for i in reversed(range(O)):
+                with m.If(~mshr_valid[i]):
+                    m.d.comb += free.eq(i)
 
         # --- response queue (in request order) ------------------------------------------------
         q_used = Signal(Q)
@@ -207,8 +209,8 @@ class Cache(wiring.Component):
             with m.If(s1_go & ~hit & (free == i)):
                 m.d.sync += [mshr_set[i].eq(s1_set), mshr_way[i].eq(victim),
                              mshr_line[i].eq(Cat(s1_set, s1_tag)), mshr_cnt[i].eq(0)]
-                if self.fast:       # the line's first word address, computed at allocation
-                    m.d.sync += mshr_addr[i].eq(self.base + Cat(s1_set, s1_tag) * LW)
+                if self.fast:       # the line's first word address, formed in S0 -> S1
+                    m.d.sync += mshr_addr[i].eq(self._s1_mem)
 
         # --- issue: the line's words, one request per cycle -----------------------------------
         word = Signal(range(LW))
@@ -264,6 +266,16 @@ class Cache(wiring.Component):
             m.d.comb += [set_mask[i].eq(s1_go & ~hit & (free == i)),
                          clr_mask[i].eq(last & (f_m == i))]
         m.d.sync += mshr_valid.eq((mshr_valid | set_mask) & ~clr_mask)
+        if self.fast:
+            # ``free``/``any_free`` of the next cycle in registers: from the valid bits after
+            # this cycle's fill completions, without and with this cycle's allocation (which
+            # takes ``free``), the lookup's verdict only selecting between the two
+            kept = Signal(O, name="mshr_kept")
+            m.d.comb += kept.eq(mshr_valid & ~clr_mask)
+            k_any, k_idx = lowest(m, ~kept, "mshr_free_keep")
+            a_any, a_idx = lowest(m, ~(kept | (Const(1, O) << free)[:O]), "mshr_free_alloc")
+            alloc = s1_go & ~hit
+            m.d.sync += [any_free.eq(Mux(alloc, a_any, k_any)), free.eq(Mux(alloc, a_idx, k_idx))]
 
         # --- output: head of the queue once its line is present -----------------------------
         h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
@@ -342,6 +354,12 @@ class Cache(wiring.Component):
         s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
         s0_set = s0_addr[ob:ob + sb]
         self._s0_set, self._s1_move = s0_set, s1_move
+        # the line's first memory word, a stage before an allocation needs it (the add and
+        # the multiply by the line's words are then off the lookup's path)
+        s1_mem = Signal(g.mem_addr_width, name="s1_mem_addr")
+        with m.If(s1_move):
+            m.d.sync += s1_mem.eq(self.base + s0_addr[ob:] * g.line_words)
+        self._s1_mem = s1_mem
         w_now = twp.en & (twp.addr == s0_set)
         with m.If(s1_move):
             m.d.sync += [s1_valid.eq(s0_valid), s1_off.eq(s0_addr[:ob]), s1_set.eq(s0_set),

@@ -1,5 +1,6 @@
 """Pieces every unit uses, defined once: counter width, priority encoder, round-robin pick,
-the registered stream output, and the memory's binary32 words as format words."""
+the registered stream output and stream register, and the memory's binary32 words as format
+words."""
 from __future__ import annotations
 
 from amaranth.hdl import C, Cat, Module, Mux, Signal, Value
@@ -9,7 +10,7 @@ from amaranth.utils import ceil_log2
 
 from model.fp import FPFormat
 
-__all__ = ["COUNTER_BITS", "lowest", "rr_pick", "OutputStage", "from_binary32"]
+__all__ = ["COUNTER_BITS", "lowest", "rr_pick", "OutputStage", "SkidBuffer", "from_binary32"]
 
 COUNTER_BITS = 32      # every statistics counter the hardware reports
 
@@ -72,6 +73,35 @@ class OutputStage(wiring.Component):
             m.d.sync += [o.valid.eq(1), o.payload.eq(i.payload)]
         with m.Elif(o.ready):
             m.d.sync += o.valid.eq(0)
+        return m
+
+
+class SkidBuffer(wiring.Component):
+    """A stream register that cuts both directions: ``o.valid``, ``o.payload`` and ``i.ready``
+    are flip-flops, so no path runs from the producer to the consumer or back.
+
+    ``i.ready`` is "the skid register is empty": the transfer offered in a cycle where the
+    output holds goes into the skid register and leaves from it first. Latency 1 (a payload
+    taken in cycle t is on ``o`` in t + 1), throughput 1 (no bubble while ``o.ready`` is high).
+    """
+
+    def __init__(self, layout):
+        self._layout = layout
+        super().__init__({"i": In(stream.Signature(layout)), "o": Out(stream.Signature(layout))})
+
+    def elaborate(self, platform):
+        m = Module()
+        i, o = self.i, self.o
+        k_valid = Signal()
+        k_payload = Signal(self._layout)
+        m.d.comb += i.ready.eq(~k_valid)
+        with m.If(~o.valid | o.ready):
+            with m.If(k_valid):
+                m.d.sync += [o.valid.eq(1), o.payload.eq(k_payload), k_valid.eq(0)]
+            with m.Else():
+                m.d.sync += [o.valid.eq(i.valid), o.payload.eq(i.payload)]
+        with m.Elif(i.valid & i.ready):
+            m.d.sync += [k_valid.eq(1), k_payload.eq(i.payload)]
         return m
 
 

@@ -19,7 +19,7 @@ from model.layout import list_word_layout
 
 from .memport import WORD_BITS, MemReadPort
 from .rtc_streams import LeafRequest, TriRequest
-from .common import COUNTER_BITS
+from .common import COUNTER_BITS, SkidBuffer
 
 __all__ = ["ListUnit"]
 
@@ -35,7 +35,9 @@ class ListUnit(wiring.Component):
 
     Timing: a leaf is accepted in the cycle its last word request is issued (or when idle);
     one word request per cycle, at most ``outstanding`` words between request and emission;
-    one ``TriRequest`` per cycle. Latency leaf -> first entry: 1 cycle + memory latency.
+    one ``TriRequest`` per cycle. Latency leaf -> first entry: 1 cycle + memory latency
+    (``cfg.fast_clock``: + 1, ``tri`` leaves from a :class:`~rtl.common.SkidBuffer`, so the
+    metadata FIFO's read and the consumer's ready meet only registers).
     Throughput: one entry per cycle when memory keeps up (a word serves two entries).
     """
 
@@ -64,6 +66,10 @@ class ListUnit(wiring.Component):
         m = Module()
         cfg, n = self.cfg, self.outstanding
         leaf, tri, req, resp = self.leaf, self.tri, self.mem.req, self.mem.resp
+        if cfg.fast_clock:                 # entries leave through a stream register
+            m.submodules.tri_out = out = SkidBuffer(TriRequest(cfg))
+            wiring.connect(m, out.o, wiring.flipped(self.tri))
+            tri = out.i
 
         # ---- issue: walk the current leaf's words, one request per cycle -----------------------
         active = Signal()
@@ -155,6 +161,9 @@ class ListUnit(wiring.Component):
             m.d.sync += self.list_ops.eq(self.list_ops + 1)
         with m.If(got):
             m.d.sync += self.words.eq(self.words + 1)
-        with m.If(active | (inflight != 0)):
+        working = active | (inflight != 0)
+        if cfg.fast_clock:                 # an entry still in the output register
+            working = working | self.tri.valid
+        with m.If(working):
             m.d.sync += self.busy.eq(self.busy + 1)
         return m

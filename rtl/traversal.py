@@ -594,16 +594,32 @@ class Traversal(wiring.Component):
                 th.set_state(m, r_thread, ThreadState.POP)
 
     def _done_engine(self, m: Module, th: _Threads) -> None:
-        """``PacketDone`` for a thread whose passes all ended; ``release`` frees the thread."""
+        """``PacketDone`` for a thread whose passes all ended; ``release`` frees the thread.
+        ``done`` leaves from a register (the lowest thread in ``DONE``), which turns the
+        thread to ``DRAIN``. ``cfg.fast_clock``: the register holds the thread's id, which
+        stays ``DONE`` until ``done`` is taken, so the state write starts at registers, not
+        at the pick over every thread's state (the same cycles: the next pick leaves out the
+        thread just taken)."""
         dn = self.done
-        m.submodules.done_out = out = OutputStage(PacketDone(self.cfg))
-        wiring.connect(m, out.o, wiring.flipped(dn))
-        d_any, d_idx = lowest(m, th.in_state(ThreadState.DONE), "done")
-        m.d.comb += [out.i.valid.eq(d_any), out.i.payload.thread.eq(d_idx),
-                     out.i.payload.packet.eq(th.packet[d_idx]),
-                     out.i.payload.mask.eq(th.lanes[d_idx])]
-        with m.If(out.i.valid & out.i.ready):
-            th.set_state(m, d_idx, ThreadState.DRAIN)
+        if th.fast:
+            o_thread = Signal(self.cfg.thread_bits, name="done_thread")
+            taken = Mux(dn.valid, Const(1, th.T) << o_thread, 0)[:th.T]
+            d_any, d_idx = lowest(m, th.in_state(ThreadState.DONE) & ~taken, "done")
+            with m.If(~dn.valid | dn.ready):
+                m.d.sync += [dn.valid.eq(d_any), o_thread.eq(d_idx)]
+            m.d.comb += [dn.payload.thread.eq(o_thread), dn.payload.packet.eq(th.packet[o_thread]),
+                         dn.payload.mask.eq(th.lanes[o_thread])]
+            with m.If(dn.valid & dn.ready):
+                th.set_state(m, o_thread, ThreadState.DRAIN)
+        else:
+            m.submodules.done_out = out = OutputStage(PacketDone(self.cfg))
+            wiring.connect(m, out.o, wiring.flipped(dn))
+            d_any, d_idx = lowest(m, th.in_state(ThreadState.DONE), "done")
+            m.d.comb += [out.i.valid.eq(d_any), out.i.payload.thread.eq(d_idx),
+                         out.i.payload.packet.eq(th.packet[d_idx]),
+                         out.i.payload.mask.eq(th.lanes[d_idx])]
+            with m.If(out.i.valid & out.i.ready):
+                th.set_state(m, d_idx, ThreadState.DRAIN)
         with m.If(dn.valid & dn.ready):
             m.d.sync += self.packets_done.eq(self.packets_done + 1)
         m.d.comb += self.release.ready.eq(1)

@@ -218,13 +218,15 @@ def test_bench_memory_writes_hit_rates(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("fast", [False, True], ids=["default", "fast"])
 @pytest.mark.parametrize("unit", ["trav", "list", "int"])
 @pytest.mark.parametrize("ways", [1, 4])
-def test_rtl_cache_standard_size_long_stream(unit, ways):
-    """Standard-size caches (64/64/144 KB) on 3000 accesses of a kd-tree-like stream."""
+def test_rtl_cache_standard_size_long_stream(unit, ways, fast):
+    """Standard-size caches (64/64/144 KB) on 3000 accesses of a kd-tree-like stream, with
+    and without the ``fast`` registers."""
     g = cache_geometry(Config(), unit, ways=ways)
     tr = synthetic_traces(400, depth=14, seed=ways)[unit][:3000]
     span = int(tr.max() + 1) * g.item_span // 64 + 1
     image = np.random.default_rng(2).integers(0, 1 << 64, span, dtype=np.uint64)
     run_cache(g, image, tr, memory="sdram", latency=Config().mem_latency, idle=0.05,
-              stall=0.05, seed=3)
+              stall=0.05, seed=3, fast=fast)

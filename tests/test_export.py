@@ -66,6 +66,14 @@ def test_lint_clean(exported, top):
     assert p.returncode == 0 and "%Warning" not in out and "%Error" not in out, out[-3000:]
 
 
+@pytest.mark.parametrize("top", ["cache_int", "list", "traversal", "rtc"])
+def test_lint_clean_fast_clock(tmp_path, top):
+    """The units with ``Config.fast_clock`` registers (the FPGA build's) lint clean too."""
+    p = lint(ex.export(top, SMALL.replace(fast_clock=True), tmp_path), top)
+    out = p.stdout + p.stderr
+    assert p.returncode == 0 and "%Warning" not in out and "%Error" not in out, out[-3000:]
+
+
 def test_yosys_reads_every_export(exported):
     p = yosys_read(list(exported.values()))
     assert p.returncode == 0, (p.stdout + p.stderr)[-3000:]
