@@ -86,7 +86,7 @@ verilog: setup
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
 ##   (YoWASP Yosys + nextpnr: 25-35 min, Yosys 2.5-10 + placement 9-13 + routing 12; not in CI) -> build/fpga/report.json, README.md
-##   deep FP pipelines, the fast_clock registers, delays in LUT-RAM, router1 (60 MHz routed, docs/fpga.md);
+##   deep FP pipelines, the fast_clock registers, delays in LUT-RAM, router1 (67.6 MHz routed, docs/fpga.md);
 ##   FPGA_DEEP= for the default timing
 FPGA_TOP    ?= rtc
 FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 5 --fp-div-latency 29 --fp-cmp-latency 3 --fast-clock 1 --delay-ram 4 --router router1
