@@ -49,7 +49,7 @@ class Config:
     # instead of flip-flop chains; the same cycles. 0: flip-flops only (docs/fpga.md)
     delay_ram: int = 0
     tile_w: int = 8                # a packet is a tile_w x tile_h tile of eye rays
-    tile_h: int = 8
+    tile_h: int = 8                # (tile_w x tile_h = packet_size rays)
 
     # --- kd-tree (the paper's BSP) -----------------------------------------------------------
     kd_max_depth: int = 24         # d: maximum number of scene subdivisions (sizes the stack)
@@ -84,11 +84,11 @@ class Config:
     clock_mhz: float = 533.0       # chip clock
     mem_clock_ratio: int = 4       # chip cycles per SDRAM cycle
     mem_chips: int = 4             # 16-bit SDRAM chips
-    mem_chip_bits: int = 16
+    mem_chip_bits: int = 16        # data bits per SDRAM chip
     mem_latency: int = 20          # chip cycles from request to first data (ideal memory/SDRAM)
-    trav_cache_kb: int = 64
-    list_cache_kb: int = 64
-    int_cache_kb: int = 144
+    trav_cache_kb: int = 64        # each RTC's kd-node cache (RTC-MI)
+    list_cache_kb: int = 64        # each RTC's list-entry cache
+    int_cache_kb: int = 144        # each RTC's triangle cache (144 KB = 4 096 triangles)
     cache_ways: int = 1            # 1 (direct-mapped), 2 or 4
     cache_line_words: int = 1      # 64-bit words per cache line (triangles: 5 words per item)
     cache_outstanding: int = 4     # outstanding misses per cache
@@ -282,6 +282,45 @@ class Config:
         d["secondary_rays"] = self.secondary_rays
         return d
 
+
+
+def field_help() -> dict[str, str]:
+    """Each :class:`Config` field's comment in this file, for command-line help: its trailing
+    comment with the indented comment lines under it, or else the comment block above it (a
+    block serves every field after it up to the next commented one). Fields without one are
+    left out."""
+    import inspect
+    import re
+    out: dict[str, str] = {}
+    block: list[str] = []
+    fresh = True                                  # the next block comment starts a new block
+    last = None                                   # the field whose trailing comment continues
+    try:
+        source = inspect.getsource(Config)
+    except (OSError, TypeError):                  # no source at hand: no comments to show
+        return {}
+    for line in source.splitlines():
+        text, indent = line.strip(), len(line) - len(line.lstrip())
+        if text.startswith("#"):
+            words = text.lstrip("#").strip()
+            if indent > 4 and last is not None:
+                out[last] += " " + words          # a trailing comment's next line
+            elif not words.startswith("---"):
+                block = [words] if fresh else block + [words]
+                fresh, last = False, None
+            continue
+        last = None
+        m = re.match(r"(\w+)\s*:[^=#]+=[^#]*(?:#\s*(.*))?$", text)
+        if not text or not m:
+            block, fresh = [], True
+            continue
+        name, trailing = m.group(1), m.group(2)
+        fresh = True
+        if trailing:
+            out[name], last, block = trailing.strip(), name, []
+        elif block:
+            out[name] = " ".join(block)
+    return {k: v for k, v in out.items() if k in Config.__dataclass_fields__}
 
 # Fields the RTL never reads: how the host builds the kd-tree, whether a frame asks for shadow
 # rays (the slaves' n_lights register, loaded per frame) and the clock the figures are quoted

@@ -25,7 +25,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from model.cache import cache_geometry
-from model.config import Config, ConfigError
+from model.config import Config, ConfigError, field_help
 from model.fp import FPFormat
 from .common import COUNTER_BITS
 from .memport import connect_tags
@@ -212,6 +212,7 @@ def add_config_args(ap: argparse.ArgumentParser) -> None:
     """One option per :class:`Config` field (``--trav-cache-kb``), plus ``--fmt``."""
     g = ap.add_argument_group("configuration (model/config.py Config; defaults are Config's)")
     g.add_argument("--fmt", help="FP format E<exp>M<frac> (default E8M23, binary32)")
+    text = field_help()
     for f in dataclasses.fields(Config):
         if f.name == "fmt":
             continue
@@ -219,7 +220,9 @@ def add_config_args(ap: argparse.ArgumentParser) -> None:
         typ = {bool: lambda s: s.lower() in ("1", "true", "yes", "on")}.get(type(default),
                                                                             type(default))
         g.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=typ, default=None,
-                       metavar=type(default).__name__.upper(), help=f"default {default}")
+                       metavar=type(default).__name__.upper(),
+                       help=(text[f.name] + f" (default {default})" if f.name in text
+                             else f"default {default}").replace("%", "%%"))
 
 
 def config_from_args(args: argparse.Namespace) -> Config:

@@ -94,3 +94,24 @@ def test_slave_buffers_fill_the_threads():
     assert slave_buffers(Config(rgs_lights=1, threads=4)) == 6
     assert slave_buffers(Config(rgs_buffers=13)) == 13
     assert Config(rgs_lights=2, rgs_buffers=8).rgs_buffers == 8
+
+
+def test_every_config_option_has_help():
+    """Every ``Config`` field's command-line option says what it is (the field's comment in
+    ``model/config.py``), not only its default."""
+    import argparse
+    import dataclasses
+
+    from model.config import field_help
+    from rtl.export import add_config_args
+    text = field_help()
+    names = {f.name for f in dataclasses.fields(Config)} - {"fmt"}
+    assert names <= set(text), sorted(names - set(text))
+    assert text["rtcs"] == "ray tracing cores on the chip"
+    assert text["fp_add_latency"] == text["fp_div_latency"].strip()   # one block, four fields
+    assert "normals, flags" in text["shade_cache_kb"]                 # a trailing comment's lines
+    ap = argparse.ArgumentParser()
+    add_config_args(ap)
+    helps = {a.dest: a.help for a in ap._actions}
+    assert helps["rgs_buffers"].startswith("pending secondary packets per RGS slave")
+    assert helps["rgs_buffers"].endswith("(default 0)")
