@@ -127,11 +127,11 @@ class Config:
                               "registers per RGS slave)")
         if self.shade_cache_kb < 1:
             raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
-        if self.rgs_buffers and self.rgs_buffers < 2 * (self.rgs_lights + 1) + 2:
+        if self.rgs_buffers and self.rgs_buffers < self.min_rgs_buffers:
             raise ConfigError(f"rgs_buffers={self.rgs_buffers} is too few for rgs_lights="
                               f"{self.rgs_lights}: a slave needs at least 2 (rgs_lights + 1) "
-                              f"+ 2 = {2 * (self.rgs_lights + 1) + 2} pending buffers (or 0: "
-                              "the default) so that a reflection packet always finds its "
+                              f"+ 2 = {self.min_rgs_buffers} pending buffers (or 0: the "
+                              "default) so that a reflection packet always finds its "
                               "reservation")
         if self.rgs_fp_adders < 0 or self.rgs_fp_muls < 0:
             raise ConfigError(f"rgs_fp_adders={self.rgs_fp_adders}, rgs_fp_muls="
@@ -189,6 +189,12 @@ class Config:
         shadow datapaths, pending buffers, shading caches)? Not when they hold no light and
         make no reflection (``rgs_lights == 0 and reflect_depth == 0``): eye rays only."""
         return self.rgs_lights > 0 or self.reflect_depth > 0
+
+    @property
+    def min_rgs_buffers(self) -> int:
+        """The fewest pending buffers a slave can hold without deadlock: ``2 (rgs_lights + 1)
+        + 2`` (``rtl/rgs_slave.py``)."""
+        return 2 * (self.rgs_lights + 1) + 2
 
     @property
     def min_addr_bits(self) -> int:

@@ -96,14 +96,13 @@ def slave_buffers(cfg: Config) -> int:
     """Pending secondary packets a slave holds: ``cfg.rgs_buffers``, or by default
     ``threads + rgs_lights + 1``, at least ``2 * (rgs_lights + 1) + 2``.
 
-    The fewest that cannot deadlock is ``2 * (rgs_lights + 1) + 2`` (the module docstring), but
+    The fewest that cannot deadlock is ``cfg.min_rgs_buffers`` (the module docstring), but
     then only ``buffers // (lights + 1)`` eye packets (3 with 12 buffers and 3 lights) hold a
     reservation at a time, and with their shadow packets they leave some of the RTC's threads
     idle. ``threads + rgs_lights + 1`` lets ``threads / (lights + 1)`` eye packets and their
     ``lights`` shadow packets each fill every thread (office 1024x768 with all its rays on the
     standard chip: 8 118 838 cycles against 8 747 633 with 12 buffers, ``docs/chip.md``)."""
-    least = 2 * (cfg.rgs_lights + 1) + 2
-    return cfg.rgs_buffers or max(least, cfg.threads + cfg.rgs_lights + 1)
+    return cfg.rgs_buffers or max(cfg.min_rgs_buffers, cfg.threads + cfg.rgs_lights + 1)
 
 
 def _slave_cache(cfg: Config, kb: int, name: str, item_bits: int, words: int) -> CacheGeometry:

@@ -90,7 +90,7 @@ def test_slave_buffers_fill_the_threads():
     deadlock-free ``2 (rgs_lights + 1) + 2``; ``rgs_buffers`` sets them."""
     from rtl.rgs_slave import slave_buffers
     assert slave_buffers(Config()) == 16 + 4 + 1
-    assert slave_buffers(Config(threads=2)) == 2 * (4 + 1) + 2
+    assert slave_buffers(Config(threads=2)) == 2 * (4 + 1) + 2 == Config().min_rgs_buffers
     assert slave_buffers(Config(rgs_lights=1, threads=4)) == 6
     assert slave_buffers(Config(rgs_buffers=13)) == 13
     assert Config(rgs_lights=2, rgs_buffers=8).rgs_buffers == 8
@@ -108,7 +108,7 @@ def test_every_config_option_has_help():
     names = {f.name for f in dataclasses.fields(Config)} - {"fmt"}
     assert names <= set(text), sorted(names - set(text))
     assert text["rtcs"] == "ray tracing cores on the chip"
-    assert text["fp_add_latency"] == text["fp_div_latency"].strip()   # one block, four fields
+    assert text["fp_add_latency"] == text["fp_div_latency"]   # one block, four fields
     assert "normals, flags" in text["shade_cache_kb"]                 # a trailing comment's lines
     ap = argparse.ArgumentParser()
     add_config_args(ap)
