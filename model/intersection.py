@@ -174,22 +174,59 @@ def intersect32(tri, ox, oy, oz, kx, ky, kz, sx, sy, sz):
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def intersect32_lanes(tri, l0, l1, o_t, k_t, s_t, st, ht, hu, hv):
-    """:func:`intersect32` for lanes ``l0 .. l1-1`` at once, in a loop the compiler turns into
-    vector instructions (every lane computes every step; a lane's outcome is selected at the
-    end). ``o_t``, ``k_t``, ``s_t``: the packet's origins, shear axes and shear constants by
-    component, (3, lanes). Writes per lane ``st`` = 0 (no hit), 1 (hit at ``ht``, ``hu``,
-    ``hv``) or 2 (a value in the band where IEEE and the hardware can differ: redo the lane
-    with the exact operations) -- the outcomes of :func:`intersect32`'s branches."""
-    A0, A1, A2, B0, B1, B2, C0, C1, C2 = (tri[0], tri[1], tri[2], tri[3], tri[4], tri[5],
-                                          tri[6], tri[7], tri[8])
-    ox, oy, oz = o_t[0], o_t[1], o_t[2]
-    kxs, kys, kzs = k_t[0], k_t[1], k_t[2]
+def intersect32_lanes(tri, l0, l1, kx, ky, kz, o_t, s_t, st, ht, hu, hv):
+    """:func:`intersect32` for lanes ``l0 .. l1-1`` that share the shear axes ``kx``, ``ky``,
+    ``kz``, at once, in a loop the compiler turns into vector instructions (every lane computes
+    every step; a lane's outcome is selected at the end). ``o_t``, ``s_t``: the packet's
+    origins and shear constants by component, (3, lanes). With the axes fixed the vertices'
+    components are picked once: ``A[kx] - o[kx]`` is :func:`intersect32`'s ``pick(a0, a1, a2,
+    kx)``, the same values (and the same underflow checks on all nine differences). Writes per
+    lane ``st`` = 0 (no hit), 1 (hit at ``ht``, ``hu``, ``hv``) or 2 (a value in the band where
+    IEEE and the hardware can differ: redo the lane with the exact operations) -- the outcomes
+    of :func:`intersect32`'s branches."""
+    Ax, Ay, Az = tri[kx], tri[ky], tri[kz]
+    Bx, By, Bz = tri[3 + kx], tri[3 + ky], tri[3 + kz]
+    Cx, Cy, Cz = tri[6 + kx], tri[6 + ky], tri[6 + kz]
+    ox, oy, oz = o_t[kx], o_t[ky], o_t[kz]
     sxs, sys_, szs = s_t[0], s_t[1], s_t[2]
     for l in range(l0, l1):
-        az, bz, cz, eu, ev, ew, bad = _edges32(A0, A1, A2, B0, B1, B2, C0, C1, C2, ox[l],
-                                               oy[l], oz[l], kxs[l], kys[l], kzs[l], sxs[l],
-                                               sys_[l])
+        a0 = Ax - ox[l]
+        a1 = Ay - oy[l]
+        az = Az - oz[l]
+        b0 = Bx - ox[l]
+        b1 = By - oy[l]
+        bz = Bz - oz[l]
+        c0 = Cx - ox[l]
+        c1 = Cy - oy[l]
+        cz = Cz - oz[l]
+        sx = sxs[l]
+        sy = sys_[l]
+        pax = sx * az
+        pay = sy * az
+        pbx = sx * bz
+        pby = sy * bz
+        pcx = sx * cz
+        pcy = sy * cz
+        ax = a0 - pax
+        ay = a1 - pay
+        bx = b0 - pbx
+        by = b1 - pby
+        cx = c0 - pcx
+        cy = c1 - pcy
+        p0 = cx * by
+        p1 = cy * bx
+        p2 = ax * cy
+        p3 = ay * cx
+        p4 = bx * ay
+        p5 = by * ax
+        eu = p0 - p1
+        ev = p2 - p3
+        ew = p4 - p5
+        bad = (_tiny(a0) | _tiny(a1) | _tiny(az) | _tiny(b0) | _tiny(b1) | _tiny(bz) | _tiny(c0)
+               | _tiny(c1) | _tiny(cz) | _tiny(pax) | _tiny(pay) | _tiny(pbx) | _tiny(pby)
+               | _tiny(pcx) | _tiny(pcy) | _tiny(ax) | _tiny(ay) | _tiny(bx) | _tiny(by)
+               | _tiny(cx) | _tiny(cy) | _tiny(p0) | _tiny(p1) | _tiny(p2) | _tiny(p3)
+               | _tiny(p4) | _tiny(p5) | _tiny(eu) | _tiny(ev) | _tiny(ew))
         edge_miss = (((eu < _ZERO) | (ev < _ZERO) | (ew < _ZERO))
                      & ((eu > _ZERO) | (ev > _ZERO) | (ew > _ZERO)))
         s0, det, t, u, v, bad2 = _hit32(az, bz, cz, eu, ev, ew, szs[l])
@@ -200,6 +237,23 @@ def intersect32_lanes(tri, l0, l1, o_t, k_t, s_t, st, ht, hu, hv):
         ht[l] = t
         hu[l] = u
         hv[l] = v
+
+
+@numba.njit(cache=True, inline="always")
+def shared_axes(mask, lk):
+    """The shear axes every lane of ``mask`` shares, as ``kx | ky << 2 | kz << 4``, or -1 when
+    they differ (``lk``: the packet's shear axes per lane, (lanes, 3))."""
+    code = np.int64(-1)
+    m = mask
+    while m:
+        l = lowest_lane(m)
+        m &= m - np.uint64(1)
+        c = lk[l, 0] | (lk[l, 1] << 2) | (lk[l, 2] << 4)
+        if code < 0:
+            code = c
+        elif c != code:
+            return np.int64(-1)
+    return code
 
 
 @numba.njit(cache=True, inline="always")
@@ -220,21 +274,24 @@ def fetch_triangle(mem, tri_base, i, out):
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, rec, rec_n, pid,
-                  n, lanes):
+                  n, lanes, axes):
     """The intersection unit on one triangle: test every lane of ``mask`` in lane order (the
     issue stage), and keep the closest hit (best-hit update): a hit is accepted when
     ``0 < t < best``. ``lo``/``lk``/``ls`` are the packet's ray store (origin, shear axes and
     constants), ``best``/``b_tri``/``b_u``/``b_v`` its best-hit store (the triangle's index
     in memory, as the hardware knows it; ``sid``, the scene-order id, is only recorded).
     ``lanes``: the packet's ``n`` lanes' store by component and per-lane outcome arrays
-    (:func:`intersect32_lanes`): at binary32, with at least ``VECTOR_LANES`` lanes in the mask
-    and no event log, the lanes are tested together first (the same results).
-    Returns the int-ops done."""
-    if E == 8 and M == 23 and rec.shape[0] == 0 and popcount(mask) >= VECTOR_LANES:
-        o_t, k_t, s_t, st, ht, hu, hv = lanes
+    (:func:`intersect32_lanes`); ``axes``: the shear axes the mask's lanes share
+    (:func:`shared_axes`) or -1. At binary32, with shared axes, at least ``VECTOR_LANES``
+    lanes in the mask and no event log, the lanes are tested together first (the same
+    results). Returns the int-ops done."""
+    if (E == 8 and M == 23 and rec.shape[0] == 0 and axes >= 0
+            and popcount(mask) >= VECTOR_LANES):
+        o_t, s_t, st, ht, hu, hv = lanes
         l0 = lowest_lane(mask)
         l1 = min(n, (highest_lane(mask) + 16) & ~15)
-        intersect32_lanes(tri, l0 & ~15, l1, o_t, k_t, s_t, st, ht, hu, hv)
+        intersect32_lanes(tri, l0 & ~15, l1, axes & 3, (axes >> 2) & 3, axes >> 4, o_t, s_t,
+                          st, ht, hu, hv)
         ops = 0
         m = mask
         while m:

@@ -19,7 +19,7 @@ from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
 from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
 from .rgs import CHUNK, FIX_FRAC
-from .rtc import COUNTERS, Hits, counter_totals, dynamic_tasks, trace
+from .rtc import COUNTERS, Hits, counter_totals, trace
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
 KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
@@ -105,8 +105,7 @@ def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
     each ray's colour contribution as the RGS slave computes it (``model.shading``), summed per
     pixel in fixed point. ``textures``: filter the textures (default: if the chip has a
     texture unit, ``cfg.tex_cache_kb > 0``); False leaves kd as the records hold it."""
-    with dynamic_tasks():
-        return _render(scene, cfg, width, height, progress, prepared, skip, textures)
+    return _render(scene, cfg, width, height, progress, prepared, skip, textures)
 
 
 def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> RenderResult:

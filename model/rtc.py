@@ -8,14 +8,13 @@ all packets (compiled, parallel over packets) and sums the hardware's operation 
 """
 from __future__ import annotations
 
-from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
 from .events import EV_DONE, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI, decode, record
-from .intersection import fetch_triangle, test_triangle
+from .intersection import fetch_triangle, shared_axes, test_triangle
 from .lanes import borrow, popcount
 from .layout import LEAF, TRI_WORDS
 from .list import leaf_entries
@@ -44,6 +43,31 @@ N_COUNTERS = len(COUNTERS)
 TASK_PACKETS = 16      # packets a parallel task traces one after another (in one scratch)
 
 
+@numba.njit(cache=True)
+def scatter_step(n_tasks):
+    """The stride of :func:`scatter_task`: near the golden section of ``n_tasks`` and coprime
+    to it (so ``j -> j * step % n_tasks`` visits every task once)."""
+    step = max(1, int(n_tasks * 0.6180339887))
+    while True:
+        a, b = step, n_tasks
+        while b:
+            a, b = b, a % b
+        if a == 1:
+            return step
+        step += 1
+
+
+@numba.njit(cache=True, inline="always")
+def scatter_task(j, step, n_tasks):
+    """The task a parallel loop's iteration ``j`` traces. numba's threading layers (OpenMP,
+    workqueue) give each thread one contiguous range of iterations whatever the chunk size;
+    packets differ widely in work (most miss the scene, the ones on the object are deep), so
+    contiguous ranges of the image leave one thread idle while the other finishes. The
+    golden-section stride spreads each thread's range evenly over the image (a task's
+    packets stay neighbours)."""
+    return (j * step) % n_tasks
+
+
 @numba.njit(cache=True, error_model="numpy")
 def packet_scratch(depth):
     """The per-lane state of one packet (up to 64 lanes), made once and reused for every
@@ -54,7 +78,7 @@ def packet_scratch(depth):
             np.empty(depth + 1, np.uint64), np.empty((depth + 1, 64), np.float32),
             np.empty((depth + 1, 64), np.float32), np.empty(9, np.float32),
             np.empty(64, np.int64), np.empty(64, np.int64), np.empty((3, 64), np.float32),
-            np.empty((3, 64), np.float32), np.empty(8, np.uint64), np.empty((3, 64), np.int64),
+            np.empty((3, 64), np.float32), np.empty(8, np.uint64),
             np.empty((3, 64), np.float32), np.empty(64, np.int8), np.empty(64, np.float32),
             np.empty(64, np.float32), np.empty(64, np.float32))
 
@@ -69,7 +93,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     ``rec`` (K, 8) int64: when K > 0, every unit's input/output events are appended at row
     ``rec_n[0]`` (``model.events``); recording stops (rec_n[0] > K) when the buffer is full."""
     (tnear, tfar, best, b_tri, b_u, b_v, dist, s_node, s_mask, s_near, s_far, tri, entries,
-     octant, lo_t, linv_t, masks, lk_t, ls_t, st, ht, hu, hv) = scratch
+     octant, lo_t, linv_t, masks, ls_t, st, ht, hu, hv) = scratch
     # every array as a borrowed view (the caller keeps them alive): no reference counting
     # in the loops below
     mem, org, dirn, tnear0, tfar0, tmax, anyhit = (borrow(mem), borrow(org), borrow(dirn),
@@ -86,8 +110,8 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                                                    borrow(entries))
     octant, lo_t, linv_t, masks = borrow(octant), borrow(lo_t), borrow(linv_t), borrow(masks)
     # the intersection unit's lanes by component, and its per-lane outcomes
-    lanes = (lo_t, borrow(lk_t), borrow(ls_t), borrow(st), borrow(ht), borrow(hu), borrow(hv))
-    lk_t, ls_t = lanes[1], lanes[2]
+    lanes = (lo_t, borrow(ls_t), borrow(st), borrow(ht), borrow(hu), borrow(hv))
+    ls_t = lanes[1]
     # the read-only ray data the units keep locally, per lane
     lo = borrow(org[r0:r0 + n])
     linv = borrow(inv[r0:r0 + n])
@@ -111,7 +135,6 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
             for a in range(3):
                 lo_t[a, l] = lo[l, a]
                 linv_t[a, l] = linv[l, a]
-                lk_t[a, l] = lk[l, a]
                 ls_t[a, l] = ls[l, a]
     pass_masks(octant, live, n, masks)
     for oc in range(8):
@@ -119,6 +142,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
         if mask == 0:
             continue
         c_passes += 1
+        axes = shared_axes(mask, lk)     # a pass's rays (one octant) mostly share them
         node = np.int64(root)
         sp = 0
         while mask:
@@ -159,7 +183,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 if rec.shape[0]:
                     record(rec, rec_n, EV_TRI, pid, oc, ti, mask, sid, 0, 0)
                 c_int_ops += test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v,
-                                           E, M, rec, rec_n, pid, n, lanes)
+                                           E, M, rec, rec_n, pid, n, lanes, axes)
             # back in traversal; a shadow ray keeps testing the rest of the leaf it hits in
             # (its lane is in the leaf's mask), as the pipelined hardware does
             terminated = terminate(mask, terminated, b_tri, anyhit, r0, best, tfar)
@@ -196,7 +220,10 @@ def trace_all(mem, node_base, list_base, tri_base, root, depth,
     n_packets = pk_start.shape[0] - 1
     no_rec = np.zeros((0, 8), np.int64)
     no_n = np.zeros(1, np.int64)
-    for task in numba.prange((n_packets + TASK_PACKETS - 1) // TASK_PACKETS):
+    n_tasks = (n_packets + TASK_PACKETS - 1) // TASK_PACKETS
+    step = scatter_step(n_tasks)
+    for j in numba.prange(n_tasks):
+        task = scatter_task(j, step, n_tasks)
         scratch = packet_scratch(depth)
         for p in range(task * TASK_PACKETS, min(n_packets, (task + 1) * TASK_PACKETS)):
             trace_packet(mem, node_base, list_base, tri_base, root, depth,
@@ -217,7 +244,10 @@ def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, lo, hi, sc
     no_rec = np.zeros((0, 8), np.int64)
     no_n = np.zeros(1, np.int64)
     lo_f, hi_f = flushed_box(lo, hi, E)
-    for task in numba.prange((n_packets + TASK_PACKETS - 1) // TASK_PACKETS):
+    n_tasks = (n_packets + TASK_PACKETS - 1) // TASK_PACKETS
+    step = scatter_step(n_tasks)
+    for j in numba.prange(n_tasks):
+        task = scatter_task(j, step, n_tasks)
         scratch = packet_scratch(depth)
         for p in range(task * TASK_PACKETS, min(n_packets, (task + 1) * TASK_PACKETS)):
             r0 = pk_start[p]
@@ -262,18 +292,6 @@ class Hits:
     v: np.ndarray        # (N,) float32
 
 
-@contextmanager
-def dynamic_tasks():
-    """Parallel loops hand their tasks to threads one at a time as threads free up (numba's
-    parallel chunk size 1): packets differ widely in work (most miss the scene), and a thread
-    the machine delays leaves its share to the others."""
-    chunk = numba.set_parallel_chunksize(1)
-    try:
-        yield
-    finally:
-        numba.set_parallel_chunksize(chunk)
-
-
 def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool = True):
     """Trace every packet of ``rays`` through ``image``.
 
@@ -291,8 +309,7 @@ def trace(image, rays, cfg, ray_setup=None, record: bool = False, box_cull: bool
         return _trace_with_setup(image, rays, cfg)
     args, _, out = _kernel_args(image, rays, cfg, ray_setup, box_cull)
     if len(rays):
-        with dynamic_tasks():
-            trace_all(*args)
+        trace_all(*args)
     return out()
 
 
@@ -308,10 +325,9 @@ def _trace_with_setup(image, rays, cfg):
     (mem, node_base, list_base, tri_base, root, depth, pk_start, org, dirn, inv, kk, ss,
      tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M) = args
     b = np.asarray(image.bounds, np.float32)
-    with dynamic_tasks():
-        trace_all_setup(mem, node_base, list_base, tri_base, root, depth, b[0].copy(),
-                        b[1].copy(), image.scene_id_table(), pk_start, org, dirn, inv, kk, ss,
-                        tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
+    trace_all_setup(mem, node_base, list_base, tri_base, root, depth, b[0].copy(),
+                    b[1].copy(), image.scene_id_table(), pk_start, org, dirn, inv, kk, ss,
+                    tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
     return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs
 
 

@@ -100,12 +100,13 @@ def test_borrowed_view_reads_and_writes_the_array():
 
 
 def test_lanes_intersection_matches_exact():
-    """``model.intersection.intersect32_lanes`` (every lane of a packet at once) resolved as
-    ``test_triangle`` resolves it gives, lane by lane, the exact-operation ``intersect``'s
-    outcome, at scales down to the underflow band."""
+    """``model.intersection.intersect32_lanes`` (the lanes that share shear axes at once)
+    resolved as ``test_triangle`` resolves it gives, lane by lane, the exact-operation
+    ``intersect``'s outcome, at scales down to the underflow band; ``shared_axes`` finds the
+    axes a mask's lanes share."""
     import numba
 
-    from model.intersection import _intersect_exact32, intersect, intersect32_lanes
+    from model.intersection import _intersect_exact32, intersect, intersect32_lanes, shared_axes
 
     from .test_model_intersection import cases
 
@@ -114,14 +115,21 @@ def test_lanes_intersection_matches_exact():
         n = org.shape[0]
         out = np.zeros((tris.shape[0], n, 2, 4), np.float32)
         o_t = np.ascontiguousarray(org.T)
-        k_t = np.ascontiguousarray(k.T)
         s_t = np.ascontiguousarray(s.T)
         st = np.empty(n, np.int8)
         ht = np.empty(n, np.float32)
         hu = np.empty(n, np.float32)
         hv = np.empty(n, np.float32)
         for i in range(tris.shape[0]):
-            intersect32_lanes(tris[i], 0, n, o_t, k_t, s_t, st, ht, hu, hv)
+            g0 = 0
+            while g0 < n:                   # each run of lanes with the same axes at once
+                g1 = g0 + 1
+                while g1 < n and (k[g1, 0] == k[g0, 0] and k[g1, 1] == k[g0, 1]
+                                  and k[g1, 2] == k[g0, 2]):
+                    g1 += 1
+                intersect32_lanes(tris[i], g0, g1, k[g0, 0], k[g0, 1], k[g0, 2], o_t, s_t, st,
+                                  ht, hu, hv)
+                g0 = g1
             for l in range(n):
                 h, t, u, v = intersect(tris[i], org[l, 0], org[l, 1], org[l, 2], k[l, 0],
                                        k[l, 1], k[l, 2], s[l, 0], s[l, 1], s[l, 2], 8, 23)
@@ -135,10 +143,17 @@ def test_lanes_intersection_matches_exact():
                 out[i, l, 1] = (np.float32(h), t, u, v)
         return out
 
+    axes = numba.njit(lambda mask, lk: shared_axes(mask, lk))
     rng = np.random.default_rng(7)
     for scale_exp in (0, -40, -60, -62, -64, -70, 20):
         tris, org, k, s = cases(rng, 64 * 8, scale_exp)
-        out = run(tris[:8], org[:64], k[:64], s[:64])
+        code = k[:, 0] | k[:, 1] << 2 | k[:, 2] << 4
+        order = np.argsort(code[:64], kind="stable")        # lanes grouped by their axes
+        org, k, s, code = org[:64][order], k[:64][order], s[:64][order], code[:64][order]
+        assert len(set(code)) > 1
+        first = np.uint64((1 << int((code == code[0]).sum())) - 1)
+        assert axes(first, k) == code[0] and axes(np.uint64(2 ** 64 - 1), k) == -1
+        out = run(tris[:8], org, k, s)
         hit = out[..., 0] == 1
         want, got = out[:, :, 0], out[:, :, 1]
         assert same(want[..., 0], got[..., 0])
