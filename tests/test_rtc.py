@@ -177,3 +177,17 @@ def test_event_log_matches_counters_and_results(kd_cache):
     assert len(mt["list"]) == tot[C["list_reads"]]
     assert len(mt["int"]) == tot[C["int_reads"]]
     assert (mt["trav"] >= prep.image.node_base).all() and (mt["int"] >= prep.image.tri_base).all()
+
+
+def test_scatter_visits_every_task_once():
+    """The parallel kernels' task order (``scatter_task``) is a permutation of the tasks, and
+    each half of it (what one of two threads gets) spreads over the whole range."""
+    from model.rtc import scatter_step, scatter_task
+    for n in list(range(1, 300)) + [768, 1024, 12288]:
+        step = scatter_step(n)
+        order = np.array([scatter_task(j, step, n) for j in range(n)])
+        assert np.array_equal(np.sort(order), np.arange(n)), n
+        if n >= 100:
+            first = order[: n // 2]
+            assert first.min() < n // 10 and first.max() > n - n // 10
+            assert abs(np.mean(first) - (n - 1) / 2) < n / 20
