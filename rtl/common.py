@@ -3,8 +3,9 @@ the registered stream output and stream register, and the memory's binary32 word
 words."""
 from __future__ import annotations
 
-from amaranth.hdl import C, Cat, Module, Mux, Signal, Value
-from amaranth.lib import stream, wiring
+from amaranth.hdl import C, Cat, Elaboratable, Module, Mux, Signal, Value
+from amaranth.lib import data, stream, wiring
+from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
@@ -103,6 +104,53 @@ class SkidBuffer(wiring.Component):
         with m.Elif(i.valid & i.ready):
             m.d.sync += [k_valid.eq(1), k_payload.eq(i.payload)]
         return m
+
+
+class TwoWriteMemory(Elaboratable):
+    """A memory with two write ports and one synchronous read port, as ``lib.memory.Memory``
+    with ``write_port()`` twice and ``read_port()`` (not transparent: a read returns the word
+    before that cycle's writes; port 1 wins when both ports write one address in a cycle, as a
+    later write port does), built so that it maps to block RAM: two memories of one write port
+    each (``bank0`` written by ``w[0]``, ``bank1`` by ``w[1]``) and a live-value table, one
+    flip-flop per word, that says which bank holds the newer word. Yosys cannot map a memory
+    with two write ports and a read port to ECP5 block RAM and builds it of flip-flops.
+    Twice the memory bits; the same cycles and data as the one memory.
+
+    Ports: ``w[i]`` (``addr``, ``data``, ``en``: the banks' write ports), ``r`` (``addr``,
+    ``en``, ``data``: a view of ``shape``)."""
+
+    def __init__(self, shape, depth: int):
+        self.depth = depth
+        self._banks = [Memory(shape=shape, depth=depth, init=[]) for _ in range(2)]
+        self.w = [b.write_port() for b in self._banks]
+        self._r = [b.read_port() for b in self._banks]
+        self._sel = Signal()
+        self.r = _ReadPort(self._r[0].addr.shape(), shape, self._r, self._sel)
+
+    def elaborate(self, platform):
+        m = Module()
+        m.submodules.bank0, m.submodules.bank1 = self._banks
+        live = Signal(self.depth)            # 1: bank1 holds the newer word
+        for i, w in enumerate(self.w):       # port 1's update last: it wins
+            with m.If(w.en):
+                m.d.sync += live.bit_select(w.addr, 1).eq(i)
+        for r in self._r:
+            m.d.comb += [r.addr.eq(self.r.addr), r.en.eq(self.r.en)]
+        with m.If(self.r.en):
+            m.d.sync += self._sel.eq(live.bit_select(self.r.addr, 1))
+        return m
+
+
+class _ReadPort:
+    """:class:`TwoWriteMemory`'s read port: ``addr``, ``en`` (default 1) and ``data``, the word
+    of the bank the live-value table named when the address was read."""
+
+    def __init__(self, addr_shape, shape, banks, sel):
+        self.addr = Signal(addr_shape)
+        self.en = Signal(init=1)
+        self.data = data.View(data.Layout.cast(shape), Mux(sel, banks[1].data.as_value(),
+                                                            banks[0].data.as_value())) \
+            if isinstance(shape, data.Layout) else Mux(sel, banks[1].data, banks[0].data)
 
 
 def from_binary32(fmt: FPFormat, x: Value) -> Value:

@@ -68,7 +68,6 @@ from types import SimpleNamespace
 from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.fifo import SyncFIFO
-from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
@@ -79,7 +78,7 @@ from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_NF, R
                           REC_UV, REC_WORDS, SHIN_BITS)
 from model.rgs import FIX_BITS
 
-from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
+from .common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
 from .memport import WORD_BITS, MemReadPort
 from .rgs import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe, Texture,
                   _fp_const)
@@ -361,18 +360,16 @@ class Slave(wiring.Component):
         # its contribution if it misses
         entry = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb, "wt": w,
                                    "col": f3})
-        pend = Memory(shape=entry, depth=NB * P, init=[])
-        m.submodules.pend = pend
-        pend_w_sh = pend.write_port()        # shadow rays (LightPipe output)
-        pend_w_rf = pend.write_port()        # reflection rays (LightPipe output)
-        pend_r = pend.read_port()
+        # (two write ports each: two banks and a live-value table, so that both map to block
+        # RAM, rtl.common.TwoWriteMemory)
+        m.submodules.pend = pend = TwoWriteMemory(entry, NB * P)
+        pend_w_sh, pend_w_rf = pend.w        # shadow, reflection rays (LightPipe output)
+        pend_r = pend.r
 
         # -- ray store ------------------------------------------------------------------------------
-        store = Memory(shape=entry, depth=NS * P, init=[])
-        m.submodules.store = store
-        store_w_eye = store.write_port()
-        store_w_sec = store.write_port()
-        store_r = store.read_port()
+        m.submodules.store = store = TwoWriteMemory(entry, NS * P)
+        store_w_eye, store_w_sec = store.w
+        store_r = store.r
 
         # -- admission of eye packets ---------------------------------------------------------------
         sender_busy = Signal()

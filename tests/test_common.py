@@ -1,12 +1,12 @@
-"""Shared RTL pieces (``rtl/common.py``): the priority encoder, the round-robin pick and the
-stream register."""
+"""Shared RTL pieces (``rtl/common.py``): the priority encoder, the round-robin pick, the
+stream register and the two-write-port memory."""
 import random
 
 import pytest
 from amaranth.hdl import Module, Signal
 from amaranth.sim import Simulator
 
-from rtl.common import SkidBuffer, lowest, rr_pick
+from rtl.common import SkidBuffer, TwoWriteMemory, lowest, rr_pick
 from tb.common import drain, drive, run
 
 
@@ -100,3 +100,41 @@ def test_skid_buffer_ready_does_not_follow_the_consumer():
     # 0 taken into o, 1 into the skid, then ready low until the output moves in cycle 4
     assert [r for r, _, _, _ in seen] == [1, 1, 0, 0, 0, 1, 1, 1]
     assert [(v, p) for _, _, v, p in seen][1:] == [(1, 0)] * 4 + [(1, 1), (1, 5), (1, 6)]
+
+
+def test_two_write_memory_reads_as_one_memory_with_two_write_ports():
+    """Random writes on both ports (often to one address, to the address being read, and
+    both ports to one address at once) and random read enables: every cycle the same read
+    data as a ``lib.memory.Memory`` with two write ports and a read port beside it."""
+    from amaranth.lib import data
+    from amaranth.lib.memory import Memory
+    layout = data.StructLayout({"a": 5, "b": 7})
+    depth = 6
+    m = Module()
+    m.submodules.dut = dut = TwoWriteMemory(layout, depth)
+    m.submodules.ref = ref = Memory(shape=layout, depth=depth, init=[])
+    rw = [ref.write_port(), ref.write_port()]
+    rr = ref.read_port()
+    for p, q in zip(dut.w, rw):
+        m.d.comb += [q.addr.eq(p.addr), q.data.eq(p.data), q.en.eq(p.en)]
+    m.d.comb += [rr.addr.eq(dut.r.addr), rr.en.eq(dut.r.en)]
+    rng = random.Random(5)
+    pairs = []
+
+    async def tb(ctx):
+        for _ in range(2000):
+            hot = rng.randrange(depth)
+            for p in dut.w:
+                ctx.set(p.addr, hot if rng.random() < 0.4 else rng.randrange(depth))
+                ctx.set(p.data.as_value(), rng.getrandbits(12))
+                ctx.set(p.en, rng.random() < 0.5)
+            ctx.set(dut.r.addr, hot if rng.random() < 0.4 else rng.randrange(depth))
+            ctx.set(dut.r.en, rng.random() < 0.8)
+            await ctx.tick()
+            pairs.append((ctx.get(dut.r.data.as_value()), ctx.get(rr.data.as_value())))
+
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    assert pairs[8:] == [(b, b) for _, b in pairs[8:]] and len({b for _, b in pairs}) > 100
