@@ -107,20 +107,28 @@ class SkidBuffer(wiring.Component):
 
 
 class TwoWriteMemory(Elaboratable):
-    """A memory with two write ports and one synchronous read port, as ``lib.memory.Memory``
-    with ``write_port()`` twice and ``read_port()`` (not transparent: a read returns the word
-    before that cycle's writes; port 1 wins when both ports write one address in a cycle, as a
-    later write port does), built so that it maps to block RAM: two memories of one write port
-    each (``bank0`` written by ``w[0]``, ``bank1`` by ``w[1]``) and a live-value table, one
-    flip-flop per word, that says which bank holds the newer word. Yosys cannot map a memory
-    with two write ports and a read port to ECP5 block RAM and builds it of flip-flops.
-    Twice the memory bits; the same cycles and data as the one memory.
+    """A memory with two write ports and one synchronous read port (not transparent: a read
+    returns the word before that cycle's writes), built so that it maps to block RAM: two
+    memories of one write port each (``bank0`` written by ``w[0]``, ``bank1`` by ``w[1]``) and
+    a live-value table that says which bank to read. Yosys cannot map a memory with two write
+    ports and a read port to ECP5 block RAM and builds it of flip-flops. Twice the memory bits.
+
+    The table holds one bit per block of ``block`` words (aligned; a power of two): the port
+    that last wrote a word of the block. So a read returns the newest word as long as every
+    word read was written since the block's last writer took it (the slave's ray store and
+    pending buffers: a block is one packet's lanes, written by one source while the packet
+    holds it and read after). A table bit per word would be general; for the slave's 2 048
+    words it is 2 048 flip-flops with a decoder per port, and as one wide signal Yosys runs out
+    of memory expanding its write.
 
     Ports: ``w[i]`` (``addr``, ``data``, ``en``: the banks' write ports), ``r`` (``addr``,
     ``en``, ``data``: a view of ``shape``)."""
 
-    def __init__(self, shape, depth: int):
-        self.depth = depth
+    def __init__(self, shape, depth: int, block: int):
+        if block < 1 or block & (block - 1) or depth % block:
+            raise ValueError(f"TwoWriteMemory: block={block} must be a power of two that "
+                             f"divides depth={depth}")
+        self.depth, self.block = depth, block
         self._banks = [Memory(shape=shape, depth=depth, init=[]) for _ in range(2)]
         self.w = [b.write_port() for b in self._banks]
         self._r = [b.read_port() for b in self._banks]
@@ -130,14 +138,15 @@ class TwoWriteMemory(Elaboratable):
     def elaborate(self, platform):
         m = Module()
         m.submodules.bank0, m.submodules.bank1 = self._banks
-        live = Signal(self.depth)            # 1: bank1 holds the newer word
+        sh = ceil_log2(self.block)
+        live = Signal(self.depth // self.block)     # 1: bank1 holds the block's words
         for i, w in enumerate(self.w):       # port 1's update last: it wins
             with m.If(w.en):
-                m.d.sync += live.bit_select(w.addr, 1).eq(i)
+                m.d.sync += live.bit_select(w.addr[sh:], 1).eq(i)
         for r in self._r:
             m.d.comb += [r.addr.eq(self.r.addr), r.en.eq(self.r.en)]
         with m.If(self.r.en):
-            m.d.sync += self._sel.eq(live.bit_select(self.r.addr, 1))
+            m.d.sync += self._sel.eq(live.bit_select(self.r.addr[sh:], 1))
         return m
 
 

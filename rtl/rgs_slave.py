@@ -361,13 +361,16 @@ class Slave(wiring.Component):
         entry = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb, "wt": w,
                                    "col": f3})
         # (two write ports each: two banks and a live-value table, so that both map to block
-        # RAM, rtl.common.TwoWriteMemory)
-        m.submodules.pend = pend = TwoWriteMemory(entry, NB * P)
+        # RAM, rtl.common.TwoWriteMemory; its blocks (the largest power of two that divides P)
+        # lie within one packet, and a buffer holds shadow or reflection rays, a slot an eye or
+        # a secondary packet)
+        blk = P & -P
+        m.submodules.pend = pend = TwoWriteMemory(entry, NB * P, blk)
         pend_w_sh, pend_w_rf = pend.w        # shadow, reflection rays (LightPipe output)
         pend_r = pend.r
 
         # -- ray store ------------------------------------------------------------------------------
-        m.submodules.store = store = TwoWriteMemory(entry, NS * P)
+        m.submodules.store = store = TwoWriteMemory(entry, NS * P, blk)
         store_w_eye, store_w_sec = store.w
         store_r = store.r
 

@@ -103,15 +103,17 @@ def test_skid_buffer_ready_does_not_follow_the_consumer():
 
 
 def test_two_write_memory_reads_as_one_memory_with_two_write_ports():
-    """Random writes on both ports (often to one address, to the address being read, and
-    both ports to one address at once) and random read enables: every cycle the same read
-    data as a ``lib.memory.Memory`` with two write ports and a read port beside it."""
+    """Each port owns blocks for a while (never both the same block), writes words of them,
+    often the word being read and both ports in one cycle; a block changes owner from time to
+    time; every word read was written since its block's owner took it (the slave's use) and
+    the read enable is random: every cycle the same read data as a ``lib.memory.Memory`` with
+    two write ports and a read port beside it."""
     from amaranth.lib import data
     from amaranth.lib.memory import Memory
     layout = data.StructLayout({"a": 5, "b": 7})
-    depth = 6
+    depth, block = 16, 4
     m = Module()
-    m.submodules.dut = dut = TwoWriteMemory(layout, depth)
+    m.submodules.dut = dut = TwoWriteMemory(layout, depth, block)
     m.submodules.ref = ref = Memory(shape=layout, depth=depth, init=[])
     rw = [ref.write_port(), ref.write_port()]
     rr = ref.read_port()
@@ -122,14 +124,28 @@ def test_two_write_memory_reads_as_one_memory_with_two_write_ports():
     pairs = []
 
     async def tb(ctx):
-        for _ in range(2000):
-            hot = rng.randrange(depth)
-            for p in dut.w:
-                ctx.set(p.addr, hot if rng.random() < 0.4 else rng.randrange(depth))
+        owner = [b % 2 for b in range(depth // block)]
+        written = set()                      # words written since their block's owner took it
+        for _ in range(3000):
+            if rng.random() < 0.05:          # a block changes owner: its words are stale
+                b = rng.randrange(depth // block)
+                owner[b] ^= 1
+                written -= set(range(b * block, b * block + block))
+            readable = sorted(written)
+            ra = rng.choice(readable) if readable and rng.random() < 0.9 else None
+            for i, p in enumerate(dut.w):
+                mine = [b for b in range(depth // block) if owner[b] == i]
+                en = bool(mine) and rng.random() < 0.6
+                a = ra if en and ra is not None and owner[ra // block] == i and \
+                    rng.random() < 0.3 else \
+                    (rng.choice(mine) * block + rng.randrange(block) if mine else 0)
+                ctx.set(p.addr, a)
                 ctx.set(p.data.as_value(), rng.getrandbits(12))
-                ctx.set(p.en, rng.random() < 0.5)
-            ctx.set(dut.r.addr, hot if rng.random() < 0.4 else rng.randrange(depth))
-            ctx.set(dut.r.en, rng.random() < 0.8)
+                ctx.set(p.en, en)
+                if en:
+                    written.add(a)
+            ctx.set(dut.r.addr, ra if ra is not None else 0)
+            ctx.set(dut.r.en, ra is not None and rng.random() < 0.8)
             await ctx.tick()
             pairs.append((ctx.get(dut.r.data.as_value()), ctx.get(rr.data.as_value())))
 
@@ -137,4 +153,10 @@ def test_two_write_memory_reads_as_one_memory_with_two_write_ports():
     sim.add_clock(1e-8)
     sim.add_testbench(tb)
     sim.run()
-    assert pairs[8:] == [(b, b) for _, b in pairs[8:]] and len({b for _, b in pairs}) > 100
+    assert pairs == [(b, b) for _, b in pairs] and len({b for _, b in pairs}) > 100
+
+
+def test_two_write_memory_block_must_divide_the_depth():
+    for block in (0, 3, 32):
+        with pytest.raises(ValueError, match="block"):
+            TwoWriteMemory(8, 16, block)
