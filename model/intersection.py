@@ -95,21 +95,29 @@ def _edges32(A0, A1, A2, B0, B1, B2, C0, C1, C2, ox, oy, oz, kx, ky, kz, sx, sy)
     c0 = C0 - ox
     c1 = C1 - oy
     c2 = C2 - oz
-    az = pick(a0, a1, a2, kz)
-    bz = pick(b0, b1, b2, kz)
-    cz = pick(c0, c1, c2, kz)
+    return _sheared_edges32(pick(a0, a1, a2, kx), pick(a0, a1, a2, ky), pick(a0, a1, a2, kz),
+                            pick(b0, b1, b2, kx), pick(b0, b1, b2, ky), pick(b0, b1, b2, kz),
+                            pick(c0, c1, c2, kx), pick(c0, c1, c2, ky), pick(c0, c1, c2, kz),
+                            sx, sy)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _sheared_edges32(a0, a1, az, b0, b1, bz, c0, c1, cz, sx, sy):
+    """:func:`_edges32` from the vertices' differences to the origin already in the ray's
+    axes (x, y, z = kx, ky, kz); ``bad`` covers all nine differences, so it does not matter
+    in which order they were picked."""
     pax = sx * az
     pay = sy * az
     pbx = sx * bz
     pby = sy * bz
     pcx = sx * cz
     pcy = sy * cz
-    ax = pick(a0, a1, a2, kx) - pax
-    ay = pick(a0, a1, a2, ky) - pay
-    bx = pick(b0, b1, b2, kx) - pbx
-    by = pick(b0, b1, b2, ky) - pby
-    cx = pick(c0, c1, c2, kx) - pcx
-    cy = pick(c0, c1, c2, ky) - pcy
+    ax = a0 - pax
+    ay = a1 - pay
+    bx = b0 - pbx
+    by = b1 - pby
+    cx = c0 - pcx
+    cy = c1 - pcy
     p0 = cx * by
     p1 = cy * bx
     p2 = ax * cy
@@ -119,8 +127,8 @@ def _edges32(A0, A1, A2, B0, B1, B2, C0, C1, C2, ox, oy, oz, kx, ky, kz, sx, sy)
     eu = p0 - p1
     ev = p2 - p3
     ew = p4 - p5
-    bad = (_tiny(a0) | _tiny(a1) | _tiny(a2) | _tiny(b0) | _tiny(b1) | _tiny(b2) | _tiny(c0)
-           | _tiny(c1) | _tiny(c2) | _tiny(pax) | _tiny(pay) | _tiny(pbx) | _tiny(pby)
+    bad = (_tiny(a0) | _tiny(a1) | _tiny(az) | _tiny(b0) | _tiny(b1) | _tiny(bz) | _tiny(c0)
+           | _tiny(c1) | _tiny(cz) | _tiny(pax) | _tiny(pay) | _tiny(pbx) | _tiny(pby)
            | _tiny(pcx) | _tiny(pcy) | _tiny(ax) | _tiny(ay) | _tiny(bx) | _tiny(by) | _tiny(cx)
            | _tiny(cy) | _tiny(p0) | _tiny(p1) | _tiny(p2) | _tiny(p3) | _tiny(p4) | _tiny(p5)
            | _tiny(eu) | _tiny(ev) | _tiny(ew))
@@ -190,43 +198,9 @@ def intersect32_lanes(tri, l0, l1, kx, ky, kz, o_t, s_t, st, ht, hu, hv):
     ox, oy, oz = o_t[kx], o_t[ky], o_t[kz]
     sxs, sys_, szs = s_t[0], s_t[1], s_t[2]
     for l in range(l0, l1):
-        a0 = Ax - ox[l]
-        a1 = Ay - oy[l]
-        az = Az - oz[l]
-        b0 = Bx - ox[l]
-        b1 = By - oy[l]
-        bz = Bz - oz[l]
-        c0 = Cx - ox[l]
-        c1 = Cy - oy[l]
-        cz = Cz - oz[l]
-        sx = sxs[l]
-        sy = sys_[l]
-        pax = sx * az
-        pay = sy * az
-        pbx = sx * bz
-        pby = sy * bz
-        pcx = sx * cz
-        pcy = sy * cz
-        ax = a0 - pax
-        ay = a1 - pay
-        bx = b0 - pbx
-        by = b1 - pby
-        cx = c0 - pcx
-        cy = c1 - pcy
-        p0 = cx * by
-        p1 = cy * bx
-        p2 = ax * cy
-        p3 = ay * cx
-        p4 = bx * ay
-        p5 = by * ax
-        eu = p0 - p1
-        ev = p2 - p3
-        ew = p4 - p5
-        bad = (_tiny(a0) | _tiny(a1) | _tiny(az) | _tiny(b0) | _tiny(b1) | _tiny(bz) | _tiny(c0)
-               | _tiny(c1) | _tiny(cz) | _tiny(pax) | _tiny(pay) | _tiny(pbx) | _tiny(pby)
-               | _tiny(pcx) | _tiny(pcy) | _tiny(ax) | _tiny(ay) | _tiny(bx) | _tiny(by)
-               | _tiny(cx) | _tiny(cy) | _tiny(p0) | _tiny(p1) | _tiny(p2) | _tiny(p3)
-               | _tiny(p4) | _tiny(p5) | _tiny(eu) | _tiny(ev) | _tiny(ew))
+        az, bz, cz, eu, ev, ew, bad = _sheared_edges32(
+            Ax - ox[l], Ay - oy[l], Az - oz[l], Bx - ox[l], By - oy[l], Bz - oz[l],
+            Cx - ox[l], Cy - oy[l], Cz - oz[l], sxs[l], sys_[l])
         edge_miss = (((eu < _ZERO) | (ev < _ZERO) | (ew < _ZERO))
                      & ((eu > _ZERO) | (ev > _ZERO) | (ew > _ZERO)))
         s0, det, t, u, v, bad2 = _hit32(az, bz, cz, eu, ev, ew, szs[l])
