@@ -123,6 +123,7 @@ def test_band_rays_are_the_frames_rays(cornell):
     _, corner, dx, dy = camera_basis(cam.position, cam.look_at, cam.up, cam.fov_y, w, h)
     px, py = band.pixel % w + 0.5, band.pixel // w + y0 + 0.5
     ref = corner + px[:, None] * dx + py[:, None] * dy
+    # a float64 reference, so a tolerance; the format rays are compared exactly above
     np.testing.assert_allclose(band.dir, ref, rtol=1e-5, atol=1e-6)
     assert not np.array_equal(band_rays(SMALL, scene.camera, w, h, 0, rows).dir, band.dir)
 

@@ -304,6 +304,8 @@ def test_secondary_geometry_float64():
     ok = np.linalg.norm(p, axis=1) < 100            # eps = 1e-3 is above the rounding there
     assert np.all(np.sum(off * g, axis=1)[ok] > 0)
     assert np.all(np.sum(off * d, axis=1)[ok] < 0)
+    # against float64 geometry, not the RTL: the RTL's secondary rays are compared bit for
+    # bit in tests/test_rgs.py
     assert np.allclose(np.linalg.norm(n, axis=1), 1, atol=1e-5)
     assert np.all(np.sum(n * g, axis=1) >= 0)
     want = d - 2 * np.sum(d * n, axis=1, keepdims=True) * n
