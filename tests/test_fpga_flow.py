@@ -72,3 +72,12 @@ def test_native_yosys_synthesizes(tmp_path):
     e = run("fp_add", Config(), out=tmp_path, pnr=False, yosys="yosys")
     assert e["yosys"] == "yosys" and e["status"] == "synthesized"
     assert e["resources"]["lut4"] > 100 and e["resources"]["ff"] > 50
+
+
+def test_speed_grade_checked_and_shown(tmp_path):
+    from rtl.fpga.flow import _fmax_text
+    with pytest.raises(SystemExit, match="grades 6, 7, 8"):
+        run("fp_add", Config(), out=tmp_path, pnr=False, speed=5)
+    fmax = {"achieved_mhz": 84.2}
+    assert _fmax_text({"speed": 8}, fmax) == "84.2 (speed 8)"
+    assert _fmax_text({}, fmax) == "84.2"               # runs before --speed: grade 6

