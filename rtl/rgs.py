@@ -183,6 +183,17 @@ class _Datapath(wiring.Component):
         self._sch = Schedule(m, self.en, self.fmt, self.latencies, dry, self.share)
         return self._sch
 
+    def _emit(self, m: Module, sch: Schedule, dry: bool) -> int:
+        """The ``_build`` of a datapath written as ``_graph(m, sch, t0, dry)`` (its operations
+        from inputs ready at cycle ``t0``, returning the outputs' cycle and values): one copy
+        from cycle 0, its outputs on the ports, the valid along."""
+        L, outs = self._graph(m, sch, 0, dry)
+        if not dry:
+            m.d.comb += self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L,
+                                                     "valid"))
+            m.d.comb += [getattr(self, k).eq(v) for k, v in outs.items()]
+        return L
+
     def _build(self, m: Module, dry: bool = False) -> int:
         raise TypeError(f"{type(self).__name__}: a datapath defines _build(m, dry) (its "
                         "stages; returns the latency)")
@@ -635,19 +646,23 @@ class SecondaryPipe(_Datapath):
                          {"p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
+        return self._emit(m, self._schedule(m, dry), dry)
+
+    def _graph(self, m: Module, sch: Schedule, t0: int, dry: bool) -> tuple:
+        """The operations, inputs ready at cycle ``t0``: ``(L, outputs)``, the cycle the
+        outputs are ready in and ``{port name: value}`` (None when ``dry``)."""
         fmt = self.fmt
-        sch = self._schedule(m, dry)
         at = sch.at
-        vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), 0) for a in range(3)]  # noqa: E731
+        vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), t0) for a in range(3)]  # noqa: E731
         d, o, nf = vec(self.dir, "d"), vec(self.org, "o"), vec(self.nf, "nf")
         nv = [vec(self.nv[c], f"nv{c}_") for c in range(3)]
-        t, u, v, eps = ((wire(m, x, name), 0) for x, name in
+        t, u, v, eps = ((wire(m, x, name), t0) for x, name in
                         ((self.t, "t"), (self.u, "u"), (self.v, "v"), (self.eps, "eps")))
-        one = (_fp_const(fmt, "one"), 0)
+        one = (_fp_const(fmt, "one"), t0)
         # -- face: g = -nf if dot(nf, d) > 0 -------------------------------------------------
         dn = _dot(sch, nf, d, "face_dot")
         flip = wire(m, _positive(fmt, dn[0]), "face_flip")
-        g = [(wire(m, _neg_if(fmt, at(nf[a][0], 0, dn[1]), flip), f"g{a}"), dn[1])
+        g = [(wire(m, _neg_if(fmt, at(nf[a][0], t0, dn[1]), flip), f"g{a}"), dn[1])
              for a in range(3)]
         # -- dir_norm: w = d * (1 / sqrt(dot(d, d))) -----------------------------------------
         rl = sch.op("div", one, sch.op("sqrt", _dot(sch, d, d, "dir_dot"), None, "dir_len"),
@@ -675,19 +690,15 @@ class SecondaryPipe(_Datapath):
         n = [(wire(m, _neg_if(fmt, at(n1[a][0], tn, side[1]), back), f"n{a}"), side[1])
              for a in range(3)]
         # -- reflect: r = d - (2 * dot(d, n)) * n ---------------------------------------------
-        two = (Const(fmt.to_bits(2.0).item(), fmt.width), 0)
+        two = (Const(fmt.to_bits(2.0).item(), fmt.width), t0)
         k = sch.op("mul", two, _dot(sch, d, n, "refl_dot"), "refl_k")
         r = [sch.op("sub", d[a], sch.op("mul", k, n[a], f"refl_m{a}"), f"r{a}") for a in range(3)]
         L = max(x[1] for x in (*p0, *g, *n, *r))
         if dry:
-            return L
+            return L, None
         out = lambda xs: Cat(*(at(x[0], x[1], L) for x in xs))  # noqa: E731
-        m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
-            self.p0.eq(out(p0)), self.g.eq(out(g)), self.n.eq(out(n)), self.r.eq(out(r)),
-            self.o_tag.eq(at(self.tag, 0, L)),
-        ]
-        return L
+        return L, {"p0": out(p0), "g": out(g), "n": out(n), "r": out(r),
+                   "o_tag": at(self.tag, t0, L)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -751,24 +762,29 @@ class LightPipe(_Datapath):
                           "rmiss": Out(f3)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
+        return self._emit(m, self._schedule(m, dry), dry)
+
+    def _graph(self, m: Module, sch: Schedule, t0: int, dry: bool) -> tuple:
+        """The operations, inputs ready at cycle ``t0``: ``(L, outputs)``, the cycle the
+        outputs are ready in and ``{port name: value}`` (None when ``dry``)."""
         fmt = self.fmt
-        sch = self._schedule(m, dry)
         at = sch.at
         # -- the shadow ray (model.rgs.shadow_dir) ----------------------------------------------
         point = wire(m, self.point, "point")
-        sub = [sch.op("sub", (self.light[a], 0), (self.p0[a], 0), f"ldir{a}") for a in range(3)]
+        sub = [sch.op("sub", (self.light[a], t0), (self.p0[a], t0), f"ldir{a}")
+               for a in range(3)]
         ts = max(x[1] for x in sub)
-        ds = [(wire(m, Mux(at(point, 0, ts), at(*sub[a], ts), at(self.light[a], 0, ts)),
+        ds = [(wire(m, Mux(at(point, t0, ts), at(*sub[a], ts), at(self.light[a], t0, ts)),
                     f"dir{a}"),
                ts) for a in range(3)]
-        face = _dot(sch, [(self.g[a], 0) for a in range(3)], ds, "face_dot")
-        vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), 0) for a in range(3)]  # noqa: E731
+        face = _dot(sch, [(self.g[a], t0) for a in range(3)], ds, "face_dot")
+        vec = lambda port, name: [(wire(m, port[a], f"{name}{a}"), t0) for a in range(3)]  # noqa: E731
         n, r, kd, ks = vec(self.n, "n"), vec(self.r, "r"), vec(self.kd, "kd"), vec(self.ks, "ks")
         lc, bg = vec(self.lc, "lc"), vec(self.bg, "bg")
-        wt, kr, amb = ((wire(m, x, name), 0) for x, name in
+        wt, kr, amb = ((wire(m, x, name), t0) for x, name in
                        ((self.wt, "wt"), (self.kr, "kr"), (self.amb, "amb")))
         shin = wire(m, self.shin, "shin")
-        one = (_fp_const(fmt, "one"), 0)
+        one = (_fp_const(fmt, "one"), t0)
         # -- light: il = 1 / |ld|, ir = 1 / |r|; ndl, rdl clamped at +0 -----------------------
         il = sch.op("div", one, sch.op("sqrt", _dot(sch, ds, ds, "ll_dot"), None, "ll_len"),
                     "ll_rcp")
@@ -787,7 +803,7 @@ class LightPipe(_Datapath):
         for i in range(SHIN_BITS):
             prod = sch.op("mul", acc, p, f"pow_acc{i}")
             t = prod[1]
-            bit = at(shin[i], 0, t)
+            bit = at(shin[i], t0, t)
             acc = (wire(m, Mux(bit, prod[0], at(acc[0], acc[1], t)), f"pow_sel{i}"), t)
             if i < SHIN_BITS - 1:
                 p = sch.op("mul", p, p, f"pow_sq{i}")
@@ -803,22 +819,19 @@ class LightPipe(_Datapath):
         F = max(x[1] for x in (*col, *amb_c, *rmiss))      # the fixed-point conversions' cycle
         L = F + 1
         if dry:
-            return L
+            return L, None
         fixed = lambda xs, name: Cat(*(at(wire(m, to_fixed(fmt, at(x[0], x[1], F)),  # noqa: E731
                                                f"{name}{c}"), F, L)
                                        for c, x in enumerate(xs)))
-        m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
-            self.o_p0.eq(Cat(*(at(self.p0[a], 0, L) for a in range(3)))),
-            self.o_r.eq(Cat(*(at(x[0], x[1], L) for x in r))),
-            self.dir.eq(Cat(*(at(x[0], x[1], L) for x in ds))),
-            self.tmax.eq(Mux(at(point, 0, L), _fp_const(fmt, "one"), _fp_const(fmt, "+inf"))),
-            self.cast.eq(at(_positive(fmt, face[0]), face[1], L)),
-            self.col.eq(fixed(col, "fix_col")), self.amb_col.eq(fixed(amb_c, "fix_amb")),
-            self.wr.eq(at(wr[0], wr[1], L)), self.rmiss.eq(fixed(rmiss, "fix_rmiss")),
-            self.o_tag.eq(at(self.tag, 0, L)),
-        ]
-        return L
+        return L, {
+            "o_p0": Cat(*(at(self.p0[a], t0, L) for a in range(3))),
+            "o_r": Cat(*(at(x[0], x[1], L) for x in r)),
+            "dir": Cat(*(at(x[0], x[1], L) for x in ds)),
+            "tmax": Mux(at(point, t0, L), _fp_const(fmt, "one"), _fp_const(fmt, "+inf")),
+            "cast": at(_positive(fmt, face[0]), face[1], L),
+            "col": fixed(col, "fix_col"), "amb_col": fixed(amb_c, "fix_amb"),
+            "wr": at(wr[0], wr[1], L), "rmiss": fixed(rmiss, "fix_rmiss"),
+            "o_tag": at(self.tag, t0, L)}
 
 
 # ---------------------------------------------------------------------------------------------

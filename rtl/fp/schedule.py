@@ -103,15 +103,22 @@ class Schedule:
                 with m.If(en):
                     m.d.sync += self.phase.eq(Mux(self.phase == ii - 1, 0, self.phase + 1))
 
-    def start(self, valid: Value) -> Value:
-        """``valid`` gated to the cycles in which the datapath takes an input (every cycle, or
-        phase 0 with shared units)."""
-        return valid if self.share is None else valid & (self.phase == 0)
+    def start(self, valid: Value, t0: int = 0) -> Value:
+        """``valid`` gated to the cycles in which a datapath whose inputs are ready at cycle
+        ``t0`` takes an input (every cycle, or phase ``t0 mod ii`` with shared units)."""
+        return valid if self.share is None else valid & self.slot_at(t0)
+
+    def slot_at(self, t0: int) -> Value:
+        """1 in the cycles in which a datapath whose inputs are ready at cycle ``t0`` takes an
+        input. Several datapaths (or copies of one) built on one shared schedule, each from
+        its own ``t0``, share its units: an operation of each is placed at the absolute cycle
+        its operands are ready in, so the phases never collide."""
+        return Const(1, 1) if self.share is None else self.phase == t0 % self.share.ii
 
     @property
     def slot(self) -> Value:
         """1 in the cycles in which the datapath takes an input."""
-        return Const(1, 1) if self.share is None else self.phase == 0
+        return self.slot_at(0)
 
     @classmethod
     def default_latencies(cls, fmt: FPFormat, latencies: dict | None = None) -> dict:
