@@ -24,7 +24,7 @@ entered when the output is never stalled.
 """
 from __future__ import annotations
 
-from amaranth.hdl import C, Array, Cat, Const, Module, Mux, Signal, Value
+from amaranth.hdl import C, Array, Cat, Const, Elaboratable, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
@@ -43,7 +43,7 @@ from .rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
 __all__ = ["COORD_BITS", "PIXEL_BITS", "RaySetupIn", "EyeRequest", "EyeRay", "RaySetupPipe",
            "RaySetup", "EyeRayPipe", "EyeRays", "SecondaryPipe", "div_const",
            "div_const_params", "sample_converter", "LightPipe", "to_fixed", "wrap_coord",
-           "tex_pos", "TexCoordPipe", "TexFilterPipe", "TexIn", "TexOut", "Texture"]
+           "tex_pos", "ShadePool", "TexCoordPipe", "TexFilterPipe", "TexIn", "TexOut", "Texture"]
 
 PIXEL_BITS = 32        # pixel index y * width + x
 # COORD_BITS (model.config): sample coordinates (and image sizes in samples) below 2**16
@@ -165,13 +165,14 @@ class _Datapath(wiring.Component):
                 self.share = None
         self.ii = 1 if self.share is None else self.share.ii
         self.units = dict(self.counts if self.share is None else self.share.units)
+        self.per_ii = 1             # inputs taken per interval (ShadePool's LightPipe copies)
 
     @property
     def in_flight(self) -> int:
         """The most inputs inside the datapath at once, the one held at its output included
-        (inputs enter at least ``ii`` enabled cycles apart and leave after ``latency``):
-        ``latency // ii + 1``."""
-        return self.latency // self.ii + 1
+        (``per_ii`` inputs every ``ii`` enabled cycles, each leaving after ``latency``):
+        ``(latency // ii + 1) * per_ii``."""
+        return (self.latency // self.ii + 1) * self.per_ii
 
     @staticmethod
     def _dry() -> Module:
@@ -832,6 +833,76 @@ class LightPipe(_Datapath):
             "col": fixed(col, "fix_col"), "amb_col": fixed(amb_c, "fix_amb"),
             "wr": at(wr[0], wr[1], L), "rmiss": fixed(rmiss, "fix_rmiss"),
             "o_tag": at(self.tag, t0, L)}
+
+
+class ShadePool(Elaboratable):
+    """The shading datapaths on one pool of FP units: :class:`SecondaryPipe` and ``copies``
+    copies of :class:`LightPipe`'s operation graph in one modulo schedule over ``budget``
+    (``{"add": n, "mul": n}``, the paper's 3 and 4 for the shading), so the units serve
+    whichever datapath has an operation in a phase.
+
+    ``sec`` and ``shd`` are the two datapaths' components: their ports are the pool's (the
+    pool drives their outputs; their own ``elaborate`` is not used, and ``en`` is not: the
+    pool never stalls, so its consumers must take every output). In each interval of ``ii``
+    cycles ``sec`` takes a hit in phase 0 (``sec.i_slot``) and ``shd`` a (hit, light) token
+    in each of the phases ``t0`` (``shd.i_slot``; ``copies`` of them, spread over the
+    interval): ``ii`` is the least interval at which the budget takes ``SecondaryPipe``'s
+    operations and ``copies`` times ``LightPipe``'s. Every copy's outputs are delayed to one
+    latency (``shd.latency``), so tokens leave in the order they entered, in distinct
+    cycles, and ``shd`` looks like one pipe taking ``copies`` inputs per interval."""
+
+    def __init__(self, fmt: FPFormat, sec_tag_width: int, shd_tag_width: int,
+                 latencies: dict | None, budget: dict, copies: int):
+        if copies < 1:
+            raise ValueError(f"ShadePool: copies={copies}; LightPipe needs at least one")
+        if not budget:
+            raise ValueError("ShadePool: an FP unit budget ({'add': n, 'mul': n}) is needed")
+        self.fmt, self.copies = fmt, copies
+        self.sec = SecondaryPipe(fmt, sec_tag_width, latencies)
+        self.shd = LightPipe(fmt, shd_tag_width, latencies)
+        self.sec._MustUse__silence = self.shd._MustUse__silence = True   # ports only
+        self.counts = {c: self.sec.counts[c] + copies * self.shd.counts[c]
+                       for c in self.sec.counts}
+        self.share = Share.for_budget(self.counts, dict(budget), min_ii=max(2, copies))
+        self.ii = ii = self.share.ii
+        self.units = dict(self.share.units)
+        self.t0 = [j * ii // copies for j in range(copies)]
+        sec_l, shd_l = self._build(_Datapath._dry(), dry=True)
+        for pipe, lat, per in ((self.sec, sec_l, 1), (self.shd, shd_l, copies)):
+            pipe.latency, pipe.ii, pipe.per_ii = lat, ii, per
+            pipe.share, pipe.units = self.share, self.units
+        self.latency = max(sec_l, shd_l)
+
+    def _build(self, m: Module, dry: bool = False) -> tuple:
+        """Both graphs on one schedule: ``(sec latency, shd latency)``."""
+        sec, shd = self.sec, self.shd
+        sch = Schedule(m, Const(1, 1), self.fmt, sec.latencies, dry, self.share)
+        ls, souts = sec._graph(m, sch, 0, dry)
+        graphs = [shd._graph(m, sch, t, dry) for t in self.t0]
+        lmax = max(L - t for (L, _), t in zip(graphs, self.t0))
+        if dry:
+            return ls, lmax
+        m.d.comb += [sec.i_slot.eq(sch.slot_at(0)),
+                     sec.o_valid.eq(_valid_chain(m, Const(1, 1), sec.i_valid & sch.slot_at(0),
+                                                 ls, "sec_valid"))]
+        m.d.comb += [getattr(sec, k).eq(v) for k, v in souts.items()]
+        valids, outs = [], {}
+        for j, ((L, o), t) in enumerate(zip(graphs, self.t0)):
+            v = _valid_chain(m, Const(1, 1), shd.i_valid & sch.slot_at(t), lmax, f"shd{j}_valid")
+            for k, x in o.items():
+                x = sch.at(x, L, t + lmax)
+                outs[k] = x if j == 0 else Mux(v, x, outs[k])
+            valids.append(v)
+        m.d.comb += [shd.i_slot.eq(Cat(*(sch.slot_at(t) for t in self.t0)).any()),
+                     shd.o_valid.eq(Cat(*valids).any())]
+        m.d.comb += [getattr(shd, k).eq(v) for k, v in outs.items()]
+        self._sch = sch
+        return ls, lmax
+
+    def elaborate(self, platform):
+        m = Module()
+        self._build(m)
+        return m
 
 
 # ---------------------------------------------------------------------------------------------

@@ -491,6 +491,67 @@ def run_light(c: ColourCases, lights, point, fmt: FPFormat, *, latencies=None, s
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
 
 
+def run_pool(hits: Hits, c: ColourCases, lights, point, fmt: FPFormat, *, budget: dict,
+             copies: int, latencies=None, seed: int = 0, p_bubble: float = 0.2):
+    """Every hit through the pool's ``SecondaryPipe`` and every colour case through its
+    ``LightPipe`` copies at once (``rtl.rgs.ShadePool``), with random bubbles on both inputs:
+    each input is offered until a slot of its datapath takes it (the slots checked against
+    the phases: ``sec`` in phase 0, ``shd`` in the phases ``t0``), and every output is checked
+    at its exact cycle (``latency`` after its input) against the model. Returns
+    ``(pool, cycles, mismatches)``."""
+    import random
+    from rtl.rgs import ShadePool
+    from .common import run
+    pool = ShadePool(fmt, max(1, len(hits).bit_length()), max(1, len(c).bit_length()),
+                     latencies, budget, copies)
+    streams = []
+    for pipe, (ins, outs), phases in (
+            (pool.sec, secondary_ports(hits, fmt, max(1, len(hits).bit_length())), {0}),
+            (pool.shd, light_ports(c, lights, point, fmt, max(1, len(c).bit_length())),
+             set(pool.t0))):
+        ports = {k: getattr(pipe, k) for k in (*ins, *outs)}
+        ports = {k: (p.as_value() if hasattr(p, "as_value") else p) for k, p in ports.items()}
+        streams.append((pipe, ins, outs, ports, phases))
+    rnd = random.Random(seed)
+    bad: list = []
+    total = {"cycles": 0}
+
+    async def bench(ctx):
+        nxt = [0] * len(streams)
+        due: list[dict] = [{} for _ in streams]     # cycle -> item whose output is due
+        cycle = 0
+        while any(nxt[k] < len(s[1]["tag"]) or due[k] for k, s in enumerate(streams)):
+            for k, (pipe, ins, outs, ports, phases) in enumerate(streams):
+                n = len(ins["tag"])
+                valid = nxt[k] < n and rnd.random() >= p_bubble
+                for name in ins:
+                    ctx.set(ports[name], ins[name][nxt[k]] if valid else
+                            0 if name == "tag" else rnd.getrandbits(len(ports[name])))
+                ctx.set(pipe.i_valid, valid)
+                slot = ctx.get(pipe.i_slot)
+                if slot != (cycle % pool.ii in phases):
+                    bad.append(f"cycle {cycle}: {type(pipe).__name__} i_slot={slot}")
+                item = due[k].pop(cycle, None)
+                o_valid = ctx.get(pipe.o_valid)
+                if o_valid != (item is not None):
+                    bad.append(f"cycle {cycle}: {type(pipe).__name__} o_valid={o_valid}")
+                if item is not None:
+                    for name, want in outs.items():
+                        got = ctx.get(ports[name])
+                        if got != want[item]:
+                            bad.append(f"cycle {cycle}, {type(pipe).__name__} item #{item}: "
+                                       f"{name} = {got:#x}, expected {want[item]:#x}")
+                if valid and slot:
+                    due[k][cycle + pipe.latency] = nxt[k]
+                    nxt[k] += 1
+            await ctx.tick()
+            cycle += 1
+        total["cycles"] = cycle
+
+    run(pool, bench)
+    return pool, total["cycles"], bad
+
+
 @dataclass
 class TextureCases:
     """Textured hits for ``model.rgs.texture_kd`` and the RTL's ``Texture``: ``kd`` (N, 3),

@@ -451,3 +451,49 @@ def test_shared_ray_setup():
     assert ii > 1
     assert np.all(np.diff(r.in_cycles) == ii)
     assert r.out_cycles == [c + r.latency for c in r.in_cycles]
+
+
+# ----------------------------------------------------------------------------------------------
+# one pool for the shading (ShadePool)
+# ----------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("fmt,latencies,budget,copies", [
+    (B32, None, {"add": 3, "mul": 4}, 3),
+    (FPFormat(6, 10), {"add": 2, "mul": 1, "div": 5, "sqrt": 4}, {"add": 1, "mul": 2}, 1),
+    (FPFormat(8, 12), {"add": 1, "mul": 2, "div": 3, "sqrt": 2, "delay_ram": 2},
+     {"add": 3, "mul": 4}, 4)], ids=str)
+def test_shade_pool(fmt, latencies, budget, copies):
+    """SecondaryPipe and ``copies`` LightPipe graphs on one pool of units: hits and (hit,
+    light) tokens offered together with 20 % bubbles, each taken in its datapath's slots, every
+    output at its exact cycle bit for bit with the model."""
+    from tb.rgs import colour_cases, run_pool
+    hits = secondary_cases(fmt, 16, seed=fmt.frac_bits)
+    c = colour_cases(fmt, 30, seed=fmt.frac_bits)
+    pool, cycles, bad = run_pool(hits, c, LIGHTS, POINT, fmt, budget=budget, copies=copies,
+                                 latencies=latencies, seed=copies)
+    assert bad == [], bad[:5]
+    assert len(set(pool.t0)) == copies and cycles > len(c) * pool.ii // copies
+
+
+def test_shade_pool_units_fit_the_budget():
+    """The pool's interval is the least at which the budget takes SecondaryPipe's operations
+    and ``copies`` times LightPipe's; no class has more units than that needs; each datapath
+    reports the interval, its inputs per interval and its in-flight bound."""
+    from rtl.rgs import ShadePool
+    sec, shd = SecondaryPipe(B32), LightPipe(B32)
+    for budget, copies in (({"add": 3, "mul": 4}, 3), ({"add": 1, "mul": 1}, 1),
+                           ({"mul": 4}, 4)):
+        p = ShadePool(B32, 4, 4, None, budget, copies)
+        counts = {k: sec.counts[k] + copies * shd.counts[k] for k in sec.counts}
+        want = max([copies, 2] + [-(-counts[k] // n) for k, n in budget.items()])
+        assert p.ii == want, (budget, copies)
+        for k, n in counts.items():
+            if n:
+                assert p.units[k] == -(-n // p.ii)
+                assert k not in budget or p.units[k] <= budget[k]
+        assert p.shd.per_ii == copies and p.shd.in_flight == (p.shd.latency // p.ii + 1) * copies
+        assert p.sec.latency >= sec.latency and p.shd.latency >= shd.latency
+    with pytest.raises(ValueError, match="copies"):
+        ShadePool(B32, 4, 4, None, {"add": 3}, 0)
+    with pytest.raises(ValueError, match="budget"):
+        ShadePool(B32, 4, 4, None, {}, 2)
