@@ -63,6 +63,7 @@ secondary packets go (they are complete only then).
 """
 from __future__ import annotations
 
+from math import gcd
 from types import SimpleNamespace
 
 from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
@@ -80,8 +81,8 @@ from model.rgs import FIX_BITS
 
 from .common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
 from .memport import WORD_BITS, MemReadPort
-from .rgs import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe, Texture,
-                  _fp_const)
+from .rgs import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe,
+                  ShadePool, Texture, _fp_const)
 from .rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
 
 __all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
@@ -176,6 +177,7 @@ class Slave(wiring.Component):
 
     def __init__(self, cfg: Config):
         self.cfg = cfg
+        self.pool = None                 # ShadePool (Config.rgs_fp_pool)
         L = cfg.rgs_lights
         if L < 0 or L + 1 >= 1 << SUB_BITS:
             raise ConfigError(f"rgs_lights={L} must be in 0..{(1 << SUB_BITS) - 2}")
@@ -187,7 +189,7 @@ class Slave(wiring.Component):
             self.sec_tag = data.StructLayout({
                 "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-            self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget())
+            self.pool = None
             # hit: a shadow ray is wanted (a hit, lights); rhit: the ray hit; first: the hit's
             # first token; tlast: its last; last: the packet's last token; spawn: the packet
             # reserved pending buffers
@@ -195,7 +197,13 @@ class Slave(wiring.Component):
                 "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "rhit": 1,
                 "refl": 1, "first": 1, "tlast": 1, "last": 1, "spawn": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-            self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat, cfg.rgs_budget())
+            if cfg.rgs_fp_pool:          # one pool of units for both, a LightPipe entry per light
+                self.pool = ShadePool(cfg.fmt, self.sec_tag.size, self.shd_tag.size, lat,
+                                      cfg.rgs_budget(), max(1, L))
+                self.sec, self.shd = self.pool.sec, self.pool.shd
+            else:
+                self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget())
+                self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat, cfg.rgs_budget())
             self.buffers = slave_buffers(cfg)
             # the texture unit: in step with SecondaryPipe, as deep a queue as it can hold
             self.tex = (Texture(cfg, 1, lat, out_depth=self.sec.in_flight + 1)
@@ -233,6 +241,34 @@ class Slave(wiring.Component):
                   "box_cull"):
             m.d.comb += getattr(eye, k).eq(getattr(self, k))
         return eye
+
+    def _sec_out(self, m: Module, sec, sec_en: Signal) -> SimpleNamespace:
+        """SecondaryPipe's output as the light loop sees it: ``valid``, ``tag``, ``p0``,
+        ``g``, ``n``, ``r``; the loop sets ``take`` when it is done with it. ``sec_en`` is set
+        to 1 when the pipe may take a hit. Alone the pipe holds its output: its ``en`` stalls
+        it until taken. On the shading pool it never stalls: its outputs go into a queue as
+        deep as the hits it can hold, and a hit enters only while the pipe and the queue
+        together hold fewer."""
+        v3 = vec3(self.cfg)
+        take = Signal()
+        if self.pool is None:
+            m.d.comb += [sec_en.eq(~sec.o_valid | take), sec.en.eq(sec_en)]
+            return SimpleNamespace(valid=sec.o_valid, tag=sec.o_tag, p0=sec.p0, g=sec.g,
+                                   n=sec.n, r=sec.r, take=take)
+        lay = data.StructLayout({"p0": v3, "g": v3, "n": v3, "r": v3, "tag": self.sec_tag})
+        depth = sec.in_flight + 1
+        m.submodules.secq = q = SyncFIFO(width=lay.size, depth=depth)
+        held = Signal(range(depth + 1))           # hits in the pipe and the queue
+        fed = sec.i_valid & sec.i_slot
+        m.d.comb += [sec_en.eq(held < depth),
+                     q.w_en.eq(sec.o_valid),
+                     q.w_data.eq(Cat(sec.p0.as_value(), sec.g.as_value(), sec.n.as_value(),
+                                     sec.r.as_value(), sec.o_tag)),
+                     q.r_en.eq(take)]
+        m.d.sync += held.eq(held + fed - (take & q.r_rdy))
+        h = data.View(lay, q.r_data)
+        return SimpleNamespace(valid=q.r_rdy, tag=h.tag.as_value(), p0=h.p0, g=h.g, n=h.n,
+                               r=h.r, take=take)
 
     def _slots(self, m: Module) -> SimpleNamespace:
         """The RTC packet slots: ``free`` (mask), ``any``/``new`` (the lowest free one),
@@ -331,8 +367,11 @@ class Slave(wiring.Component):
         w = fmt.width
         eye = self._eye(m)
         m.submodules.setup = setup = self.setup
-        m.submodules.sec = sec = self.sec
-        m.submodules.shd = shd = self.shd
+        sec, shd = self.sec, self.shd
+        if self.pool is None:
+            m.submodules.sec, m.submodules.shd = sec, shd
+        else:
+            m.submodules.shading = self.pool
         m.d.comb += [setup.box_lo.eq(self.box_lo), setup.box_hi.eq(self.box_hi),
                      setup.box_cull.eq(self.box_cull)]
         K = Signal(range(L + 2))
@@ -516,8 +555,8 @@ class Slave(wiring.Component):
         head = data.View(ctx_lay, ctxq.r_data)
         resp = self.shade.resp
         feed_ok = ctxq.r_rdy & (~head.hit | resp.valid)
-        sec_en = Signal()
-        m.d.comb += sec.en.eq(sec_en)
+        sec_en = Signal()                  # SecondaryPipe may take a hit (its output has room)
+        sec_out = self._sec_out(m, sec, sec_en)
         feed = Signal()
         m.d.comb += [ctxq.r_en.eq(feed), resp.ready.eq(feed & head.hit)]
         rdata = resp.payload.data
@@ -536,10 +575,21 @@ class Slave(wiring.Component):
         if tex is not None:
             m.submodules.tex = tex
             wiring.connect(m, tex.mem, wiring.flipped(self.texel))
-            ti = tex.i.payload
+            ti = Signal(tex.i.payload.shape())
+            if gcd(sec.ii, tex.coord.ii) > 1:
+                # the pipes' slots (each with its own phase) may never meet in one cycle: a
+                # queue as deep as the hits SecondaryPipe holds takes the texture's inputs
+                m.submodules.texq = texq = SyncFIFO(width=len(ti.as_value()),
+                                                    depth=sec.in_flight + 1)
+                m.d.comb += [texq.w_en.eq(feed), texq.w_data.eq(ti),
+                             feed.eq(feed_ok & sec_en & sec.i_slot & texq.w_rdy),
+                             tex.i.valid.eq(texq.r_rdy), tex.i.payload.eq(texq.r_data),
+                             texq.r_en.eq(tex.i.ready)]
+            else:           # coprime intervals (or none): both slots meet every lcm cycles
+                m.d.comb += [tex.i.valid.eq(feed_ok & sec_en & sec.i_slot),
+                             tex.i.payload.eq(ti),
+                             feed.eq(feed_ok & sec_en & sec.i_slot & tex.i.ready)]
             m.d.comb += [
-                tex.i.valid.eq(feed_ok & sec_en & sec.i_slot),
-                feed.eq(feed_ok & sec_en & sec.i_slot & tex.i.ready),
                 ti.u.eq(head.u), ti.v.eq(head.v),
                 ti.uv.eq(vec(REC_UV, 6)),
                 ti.addr.eq(field(REC_TEX_ADDR)), ti.tw.eq(field(REC_TEX_SIZE)[:16]),
@@ -569,16 +619,16 @@ class Slave(wiring.Component):
                      st.depth.eq(head.depth)]
 
         # -- light loop: each SecondaryPipe output to LightPipe once per light (once if no hit) -----
-        so = data.View(self.sec_tag, sec.o_tag)
+        so = data.View(self.sec_tag, sec_out.tag)
         li = Signal(range(max(2, L)))
         commit_wait = Signal()              # a packet's last token is in LightPipe
         tokens_last = Mux(so.hit & (self.n_lights != 0), li == self.n_lights - 1, 1)
         amb_tok = so.hit & (li == 0) & self.colour   # the token makes the hit's ambient record
         amb_cnt = Signal(range(amb_depth + 1))   # ambient records reserved (in flight, queued)
-        loop_go = (sec.o_valid & mat_ok & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth)) &
+        loop_go = (sec_out.valid & mat_ok & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth)) &
                    shd.i_slot)
         take = loop_go & tokens_last
-        m.d.comb += [sec_en.eq(~sec.o_valid | take), matq.r_en.eq(take)]
+        m.d.comb += [sec_out.take.eq(take), matq.r_en.eq(take)]
         if tex is not None:
             m.d.comb += tex.o.ready.eq(take)
         with m.If(loop_go):
@@ -591,10 +641,11 @@ class Slave(wiring.Component):
         def per_light(regs):                # light li's register (a complete read mux)
             return Array([x.as_value() for x in regs] + [regs[0].as_value()] *
                          ((1 << ceil_log2(max(2, L))) - L))[li] if L else 0
-        m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(sec.p0), shd.g.eq(sec.g),
+        m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(sec_out.p0),
+                     shd.g.eq(sec_out.g),
                      shd.light.eq(per_light(self.lights)),
                      shd.point.eq(self.light_point.bit_select(li, 1) if L else 0),
-                     shd.n.eq(sec.n), shd.r.eq(sec.r), shd.kd.eq(mat_kd), shd.ks.eq(mat.ks),
+                     shd.n.eq(sec_out.n), shd.r.eq(sec_out.r), shd.kd.eq(mat_kd), shd.ks.eq(mat.ks),
                      shd.kr.eq(mat.kr), shd.shin.eq(mat.shin), shd.wt.eq(mat.wt),
                      shd.lc.eq(per_light(self.light_col)), shd.amb.eq(self.amb),
                      shd.bg.eq(self.bg),
