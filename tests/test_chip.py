@@ -294,3 +294,48 @@ def test_chip_shared_fp_units_verilator(cornell):
                           max_cycles=2_000_000)
     assert full.mismatches == [] and full.rays == r.rays
     assert r.cycles > full.cycles
+
+
+def test_chip_shade_pool_verilator(cornell):
+    """The slaves' shading on one pool of the paper's 3 adders and 4 multipliers
+    (``Config.rgs_fp_pool``: SecondaryPipe and a LightPipe entry per light register in one
+    modulo schedule, ``rtl.rgs.ShadePool``): Cornell 16x16 with its shadows, the mirror sphere
+    and the textured floor, under back-pressure and random memory latency: every ray and every
+    pixel bit-exact. The pool's interval is even and the texture unit's 2, so their slots
+    never meet in one cycle: the texture's inputs wait in their queue."""
+    from math import gcd
+    from rtl.rgs_slave import Slave
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
+    slave = Slave(cfg)
+    slave._MustUse__silence = True
+    pool = slave.pool
+    assert pool.units["add"] <= 3 and pool.units["mul"] <= 4 and pool.copies == cfg.rgs_lights
+    assert slave.sec.ii == slave.shd.ii == pool.ii and gcd(pool.ii, slave.tex.coord.ii) > 1
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
+                       scene=scene, progress=False, max_cycles=2_000_000)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    assert r.color is not None and r.color.max() > 0
+    assert (r.frame_rays.kind == REFLECTION).any() and (r.frame_rays.kind == SHADOW).any()
+
+
+@pytest.mark.slow
+def test_chip_shared_slots_that_never_meet_verilator(cornell):
+    """One adder and two multipliers per datapath: SecondaryPipe's interval (30) and the
+    texture unit's (6) share a factor, so in a given phase offset their slots never meet in
+    one cycle; a hit must go into both at once, so before the texture's input queue the slave
+    waited forever (the first packets' shading never started). Cornell 16x16, every ray and
+    pixel bit-exact."""
+    from math import gcd
+    from rtl.rgs_slave import Slave
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2, rgs_fp_adders=1, rgs_fp_muls=2)
+    slave = Slave(cfg)
+    slave._MustUse__silence = True
+    assert gcd(slave.sec.ii, slave.tex.coord.ii) > 1
+    r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
+                       scene=scene, progress=False, max_cycles=3_000_000)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
+    assert r.color is not None and r.color.max() > 0

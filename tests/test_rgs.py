@@ -497,3 +497,6 @@ def test_shade_pool_units_fit_the_budget():
         ShadePool(B32, 4, 4, None, {"add": 3}, 0)
     with pytest.raises(ValueError, match="budget"):
         ShadePool(B32, 4, 4, None, {}, 2)
+    from model.config import ConfigError
+    with pytest.raises(ConfigError, match="rgs_fp_pool"):
+        Config(rgs_fp_pool=True)                      # a pool needs a budget of units
