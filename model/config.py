@@ -76,6 +76,9 @@ class Config:
     # ii = ceil(operations / n) (docs/rgs.md). The paper's slave has 3 adders, 4 multipliers.
     rgs_fp_adders: int = 0
     rgs_fp_muls: int = 0
+    # the shading datapaths (secondary rays, light and colour) share one pool of those units
+    # instead of a budget each (docs/rgs.md, "One pool for the shading"); needs a budget
+    rgs_fp_pool: bool = False
     tex_cache_kb: int = 4          # each RGS slave's texel cache (64-bit words, two RGBA8
                                    # texels each); 0: no texture unit (a textured surface shows
                                    # its material's colour)
@@ -136,6 +139,10 @@ class Config:
         if self.rgs_fp_adders < 0 or self.rgs_fp_muls < 0:
             raise ConfigError(f"rgs_fp_adders={self.rgs_fp_adders}, rgs_fp_muls="
                               f"{self.rgs_fp_muls} must be >= 0 (0: a unit per operation)")
+        if self.rgs_fp_pool and not (self.rgs_fp_adders or self.rgs_fp_muls):
+            raise ConfigError("rgs_fp_pool=True shares a budget of FP units among the shading "
+                              "datapaths: give rgs_fp_adders and/or rgs_fp_muls (the paper's "
+                              "slave: 3 and 4)")
         if self.tex_cache_kb < 0:
             raise ConfigError(f"tex_cache_kb={self.tex_cache_kb} must be >= 0 (0: no texture "
                               "unit)")
