@@ -60,6 +60,8 @@ bench: setup
 	    --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 $(CHIP_SMALL) \
 	    --rgs-fp-adders 3 --rgs-fp-muls 4 --out build/bench $(EYE_ONLY_FLAG)
+	$(SAARCOR) bench chip --scene scenes/cornell.toml --res 8x8 --seeds 1000 $(CHIP_SMALL) \
+	    --rgs-fp-adders 3 --rgs-fp-muls 4 --rgs-fp-pool 1 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench resources --yosys --json build/bench/resources.json
 	$(SAARCOR) bench skipping --scene scenes/office.toml --res 128x96 --rtl --second-run

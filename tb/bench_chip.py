@@ -62,7 +62,8 @@ def main(argv=None) -> int:
     frame_scene = None if args.eye_only else scene
     tag = "_eye" if args.eye_only else ""
     if cfg.rgs_budget():                 # the slaves' FP units shared: a file of its own
-        tag += f"_add{cfg.rgs_fp_adders}_mul{cfg.rgs_fp_muls}"
+        tag += f"_add{cfg.rgs_fp_adders}_mul{cfg.rgs_fp_muls}" + ("_pool" if cfg.rgs_fp_pool
+                                                                   else "")
     if args.seeds:
         part = f"_from{args.first_seed}" if args.first_seed != 1 else ""
         return stall_bench(cfg, prep.image, scene.camera, w, h, args.seeds,
