@@ -184,13 +184,15 @@ class _Datapath(wiring.Component):
         self._sch = Schedule(m, self.en, self.fmt, self.latencies, dry, self.share)
         return self._sch
 
-    def _emit(self, m: Module, sch: Schedule, dry: bool) -> int:
+    def _emit(self, m: Module, sch: Schedule, dry: bool, en: Value | None = None) -> int:
         """The ``_build`` of a datapath written as ``_graph(m, sch, t0, dry)`` (its operations
         from inputs ready at cycle ``t0``, returning the outputs' cycle and values): one copy
-        from cycle 0, its outputs on the ports, the valid along."""
+        from cycle 0, its outputs on the ports, the valid along (loading when ``en``, default
+        the ``en`` port)."""
         L, outs = self._graph(m, sch, 0, dry)
         if not dry:
-            m.d.comb += self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L,
+            en = self.en if en is None else en
+            m.d.comb += self.o_valid.eq(_valid_chain(m, en, sch.start(self.i_valid), L,
                                                      "valid"))
             m.d.comb += [getattr(self, k).eq(v) for k, v in outs.items()]
         return L
@@ -877,15 +879,12 @@ class ShadePool(Elaboratable):
         """Both graphs on one schedule: ``(sec latency, shd latency)``."""
         sec, shd = self.sec, self.shd
         sch = Schedule(m, Const(1, 1), self.fmt, sec.latencies, dry, self.share)
-        ls, souts = sec._graph(m, sch, 0, dry)
+        ls = sec._emit(m, sch, dry, en=Const(1, 1))        # as alone, on the pool's schedule
         graphs = [shd._graph(m, sch, t, dry) for t in self.t0]
         lmax = max(L - t for (L, _), t in zip(graphs, self.t0))
         if dry:
             return ls, lmax
-        m.d.comb += [sec.i_slot.eq(sch.slot_at(0)),
-                     sec.o_valid.eq(_valid_chain(m, Const(1, 1), sec.i_valid & sch.slot_at(0),
-                                                 ls, "sec_valid"))]
-        m.d.comb += [getattr(sec, k).eq(v) for k, v in souts.items()]
+        m.d.comb += sec.i_slot.eq(sch.slot)
         valids, outs = [], {}
         for j, ((L, o), t) in enumerate(zip(graphs, self.t0)):
             v = _valid_chain(m, Const(1, 1), shd.i_valid & sch.slot_at(t), lmax, f"shd{j}_valid")
@@ -896,7 +895,6 @@ class ShadePool(Elaboratable):
         m.d.comb += [shd.i_slot.eq(Cat(*(sch.slot_at(t) for t in self.t0)).any()),
                      shd.o_valid.eq(Cat(*valids).any())]
         m.d.comb += [getattr(shd, k).eq(v) for k, v in outs.items()]
-        self._sch = sch
         return ls, lmax
 
     def elaborate(self, platform):

@@ -189,7 +189,6 @@ class Slave(wiring.Component):
             self.sec_tag = data.StructLayout({
                 "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-            self.pool = None
             # hit: a shadow ray is wanted (a hit, lights); rhit: the ray hit; first: the hit's
             # first token; tlast: its last; last: the packet's last token; spawn: the packet
             # reserved pending buffers
@@ -576,19 +575,19 @@ class Slave(wiring.Component):
             m.submodules.tex = tex
             wiring.connect(m, tex.mem, wiring.flipped(self.texel))
             ti = Signal(tex.i.payload.shape())
+            go = feed_ok & sec_en & sec.i_slot            # SecondaryPipe takes the hit now
             if gcd(sec.ii, tex.coord.ii) > 1:
                 # the pipes' slots (each with its own phase) may never meet in one cycle: a
                 # queue as deep as the hits SecondaryPipe holds takes the texture's inputs
                 m.submodules.texq = texq = SyncFIFO(width=len(ti.as_value()),
                                                     depth=sec.in_flight + 1)
                 m.d.comb += [texq.w_en.eq(feed), texq.w_data.eq(ti),
-                             feed.eq(feed_ok & sec_en & sec.i_slot & texq.w_rdy),
+                             feed.eq(go & texq.w_rdy),
                              tex.i.valid.eq(texq.r_rdy), tex.i.payload.eq(texq.r_data),
                              texq.r_en.eq(tex.i.ready)]
             else:           # coprime intervals (or none): both slots meet every lcm cycles
-                m.d.comb += [tex.i.valid.eq(feed_ok & sec_en & sec.i_slot),
-                             tex.i.payload.eq(ti),
-                             feed.eq(feed_ok & sec_en & sec.i_slot & tex.i.ready)]
+                m.d.comb += [tex.i.valid.eq(go), tex.i.payload.eq(ti),
+                             feed.eq(go & tex.i.ready)]
             m.d.comb += [
                 ti.u.eq(head.u), ti.v.eq(head.v),
                 ti.uv.eq(vec(REC_UV, 6)),

@@ -103,10 +103,10 @@ class Schedule:
                 with m.If(en):
                     m.d.sync += self.phase.eq(Mux(self.phase == ii - 1, 0, self.phase + 1))
 
-    def start(self, valid: Value, t0: int = 0) -> Value:
-        """``valid`` gated to the cycles in which a datapath whose inputs are ready at cycle
-        ``t0`` takes an input (every cycle, or phase ``t0 mod ii`` with shared units)."""
-        return valid if self.share is None else valid & self.slot_at(t0)
+    def start(self, valid: Value) -> Value:
+        """``valid`` gated to the cycles in which the datapath takes an input (every cycle, or
+        phase 0 with shared units)."""
+        return valid if self.share is None else valid & self.slot
 
     def slot_at(self, t0: int) -> Value:
         """1 in the cycles in which a datapath whose inputs are ready at cycle ``t0`` takes an
