@@ -21,7 +21,7 @@ class FPDiv(wiring.Component):
     Steps: unpack (classes, sign, exponent difference), M+3 restoring-division steps of one
     quotient bit each (W = M+1 significand bits: the quotient of two significands lies in
     (1/2, 2), so M+3 bits give W significant bits and a guard bit; the remainder is the sticky
-    bit), then round (a one-bit normalization and the RNE increment) and pack (exponent carry,
+    bit, formed in the last step's stage), then round (a one-bit normalization and the RNE increment) and pack (exponent carry,
     flush/overflow and special-value select).
 
     Latency: ``latency`` cycles (default ``ceil((M+3)/4) + 1``: four quotient bits per stage
@@ -62,16 +62,22 @@ class FPDiv(wiring.Component):
         for i in range(self.qbits):
             r = v.r
             ge = r >= v.d
-            rem = Mux(ge, r - v.d, r)[:W]                     # < d < 2**W
-            nr = Cat(0, rem) if i < self.qbits - 1 else rem  # next partial remainder (2*rem)
             q = Cat(ge, v.q)                                  # new bit at the LSB
-            v = st(r=nr, d=v.d, q=q, exp=v.exp, sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
+            if i < self.qbits - 1:
+                rem = Mux(ge, r - v.d, r)[:W]                 # < d < 2**W
+                v = st(r=Cat(0, rem), d=v.d, q=q, exp=v.exp, sign=v.sign, nan=v.nan,
+                       inf=v.inf, zero=v.zero)                # next partial remainder 2*rem
+            else:
+                # the last step keeps only the sticky bit (final remainder != 0), formed beside
+                # the subtract rather than after it: r - d != 0 is r != d
+                v = st(r=Mux(ge, r != v.d, r != 0), q=q, exp=v.exp, sign=v.sign, nan=v.nan,
+                       inf=v.inf, zero=v.zero)
         # -- normalize, round, pack, specials -------------------------------------------------
         # q = floor(sa/sb * 2**(M+2)), in [2**(M+1), 2**(M+3)): leading bit M+2 or M+1
         top = v.q[self.qbits - 1]
         sig = Mux(top, v.q, v.q << 1)[:self.qbits]
         exp = v.exp - 1 + top
-        v = st(**round_inc(m, fmt, exp, sig, sticky=v.r != 0), sign=v.sign, nan=v.nan,
+        v = st(**round_inc(m, fmt, exp, sig, sticky=v.r), sign=v.sign, nan=v.nan,
                inf=v.inf, zero=v.zero)
         o = Mux(v.nan, canonical_nan(fmt),
                 Mux(v.inf, special(fmt, v.sign, True),
