@@ -184,12 +184,16 @@ class Cache(wiring.Component):
 
         issue = SyncFIFO(width=self.mshr_bits, depth=O)
         m.submodules.issue = issue
+        # the queue entry at the tail and the lowest free MSHR are not in use, so S1's fields
+        # are written into them every cycle, whatever the lookup decides; only the used and
+        # valid bits wait for ``s1_go`` (the lookup's verdict drives a few bits, not the
+        # entries' enables)
+        for i in range(Q):
+            with m.If((q_tail == i) & ~q_used[i]):
+                m.d.sync += [q_set[i].eq(s1_set), q_way[i].eq(way), q_off[i].eq(s1_off),
+                             q_utag[i].eq(s1_utag)]
         with m.If(s1_go):
             m.d.sync += q_used.bit_select(q_tail, 1).eq(1)
-            for i in range(Q):
-                with m.If(q_tail == i):
-                    m.d.sync += [q_set[i].eq(s1_set), q_way[i].eq(way), q_off[i].eq(s1_off),
-                                 q_utag[i].eq(s1_utag)]
             m.d.sync += q_tail.eq(Mux(q_tail == Q - 1, 0, q_tail + 1))
             with m.If(hit):
                 m.d.sync += self.hits.eq(self.hits + 1)
@@ -205,8 +209,9 @@ class Cache(wiring.Component):
             m.d.comb += new_row[W * entry:].eq(victim + 1)
         m.d.comb += [twp.addr.eq(s1_set), twp.data.eq(new_row), twp.en.eq(s1_go & ~hit),
                      issue.w_data.eq(free), issue.w_en.eq(s1_go & ~hit)]
+        spare = [(free == i) & ~mshr_valid[i] for i in range(O)]    # written while free
         for i in range(O):
-            with m.If(s1_go & ~hit & (free == i)):
+            with m.If(spare[i]):
                 m.d.sync += [mshr_set[i].eq(s1_set), mshr_way[i].eq(victim),
                              mshr_line[i].eq(Cat(s1_set, s1_tag)), mshr_cnt[i].eq(0)]
                 if self.fast:       # the line's first word address, formed in S0 -> S1
@@ -247,7 +252,7 @@ class Cache(wiring.Component):
         if self.fast:       # per MSHR "the next word completes the line", kept in a register
             nearly = Signal(O, name="mshr_last")
             for i in range(O):
-                with m.If(s1_go & ~hit & (free == i)):
+                with m.If(spare[i]):
                     m.d.sync += nearly[i].eq(LW == 1)
                 with m.Elif(fire & (f_m == i)):
                     m.d.sync += nearly[i].eq(mshr_cnt[i] + 1 == LW - 1)
