@@ -11,9 +11,20 @@ from amaranth.utils import ceil_log2
 
 from model.fp import FPFormat
 
-__all__ = ["COUNTER_BITS", "lowest", "rr_pick", "OutputStage", "SkidBuffer", "from_binary32"]
+__all__ = ["COUNTER_BITS", "popcount", "lowest", "rr_pick", "OutputStage", "SkidBuffer", "from_binary32"]
 
 COUNTER_BITS = 32      # every statistics counter the hardware reports
+
+
+def popcount(v: Value) -> Value:
+    """The number of ones in ``v``, as a balanced tree of adds (depth log2 of the width)."""
+    terms = [Value.cast(b) for b in Value.cast(v)]
+    if not terms:
+        return C(0, 1)
+    while len(terms) > 1:
+        terms = [terms[k] + terms[k + 1] if k + 1 < len(terms) else terms[k]
+                 for k in range(0, len(terms), 2)]
+    return terms[0]
 
 
 def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:

@@ -24,7 +24,7 @@ from amaranth.utils import ceil_log2
 from model.config import Config
 from model.fp import FPFormat
 
-from .common import COUNTER_BITS, OutputStage, from_binary32, lowest
+from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, popcount
 from .fp.cmp import compare
 from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
@@ -288,8 +288,19 @@ class IntersectionUnit(wiring.Component):
                 s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread), s.index[nxt].eq(p.tri),
                 s.last.bit_select(nxt, 1).eq(p.last),
             ]
-            if self.cfg.fast_clock:         # the mask's lane count (for the issue stage)
-                m.d.sync += s.count[nxt].eq(sum(p.mask[i] for i in range(lanes)))
+        s.counted = alloc
+        if self.cfg.fast_clock:
+            # the mask's lane count (for the issue stage), a cycle after the request from a
+            # register of its mask; the slot counts as allocated for the issue stage once its
+            # count is written (its triangle arrives later than that anyway)
+            c_v, c_slot, c_mask = Signal(), Signal(self.slot_bits), Signal(lanes, name="c_mask")
+            m.d.sync += c_v.eq(tri_in.valid & tri_in.ready)
+            with m.If(tri_in.valid & tri_in.ready):
+                m.d.sync += [c_slot.eq(nxt), c_mask.eq(tri_in.payload.mask)]
+            with m.If(c_v):
+                m.d.sync += s.count[c_slot].eq(popcount(c_mask))
+            s.counted = Signal(n_slots)
+            m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots])
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
@@ -323,13 +334,13 @@ class IntersectionUnit(wiring.Component):
             with m.If(go):
                 with m.If(last):
                     m.d.comb += s.alloc_clr.eq(1 << t_slot)
-                    m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.alloc.bit_select(nxt, 1)),
+                    m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.counted.bit_select(nxt, 1)),
                                  rem.eq(s.mask[nxt]), left.eq(s.count[nxt]),
                                  last.eq(s.count[nxt] == 1)]
                 with m.Else():
                     m.d.sync += [rem.eq(rest), left.eq(left - 1), last.eq(left == 2)]
             with m.Elif(~rem_v):
-                m.d.sync += [rem_v.eq(s.alloc.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
+                m.d.sync += [rem_v.eq(s.counted.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
                              left.eq(s.count[t_slot]), last.eq(s.count[t_slot] == 1)]
             lane_last = last
         else:
