@@ -9,9 +9,10 @@ holds otherwise, so the whole datapath stalls as one.
 
 With ``latencies["delay_ram"] = n`` (``Config.delay_ram``, n >= 2) a delay of n or more cycles
 is a ring buffer instead: a small memory written and read at one pointer that advances when
-``en`` is 1 (at most :data:`RING_MAX` deep; longer delays are rings in series). It gives every
-value in the same cycle as the register chain; on an FPGA the memory is LUT-RAM (ECP5:
-``TRELLIS_DPR16X4``, 16 x 4 bits) where the chain was ``n`` flip-flops per bit.
+``en`` is 1, followed by one register (the ring holds n - 1 cycles, at most :data:`RING_MAX`
+words; longer delays are rings in series), so the memory's read feeds only a flip-flop. It
+gives every value in the same cycle as the register chain; on an FPGA the memory is LUT-RAM
+(ECP5: ``TRELLIS_DPR16X4``, 16 x 4 bits) where the chain was ``n`` flip-flops per bit.
 
 **Shared units** (``share``: :class:`Share`, an initiation interval ``ii`` and a unit count per
 class): the datapath takes a new input only every ``ii``-th enabled cycle (a phase counter
@@ -154,16 +155,22 @@ class Schedule:
         while d not in taps:                  # extend from the longest delay made so far
             e = max(k for k in taps if k < d)
             if self.ram_min and d - e >= self.ram_min:
-                n = min(d - e, RING_MAX)
-                taps[e + n] = self._ring(taps[e], n)
+                # a ring of n - 1 words, then a register: the memory's read feeds only a
+                # flip-flop, never the logic of the operation that reads the value
+                n = min(d - e, RING_MAX + 1)
+                taps[e + n] = self._reg(self._ring(taps[e], n - 1))
             else:
-                reg = Signal.like(taps[e], name=f"dly{self.n}", reset_less=True)
-                self.n += 1
-                with self.m.If(self.en):
-                    self.m.d.sync += reg.eq(taps[e])
-                taps[e + 1] = reg
-                self.reg_bits += len(reg)
+                taps[e + 1] = self._reg(taps[e])
         return taps[d]
+
+    def _reg(self, value: Value) -> Signal:
+        """``value`` a cycle later: a register that loads when ``en`` is 1."""
+        reg = Signal.like(value, name=f"dly{self.n}", reset_less=True)
+        self.n += 1
+        with self.m.If(self.en):
+            self.m.d.sync += reg.eq(value)
+        self.reg_bits += len(reg)
+        return reg
 
     def _strided(self, value: Value, t0: int, t: int) -> Value:
         """With shared units: ``value`` (ready at ``t0``) at ``t`` from a chain of registers that
