@@ -11,20 +11,25 @@ from amaranth.utils import ceil_log2
 
 from model.fp import FPFormat
 
-__all__ = ["COUNTER_BITS", "popcount", "lowest", "rr_pick", "OutputStage", "SkidBuffer", "from_binary32"]
+__all__ = ["COUNTER_BITS", "popcount", "sum_tree", "lowest", "rr_pick", "OutputStage", "SkidBuffer", "from_binary32"]
 
 COUNTER_BITS = 32      # every statistics counter the hardware reports
 
 
-def popcount(v: Value) -> Value:
-    """The number of ones in ``v``, as a balanced tree of adds (depth log2 of the width)."""
-    terms = [Value.cast(b) for b in Value.cast(v)]
+def sum_tree(terms) -> Value:
+    """The sum of ``terms`` as a balanced tree of adds (depth log2 of their number)."""
+    terms = [Value.cast(t) for t in terms]
     if not terms:
         return C(0, 1)
     while len(terms) > 1:
         terms = [terms[k] + terms[k + 1] if k + 1 < len(terms) else terms[k]
                  for k in range(0, len(terms), 2)]
     return terms[0]
+
+
+def popcount(v: Value) -> Value:
+    """The number of ones in ``v`` (a balanced tree of adds)."""
+    return sum_tree(list(Value.cast(v)))
 
 
 def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:

@@ -24,7 +24,7 @@ from amaranth.utils import ceil_log2
 from model.config import Config
 from model.fp import FPFormat
 
-from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, popcount
+from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, popcount, sum_tree
 from .fp.cmp import compare
 from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
@@ -290,17 +290,23 @@ class IntersectionUnit(wiring.Component):
             ]
         s.counted = alloc
         if self.cfg.fast_clock:
-            # the mask's lane count (for the issue stage), a cycle after the request from a
-            # register of its mask; the slot counts as allocated for the issue stage once its
-            # count is written (its triangle arrives later than that anyway)
+            # the mask's lane count (for the issue stage) in two cycles after the request:
+            # counts of 8-lane groups from a register of the mask, then their sum; the slot
+            # counts as allocated for the issue stage once its count is written (its triangle
+            # comes from memory later than that anyway)
             c_v, c_slot, c_mask = Signal(), Signal(self.slot_bits), Signal(lanes, name="c_mask")
-            m.d.sync += c_v.eq(tri_in.valid & tri_in.ready)
+            groups = [c_mask[k:k + 8] for k in range(0, lanes, 8)]
+            c2_v, c2_slot = Signal(), Signal(self.slot_bits)
+            c2_part = [Signal(4, name=f"c2_part{k}") for k in range(len(groups))]
+            m.d.sync += [c_v.eq(tri_in.valid & tri_in.ready), c2_v.eq(c_v), c2_slot.eq(c_slot)]
+            m.d.sync += [c2_part[k].eq(popcount(g)) for k, g in enumerate(groups)]
             with m.If(tri_in.valid & tri_in.ready):
                 m.d.sync += [c_slot.eq(nxt), c_mask.eq(tri_in.payload.mask)]
-            with m.If(c_v):
-                m.d.sync += s.count[c_slot].eq(popcount(c_mask))
+            with m.If(c2_v):
+                m.d.sync += s.count[c2_slot].eq(sum_tree(c2_part))
             s.counted = Signal(n_slots)
-            m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots])
+            m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots]
+                                     & ~Mux(c2_v, 1 << c2_slot, 0)[:n_slots])
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
