@@ -288,9 +288,20 @@ class Cache(wiring.Component):
         def pending(set_, way_):
             return Cat(*[mshr_valid[i] & (mshr_set[i] == set_) & (mshr_way[i] == way_)
                          for i in range(O)]).any()
-        if self.fast:       # per queue entry in parallel, then select the head's
-            h_pending = Cat(*(pending(q_set[i], q_way[i]) for i in range(Q))).bit_select(
-                q_head, 1)
+        if self.fast:
+            # per queue entry, a cycle ahead into a register: the same function of the queue
+            # entries and the MSHRs, taken over their values after this cycle's writes (the
+            # entry at the tail and the spare MSHR take S1's fields; valid bits set and cleared)
+            wait = Signal(Q, name="q_wait")
+            v_nxt = (mshr_valid | set_mask) & ~clr_mask
+            m_set = [Mux(spare[j], s1_set, mshr_set[j]) for j in range(O)]
+            m_way = [Mux(spare[j], victim, mshr_way[j]) for j in range(O)]
+            for i in range(Q):
+                wr = (q_tail == i) & ~q_used[i]
+                e_set, e_way = Mux(wr, s1_set, q_set[i]), Mux(wr, way, q_way[i])
+                m.d.sync += wait[i].eq(Cat(*[v_nxt[j] & (m_set[j] == e_set) & (m_way[j] == e_way)
+                                             for j in range(O)]).any())
+            h_pending = wait.bit_select(q_head, 1)
         else:
             h_pending = pending(h_set, h_way)
         m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
