@@ -13,7 +13,7 @@ Pipeline::
                                MSHR + issue FIFO -> mem.req       |
                                mem.resp -> fill buffer -> data array -> [data read] -> port.resp
 
-* Latency: a hit 3 cycles (5 with ``fast``; request accepted in cycle t, response valid in t+3) when nothing older
+* Latency: a hit 3 cycles (6 with ``fast``; request accepted in cycle t, response valid in t+3) when nothing older
   waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle. Responses come back **in
   request order** (a hit behind a miss waits for it), so tags are returned but never reordered.
 * Throughput: one lookup and one response per cycle; ``outstanding`` line fetches in flight;
@@ -47,18 +47,21 @@ class Cache(wiring.Component):
     """Non-blocking read-only cache; see the module docstring for latency and throughput.
 
     Parameters: ``geom`` (:class:`model.cache.CacheGeometry`), ``tag_width`` (unit tags),
-    ``fast`` (``Config.fast_clock``: registers for a faster clock, hit latency 5 instead of 3
+    ``fast`` (``Config.fast_clock``: registers for a faster clock, hit latency 6 instead of 3
     (``hit_latency``): ``port.req.ready`` is a register (a skid register takes a request
     while the lookup stalls), the tag row is read a stage before the compare and goes
     straight into a register (the tag and data block RAMs' outputs feed only registers; a
     tag write the read missed is forwarded), the data word is registered before
-    ``port.resp``, the line's memory address is formed as the request enters S1 and the
-    lowest free MSHR is kept in a register). The hit/miss sequence is the same either way.
+    ``port.resp``, the line's memory address is formed as the request enters S1, the
+    lowest free MSHR is kept in a register, S1's compare verdict is registered and a stage S2
+    decides from registers (S2's tag write forwarded into S1's compare), and each queue
+    entry's "line still being filled" is a register). The hit/miss sequence is the same
+    either way.
     """
 
     def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
         self.geom, self.fast = geom, fast
-        self.hit_latency = 5 if fast else 3
+        self.hit_latency = 6 if fast else 3
         g = geom
         self.mshr_bits = max(1, ceil_log2(g.outstanding))
         self.word_bits = max(1, ceil_log2(g.line_words))
@@ -111,14 +114,41 @@ class Cache(wiring.Component):
             row = self._fast_front(m, tags, twp, s1_valid, s1_go,
                                    (s1_off, s1_set, s1_tag, s1_utag))
 
-        rr = row[W * entry:]
-        def hits(r):
-            return Cat(*[r[w * entry] & (r[w * entry + 1:(w + 1) * entry] == s1_tag)
+        def hits(r, tag):
+            return Cat(*[r[w * entry] & (r[w * entry + 1:(w + 1) * entry] == tag)
                          for w in range(W)])
-        if self.fast:       # compare both candidate rows, select the verdict
-            hit_vec = Mux(self._s1_fwd, hits(self._s1_fwd_row), hits(self._s1_raw))
+        # --- the decision (S1, or S2 with ``fast``): hit, or allocate the miss; ``go`` = it
+        # finishes this cycle; ``new_row`` = its tag row with the miss allocated
+        go = Signal()
+        new_row = Signal(len(row))
+        if self.fast:
+            # S2: S1's compare verdict in a register, so S2 decides (and the stages before it
+            # advance) from registers only; S2's tag write of this cycle is forwarded into
+            # S1's compare and row (S1 moves on in the same cycle, since S2 does)
+            s2_valid = Signal()
+            s2_off, s2_set, s2_tag = Signal(ob), Signal(sb), Signal(tb)
+            s2_utag = Signal(utag_bits)
+            s2_row = Signal(len(row), name="s2_row")
+            s2_hits = Signal(W, name="s2_hits")
+            s2_mem = Signal(g.mem_addr_width, name="s2_mem_addr")
+            s2_move = Signal()
+            m.d.comb += [s2_move.eq(~s2_valid | go), s1_go.eq(s1_valid & s2_move)]
+            w2 = twp.en & (twp.addr == s1_set)
+            s1_hits = Mux(w2, hits(new_row, s1_tag),
+                          Mux(self._s1_fwd, hits(self._s1_fwd_row, s1_tag),
+                              hits(self._s1_raw, s1_tag)))
+            with m.If(s2_move):
+                m.d.sync += [s2_valid.eq(s1_valid), s2_off.eq(s1_off), s2_set.eq(s1_set),
+                             s2_tag.eq(s1_tag), s2_utag.eq(s1_utag),
+                             s2_row.eq(Mux(w2, new_row, row)), s2_hits.eq(s1_hits),
+                             s2_mem.eq(self._s1_mem)]
+            d_valid, d_off, d_set, d_tag, d_utag = s2_valid, s2_off, s2_set, s2_tag, s2_utag
+            d_row, hit_vec = s2_row, s2_hits
         else:
-            hit_vec = hits(row)
+            m.d.comb += s1_go.eq(go)
+            d_valid, d_off, d_set, d_tag, d_utag = s1_valid, s1_off, s1_set, s1_tag, s1_utag
+            d_row, hit_vec = row, hits(row, s1_tag)
+        rr = d_row[W * entry:]
         hit = Signal()
         hit_way = Signal(wb)
         m.d.comb += hit.eq(hit_vec.any())
@@ -164,35 +194,35 @@ class Cache(wiring.Component):
 
         if self.fast:
             # the victim slot's "busy" from registers: per way, computed a cycle ahead for the
-            # request then in S0 (which S1 takes next) and for S1's own (while it waits), plus
+            # request then in S1 (which S2 takes next) and for S2's own (while it waits), plus
             # the queue entry written in that cycle; a slot freed meanwhile costs one cycle
             def busy_ways(set_):
                 return Cat(*(slot_busy(set_, w) for w in range(W)))
-            b0, b1 = Signal(W, name="busy_s0"), Signal(W, name="busy_s1")
-            fresh = Signal()                       # S1 was loaded in the last cycle
+            b0, b1 = Signal(W, name="busy_s1"), Signal(W, name="busy_s2")
+            fresh = Signal()                       # S2 was loaded in the last cycle
             lw_v, lw_set, lw_way = Signal(), Signal(sb), Signal(wb)
-            m.d.sync += [b0.eq(busy_ways(self._s0_set)), b1.eq(busy_ways(s1_set)),
-                         fresh.eq(self._s1_move), lw_v.eq(s1_go), lw_set.eq(s1_set),
+            m.d.sync += [b0.eq(busy_ways(s1_set)), b1.eq(busy_ways(d_set)),
+                         fresh.eq(s2_move), lw_v.eq(go), lw_set.eq(d_set),
                          lw_way.eq(way)]
-            last_w = Mux(lw_v & (lw_set == s1_set), Const(1, W) << lw_way, 0)[:W]
+            last_w = Mux(lw_v & (lw_set == d_set), Const(1, W) << lw_way, 0)[:W]
             busy = (Mux(fresh, b0, b1) | last_w).bit_select(victim, 1) if W > 1 else \
                 Mux(fresh, b0, b1) | last_w
         else:
-            busy = slot_busy(s1_set, victim)
-        m.d.comb += s1_go.eq(s1_valid & ~q_full & (hit | (any_free & ~busy)))
-        m.d.comb += [self.lookup_valid.eq(s1_go), self.lookup_hit.eq(hit)]
+            busy = slot_busy(d_set, victim)
+        m.d.comb += go.eq(d_valid & ~q_full & (hit | (any_free & ~busy)))
+        m.d.comb += [self.lookup_valid.eq(go), self.lookup_hit.eq(hit)]
 
         issue = SyncFIFO(width=self.mshr_bits, depth=O)
         m.submodules.issue = issue
         # the queue entry at the tail and the lowest free MSHR are not in use, so S1's fields
         # are written into them every cycle, whatever the lookup decides; only the used and
-        # valid bits wait for ``s1_go`` (the lookup's verdict drives a few bits, not the
+        # valid bits wait for ``go`` (the lookup's verdict drives a few bits, not the
         # entries' enables)
         for i in range(Q):
             with m.If((q_tail == i) & ~q_used[i]):
-                m.d.sync += [q_set[i].eq(s1_set), q_way[i].eq(way), q_off[i].eq(s1_off),
-                             q_utag[i].eq(s1_utag)]
-        with m.If(s1_go):
+                m.d.sync += [q_set[i].eq(d_set), q_way[i].eq(way), q_off[i].eq(d_off),
+                             q_utag[i].eq(d_utag)]
+        with m.If(go):
             m.d.sync += q_used.bit_select(q_tail, 1).eq(1)
             m.d.sync += q_tail.eq(Mux(q_tail == Q - 1, 0, q_tail + 1))
             with m.If(hit):
@@ -200,22 +230,21 @@ class Cache(wiring.Component):
             with m.Else():
                 m.d.sync += self.misses.eq(self.misses + 1)
         # miss: allocate the line in the tag row, an MSHR, and queue its fetch
-        new_row = Signal.like(row)
-        m.d.comb += new_row.eq(row)
+        m.d.comb += new_row.eq(d_row)
         for w in range(W):
             with m.If(victim == w):
-                m.d.comb += new_row[w * entry:(w + 1) * entry].eq(Cat(Const(1, 1), s1_tag))
+                m.d.comb += new_row[w * entry:(w + 1) * entry].eq(Cat(Const(1, 1), d_tag))
         if wb:
             m.d.comb += new_row[W * entry:].eq(victim + 1)
-        m.d.comb += [twp.addr.eq(s1_set), twp.data.eq(new_row), twp.en.eq(s1_go & ~hit),
-                     issue.w_data.eq(free), issue.w_en.eq(s1_go & ~hit)]
+        m.d.comb += [twp.addr.eq(d_set), twp.data.eq(new_row), twp.en.eq(go & ~hit),
+                     issue.w_data.eq(free), issue.w_en.eq(go & ~hit)]
         spare = [(free == i) & ~mshr_valid[i] for i in range(O)]    # written while free
         for i in range(O):
             with m.If(spare[i]):
-                m.d.sync += [mshr_set[i].eq(s1_set), mshr_way[i].eq(victim),
-                             mshr_line[i].eq(Cat(s1_set, s1_tag)), mshr_cnt[i].eq(0)]
+                m.d.sync += [mshr_set[i].eq(d_set), mshr_way[i].eq(victim),
+                             mshr_line[i].eq(Cat(d_set, d_tag)), mshr_cnt[i].eq(0)]
                 if self.fast:       # the line's first word address, formed in S0 -> S1
-                    m.d.sync += mshr_addr[i].eq(self._s1_mem)
+                    m.d.sync += mshr_addr[i].eq(s2_mem)
 
         # --- issue: the line's words, one request per cycle -----------------------------------
         word = Signal(range(LW))
@@ -268,7 +297,7 @@ class Cache(wiring.Component):
         set_mask = Signal(O)
         clr_mask = Signal(O)
         for i in range(O):
-            m.d.comb += [set_mask[i].eq(s1_go & ~hit & (free == i)),
+            m.d.comb += [set_mask[i].eq(go & ~hit & (free == i)),
                          clr_mask[i].eq(last & (f_m == i))]
         m.d.sync += mshr_valid.eq((mshr_valid | set_mask) & ~clr_mask)
         if self.fast:
@@ -279,7 +308,7 @@ class Cache(wiring.Component):
             m.d.comb += kept.eq(mshr_valid & ~clr_mask)
             k_any, k_idx = lowest(m, ~kept, "mshr_free_keep")
             a_any, a_idx = lowest(m, ~(kept | (Const(1, O) << free)[:O]), "mshr_free_alloc")
-            alloc = s1_go & ~hit
+            alloc = go & ~hit
             m.d.sync += [any_free.eq(Mux(alloc, a_any, k_any)), free.eq(Mux(alloc, a_idx, k_idx))]
 
         # --- output: head of the queue once its line is present -----------------------------
@@ -294,11 +323,11 @@ class Cache(wiring.Component):
             # entry at the tail and the spare MSHR take S1's fields; valid bits set and cleared)
             wait = Signal(Q, name="q_wait")
             v_nxt = (mshr_valid | set_mask) & ~clr_mask
-            m_set = [Mux(spare[j], s1_set, mshr_set[j]) for j in range(O)]
+            m_set = [Mux(spare[j], d_set, mshr_set[j]) for j in range(O)]
             m_way = [Mux(spare[j], victim, mshr_way[j]) for j in range(O)]
             for i in range(Q):
                 wr = (q_tail == i) & ~q_used[i]
-                e_set, e_way = Mux(wr, s1_set, q_set[i]), Mux(wr, way, q_way[i])
+                e_set, e_way = Mux(wr, d_set, q_set[i]), Mux(wr, way, q_way[i])
                 m.d.sync += wait[i].eq(Cat(*[v_nxt[j] & (m_set[j] == e_set) & (m_way[j] == e_way)
                                              for j in range(O)]).any())
             h_pending = wait.bit_select(q_head, 1)
@@ -369,7 +398,6 @@ class Cache(wiring.Component):
         s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
         s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
         s0_set = s0_addr[ob:ob + sb]
-        self._s0_set, self._s1_move = s0_set, s1_move
         # the line's first memory word, a stage before an allocation needs it (the add and
         # the multiply by the line's words are then off the lookup's path)
         s1_mem = Signal(g.mem_addr_width, name="s1_mem_addr")

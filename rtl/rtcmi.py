@@ -14,7 +14,7 @@ The hit/miss sequence of each cache for a given request sequence is
 addresses are ``model.rtc.rtcmi_trace``'s).
 
 Latency and throughput: the cache's (``rtl/cache.py``: a hit answers 3 cycles after the
-request, 5 with ``cfg.fast_clock``; one lookup a cycle).
+request, 6 with ``cfg.fast_clock``; one lookup a cycle).
 """
 from __future__ import annotations
 

@@ -145,7 +145,7 @@ def test_rtl_cache_hit_latency_and_throughput(fast):
     r = run_cache(g, IMAGE, addrs, memory="ideal", latency=4, gaps=[0, 30] + [0] * 18,
                   fast=fast)
     lat = [c - s for (c, _), s in zip(r.responses, r.sent)]
-    hit = 5 if fast else 3
+    hit = 6 if fast else 3
     cache = Cache(g, fast=fast)
     cache._MustUse__silence = True           # not elaborated: only its documented latency
     assert cache.hit_latency == hit
