@@ -194,19 +194,17 @@ class Cache(wiring.Component):
 
         if self.fast:
             # the victim slot's "busy" from registers: per way, computed a cycle ahead for the
-            # request then in S1 (which S2 takes next) and for S2's own (while it waits), plus
-            # the queue entry written in that cycle; a slot freed meanwhile costs one cycle
+            # request S2 holds next (S1's if S2 takes it, else its own), plus whether the
+            # queue entry written in that cycle is in that set; a slot freed meanwhile costs
+            # one cycle
             def busy_ways(set_):
                 return Cat(*(slot_busy(set_, w) for w in range(W)))
-            b0, b1 = Signal(W, name="busy_s1"), Signal(W, name="busy_s2")
-            fresh = Signal()                       # S2 was loaded in the last cycle
-            lw_v, lw_set, lw_way = Signal(), Signal(sb), Signal(wb)
-            m.d.sync += [b0.eq(busy_ways(s1_set)), b1.eq(busy_ways(d_set)),
-                         fresh.eq(s2_move), lw_v.eq(go), lw_set.eq(d_set),
-                         lw_way.eq(way)]
-            last_w = Mux(lw_v & (lw_set == d_set), Const(1, W) << lw_way, 0)[:W]
-            busy = (Mux(fresh, b0, b1) | last_w).bit_select(victim, 1) if W > 1 else \
-                Mux(fresh, b0, b1) | last_w
+            nxt_set = Mux(s2_move, s1_set, d_set)
+            b, lw_v, lw_way = Signal(W, name="busy_s2"), Signal(), Signal(wb)
+            m.d.sync += [b.eq(Mux(s2_move, busy_ways(s1_set), busy_ways(d_set))),
+                         lw_v.eq(go & (d_set == nxt_set)), lw_way.eq(way)]
+            last_w = Mux(lw_v, Const(1, W) << lw_way, 0)[:W]
+            busy = (b | last_w).bit_select(victim, 1) if W > 1 else b | last_w
         else:
             busy = slot_busy(d_set, victim)
         m.d.comb += go.eq(d_valid & ~q_full & (hit | (any_free & ~busy)))
