@@ -183,7 +183,13 @@ class Cache(wiring.Component):
         q_utag = [Signal(utag_bits, name=f"q{i}_utag") for i in range(Q)]
         q_head, q_tail = Signal(range(Q)), Signal(range(Q))
         q_full = Signal()
-        m.d.comb += q_full.eq(q_used.all())
+        q_set_bit, q_clr_bit = Signal(Q), Signal(Q)     # taken at the tail, popped at the head
+        q_next = (q_used | q_set_bit) & ~q_clr_bit
+        m.d.sync += q_used.eq(q_next)
+        if self.fast:       # kept in a register, from the used bits after this cycle
+            m.d.sync += q_full.eq(q_next.all())
+        else:
+            m.d.comb += q_full.eq(q_used.all())
 
         def slot_busy(set_, way_):
             """The slot is referenced by a queued request or by a fill in flight."""
@@ -221,7 +227,7 @@ class Cache(wiring.Component):
                 m.d.sync += [q_set[i].eq(d_set), q_way[i].eq(way), q_off[i].eq(d_off),
                              q_utag[i].eq(d_utag)]
         with m.If(go):
-            m.d.sync += q_used.bit_select(q_tail, 1).eq(1)
+            m.d.comb += q_set_bit.eq(1 << q_tail)
             m.d.sync += q_tail.eq(Mux(q_tail == Q - 1, 0, q_tail + 1))
             with m.If(hit):
                 m.d.sync += self.hits.eq(self.hits + 1)
@@ -349,10 +355,10 @@ class Cache(wiring.Component):
         pop = Signal()
         m.d.comb += pop.eq(h_ready & (~o_valid | o_move))
         m.d.comb += [drp.addr.eq(Cat(h_way, h_set)), drp.en.eq(pop)]
+        m.d.comb += q_clr_bit.eq(Mux(pop, 1 << q_head, 0))
         with m.If(pop):
             m.d.sync += [o_valid.eq(1), o_off.eq(Array(q_off)[q_head]),
                          o_utag.eq(Array(q_utag)[q_head]),
-                         q_used.bit_select(q_head, 1).eq(0),
                          q_head.eq(Mux(q_head == Q - 1, 0, q_head + 1))]
         with m.Elif(o_move):
             m.d.sync += o_valid.eq(0)
