@@ -396,7 +396,9 @@ class Cache(wiring.Component):
                          s0_fwd.eq(twp.en & (twp.addr == in_set)), s0_row.eq(twp.data),
                          k_valid.eq(0)]
         with m.Elif(req.valid & req.ready):
-            m.d.sync += [k_valid.eq(1), k_addr.eq(a), k_utag.eq(req.payload.tag)]
+            m.d.sync += k_valid.eq(1)
+        with m.If(~k_valid):                # the fields follow the request while k is empty
+            m.d.sync += [k_addr.eq(a), k_utag.eq(req.payload.tag)]
         # S1: the row as read, or the newest tag write to the set since the read
         s1_off, s1_set, s1_tag, s1_utag = s1_fields
         s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
