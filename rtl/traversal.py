@@ -159,7 +159,8 @@ class TravSubunit(wiring.Component):
     step's transfer on an idle sub-unit; throughput one lane per cycle.
 
     ``ld_*``: write one lane's ray data and initial interval (the loader); ``ld_block`` says the
-    datapath writes ``N`` this cycle (the loader must wait). ``rq_*``: read a lane's ``tfar``
+    datapath writes ``N`` this cycle (the loader must wait), ``ld_block_next`` that it will in
+    the next cycle (the pipeline never stalls). ``rq_*``: read a lane's ``tfar``
     (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later
     (1; 2 with ``cfg.fast_clock``: the block-RAM outputs are registered).
 
@@ -192,6 +193,7 @@ class TravSubunit(wiring.Component):
             "ld_en": In(1), "ld_thread": In(self.tbits), "ld_lane": In(self.rbits),
             "ld_org": In(data.ArrayLayout(w, 3)), "ld_inv": In(data.ArrayLayout(w, 3)),
             "ld_tnear": In(w), "ld_tfar": In(w), "ld_anyhit": In(1), "ld_block": Out(1),
+            "ld_block_next": Out(1),
             "rq_thread": In(self.tbits), "rq_lane": In(self.rbits), "rq_sp": In(self.dbits),
             "rq_cur": In(1), "rq_tfar": Out(w), "rq_anyhit": Out(1),
         })
@@ -291,7 +293,7 @@ class TravSubunit(wiring.Component):
             m.d.sync += [near.eq(Mux(sw.last, 0, near_n)), far.eq(Mux(sw.last, 0, far_n))]
         m.d.comb += [s_w.addr.eq(Cat(sw.lane, sw.sp, sw.thread)),
                      s_w.data.eq(Cat(vmax.o, tfar_d)), s_w.en.eq(sw.v)]
-        m.d.comb += self.ld_block.eq(sw.v)
+        m.d.comb += [self.ld_block.eq(sw.v), self.ld_block_next.eq(st[K - 1].v)]
         # N: the datapath's write wins; the loader is held off by ld_block
         with m.If(sw.v):
             m.d.comb += [n_w.addr.eq(Cat(sw.lane, sw.thread)), n_w.data.eq(Cat(tnear_d, vmin.o)),
@@ -482,7 +484,16 @@ class Traversal(wiring.Component):
             lane_one, oct_one = Signal(L), Signal(8)
             m.d.comb += [lane_one.eq(Const(1, L) << p.lane), oct_one.eq(Const(1, 8) << p.octant)]
         lane_sub, lane_loc = self._split_lane(m, p.lane, "ld")
-        blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
+        if cfg.fast_clock:
+            # the input lane's sub-unit's block, a cycle ahead: the sub-units' pipelines never
+            # stall, and the lane in the input register next cycle is known now
+            blocked = Signal(name="ld_blocked")
+            nxt_lane = Mux(rays.valid & rays.ready, rays.payload.lane, p.lane)
+            nxt_sub, _ = self._split_lane(m, nxt_lane, "ld_next")
+            m.d.sync += blocked.eq(Array(s.ld_block_next for s in subs)[nxt_sub] if k > 1
+                                   else subs[0].ld_block_next)
+        else:
+            blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
         ready = Signal()                    # the loader writes the lane this cycle if valid
         m.d.comb += [ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
         take = valid & ready
