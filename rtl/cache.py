@@ -323,17 +323,19 @@ class Cache(wiring.Component):
                          for i in range(O)]).any()
         if self.fast:
             # per queue entry, a cycle ahead into a register: the same function of the queue
-            # entries and the MSHRs, taken over their values after this cycle's writes (the
-            # entry at the tail and the spare MSHR take S1's fields; valid bits set and cleared)
+            # entries and the MSHRs after this cycle. A valid MSHR keeps its fields; one
+            # allocated this cycle matches no used entry (its slot was not busy) but the entry
+            # written with it; so a used entry waits on the MSHRs still valid after this
+            # cycle's fills, and the entry written now waits if it is a miss, or a hit on a
+            # line still being filled (neither needs ``go``: the entry counts only if taken)
             wait = Signal(Q, name="q_wait")
-            v_nxt = (mshr_valid | set_mask) & ~clr_mask
-            m_set = [Mux(spare[j], d_set, mshr_set[j]) for j in range(O)]
-            m_way = [Mux(spare[j], victim, mshr_way[j]) for j in range(O)]
+            def filling(set_, way_):
+                return Cat(*[kept[j] & (mshr_set[j] == set_) & (mshr_way[j] == way_)
+                             for j in range(O)]).any()
+            new_wait = ~hit | filling(d_set, hit_way)
             for i in range(Q):
                 wr = (q_tail == i) & ~q_used[i]
-                e_set, e_way = Mux(wr, d_set, q_set[i]), Mux(wr, way, q_way[i])
-                m.d.sync += wait[i].eq(Cat(*[v_nxt[j] & (m_set[j] == e_set) & (m_way[j] == e_way)
-                                             for j in range(O)]).any())
+                m.d.sync += wait[i].eq(Mux(wr, new_wait, filling(q_set[i], q_way[i])))
             h_pending = wait.bit_select(q_head, 1)
         else:
             h_pending = pending(h_set, h_way)
