@@ -333,6 +333,15 @@ class IntersectionUnit(wiring.Component):
             # issues, so triangles follow each other without a gap)
             rem_v, last = Signal(), Signal()
             left = Signal(range(lanes + 1))     # lanes in rem
+            # and the slot's thread, triangle index and last flag, loaded with rem (the ray
+            # store's read address then starts at registers, not at a pick over the slots)
+            slot = SimpleNamespace(thread=Signal(self.cfg.thread_bits, name="slot_thread"),
+                                   index=Signal(TRI_ID_BITS, name="slot_index"),
+                                   last=Signal(name="slot_last"))
+
+            def load(k):
+                return [slot.thread.eq(s.thread[k]), slot.index.eq(s.index[k]),
+                        slot.last.eq(s.last.bit_select(k, 1))]
             m.d.comb += [go.eq(en & rem_v & s.got.bit_select(t_slot, 1)), issue.eq(go),
                          rest.eq(rem & (rem - 1))]
             _, lane = lowest(m, rem, "issue")
@@ -342,13 +351,15 @@ class IntersectionUnit(wiring.Component):
                     m.d.comb += s.alloc_clr.eq(1 << t_slot)
                     m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.counted.bit_select(nxt, 1)),
                                  rem.eq(s.mask[nxt]), left.eq(s.count[nxt]),
-                                 last.eq(s.count[nxt] == 1)]
+                                 last.eq(s.count[nxt] == 1), *load(nxt)]
                 with m.Else():
                     m.d.sync += [rem.eq(rest), left.eq(left - 1), last.eq(left == 2)]
             with m.Elif(~rem_v):
                 m.d.sync += [rem_v.eq(s.counted.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
-                             left.eq(s.count[t_slot]), last.eq(s.count[t_slot] == 1)]
+                             left.eq(s.count[t_slot]), last.eq(s.count[t_slot] == 1),
+                             *load(t_slot)]
             lane_last = last
+            thread, index, tri_last = slot.thread, slot.index, slot.last
         else:
             testing = Signal()             # part of t_slot's mask is already issued
             ready_slot = s.alloc.bit_select(t_slot, 1) & s.got.bit_select(t_slot, 1)
@@ -365,20 +376,20 @@ class IntersectionUnit(wiring.Component):
                 with m.Else():
                     m.d.sync += testing.eq(1)
             lane_last = rest == 0
+            thread, index, tri_last = s.thread[t_slot], s.index[t_slot], \
+                s.last.bit_select(t_slot, 1)
 
         tri = data.View(data.ArrayLayout(32, 9), s.item[t_slot][:9 * 32])
         s1_valid = Signal()
         s1_tri = Signal(data.ArrayLayout(fmt.width, 9))
         s1_meta = Signal(self.pipe_meta)
-        thread = s.thread[t_slot]
         m.d.comb += [ray_r.addr.eq(self._addr(thread, lane)), ray_r.en.eq(en)]
         with m.If(en):
             m.d.sync += [
                 s1_valid.eq(issue),
                 s1_tri.eq(Cat(*(from_binary32(fmt, tri[j]) for j in range(9)))),
                 s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
-                s1_meta.id.eq(s.index[t_slot]),
-                s1_meta.tri_last.eq(s.last.bit_select(t_slot, 1)),
+                s1_meta.id.eq(index), s1_meta.tri_last.eq(tri_last),
                 s1_meta.lane_last.eq(lane_last),
             ]
         ray = ray_r.data
