@@ -191,12 +191,15 @@ class Cache(wiring.Component):
         else:
             m.d.comb += q_full.eq(q_used.all())
 
+        def filling(set_, way_, valid=mshr_valid):
+            """The slot is the target of a fill in flight (of the MSHRs ``valid`` marks)."""
+            return Cat(*[valid[i] & (mshr_set[i] == set_) & (mshr_way[i] == way_)
+                         for i in range(O)]).any()
+
         def slot_busy(set_, way_):
             """The slot is referenced by a queued request or by a fill in flight."""
             in_q = Cat(*[q_used[i] & (q_set[i] == set_) & (q_way[i] == way_) for i in range(Q)])
-            in_f = Cat(*[mshr_valid[i] & (mshr_set[i] == set_) & (mshr_way[i] == way_)
-                         for i in range(O)])
-            return in_q.any() | in_f.any()
+            return in_q.any() | filling(set_, way_)
 
         if self.fast:
             # the victim slot's "busy" from registers: per way, computed a cycle ahead for the
@@ -222,8 +225,9 @@ class Cache(wiring.Component):
         # are written into them every cycle, whatever the lookup decides; only the used and
         # valid bits wait for ``go`` (the lookup's verdict drives a few bits, not the
         # entries' enables)
+        q_wr = [(q_tail == i) & ~q_used[i] for i in range(Q)]     # the entry at the tail
         for i in range(Q):
-            with m.If((q_tail == i) & ~q_used[i]):
+            with m.If(q_wr[i]):
                 m.d.sync += [q_set[i].eq(d_set), q_way[i].eq(way), q_off[i].eq(d_off),
                              q_utag[i].eq(d_utag)]
         with m.If(go):
@@ -318,9 +322,6 @@ class Cache(wiring.Component):
         # --- output: head of the queue once its line is present -----------------------------
         h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
         h_ready = Signal()
-        def pending(set_, way_):
-            return Cat(*[mshr_valid[i] & (mshr_set[i] == set_) & (mshr_way[i] == way_)
-                         for i in range(O)]).any()
         if self.fast:
             # per queue entry, a cycle ahead into a register: the same function of the queue
             # entries and the MSHRs after this cycle. A valid MSHR keeps its fields; one
@@ -329,16 +330,12 @@ class Cache(wiring.Component):
             # cycle's fills, and the entry written now waits if it is a miss, or a hit on a
             # line still being filled (neither needs ``go``: the entry counts only if taken)
             wait = Signal(Q, name="q_wait")
-            def filling(set_, way_):
-                return Cat(*[kept[j] & (mshr_set[j] == set_) & (mshr_way[j] == way_)
-                             for j in range(O)]).any()
-            new_wait = ~hit | filling(d_set, hit_way)
+            new_wait = ~hit | filling(d_set, hit_way, kept)
             for i in range(Q):
-                wr = (q_tail == i) & ~q_used[i]
-                m.d.sync += wait[i].eq(Mux(wr, new_wait, filling(q_set[i], q_way[i])))
+                m.d.sync += wait[i].eq(Mux(q_wr[i], new_wait, filling(q_set[i], q_way[i], kept)))
             h_pending = wait.bit_select(q_head, 1)
         else:
-            h_pending = pending(h_set, h_way)
+            h_pending = filling(h_set, h_way)
         m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
         # o: the data read (the block RAM's output); fast: o2, that line in a register
         o_valid, o_off, o_utag = Signal(), Signal(ob), Signal(utag_bits)

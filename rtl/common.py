@@ -11,7 +11,8 @@ from amaranth.utils import ceil_log2
 
 from model.fp import FPFormat
 
-__all__ = ["COUNTER_BITS", "popcount", "sum_tree", "lowest", "rr_pick", "OutputStage", "SkidBuffer", "from_binary32"]
+__all__ = ["COUNTER_BITS", "popcount", "sum_tree", "lowest", "rr_pick", "OutputStage",
+           "SkidBuffer", "from_binary32"]
 
 COUNTER_BITS = 32      # every statistics counter the hardware reports
 

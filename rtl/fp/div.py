@@ -21,8 +21,8 @@ class FPDiv(wiring.Component):
     Steps: unpack (classes, sign, exponent difference), M+3 restoring-division steps of one
     quotient bit each (W = M+1 significand bits: the quotient of two significands lies in
     (1/2, 2), so M+3 bits give W significant bits and a guard bit; the remainder is the sticky
-    bit, formed in the last step's stage), then round (a one-bit normalization and the RNE increment) and pack (exponent carry,
-    flush/overflow and special-value select).
+    bit, formed in the last step's stage), then round (a one-bit normalization and the RNE
+    increment) and pack (exponent carry, flush/overflow and special-value select).
 
     Latency: ``latency`` cycles (default ``ceil((M+3)/4) + 1``: four quotient bits per stage
     plus the output register; 0 = combinational). Registers sit at the M+6 step boundaries
