@@ -302,11 +302,14 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += [c2_part[k].eq(popcount(g)) for k, g in enumerate(groups)]
             with m.If(tri_in.valid & tri_in.ready):
                 m.d.sync += [c_slot.eq(nxt), c_mask.eq(tri_in.payload.mask)]
+            s.c2_v, s.c2_slot, s.c2_count = c2_v, c2_slot, Signal(range(lanes + 1))
+            m.d.comb += s.c2_count.eq(sum_tree(c2_part))
             with m.If(c2_v):
-                m.d.sync += s.count[c2_slot].eq(sum_tree(c2_part))
+                m.d.sync += s.count[c2_slot].eq(s.c2_count)
+            # allocated, and its count written by the end of this cycle (the issue stage's
+            # next-slot register samples the count being written, forwarded)
             s.counted = Signal(n_slots)
-            m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots]
-                                     & ~Mux(c2_v, 1 << c2_slot, 0)[:n_slots])
+            m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots])
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
@@ -326,38 +329,56 @@ class IntersectionUnit(wiring.Component):
         issue = Signal()                   # a lane's test issues this cycle
         rest = Signal(lanes)
         if self.cfg.fast_clock:
-            # rem holds the current slot's lanes still to test as soon as the slot is
-            # allocated (rem_v), ``left`` their number, ``last`` whether one is left (the
-            # TriRequest's lane count is taken with it): the issue decision reads
-            # only registers (the next slot's mask is loaded as the current one's last lane
-            # issues, so triangles follow each other without a gap)
+            # Two register sets, so that the issue decision and every load read only
+            # registers: the head H (rem: the current slot's lanes still to test, valid
+            # rem_v; ``left`` their number, ``last`` whether one is left; the slot's thread,
+            # triangle index and last flag) and the next N (the same fields of the slot
+            # that H takes next: n_slot, the slot after H's, or H's own slot while H is
+            # empty). N samples its slot every cycle (a pick by a register index), H takes
+            # N as H's last lane issues or while H is empty, so triangles follow each other
+            # without a gap. N samples a slot whose lane count is being written in this
+            # cycle (forwarded), so H takes a slot in the cycle after its count is written.
             rem_v, last = Signal(), Signal()
             left = Signal(range(lanes + 1))     # lanes in rem
-            # and the slot's thread, triangle index and last flag, loaded with rem (the ray
-            # store's read address then starts at registers, not at a pick over the slots)
             slot = SimpleNamespace(thread=Signal(self.cfg.thread_bits, name="slot_thread"),
                                    index=Signal(TRI_ID_BITS, name="slot_index"),
                                    last=Signal(name="slot_last"))
-
-            def load(k):
-                return [slot.thread.eq(s.thread[k]), slot.index.eq(s.index[k]),
-                        slot.last.eq(s.last.bit_select(k, 1))]
+            n = SimpleNamespace(v=Signal(name="n_v"), mask=Signal(lanes, name="n_mask"),
+                                count=Signal(range(lanes + 1), name="n_count"),
+                                one=Signal(name="n_one"),
+                                thread=Signal(self.cfg.thread_bits, name="n_thread"),
+                                index=Signal(TRI_ID_BITS, name="n_index"),
+                                last=Signal(name="n_last"))
+            # N samples slot n_slot, or n_slot + 1 (= n_after) when H takes N now
+            n_slot = Signal(self.slot_bits)
+            n_after = Signal(self.slot_bits, init=1)
+            take = Signal()
             m.d.comb += [go.eq(en & rem_v & s.got.bit_select(t_slot, 1)), issue.eq(go),
-                         rest.eq(rem & (rem - 1))]
+                         rest.eq(rem & (rem - 1)),
+                         take.eq(n.v & (~rem_v | (go & last)))]
             _, lane = lowest(m, rem, "issue")
-            nxt = (t_slot + 1)[:self.slot_bits]
+
+            def sample(k):
+                fwd = s.c2_v & (s.c2_slot == k)
+                count = Mux(fwd, s.c2_count, s.count[k])
+                return dict(v=s.counted.bit_select(k, 1), mask=s.mask[k], count=count,
+                            one=count == 1, thread=s.thread[k], index=s.index[k],
+                            last=s.last.bit_select(k, 1))
+            at_slot, at_after = sample(n_slot), sample(n_after)
+            m.d.sync += [getattr(n, f).eq(Mux(take, at_after[f], at_slot[f])) for f in at_slot]
+            with m.If(take):
+                m.d.sync += [n_slot.eq(n_after), n_after.eq(n_after + 1),
+                             rem_v.eq(1), rem.eq(n.mask), left.eq(n.count), last.eq(n.one),
+                             slot.thread.eq(n.thread), slot.index.eq(n.index),
+                             slot.last.eq(n.last)]
             with m.If(go):
                 with m.If(last):
                     m.d.comb += s.alloc_clr.eq(1 << t_slot)
-                    m.d.sync += [t_slot.eq(nxt), rem_v.eq(s.counted.bit_select(nxt, 1)),
-                                 rem.eq(s.mask[nxt]), left.eq(s.count[nxt]),
-                                 last.eq(s.count[nxt] == 1), *load(nxt)]
+                    m.d.sync += t_slot.eq(t_slot + 1)
+                    with m.If(~n.v):
+                        m.d.sync += rem_v.eq(0)
                 with m.Else():
                     m.d.sync += [rem.eq(rest), left.eq(left - 1), last.eq(left == 2)]
-            with m.Elif(~rem_v):
-                m.d.sync += [rem_v.eq(s.counted.bit_select(t_slot, 1)), rem.eq(s.mask[t_slot]),
-                             left.eq(s.count[t_slot]), last.eq(s.count[t_slot] == 1),
-                             *load(t_slot)]
             lane_last = last
             thread, index, tri_last = slot.thread, slot.index, slot.last
         else:
