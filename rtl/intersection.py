@@ -302,14 +302,11 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += [c2_part[k].eq(popcount(g)) for k, g in enumerate(groups)]
             with m.If(tri_in.valid & tri_in.ready):
                 m.d.sync += [c_slot.eq(nxt), c_mask.eq(tri_in.payload.mask)]
-            s.c2_v, s.c2_slot, s.c2_count = c2_v, c2_slot, Signal(range(lanes + 1))
-            m.d.comb += s.c2_count.eq(sum_tree(c2_part))
             with m.If(c2_v):
-                m.d.sync += s.count[c2_slot].eq(s.c2_count)
-            # allocated, and its count written by the end of this cycle (the issue stage's
-            # next-slot register samples the count being written, forwarded)
+                m.d.sync += s.count[c2_slot].eq(sum_tree(c2_part))
             s.counted = Signal(n_slots)
-            m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots])
+            m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots]
+                                     & ~Mux(c2_v, 1 << c2_slot, 0)[:n_slots])
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
@@ -336,8 +333,8 @@ class IntersectionUnit(wiring.Component):
             # that H takes next: n_slot, the slot after H's, or H's own slot while H is
             # empty). N samples its slot every cycle (a pick by a register index), H takes
             # N as H's last lane issues or while H is empty, so triangles follow each other
-            # without a gap. N samples a slot whose lane count is being written in this
-            # cycle (forwarded), so H takes a slot in the cycle after its count is written.
+            # without a gap. H takes a new slot two cycles after its count is written, and
+            # its triangle comes from memory later than that.
             rem_v, last = Signal(), Signal()
             left = Signal(range(lanes + 1))     # lanes in rem
             slot = SimpleNamespace(thread=Signal(self.cfg.thread_bits, name="slot_thread"),
@@ -359,10 +356,8 @@ class IntersectionUnit(wiring.Component):
             _, lane = lowest(m, rem, "issue")
 
             def sample(k):
-                fwd = s.c2_v & (s.c2_slot == k)
-                count = Mux(fwd, s.c2_count, s.count[k])
-                return dict(v=s.counted.bit_select(k, 1), mask=s.mask[k], count=count,
-                            one=count == 1, thread=s.thread[k], index=s.index[k],
+                return dict(v=s.counted.bit_select(k, 1), mask=s.mask[k], count=s.count[k],
+                            one=s.count[k] == 1, thread=s.thread[k], index=s.index[k],
                             last=s.last.bit_select(k, 1))
             at_slot, at_after = sample(n_slot), sample(n_after)
             m.d.sync += [getattr(n, f).eq(Mux(take, at_after[f], at_slot[f])) for f in at_slot]
