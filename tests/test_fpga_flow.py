@@ -151,3 +151,37 @@ def test_hierarchy_units_add_up(tmp_path):
     for k, n in e["resources"].items():
         assert sum(u[k] for u in e["units"].values()) == n, k
     assert e["units"]["cache2"]["bram"] > 0 and e["units"]["bus"]["ff"] > 0
+
+
+def test_pnr_args_reach_nextpnr_and_the_report(tmp_path, monkeypatch):
+    """``--pnr-arg`` words go to nextpnr as they are and are recorded with the run."""
+    import subprocess
+    import types
+
+    import rtl.fpga.flow as flow
+    cfg = Config()
+    (tmp_path / "old").mkdir()
+    for f in ("fpga_top.json", "fpga_top.stat"):
+        (tmp_path / "old" / f).write_text("")
+    res = dict.fromkeys(("lut4", "ff", "dsp", "bram", "carry", "pfumx", "l6mux", "lutram",
+                         "alu54"), 0)
+    old = {"top": "fp_add", "config": cfg.to_dict(), "fmt": "E8M23", "latency": None,
+           "wrapper": {"ff": 0}, "resources": res}
+    (tmp_path / "report.json").write_text(json.dumps({"runs": {"old": old}}))
+    calls = []
+
+    def fake_run(cmd, **kw):
+        calls.append(cmd)
+        return types.SimpleNamespace(returncode=1, stderr="stopped", stdout="")
+    monkeypatch.setattr(subprocess, "run", fake_run)
+    monkeypatch.setattr(flow, "tool", lambda name: name)
+    with pytest.raises(SystemExit, match="nextpnr failed"):
+        run("fp_add", cfg, out=tmp_path, reuse="old", label="beta",
+            pnr_args=("--placer-heap-beta", "0.7"))
+    assert len(calls) == 1
+    cmd = calls[0]
+    i = cmd.index("--placer-heap-beta")
+    assert cmd[i + 1] == "0.7" and cmd[0:3] == ["nice", "-n", "10"]
+    entry = json.loads((tmp_path / "report.json").read_text())["runs"]["beta"]
+    assert entry["pnr_args"] == ["--placer-heap-beta", "0.7"]
+    assert entry["status"].startswith("place and route failed")

