@@ -14,7 +14,8 @@ Pipeline::
                                mem.resp -> fill buffer -> data array -> [data read] -> port.resp
 
 * Latency: a hit 3 cycles (6 with ``fast``; request accepted in cycle t, response valid in t+3) when nothing older
-  waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle. Responses come back **in
+  waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle
+  (``8 + L + line_words - 1`` with ``fast``). Responses come back **in
   request order** (a hit behind a miss waits for it), so tags are returned but never reordered.
 * Throughput: one lookup and one response per cycle; ``outstanding`` line fetches in flight;
   ``queue`` requests inside the cache.
@@ -27,6 +28,8 @@ tag = ``{word index, mshr}``), ``base`` (word address of item 0), counters ``hit
 and ``lookup_valid``/``lookup_hit`` (one pulse per classified request, for testbenches).
 """
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal
 from amaranth.lib import wiring
@@ -55,13 +58,15 @@ class Cache(wiring.Component):
     ``port.resp``, the line's memory address is formed as the request enters S1, the
     lowest free MSHR is kept in a register, S1's compare verdict is registered and a stage S2
     decides from registers (S2's tag write forwarded into S1's compare), and each queue
-    entry's "line still being filled" is a register). The hit/miss sequence is the same
-    either way.
+    entry's "line still being filled" is a register, and the memory's response is registered
+    before the fill (``fill_delay``: a miss takes a cycle more). The hit/miss sequence is the
+    same either way.
     """
 
     def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
         self.geom, self.fast = geom, fast
         self.hit_latency = 6 if fast else 3
+        self.fill_delay = 1 if fast else 0      # cycles between mem.resp and the fill
         g = geom
         self.mshr_bits = max(1, ceil_log2(g.outstanding))
         self.word_bits = max(1, ceil_log2(g.line_words))
@@ -273,11 +278,16 @@ class Cache(wiring.Component):
         dwp = data.write_port()
         drp = data.read_port()
         mresp = self.mem.resp
+        if self.fast:       # the memory's response in a register first (it comes from the bus)
+            mresp = SimpleNamespace(valid=Signal(name="fill_valid"),
+                                    payload=Signal.like(self.mem.resp.payload, name="fill"))
+            m.d.sync += [mresp.valid.eq(self.mem.resp.valid),
+                         mresp.payload.eq(self.mem.resp.payload)]
+        m.d.comb += self.mem.resp.ready.eq(1)
         f_m = mresp.payload.tag[:self.mshr_bits]
         f_w = mresp.payload.tag[self.mshr_bits:self.mshr_bits + self.word_bits] if LW > 1 \
             else Const(0, 1)
         fire = mresp.valid
-        m.d.comb += mresp.ready.eq(1)
         merged = []
         for i in range(O):
             merged.append(Cat(*[Mux(f_w == j, mresp.payload.data,
