@@ -811,29 +811,28 @@ class Traversal(wiring.Component):
         near_node = (d_word.index + neg)[:NODE_BITS]
         far_node = (d_word.index + 1 - neg)[:NODE_BITS]
         n_any, f_any = mn.any(), mf.any()
+        # the thread's next fields as one write each (one writer per field in _Threads):
+        # both children -> near (the far one pushed), near only, far only, none -> NEXTPASS
+        both = n_any & f_any
+        new = dict(sp=Mux(both, d_sp + 1, d_sp)[:len(d_sp)], node=Mux(n_any, near_node, far_node),
+                   mask=Mux(n_any, mn, mf), cur=~n_any,
+                   state=Mux(n_any | f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
         if self.cfg.fast_clock:
-            # the verdict queues' heads and the thread's children go through registers; the
-            # thread's state is written a cycle later (no other engine touches a STEP thread)
-            vals = (dec, dt, mn, mf, n_any, f_any, near_node, far_node, d_sp)
-            regs = [Signal.like(Value.cast(v), name=f"dec_{n}") for v, n in zip(vals, (
-                "v", "thread", "near", "far", "near_any", "far_any", "near_node", "far_node",
-                "sp"))]
-            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
-            dec, dt, mn, mf, n_any, f_any, near_node, far_node, d_sp = regs
+            # the verdict queues' heads and the thread's next fields go through registers; the
+            # thread is written a cycle later (no other engine touches a STEP thread, so its
+            # stack pointer read a cycle before is still its own)
+            vals = dict(v=dec, thread=dt, both=both, far_node=far_node, far=mf, sp=d_sp,
+                        **{f"new_{k}": v for k, v in new.items()})
+            regs = {k: Signal.like(Value.cast(v), name=f"dec_{k}") for k, v in vals.items()}
+            m.d.sync += [regs[k].eq(v) for k, v in vals.items()]
+            dec, dt, both, far_node, mf, d_sp = (regs[k] for k in (
+                "v", "thread", "both", "far_node", "far", "sp"))
+            new = {k: regs[f"new_{k}"] for k in new}
         with m.If(dec):
-            with m.If(n_any & f_any):
+            with m.If(both):
                 m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
                              st_w.en.eq(1)]
                 m.d.sync += self.pushes.eq(self.pushes + 1)
-                for f, v in (("sp", d_sp + 1), ("node", near_node), ("mask", mn), ("cur", 0)):
-                    th.set(m, f, dt, v)
-                th.set_state(m, dt, ThreadState.FETCH)
-            with m.Elif(n_any):
-                for f, v in (("node", near_node), ("mask", mn), ("cur", 0)):
-                    th.set(m, f, dt, v)
-                th.set_state(m, dt, ThreadState.FETCH)
-            with m.Else():
-                for f, v in (("node", far_node), ("mask", mf), ("cur", 1)):
-                    th.set(m, f, dt, v)
-                th.set_state(m, dt, Mux(f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
+            for f in ("sp", "node", "mask", "cur", "state"):
+                th.set(m, f, dt, new[f])
         return dec
