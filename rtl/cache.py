@@ -339,14 +339,15 @@ class Cache(wiring.Component):
             # written with it; so a used entry waits on the MSHRs still valid after this
             # cycle's fills, and the entry written now waits if it is a miss, or a hit on a
             # line still being filled (neither needs ``go``: the entry counts only if taken)
-            wait = Signal(Q, name="q_wait")
+            wait, wait_next = Signal(Q, name="q_wait"), Signal(Q, name="q_wait_next")
             new_wait = ~hit | filling(d_set, hit_way, kept)
             for i in range(Q):
-                m.d.sync += wait[i].eq(Mux(q_wr[i], new_wait, filling(q_set[i], q_way[i], kept)))
-            h_pending = wait.bit_select(q_head, 1)
+                m.d.comb += wait_next[i].eq(Mux(q_wr[i], new_wait,
+                                                filling(q_set[i], q_way[i], kept)))
+            m.d.sync += wait.eq(wait_next)
         else:
             h_pending = filling(h_set, h_way)
-        m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
+            m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
         # o: the data read (the block RAM's output); fast: o2, that line in a register
         o_valid, o_off, o_utag = Signal(), Signal(ob), Signal(utag_bits)
         if self.fast:
@@ -363,12 +364,30 @@ class Cache(wiring.Component):
             line, off, out_valid, out_utag = drp.data, o_off, o_valid, o_utag
         pop = Signal()
         m.d.comb += pop.eq(h_ready & (~o_valid | o_move))
-        m.d.comb += [drp.addr.eq(Cat(h_way, h_set)), drp.en.eq(pop)]
+        h_next = Mux(q_head == Q - 1, 0, q_head + 1)[:len(q_head)]
+        if self.fast:
+            # the head entry's "ready" and data address in registers, a cycle ahead: the
+            # entry at the head after this cycle's pop, as it is after this cycle (the tail
+            # entry's write bypassed)
+            h_addr = Signal(wb + sb, name="h_addr")
+            written = Cat(*q_wr)
+            stored = Array(Cat(q_way[i], q_set[i]) for i in range(Q))
+            new_addr = Cat(way, d_set)
+
+            def head(k):
+                return (q_next.bit_select(k, 1) & ~wait_next.bit_select(k, 1),
+                        Mux(written.bit_select(k, 1), new_addr, stored[k]))
+            (r0, a0), (r1, a1) = head(q_head), head(h_next)
+            m.d.sync += [h_ready.eq(Mux(pop, r1, r0)), h_addr.eq(Mux(pop, a1, a0))]
+            m.d.comb += drp.addr.eq(h_addr)
+        else:
+            m.d.comb += drp.addr.eq(Cat(h_way, h_set))
+        m.d.comb += drp.en.eq(pop)
         m.d.comb += q_clr_bit.eq(Mux(pop, 1 << q_head, 0))
         with m.If(pop):
             m.d.sync += [o_valid.eq(1), o_off.eq(Array(q_off)[q_head]),
                          o_utag.eq(Array(q_utag)[q_head]),
-                         q_head.eq(Mux(q_head == Q - 1, 0, q_head + 1))]
+                         q_head.eq(h_next)]
         with m.Elif(o_move):
             m.d.sync += o_valid.eq(0)
         m.d.comb += [resp.valid.eq(out_valid),
