@@ -57,10 +57,10 @@ class Cache(wiring.Component):
     tag write the read missed is forwarded), the data word is registered before
     ``port.resp``, the line's memory address is formed as the request enters S1, the
     lowest free MSHR is kept in a register, S1's compare verdict is registered and a stage S2
-    decides from registers (S2's tag write forwarded into S1's compare), and each queue
-    entry's "line still being filled" is a register, and the memory's response is registered
-    before the fill (``fill_delay``: a miss takes a cycle more). The hit/miss sequence is the
-    same either way.
+    decides from registers (S2's tag write forwarded into S1's compare), the queue head's
+    "ready" (used, its line not being filled) and data address are registers, and the
+    memory's response is registered before the fill (``fill_delay``: a miss takes a cycle
+    more). The hit/miss sequence is the same either way.
     """
 
     def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
@@ -333,18 +333,14 @@ class Cache(wiring.Component):
         h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
         h_ready = Signal()
         if self.fast:
-            # per queue entry, a cycle ahead into a register: the same function of the queue
-            # entries and the MSHRs after this cycle. A valid MSHR keeps its fields; one
-            # allocated this cycle matches no used entry (its slot was not busy) but the entry
-            # written with it; so a used entry waits on the MSHRs still valid after this
-            # cycle's fills, and the entry written now waits if it is a miss, or a hit on a
-            # line still being filled (neither needs ``go``: the entry counts only if taken)
-            wait, wait_next = Signal(Q, name="q_wait"), Signal(Q, name="q_wait_next")
+            # "the head entry waits for its line", a cycle ahead into a register (h_ready,
+            # below): the same function of the queue entries and the MSHRs after this cycle.
+            # A valid MSHR keeps its fields; one allocated this cycle matches no used entry
+            # (its slot was not busy) but the entry written with it; so a used entry waits on
+            # the MSHRs still valid after this cycle's fills, and the entry written now waits
+            # if it is a miss, or a hit on a line still being filled (neither needs ``go``: the
+            # entry counts only if taken)
             new_wait = ~hit | filling(d_set, hit_way, kept)
-            for i in range(Q):
-                m.d.comb += wait_next[i].eq(Mux(q_wr[i], new_wait,
-                                                filling(q_set[i], q_way[i], kept)))
-            m.d.sync += wait.eq(wait_next)
         else:
             h_pending = filling(h_set, h_way)
             m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
@@ -371,12 +367,13 @@ class Cache(wiring.Component):
             # entry's write bypassed)
             h_addr = Signal(wb + sb, name="h_addr")
             written = Cat(*q_wr)
-            stored = Array(Cat(q_way[i], q_set[i]) for i in range(Q))
-            new_addr = Cat(way, d_set)
+            q_set_a, q_way_a = Array(q_set), Array(q_way)
 
             def head(k):
-                return (q_next.bit_select(k, 1) & ~wait_next.bit_select(k, 1),
-                        Mux(written.bit_select(k, 1), new_addr, stored[k]))
+                wr = written.bit_select(k, 1)
+                wait = Mux(wr, new_wait, filling(q_set_a[k], q_way_a[k], kept))
+                return (q_next.bit_select(k, 1) & ~wait,
+                        Mux(wr, Cat(way, d_set), Cat(q_way_a[k], q_set_a[k])))
             (r0, a0), (r1, a1) = head(q_head), head(h_next)
             m.d.sync += [h_ready.eq(Mux(pop, r1, r0)), h_addr.eq(Mux(pop, a1, a0))]
             m.d.comb += drp.addr.eq(h_addr)

@@ -312,9 +312,9 @@ class IntersectionUnit(wiring.Component):
         with m.If(resp.valid):
             m.d.comb += got_set.eq(1 << resp.payload.tag[:self.slot_bits])
             m.d.sync += s.item[resp.payload.tag[:self.slot_bits]].eq(resp.payload.data)
-        s.got_next = Signal(n_slots)                 # s.got after this cycle
-        m.d.comb += s.got_next.eq((s.got | got_set) & ~got_clr)
-        m.d.sync += s.got.eq(s.got_next)
+        s.got_in = Signal(n_slots)                   # s.got with this cycle's arrivals
+        m.d.comb += s.got_in.eq(s.got | got_set)
+        m.d.sync += s.got.eq(s.got_in & ~got_clr)
         return s
 
     def _issue(self, m: Module, en: Value, s: SimpleNamespace, ray_r) -> Value:
@@ -353,12 +353,14 @@ class IntersectionUnit(wiring.Component):
             n_after = Signal(self.slot_bits, init=1)
             take = Signal()
             # got_cur: the current slot's triangle is in (a register, from the slot current in
-            # the next cycle and the got bits after this one)
+            # the next cycle and the got bits with this cycle's arrivals; a slot allocated in
+            # this cycle, whose got bit is cleared, is not taken by H for cycles, while
+            # got_cur follows it every cycle)
             got_cur = Signal()
             adv = go & last
             after = (t_slot + 1)[:self.slot_bits]
-            m.d.sync += got_cur.eq(Mux(adv, s.got_next.bit_select(after, 1),
-                                       s.got_next.bit_select(t_slot, 1)))
+            m.d.sync += got_cur.eq(Mux(adv, s.got_in.bit_select(after, 1),
+                                       s.got_in.bit_select(t_slot, 1)))
             m.d.comb += [go.eq(en & rem_v & got_cur), issue.eq(go),
                          rest.eq(rem & (rem - 1)),
                          take.eq(n.v & (~rem_v | adv))]
