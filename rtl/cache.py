@@ -57,10 +57,10 @@ class Cache(wiring.Component):
     tag write the read missed is forwarded), the data word is registered before
     ``port.resp``, the line's memory address is formed as the request enters S1, the
     lowest free MSHR is kept in a register, S1's compare verdict is registered and a stage S2
-    decides from registers (S2's tag write forwarded into S1's compare), the queue head's
-    "ready" (used, its line not being filled) and data address are registers, and the
-    memory's response is registered before the fill (``fill_delay``: a miss takes a cycle
-    more). The hit/miss sequence is the same either way.
+    decides from registers (S2's tag write forwarded into S1's compare), each queue entry's
+    "line still being filled" and the head's data address are registers, and the memory's
+    response is registered before the fill (``fill_delay``: a miss takes a cycle more). The
+    hit/miss sequence is the same either way.
     """
 
     def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
@@ -333,17 +333,20 @@ class Cache(wiring.Component):
         h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
         h_ready = Signal()
         if self.fast:
-            # "the head entry waits for its line", a cycle ahead into a register (h_ready,
-            # below): the same function of the queue entries and the MSHRs after this cycle.
-            # A valid MSHR keeps its fields; one allocated this cycle matches no used entry
-            # (its slot was not busy) but the entry written with it; so a used entry waits on
-            # the MSHRs still valid after this cycle's fills, and the entry written now waits
-            # if it is a miss, or a hit on a line still being filled (neither needs ``go``: the
-            # entry counts only if taken)
+            # per queue entry, a cycle ahead into a register: the same function of the queue
+            # entries and the MSHRs after this cycle. A valid MSHR keeps its fields; one
+            # allocated this cycle matches no used entry (its slot was not busy) but the entry
+            # written with it; so a used entry waits on the MSHRs still valid after this
+            # cycle's fills, and the entry written now waits if it is a miss, or a hit on a
+            # line still being filled (neither needs ``go``: the entry counts only if taken)
+            wait = Signal(Q, name="q_wait")
             new_wait = ~hit | filling(d_set, hit_way, kept)
+            for i in range(Q):
+                m.d.sync += wait[i].eq(Mux(q_wr[i], new_wait, filling(q_set[i], q_way[i], kept)))
+            h_pending = wait.bit_select(q_head, 1)
         else:
             h_pending = filling(h_set, h_way)
-            m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
+        m.d.comb += h_ready.eq(q_used.bit_select(q_head, 1) & ~h_pending)
         # o: the data read (the block RAM's output); fast: o2, that line in a register
         o_valid, o_off, o_utag = Signal(), Signal(ob), Signal(utag_bits)
         if self.fast:
@@ -362,24 +365,20 @@ class Cache(wiring.Component):
         m.d.comb += pop.eq(h_ready & (~o_valid | o_move))
         h_next = Mux(q_head == Q - 1, 0, q_head + 1)[:len(q_head)]
         if self.fast:
-            # the head entry's "ready" and data address in registers, a cycle ahead: the
-            # entry at the head after this cycle's pop, as it is after this cycle (the tail
-            # entry's write bypassed)
+            # the head entry's data address in a register, a cycle ahead (the entry at the
+            # head after this cycle's pop, the tail entry's write of this cycle bypassed); the
+            # data array is read whenever the output stage can take it, popped or not (o_valid
+            # says whether it is the head's line), so the read's enable needs no verdict
             h_addr = Signal(wb + sb, name="h_addr")
             written = Cat(*q_wr)
-            q_set_a, q_way_a = Array(q_set), Array(q_way)
+            stored = Array(Cat(q_way[i], q_set[i]) for i in range(Q))
 
-            def head(k):
-                wr = written.bit_select(k, 1)
-                wait = Mux(wr, new_wait, filling(q_set_a[k], q_way_a[k], kept))
-                return (q_next.bit_select(k, 1) & ~wait,
-                        Mux(wr, Cat(way, d_set), Cat(q_way_a[k], q_set_a[k])))
-            (r0, a0), (r1, a1) = head(q_head), head(h_next)
-            m.d.sync += [h_ready.eq(Mux(pop, r1, r0)), h_addr.eq(Mux(pop, a1, a0))]
-            m.d.comb += drp.addr.eq(h_addr)
+            def head_addr(k):
+                return Mux(written.bit_select(k, 1), Cat(way, d_set), stored[k])
+            m.d.sync += h_addr.eq(Mux(pop, head_addr(h_next), head_addr(q_head)))
+            m.d.comb += [drp.addr.eq(h_addr), drp.en.eq(~o_valid | o_move)]
         else:
-            m.d.comb += drp.addr.eq(Cat(h_way, h_set))
-        m.d.comb += drp.en.eq(pop)
+            m.d.comb += [drp.addr.eq(Cat(h_way, h_set)), drp.en.eq(pop)]
         m.d.comb += q_clr_bit.eq(Mux(pop, 1 << q_head, 0))
         with m.If(pop):
             m.d.sync += [o_valid.eq(1), o_off.eq(Array(q_off)[q_head]),
