@@ -666,10 +666,18 @@ class Traversal(wiring.Component):
         e_cur = Signal()
         e_oct = Signal(3)                            # the octant a new pass starts
         # the step queue of every sub-unit gets the same steps in the same order; the threads
-        # of outstanding steps wait in `order` (at most one step per thread is outstanding)
-        m.submodules.order = order = SyncFIFO(width=tb, depth=T)
+        # of outstanding steps wait in `order` (at most one step per thread is outstanding),
+        # with what the decision needs of them: the node's near and far children (by the
+        # pass's octant) and the stack pointer, which do not change while the step is out
+        order_l = data.StructLayout({"thread": tb, "near": NODE_BITS, "far": NODE_BITS,
+                                     "sp": db})
+        m.submodules.order = order = SyncFIFO(width=order_l.size, depth=T)
         disp = Signal()                              # push a step to every sub-unit
-        m.d.comb += [order.w_data.eq(e_t), order.w_en.eq(disp)]
+        neg = th.octant[e_t].bit_select(e_word.axis, 1)
+        m.d.comb += [order.w_data.eq(Cat(e_t, (e_word.index + neg)[:NODE_BITS],
+                                         (e_word.index + 1 - neg)[:NODE_BITS], e_sp)),
+                     order.w_en.eq(disp)]
+        self._order_layout = order_l
         for j, s in enumerate(subs):
             m.d.comb += [s.step.payload.mask.eq(e_mask[j * R:(j + 1) * R]),
                          s.step.payload.thread.eq(e_t), s.step.payload.axis.eq(e_word.axis),
@@ -799,17 +807,13 @@ class Traversal(wiring.Component):
         ``model.traversal.decide``). One cycle (two with ``cfg.fast_clock``: the queue heads
         are registered first). Returns the signal that a step is decided (in its last cycle)."""
         subs = self.subunits
-        dt = order.r_data
+        head = data.View(self._order_layout, order.r_data)
+        dt, d_sp, near_node, far_node = head.thread, head.sp, head.near, head.far
         dec = Signal()
         m.d.comb += dec.eq(order.r_rdy & Cat(*(s.res.valid for s in subs)).all())
         m.d.comb += [order.r_en.eq(dec)] + [s.res.ready.eq(dec) for s in subs]
         mn = Cat(*(s.res.payload.near for s in subs))
         mf = Cat(*(s.res.payload.far for s in subs))
-        d_word = data.View(node_layout(), th.word[dt])
-        d_sp = th.sp[dt]
-        neg = th.octant[dt].bit_select(d_word.axis, 1)
-        near_node = (d_word.index + neg)[:NODE_BITS]
-        far_node = (d_word.index + 1 - neg)[:NODE_BITS]
         n_any, f_any = mn.any(), mf.any()
         # the thread's next fields as one write each (one writer per field in _Threads):
         # both children -> near (the far one pushed), near only, far only, none -> NEXTPASS
