@@ -112,29 +112,36 @@ class StepIssue(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         R, slay = self.cfg.rays_per_subunit, step_layout(self.cfg)
-        m.submodules.queue = q = SyncFIFO(width=slay.size, depth=self.queue)
-        m.d.comb += [q.w_data.eq(self.step.payload), q.w_en.eq(self.step.valid),
+        # each queued step carries its mask without the lowest lane and "at most one lane",
+        # formed as it is queued
+        without_lowest = lambda x: (x & (x - 1))[:R]
+        mask = self.step.payload.mask
+        m.submodules.queue = q = SyncFIFO(width=slay.size + R + 1, depth=self.queue)
+        m.d.comb += [q.w_data.eq(Cat(self.step.payload, without_lowest(mask),
+                                     without_lowest(mask) == 0)),
+                     q.w_en.eq(self.step.valid),
                      self.step.ready.eq(q.w_rdy), self.queued.eq(q.r_rdy)]
-        head = slay(q.r_data)
+        head = slay(q.r_data[:slay.size])
+        head_rest, head_one = q.r_data[slay.size:slay.size + R], q.r_data[-1]
         act, d = self.active, self.cur
         rem = Signal(R)                     # lanes of the current step not issued yet
+        rest = Signal(R)                    # rem without its lowest lane
         has, lane0 = lowest(m, rem, "issue")
         # ``last`` (at most one lane left) is a register, computed when rem is loaded or
         # loses its lowest lane: the issue decision does not wait for the priority encoder
         last = self.last
-        at_most_one = lambda x: (x & (x - 1))[:R] == 0
-        rest = (rem & (rem - 1))[:R]        # rem without its lowest lane
         m.d.comb += [self.has_lane.eq(has), self.lane.eq(lane0)]
         take = Signal()
         m.d.comb += [self.can_start.eq(q.r_rdy & (~act | last)),
                      take.eq(self.can_start & self.go), q.r_en.eq(take)]
         with m.If(take):
-            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask),
-                         last.eq(at_most_one(head.mask))]
+            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask), rest.eq(head_rest),
+                         last.eq(head_one)]
         with m.Elif(act & last):
             m.d.sync += act.eq(0)
         with m.Elif(act):
-            m.d.sync += [rem.eq(rest), last.eq(at_most_one(rest))]
+            m.d.sync += [rem.eq(rest), rest.eq(without_lowest(rest)),
+                         last.eq(without_lowest(rest) == 0)]
         return m
 
 
