@@ -729,6 +729,18 @@ class Traversal(wiring.Component):
         with m.If(ctl_busy):
             m.d.sync += self.ctl_busy.eq(self.ctl_busy + 1)
 
+        # what the engine writes into the thread it works on (e_t), set in the FSM below
+        c_state, c_state_we = Signal(ThreadState, name="ctl_state"), Signal()
+        c_fields = {f: Signal.like(getattr(th, f)[0], name=f"ctl_{f}")
+                    for f in ("node", "mask", "sp", "cur")}
+        c_fields_we = Signal()
+
+        def ctl_state(v):
+            m.d.comb += [c_state_we.eq(1), c_state.eq(v)]
+
+        def ctl_fields(**values):
+            m.d.comb += [c_fields_we.eq(1), *(c_fields[f].eq(v) for f, v in values.items())]
+
         with m.FSM(name="step"):
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
@@ -746,7 +758,7 @@ class Traversal(wiring.Component):
                         with m.If(room):
                             m.d.comb += disp.eq(1)
                             m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
-                            th.set_state(m, e_t, ThreadState.STEP)
+                            ctl_state(ThreadState.STEP)
                             m.next = "IDLE"
                     with m.Elif(e_word.index != 0):
                         m.next = "LEAF"
@@ -759,7 +771,7 @@ class Traversal(wiring.Component):
             with m.State("LEAF"):
                 m.d.comb += lf.i.valid.eq(1)
                 with m.If(lf.i.ready):
-                    th.set_state(m, e_t, ThreadState.WAIT_LEAF)
+                    ctl_state(ThreadState.WAIT_LEAF)
                     m.next = "IDLE"
             with m.State("POP"):
                 with m.If(e_sp == 0):
@@ -781,16 +793,14 @@ class Traversal(wiring.Component):
                 pop_node, pop_mask, pop_any = regs
             with m.State("POP4" if fast else "POP2"):
                 with m.If(pop_any):
-                    for f, v in (("node", pop_node), ("mask", pop_mask), ("sp", e_sp),
-                                 ("cur", 1)):
-                        th.set(m, f, e_t, v)
-                    th.set_state(m, e_t, ThreadState.FETCH)
+                    ctl_fields(node=pop_node, mask=pop_mask, sp=e_sp, cur=1)
+                    ctl_state(ThreadState.FETCH)
                     m.next = "IDLE"
                 with m.Else():
                     m.next = "POP"
             with m.State("PASS"):
                 with m.If(~lo_oc_any):
-                    th.set_state(m, e_t, ThreadState.DONE)
+                    ctl_state(ThreadState.DONE)
                     m.next = "IDLE"
                 with m.Else():
                     m.d.comb += pm_r.addr.eq(e_t)
@@ -802,11 +812,17 @@ class Traversal(wiring.Component):
                     m.next = "PASS3"
             with m.State("PASS3" if fast else "PASS2"):
                 m.d.sync += [th.octant[e_t].eq(e_oct), self.passes.eq(self.passes + 1)]
-                for f, v in (("mask", pm_data.word_select(e_oct, L)), ("node", self.root),
-                             ("sp", 0), ("cur", 0)):
-                    th.set(m, f, e_t, v)
-                th.set_state(m, e_t, ThreadState.FETCH)
+                ctl_fields(mask=pm_data.word_select(e_oct, L), node=self.root, sp=0, cur=0)
+                ctl_state(ThreadState.FETCH)
                 m.next = "IDLE"
+
+        # the engine's writes of the thread it works on: one write per field
+        with m.If(c_state_we):
+            th.set_state(m, e_t, c_state)
+        with m.If(c_fields_we):
+            for f, v in c_fields.items():
+                th.set(m, f, e_t, v)
+
 
     def _decide(self, m: Module, th: _Threads, order, st_w) -> Signal:
         """The oldest outstanding step, once every sub-unit's verdict is in: both children ->
