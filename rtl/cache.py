@@ -279,10 +279,13 @@ class Cache(wiring.Component):
         drp = data.read_port()
         mresp = self.mem.resp
         if self.fast:       # the memory's response in a register first (it comes from the bus)
+            # (loaded only with a response: the caches' copies of the bus's shared response
+            # stay apart, each beside its own fill logic)
             mresp = SimpleNamespace(valid=Signal(name="fill_valid"),
                                     payload=Signal.like(self.mem.resp.payload, name="fill"))
-            m.d.sync += [mresp.valid.eq(self.mem.resp.valid),
-                         mresp.payload.eq(self.mem.resp.payload)]
+            m.d.sync += mresp.valid.eq(self.mem.resp.valid)
+            with m.If(self.mem.resp.valid):
+                m.d.sync += mresp.payload.eq(self.mem.resp.payload)
         m.d.comb += self.mem.resp.ready.eq(1)
         f_m = mresp.payload.tag[:self.mshr_bits]
         f_w = mresp.payload.tag[self.mshr_bits:self.mshr_bits + self.word_bits] if LW > 1 \
