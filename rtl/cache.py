@@ -368,18 +368,24 @@ class Cache(wiring.Component):
         m.d.comb += pop.eq(h_ready & (~o_valid | o_move))
         h_next = Mux(q_head == Q - 1, 0, q_head + 1)[:len(q_head)]
         if self.fast:
-            # the head entry's data address in a register, a cycle ahead (the entry at the
-            # head after this cycle's pop, the tail entry's write of this cycle bypassed); the
-            # data array is read whenever the output stage can take it, popped or not (o_valid
-            # says whether it is the head's line), so the read's enable needs no verdict
+            # the head entry's data address from registers, formed a cycle ahead: the
+            # addresses of the entry at the head and of the one after it (the tail entry's
+            # write of this cycle bypassed) and whether the head moves on. The data array is
+            # read whenever the output stage can take a line, popped or not (o_valid says
+            # whether it is the head's), so the read's enable needs no verdict
             h_addr = Signal(wb + sb, name="h_addr")
             written = Cat(*q_wr)
             stored = Array(Cat(q_way[i], q_set[i]) for i in range(Q))
 
             def head_addr(k):
                 return Mux(written.bit_select(k, 1), Cat(way, d_set), stored[k])
-            m.d.sync += h_addr.eq(Mux(pop, head_addr(h_next), head_addr(q_head)))
-            m.d.comb += [drp.addr.eq(h_addr), drp.en.eq(~o_valid | o_move)]
+            # both candidates registered, the pop registered to choose between them
+            stay, moved, popped = Signal(wb + sb, name="h_addr_stay"), \
+                Signal(wb + sb, name="h_addr_moved"), Signal(name="h_popped")
+            m.d.sync += [stay.eq(head_addr(q_head)), moved.eq(head_addr(h_next)),
+                         popped.eq(pop)]
+            m.d.comb += [h_addr.eq(Mux(popped, moved, stay)),
+                         drp.addr.eq(h_addr), drp.en.eq(~o_valid | o_move)]
         else:
             m.d.comb += [drp.addr.eq(Cat(h_way, h_set)), drp.en.eq(pop)]
         m.d.comb += q_clr_bit.eq(Mux(pop, 1 << q_head, 0))
