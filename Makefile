@@ -87,8 +87,9 @@ verilog: setup
 	$(SAARCOR) verilog --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
-##   (YoWASP Yosys + nextpnr: 25-35 min, Yosys 2.5-10 + placement 9-13 + routing 12; not in CI) -> build/fpga/report.json, README.md
-##   deep FP pipelines, the fast_clock registers, delays in LUT-RAM, router1 (67.6 MHz routed, docs/fpga.md);
+##   (YoWASP Yosys + nextpnr: Yosys 2 min + placement 6-9 min + routing 10-40 min or stalling; not in CI) -> build/fpga/report.json, README.md
+##   deep FP pipelines, the fast_clock registers, delays in LUT-RAM, router1 (67.6 MHz routed at 5450c3a;
+##   later netlists route with some seeds only, FPGA_DEEP="... --seed N" to try others: docs/fpga.md);
 ##   FPGA_DEEP= for the default timing
 FPGA_TOP    ?= rtc
 FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 5 --fp-div-latency 29 --fp-cmp-latency 3 --fast-clock 1 --delay-ram 4 --router router1
