@@ -333,7 +333,8 @@ class Cache(wiring.Component):
             m.d.sync += [any_free.eq(Mux(alloc, a_any, k_any)), free.eq(Mux(alloc, a_idx, k_idx))]
 
         # --- output: head of the queue once its line is present -----------------------------
-        h_set, h_way = Array(q_set)[q_head], Array(q_way)[q_head]
+        q_set_a, q_way_a = Array(q_set), Array(q_way)
+        h_set, h_way = q_set_a[q_head], q_way_a[q_head]
         h_ready = Signal()
         if self.fast:
             # per queue entry, a cycle ahead into a register: the same function of the queue
@@ -375,10 +376,9 @@ class Cache(wiring.Component):
             # whether it is the head's), so the read's enable needs no verdict
             h_addr = Signal(wb + sb, name="h_addr")
             written = Cat(*q_wr)
-            stored = Array(Cat(q_way[i], q_set[i]) for i in range(Q))
 
             def head_addr(k):
-                return Mux(written.bit_select(k, 1), Cat(way, d_set), stored[k])
+                return Mux(written.bit_select(k, 1), Cat(way, d_set), Cat(q_way_a[k], q_set_a[k]))
             # both candidates registered, the pop registered to choose between them
             stay, moved, popped = Signal(wb + sb, name="h_addr_stay"), \
                 Signal(wb + sb, name="h_addr_moved"), Signal(name="h_popped")

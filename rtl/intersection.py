@@ -348,7 +348,8 @@ class IntersectionUnit(wiring.Component):
                                 thread=Signal(self.cfg.thread_bits, name="n_thread"),
                                 index=Signal(TRI_ID_BITS, name="n_index"),
                                 last=Signal(name="n_last"))
-            # N samples slot n_slot, or n_slot + 1 (= n_after) when H takes N now
+            # N samples slot n_slot, or n_slot + 1 when H takes N now (n_after, always
+            # n_slot + 1, is kept in its own register: both picks are by register indices)
             n_slot = Signal(self.slot_bits)
             n_after = Signal(self.slot_bits, init=1)
             take = Signal()

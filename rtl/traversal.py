@@ -115,10 +115,9 @@ class StepIssue(wiring.Component):
         # each queued step carries its mask without the lowest lane and "at most one lane",
         # formed as it is queued
         without_lowest = lambda x: (x & (x - 1))[:R]
-        mask = self.step.payload.mask
+        mask_rest = without_lowest(self.step.payload.mask)
         m.submodules.queue = q = SyncFIFO(width=slay.size + R + 1, depth=self.queue)
-        m.d.comb += [q.w_data.eq(Cat(self.step.payload, without_lowest(mask),
-                                     without_lowest(mask) == 0)),
+        m.d.comb += [q.w_data.eq(Cat(self.step.payload, mask_rest, mask_rest == 0)),
                      q.w_en.eq(self.step.valid),
                      self.step.ready.eq(q.w_rdy), self.queued.eq(q.r_rdy)]
         head = slay(q.r_data[:slay.size])
@@ -140,8 +139,8 @@ class StepIssue(wiring.Component):
         with m.Elif(act & last):
             m.d.sync += act.eq(0)
         with m.Elif(act):
-            m.d.sync += [rem.eq(rest), rest.eq(without_lowest(rest)),
-                         last.eq(without_lowest(rest) == 0)]
+            rest_rest = without_lowest(rest)
+            m.d.sync += [rem.eq(rest), rest.eq(rest_rest), last.eq(rest_rest == 0)]
         return m
 
 
@@ -684,7 +683,6 @@ class Traversal(wiring.Component):
         m.d.comb += [order.w_data.eq(Cat(e_t, (e_word.index + neg)[:NODE_BITS],
                                          (e_word.index + 1 - neg)[:NODE_BITS], e_sp)),
                      order.w_en.eq(disp)]
-        self._order_layout = order_l
         for j, s in enumerate(subs):
             m.d.comb += [s.step.payload.mask.eq(e_mask[j * R:(j + 1) * R]),
                          s.step.payload.thread.eq(e_t), s.step.payload.axis.eq(e_word.axis),
@@ -722,7 +720,7 @@ class Traversal(wiring.Component):
             with m.If(~s.idle):
                 m.d.sync += self.sub_busy[j].eq(self.sub_busy[j] + 1)
 
-        dec = self._decide(m, th, order, st_w)
+        dec = self._decide(m, th, data.View(order_l, order.r_data), order, st_w)
         m.d.comb += ctl_busy.eq(1)
         with m.If(ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()):
             m.d.sync += self.busy.eq(self.busy + 1)
@@ -823,14 +821,14 @@ class Traversal(wiring.Component):
             for f, v in c_fields.items():
                 th.set(m, f, e_t, v)
 
-
-    def _decide(self, m: Module, th: _Threads, order, st_w) -> Signal:
+    def _decide(self, m: Module, th: _Threads, head, order, st_w) -> Signal:
         """The oldest outstanding step, once every sub-unit's verdict is in: both children ->
         push the far one and go near; near only; far only; none ends the pass (as in
-        ``model.traversal.decide``). One cycle (two with ``cfg.fast_clock``: the queue heads
-        are registered first). Returns the signal that a step is decided (in its last cycle)."""
+        ``model.traversal.decide``; its children ``child + neg`` and ``child + 1 - neg`` were
+        formed at dispatch and come with the thread and its stack pointer in ``head``, the
+        ``order`` queue's head). One cycle (two with ``cfg.fast_clock``: the queue heads are
+        registered first). Returns the signal that a step is decided (in its last cycle)."""
         subs = self.subunits
-        head = data.View(self._order_layout, order.r_data)
         dt, d_sp, near_node, far_node = head.thread, head.sp, head.near, head.far
         dec = Signal()
         m.d.comb += dec.eq(order.r_rdy & Cat(*(s.res.valid for s in subs)).all())
