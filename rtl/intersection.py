@@ -24,7 +24,8 @@ from amaranth.utils import ceil_log2
 from model.config import Config
 from model.fp import FPFormat
 
-from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, popcount, sum_tree
+from .common import (COUNTER_BITS, OutputStage, SkidBuffer, from_binary32, lowest, popcount,
+                     sum_tree)
 from .fp.cmp import compare
 from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
@@ -187,7 +188,9 @@ class IntersectionUnit(wiring.Component):
     leaves one cycle after its ``TriRequest`` was taken, one triangle a cycle); tests issue one
     lane per cycle with no gap between triangles. A test's result is stored 2 + ``IntersectPipe.latency`` cycles after its issue
     (34 for binary32); the LaneResult leaves one cycle later. The whole pipeline stalls only while
-    ``lane_out`` is full and not taken.
+    ``lane_out`` is full and not taken (``cfg.fast_clock``: while a second LaneResult waits
+    behind the full output, in a skid register, so the stall starts a cycle later and comes
+    from a flip-flop).
     """
 
     def __init__(self, cfg: Config, *, addr_width: int = 32, tri_slots: int | None = None,
@@ -226,7 +229,11 @@ class IntersectionUnit(wiring.Component):
         m = Module()
         m.submodules.pipe = self.pipe
         # the test pipeline advances unless a LaneResult waits in a full output register
-        m.submodules.lane_stage = self._lane_stage = OutputStage(LaneResult(self.cfg))
+        # (fast_clock: unless one waits in the skid register behind it, so the enable of the
+        # issue, the datapath and the closest-hit stages is a flip-flop, not the consumer's
+        # ready)
+        stage = SkidBuffer if self.cfg.fast_clock else OutputStage
+        m.submodules.lane_stage = self._lane_stage = stage(LaneResult(self.cfg))
         wiring.connect(m, self._lane_stage.o, wiring.flipped(self.lane_out))
         en = self._lane_stage.i.ready
         w = self.fmt.width
