@@ -185,3 +185,57 @@ def test_pnr_args_reach_nextpnr_and_the_report(tmp_path, monkeypatch):
     entry = json.loads((tmp_path / "report.json").read_text())["runs"]["beta"]
     assert entry["pnr_args"] == ["--placer-heap-beta", "0.7"]
     assert entry["status"].startswith("place and route failed")
+
+
+def test_congestion_units_and_shares(tmp_path):
+    """Cells are mapped to the unit path in their names, each tile's overuse is split between
+    the units by their cells there, the quietest iteration is chosen, and the map is drawn."""
+    from rtl.fpga.congestion import attribute, read_heatmap, report, tile_units, unit_of
+    from rtl.fpga.flow import main
+    assert unit_of("dut.rtcmi.cache_int.q_wait_TRELLIS_FF_Q") == "rtcmi.cache_int"
+    assert unit_of("dut.rtc.int.pipe.add3.s2_TRELLIS_FF_Q") == "rtc.int.pipe"
+    assert unit_of("dut.rtc.int.n_mask_LUT4_Z") == "rtc.int"
+    assert unit_of("dut.pipe.a_sxz$619.$42_MULT18X18D_P9") == "pipe"
+    assert unit_of("dut.done__valid_LUT4_Z") == "top"
+    assert unit_of("$1_TRELLIS_FF_Q") == "other"
+    # the CSVs hold a row per tile column x: iteration 1 has 6 in tile (x=1, y=0) and 2 in
+    # (0, 1); iteration 2 less
+    (tmp_path / "heatmap_congestion_by_coordinate_1.csv").write_text("0,2,\n6,0,\n")
+    (tmp_path / "heatmap_congestion_by_coordinate_2.csv").write_text("0,1,\n3,0,\n")
+    (tmp_path / "heatmap_congestion_by_net_2.csv").write_text(
+        "dut.rtc.trav.x_LUT4_Z,5\ndut.rtcmi.cache_int.y$3.z,1\n$PACKER_GND_NET,2\n")
+    assert read_heatmap(tmp_path / "heatmap_congestion_by_coordinate_1.csv").tolist() == \
+        [[0, 6], [2, 0]]
+    cells = {
+        "dut.rtc.trav.a_TRELLIS_FF_Q": ("TRELLIS_FF", "X1/Y0/SLICEA"),
+        "dut.rtc.trav.b_LUT4_Z": ("TRELLIS_COMB", "X1/Y0/SLICEB"),
+        "dut.rtcmi.cache_int.c_LUT4_Z": ("TRELLIS_COMB", "X1/Y0/SLICEC"),
+        "dut.rtcmi.cache_int.d_LUT4_Z": ("TRELLIS_COMB", "X0/Y1/SLICEA"),
+        "dut.rtc.trav.e_TRELLIS_FF_Q": ("TRELLIS_FF", "X0/Y0/SLICEA"),
+        "dut.rtc.trav.port": ("TRELLIS_IO", "X0/Y0/PIOA"),          # not a logic site
+    }
+    placed = {"modules": {"top": {"cells": {
+        n: {"type": t, "attributes": {"NEXTPNR_BEL": b}} for n, (t, b) in cells.items()}}}}
+    tiles = tile_units(placed)
+    assert tiles[(1, 0)] == {"rtc.trav": 2, "rtcmi.cache_int": 1}
+    assert sum(map(sum, (t.values() for t in tiles.values()))) == 5
+    shares = attribute(read_heatmap(tmp_path / "heatmap_congestion_by_coordinate_1.csv"), tiles)
+    # tile (1, 0): 6 wires, 2/3 to the traversal; tile (0, 1): 2 wires, all to the cache
+    assert shares["rtc.trav"]["overuse"] == pytest.approx(4.0)
+    assert shares["rtcmi.cache_int"]["overuse"] == pytest.approx(4.0)
+    assert shares["rtc.trav"]["share"] == pytest.approx(0.5)
+    with pytest.raises(SystemExit, match="placed.json"):
+        report(tmp_path)
+    (tmp_path / "placed.json").write_text(json.dumps(placed))
+    res = report(tmp_path)
+    assert res["iteration"] == 2 and res["overuse_by_iteration"] == {1: 8, 2: 4}
+    assert res["units"]["rtc.trav"]["overuse"] == pytest.approx(2.0)       # 3 * 2/3
+    assert res["units"]["rtcmi.cache_int"]["overuse"] == pytest.approx(2.0)  # 3/3 + 1
+    assert res["units"]["rtc.trav"]["net_excess"] == 5 and res["units"]["other"]["net_excess"] == 2
+    assert res["units"]["rtcmi.cache_int"]["net_share"] == pytest.approx(1 / 8)
+    assert (tmp_path / "congestion.png").stat().st_size > 1000
+    assert json.loads((tmp_path / "congestion.json").read_text())["iteration"] == 2
+    with pytest.raises(SystemExit, match="iteration 7"):
+        report(tmp_path, iteration=7)
+    with pytest.raises(SystemExit, match="no router2 heatmaps"):
+        main(["--congestion", "nothing", "--out", str(tmp_path)])

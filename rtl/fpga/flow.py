@@ -458,9 +458,28 @@ def main(argv=None) -> None:
     ap.add_argument("--estimate", metavar="LABEL",
                     help="list the path classes of run LABEL's netlist estimated longer than "
                          "the --freq period (seconds; no placement: rtl/fpga/paths.py)")
+    ap.add_argument("--congestion", metavar="LABEL",
+                    help="map where run LABEL congests: router2's congestion per tile beside "
+                         "the unit placed there, and each unit's share (LABEL's placed.json "
+                         "and the heatmaps of a router2 route with --pnr-arg=--router2-heatmap "
+                         "--pnr-arg=heatmap) -> LABEL/congestion.png, congestion.json")
     add_config_args(ap)
     args = ap.parse_args(argv)
     out = Path(args.out)
+    if args.congestion:
+        from .congestion import report as congestion
+        res = congestion(out / args.congestion)
+        print(f"router2 iteration {res['iteration']}: congestion "
+              f"{res['overuse_by_iteration'][res['iteration']]} (nets on overused wires) in "
+              f"{res['overused_tiles']} tiles; cells in {res['placed_tiles']} tiles")
+        print(f"{'unit':>22}  {'cells':>7}  {'% cells':>7}  {'% tiles':>7}  {'% nets':>7}")
+        for unit, u in res["units"].items():
+            print(f"{unit:>22}  {u['cells']:7}  {100 * u['cell_share']:7.1f}  "
+                  f"{100 * u['share']:7.1f}  {100 * u.get('net_share', 0.0):7.1f}")
+        print("(% tiles: the congestion of the tiles split by their cells; % nets: the "
+              "overused nets' excess by net name)")
+        print(f"-> {out / args.congestion / 'congestion.png'}")
+        return
     if args.estimate:
         from .paths import report
         net = out / args.estimate / "fpga_top.json"
