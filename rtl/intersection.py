@@ -268,7 +268,12 @@ class IntersectionUnit(wiring.Component):
         cycle; each response is the whole triangle and lands in its slot, in any order."""
         n_slots, lanes = self.tri_slots, self.lanes
         s = SimpleNamespace()
-        s.item = Array(Signal(self.cfg.int_item_bits, name=f"s{i}_tri") for i in range(n_slots))
+        # the slots' triangles: a memory written by the responses and read without a clock
+        # (LUT-RAM on an FPGA: the issue stage's pick by its slot pointer is the RAM's read
+        # address, not a mux tree over tri_slots x 288 flip-flops)
+        m.submodules.tri_store = store = Memory(shape=self.cfg.int_item_bits, depth=n_slots,
+                                                init=[])
+        s.item_w, s.item_r = store.write_port(), store.read_port(domain="comb")
         s.got = Signal(n_slots)
         s.mask = Array(Signal(lanes, name=f"s{i}_mask") for i in range(n_slots))
         s.thread = Array(Signal(self.cfg.thread_bits, name=f"s{i}_thread")
@@ -318,7 +323,8 @@ class IntersectionUnit(wiring.Component):
         m.d.comb += resp.ready.eq(1)
         with m.If(resp.valid):
             m.d.comb += got_set.eq(1 << resp.payload.tag[:self.slot_bits])
-            m.d.sync += s.item[resp.payload.tag[:self.slot_bits]].eq(resp.payload.data)
+        m.d.comb += [s.item_w.addr.eq(resp.payload.tag[:self.slot_bits]),
+                     s.item_w.data.eq(resp.payload.data), s.item_w.en.eq(resp.valid)]
         s.got_in = Signal(n_slots)                   # s.got with this cycle's arrivals
         m.d.comb += s.got_in.eq(s.got | got_set)
         m.d.sync += s.got.eq(s.got_in & ~got_clr)
@@ -414,7 +420,8 @@ class IntersectionUnit(wiring.Component):
             thread, index, tri_last = s.thread[t_slot], s.index[t_slot], \
                 s.last.bit_select(t_slot, 1)
 
-        tri = data.View(data.ArrayLayout(32, 9), s.item[t_slot][:9 * 32])
+        m.d.comb += s.item_r.addr.eq(t_slot)
+        tri = data.View(data.ArrayLayout(32, 9), s.item_r.data[:9 * 32])
         s1_valid = Signal()
         s1_tri = Signal(data.ArrayLayout(fmt.width, 9))
         s1_meta = Signal(self.pipe_meta)
