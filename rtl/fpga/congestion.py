@@ -28,6 +28,14 @@ __all__ = ["unit_of", "read_heatmap", "heatmaps", "tile_units", "attribute", "ne
 # most of the RTC: it is shown apart from the unit's control)
 SPLIT = ("rtc.int.pipe",)
 _BEL = re.compile(r"^X(\d+)/Y(\d+)/")
+# the site types of a placed ECP5 design that hold logic, flip-flops, RAM and DSPs (nextpnr packs
+# LUT4s and carry cells into TRELLIS_COMB)
+KINDS = ("TRELLIS_COMB", "TRELLIS_FF", "TRELLIS_RAMW", "MULT18X18D", "DP16KD")
+
+
+def _unit() -> dict:
+    """A unit's entry before any of its cells or nets is counted."""
+    return {"cells": 0, "tiles": 0, "overuse": 0.0, "share": 0.0, "cell_share": 0.0}
 
 
 def unit_of(cell: str, depth: int = 2, split: tuple[str, ...] = SPLIT) -> str:
@@ -84,17 +92,13 @@ def net_units(path: Path, depth: int = 2) -> Counter:
     return out
 
 
-def tile_units(placed: dict, depth: int = 2,
-               kinds: tuple[str, ...] = ("TRELLIS_COMB", "TRELLIS_FF", "TRELLIS_RAMW",
-                                         "MULT18X18D", "DP16KD", "CCU2C", "LUT4")
-               ) -> dict[tuple[int, int], Counter]:
+def tile_units(placed: dict, depth: int = 2) -> dict[tuple[int, int], Counter]:
     """Cells per tile and unit of a placed nextpnr design: {(x, y): Counter(unit -> cells)},
-    cells of the types ``kinds`` only (logic, flip-flops, RAM and DSP sites). nextpnr writes
-    the placed design as one module (``top``)."""
+    cells of the site types ``KINDS`` only. nextpnr writes the placed design as one module."""
     (mod,) = placed["modules"].values()
     tiles: dict[tuple[int, int], Counter] = defaultdict(Counter)
     for name, cell in mod["cells"].items():
-        if cell.get("type") not in kinds:
+        if cell.get("type") not in KINDS:
             continue
         bel = cell.get("attributes", {}).get("NEXTPNR_BEL", "")
         m = _BEL.match(bel)
@@ -109,7 +113,7 @@ def attribute(heat: np.ndarray, tiles: dict[tuple[int, int], Counter]) -> dict[s
     "cell_share"}} (share: of the congestion in tiles with cells; cell_share: of the cells, so
     share / cell_share above 1 marks a unit placed where the routing is more crowded than
     average), largest first."""
-    out: dict[str, dict] = defaultdict(lambda: {"cells": 0, "tiles": 0, "overuse": 0.0})
+    out: dict[str, dict] = defaultdict(_unit)
     total = 0.0
     for (x, y), units in tiles.items():
         n = sum(units.values())
@@ -126,20 +130,16 @@ def attribute(heat: np.ndarray, tiles: dict[tuple[int, int], Counter]) -> dict[s
     return dict(sorted(out.items(), key=lambda kv: -kv[1]["overuse"]))
 
 
-def plot(heat: np.ndarray, tiles: dict[tuple[int, int], Counter], title: str,
-         png: Path, top_units: int = 9) -> None:
+def plot(heat: np.ndarray, tiles: dict[tuple[int, int], Counter], names: list[str],
+         title: str, png: Path) -> None:
     """Two maps of the die side by side, written to ``png``: router2's congestion per tile
-    and the unit with most cells in each tile (the ``top_units`` largest by cells, the rest
+    and the unit with most cells in each tile (each of ``names`` in its colour, other units
     grey)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.colors import ListedColormap, LogNorm
 
-    cells = Counter()
-    for units in tiles.values():
-        cells.update(units)
-    names = [u for u, _ in cells.most_common(top_units)]
     grid = np.full(heat.shape, np.nan)
     for (x, y), units in tiles.items():
         if y < grid.shape[0] and x < grid.shape[1]:
@@ -168,14 +168,14 @@ def plot(heat: np.ndarray, tiles: dict[tuple[int, int], Counter], title: str,
 def report(wd: Path, iteration: int | None = None) -> dict:
     """Congestion of run directory ``wd`` (a ``--place-only`` run's ``placed.json`` and the
     heatmaps of a router2 ``--route-only`` run of it copied or written there): the iteration
-    with the least congestion (the coordinate map's sum) unless ``iteration`` is given. Writes ``congestion.png``
-    and ``congestion.json`` in ``wd`` and returns the JSON's content."""
+    with the least congestion (the coordinate map's sum) unless ``iteration`` is given.
+    Writes ``congestion.png`` and ``congestion.json`` in ``wd`` and returns the JSON's
+    content."""
     wd = Path(wd)
     maps = heatmaps(wd)
     if not maps:
         raise SystemExit(f"rtl.fpga: no router2 heatmaps (*congestion_by_coordinate_N.csv) in "
-                         f"{wd}; route "
-                         "with --router router2 --pnr-arg=--router2-heatmap "
+                         f"{wd}; route with --router router2 --pnr-arg=--router2-heatmap "
                          "--pnr-arg=heatmap")
     placed = wd / "placed.json"
     if not placed.exists():
@@ -194,13 +194,13 @@ def report(wd: Path, iteration: int | None = None) -> dict:
         nets = net_units(by_net[iteration])
         total = sum(nets.values())
         for u, v in nets.items():
-            units.setdefault(u, {"cells": 0, "tiles": 0, "overuse": 0.0, "share": 0.0,
-                                 "cell_share": 0.0})
-            units[u].update(net_excess=v, net_share=v / total if total else 0.0)
+            units.setdefault(u, _unit()).update(net_excess=v, net_share=v / total if total else 0.0)
     res = {"iteration": iteration,
            "overuse_by_iteration": {i: int(h.sum()) for i, h in heats.items()},
            "overused_tiles": int((heat > 0).sum()), "placed_tiles": len(tiles),
            "units": units}
     (wd / "congestion.json").write_text(json.dumps(res, indent=1) + "\n")
-    plot(heat, tiles, f"{wd.name}: router2 iteration {iteration}", wd / "congestion.png")
+    by_cells = sorted(units, key=lambda u: -units[u]["cells"])[:9]
+    plot(heat, tiles, by_cells, f"{wd.name}: router2 iteration {iteration}",
+         wd / "congestion.png")
     return res
