@@ -23,6 +23,7 @@ import argparse
 import fcntl
 import hashlib
 import json
+import os
 import shutil
 import struct
 import subprocess
@@ -56,6 +57,12 @@ FLAGS = ["--cc", "--exe", "--build", "-j", "2", "-Wno-WIDTH", "-Wno-fatal",
          "-MAKEFLAGS", "CFG_CXXFLAGS_PCH_I=-include",
          "-MAKEFLAGS", "CFG_CXXFLAGS_STD=-std=gnu++17",
          "-MAKEFLAGS", "CFG_LDLIBS_THREADS=-pthread"]
+# The C++ optimisation level: Verilator's own (``-Os`` for the per-cycle code, none for the
+# initialisation) unless ``$SAARCOR_VERILATOR_OPT`` names one level for all of it. The tests set
+# ``-O0``: the chip's C++ then compiles about 5x faster and runs about 4x slower, a gain for
+# their small frames (docs/verilator.md).
+CXX_OPT_ENV = "SAARCOR_VERILATOR_OPT"
+CXX_OPTS = ("-O0", "-O1", "-O2", "-O3", "-Os", "-Og")
 MIN_MEM_WORDS = 1 << 19           # office (272 k words) and Cornell share a binary
 MIN_RAY_SLOTS = 1 << 16           # up to 256x256 rays (4 MB of ray memory)
 IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
@@ -65,6 +72,14 @@ IN_MAGIC, OUT_MAGIC = b"RTCIN01\0", b"RTCOUT1\0"
 
 class FrameError(AssertionError):
     """The simulated frame did not finish, or the binary rejected its input."""
+
+
+def cxx_opt() -> str:
+    """The C++ optimisation level of new builds (:data:`CXX_OPT_ENV`; "" for Verilator's)."""
+    opt = os.environ.get(CXX_OPT_ENV, "")
+    if opt and opt not in CXX_OPTS:
+        raise ConfigError(f"${CXX_OPT_ENV}={opt!r}: one of {', '.join(CXX_OPTS)}")
+    return opt
 
 
 def _pow2(n: int, least: int) -> int:
@@ -103,6 +118,7 @@ def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
     h.update(json.dumps({"top": top, "cfg": cfg.hardware_dict(), "mem_words": mem_words,
                          "ray_slots": ray_slots,
                          "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
+                         "cxx_opt": cxx_opt(),
                          "amaranth": amaranth.__version__, "verilator": vl},
                         sort_keys=True).encode())
     for p in _sources():
@@ -167,7 +183,9 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         print(f"tb.verilator: export {t1 - t0:.1f} s; compiling with Verilator ...", file=log,
               flush=True)
         tflags = {False: [], "fst": ["--trace-fst"], "vcd": ["--trace"]}[trace]
-        cmd = [exe, *FLAGS, *tflags, "--top-module", TOP,
+        oflags = [a for v in ("OPT_FAST", "OPT_SLOW", "OPT_GLOBAL") if cxx_opt()
+                  for a in ("-MAKEFLAGS", f"{v}={cxx_opt()}")]
+        cmd = [exe, *FLAGS, *oflags, *tflags, "--top-module", TOP,
                "-o", "Vframe", "-Mdir", "obj_dir", f"{TOP}.v", MEM_V.name, MAIN_CPP.name]
         p = subprocess.run(cmd, cwd=d, capture_output=True, text=True)
         (d / "build.log").write_text(p.stdout + p.stderr)
@@ -179,7 +197,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
                                f"command: {' '.join(cmd)}\n{(p.stdout + p.stderr)[-4000:]}")
         secs = time.perf_counter() - t0
         stamp.write_text(json.dumps({"top": top, "export_s": round(t1 - t0, 1),
-                                     "build_s": round(secs, 1),
+                                     "build_s": round(secs, 1), "cxx_opt": cxx_opt(),
                                      "config": cfg.to_dict(), "mem_words": mem_words,
                                      "ray_slots": ray_slots, "mem_latency": mem_latency,
                                      "trace": trace}, indent=1))

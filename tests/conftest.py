@@ -13,6 +13,12 @@ Missing tools
     ``make setup``: a missing tool is a broken installation, not a reason to skip a check. Only the
     real meshes (data, not tools) skip.
 
+Verilator builds
+    The tests compile their Verilator binaries with ``-O0`` (``$SAARCOR_VERILATOR_OPT``, read
+    by ``tb.verilator``; a value already in the environment is kept): their frames are small,
+    so a build that compiles about 5x faster gains more than the slower simulation costs.
+    These binaries have their own cache keys; ``make sim`` builds with Verilator's ``-Os``.
+
 Timing contract
     Cycle counts of small reference runs are part of the design's contract: ``tests/timing.json``
     records them (measured on the code, not derived from it) and the tests that make those runs
@@ -25,6 +31,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
+os.environ.setdefault("SAARCOR_VERILATOR_OPT", "-O0")
 SHARED_MESHES = Path(os.environ.get("SAARCOR_MESHES") or
                      ROOT.parent / "shared" / "meshes").resolve()
 SCENES = sorted((ROOT / "scenes").glob("*.toml"))

@@ -271,12 +271,15 @@ def test_colour_check_finds_a_wrong_pixel():
     assert bad[0][2] - bad[0][3] == 1 << 24
 
 
+@pytest.mark.slow
 def test_chip_shared_fp_units_verilator(cornell):
     """The slaves with the paper's budget of FP units per datapath (3 adders, 4 multipliers,
     shared in time: ``Config.rgs_fp_adders``, ``rgs_fp_muls``): Cornell 16x16 with its
     shadows, the mirror sphere and the textured floor, under back-pressure and random memory
     latency: every ray and every pixel bit-exact; the slaves take a ray every ``ii`` cycles,
-    so the frame takes more cycles than with a unit per operation."""
+    so the frame takes more cycles than with a unit per operation. (Slow: a chip build of its
+    own; in CI the pool below runs the slaves at ``ii`` > 1 in the chip, and
+    ``tests/test_rgs.py`` checks each shared datapath bit for bit.)"""
     from rtl.rgs_slave import Slave
     from tb.chip import run_chip_frame
     scene, image = cornell

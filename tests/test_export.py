@@ -272,11 +272,12 @@ def test_rtc_top_matches_model(caches, fast, kd_cache, monkeypatch):
 
 
 @pytest.mark.filterwarnings("ignore:.*created but never used")
-@pytest.mark.parametrize("budget", [(0, 0), (3, 4)], ids=["unshared", "shared"])
+@pytest.mark.parametrize("budget", [(0, 0), pytest.param((3, 4), marks=pytest.mark.slow)],
+                         ids=["unshared", "shared"])
 def test_chip_top_lint_clean(tmp_path, budget):
     """``make verilog TOP=chip``: the whole chip (2 RTCs, their RTC-MIs, the RGS, the bus)
-    exports with one memory port and lints clean; Yosys reads it. Also with the slaves' FP
-    units shared (``rgs_fp_adders``, ``rgs_fp_muls``)."""
+    exports with one memory port and lints clean; Yosys reads it. Also (slow: 2 minutes) with
+    the slaves' FP units shared (``rgs_fp_adders``, ``rgs_fp_muls``)."""
     cfg = SMALL.replace(rtcs=2, rgs_fp_adders=budget[0], rgs_fp_muls=budget[1])
     path = ex.export("chip", cfg, tmp_path)
     p = lint(path, "chip")

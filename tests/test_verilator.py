@@ -144,6 +144,14 @@ def test_build_key_follows_configuration_and_sources(tmp_path, monkeypatch):
     assert k == vl.build_key(TINY.replace(shadows=False, kd_leaf_size=8, clock_mhz=100.0), **kw)
     assert k != vl.build_key(TINY.replace(rgs_lights=0, reflect_depth=0), **kw)   # eye-ray slave
     assert any(p.name == "traversal.py" for p in vl._sources())
+    # the C++ optimisation level: its own binary; a level the compiler does not have is named
+    monkeypatch.setenv(vl.CXX_OPT_ENV, "-O1")
+    assert vl.build_key(TINY, **kw) != k
+    monkeypatch.setenv(vl.CXX_OPT_ENV, "-O9")
+    with pytest.raises(vl.ConfigError, match=r"SAARCOR_VERILATOR_OPT='-O9': one of -O0"):
+        vl.build_key(TINY, **kw)
+    monkeypatch.delenv(vl.CXX_OPT_ENV)
+    assert vl.cxx_opt() == ""
     src = tmp_path / "unit.py"
     src.write_text("a = 1\n")
     monkeypatch.setattr(vl, "ROOT", tmp_path)
