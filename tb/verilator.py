@@ -183,8 +183,9 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         print(f"tb.verilator: export {t1 - t0:.1f} s; compiling with Verilator ...", file=log,
               flush=True)
         tflags = {False: [], "fst": ["--trace-fst"], "vcd": ["--trace"]}[trace]
-        oflags = [a for v in ("OPT_FAST", "OPT_SLOW", "OPT_GLOBAL") if cxx_opt()
-                  for a in ("-MAKEFLAGS", f"{v}={cxx_opt()}")]
+        opt = cxx_opt()
+        oflags = [a for v in ("OPT_FAST", "OPT_SLOW", "OPT_GLOBAL") if opt
+                  for a in ("-MAKEFLAGS", f"{v}={opt}")]
         cmd = [exe, *FLAGS, *oflags, *tflags, "--top-module", TOP,
                "-o", "Vframe", "-Mdir", "obj_dir", f"{TOP}.v", MEM_V.name, MAIN_CPP.name]
         p = subprocess.run(cmd, cwd=d, capture_output=True, text=True)
@@ -197,7 +198,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
                                f"command: {' '.join(cmd)}\n{(p.stdout + p.stderr)[-4000:]}")
         secs = time.perf_counter() - t0
         stamp.write_text(json.dumps({"top": top, "export_s": round(t1 - t0, 1),
-                                     "build_s": round(secs, 1), "cxx_opt": cxx_opt(),
+                                     "build_s": round(secs, 1), "cxx_opt": opt,
                                      "config": cfg.to_dict(), "mem_words": mem_words,
                                      "ray_slots": ray_slots, "mem_latency": mem_latency,
                                      "trace": trace}, indent=1))

@@ -31,6 +31,7 @@ _BEL = re.compile(r"^X(\d+)/Y(\d+)/")
 # the site types of a placed ECP5 design that hold logic, flip-flops, RAM and DSPs (nextpnr packs
 # LUT4s and carry cells into TRELLIS_COMB)
 KINDS = ("TRELLIS_COMB", "TRELLIS_FF", "TRELLIS_RAMW", "MULT18X18D", "DP16KD")
+MAP_UNITS = 9            # units in colour on the unit map (the largest by cells; the rest grey)
 
 
 def _unit() -> dict:
@@ -200,7 +201,7 @@ def report(wd: Path, iteration: int | None = None) -> dict:
            "overused_tiles": int((heat > 0).sum()), "placed_tiles": len(tiles),
            "units": units}
     (wd / "congestion.json").write_text(json.dumps(res, indent=1) + "\n")
-    by_cells = sorted(units, key=lambda u: -units[u]["cells"])[:9]
+    by_cells = sorted(units, key=lambda u: -units[u]["cells"])[:MAP_UNITS]
     plot(heat, tiles, by_cells, f"{wd.name}: router2 iteration {iteration}",
          wd / "congestion.png")
     return res
