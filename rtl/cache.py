@@ -41,7 +41,7 @@ from amaranth.utils import ceil_log2
 from model.cache import CacheGeometry
 
 from .memport import WORD_BITS, MemReadPort
-from .common import COUNTER_BITS, lowest
+from .common import COUNTER_BITS, lowest, times_const
 
 __all__ = ["Cache"]
 
@@ -55,7 +55,7 @@ class Cache(wiring.Component):
     while the lookup stalls), the tag row is read a stage before the compare and goes
     straight into a register (the tag and data block RAMs' outputs feed only registers; a
     tag write the read missed is forwarded), the data word is registered before
-    ``port.resp``, the line's memory address is formed as the request enters S1, the
+    ``port.resp``, the line's memory address is formed as the request enters S1 and S2, the
     lowest free MSHR is kept in a register, S1's compare verdict is registered and a stage S2
     decides from registers (S2's tag write forwarded into S1's compare), each queue entry's
     "line still being filled" and the head's data address are registers, and the memory's
@@ -146,7 +146,7 @@ class Cache(wiring.Component):
                 m.d.sync += [s2_valid.eq(s1_valid), s2_off.eq(s1_off), s2_set.eq(s1_set),
                              s2_tag.eq(s1_tag), s2_utag.eq(s1_utag),
                              s2_row.eq(Mux(w2, new_row, row)), s2_hits.eq(s1_hits),
-                             s2_mem.eq(self._s1_mem)]
+                             s2_mem.eq(self.base + self._s1_mem)]
             d_valid, d_off, d_set, d_tag, d_utag = s2_valid, s2_off, s2_set, s2_tag, s2_utag
             d_row, hit_vec = s2_row, s2_hits
         else:
@@ -266,7 +266,7 @@ class Cache(wiring.Component):
         line = Array(mshr_line)[head_m]
         m.d.comb += [mreq.valid.eq(issue.r_rdy),
                      mreq.payload.addr.eq(Array(mshr_addr)[head_m] + word if self.fast
-                                          else self.base + line * LW + word),
+                                          else self.base + times_const(line, LW) + word),
                      mreq.payload.tag.eq(Cat(head_m, word)[:len(mreq.payload.tag)])]
         m.d.comb += issue.r_en.eq(mreq.valid & mreq.ready & (word == LW - 1))
         with m.If(mreq.valid & mreq.ready):
@@ -437,11 +437,12 @@ class Cache(wiring.Component):
         s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
         s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
         s0_set = s0_addr[ob:ob + sb]
-        # the line's first memory word, a stage before an allocation needs it (the add and
-        # the multiply by the line's words are then off the lookup's path)
-        s1_mem = Signal(g.mem_addr_width, name="s1_mem_addr")
+        # the line's first memory word, formed before an allocation needs it (off the
+        # lookup's path): its offset from ``base`` here, S0 -> S1, the sum S1 -> S2 (one
+        # carry chain a stage)
+        s1_mem = Signal(g.mem_addr_width, name="s1_mem_off")
         with m.If(s1_move):
-            m.d.sync += s1_mem.eq(self.base + s0_addr[ob:] * g.line_words)
+            m.d.sync += s1_mem.eq(times_const(s0_addr[ob:], g.line_words))
         self._s1_mem = s1_mem
         w_now = twp.en & (twp.addr == s0_set)
         with m.If(s1_move):

@@ -11,8 +11,8 @@ from amaranth.utils import ceil_log2
 
 from model.fp import FPFormat
 
-__all__ = ["COUNTER_BITS", "popcount", "sum_tree", "lowest", "rr_pick", "OutputStage",
-           "SkidBuffer", "from_binary32"]
+__all__ = ["COUNTER_BITS", "popcount", "sum_tree", "times_const", "lowest", "rr_pick",
+           "OutputStage", "SkidBuffer", "from_binary32"]
 
 COUNTER_BITS = 32      # every statistics counter the hardware reports
 
@@ -26,6 +26,17 @@ def sum_tree(terms) -> Value:
         terms = [terms[k] + terms[k + 1] if k + 1 < len(terms) else terms[k]
                  for k in range(0, len(terms), 2)]
     return terms[0]
+
+
+def times_const(v: Value, k: int) -> Value:
+    """``v * k`` for a constant ``k >= 0`` as shifts and adds (one shifted copy of ``v`` per set
+    bit of ``k``, summed as a tree): Yosys maps a ``*`` by a constant to a DSP block, whose
+    delay and the wires to and from it made the int cache's line address (``k`` = 5 words a
+    triangle) the routed critical path of the one-RTC FPGA design."""
+    if k < 0:
+        raise ValueError(f"times_const: k={k} must be >= 0")
+    v = Value.cast(v)
+    return sum_tree([v << i for i in range(k.bit_length()) if k >> i & 1])
 
 
 def popcount(v: Value) -> Value:

@@ -23,6 +23,8 @@ from amaranth.hdl import Module
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
+from .common import times_const
+
 __all__ = ["MemRequest", "MemResponse", "MemReadPort", "WORD_BITS", "connect_tags", "ItemReader"]
 
 WORD_BITS = 64  # one memory access: a 64-bit word
@@ -159,7 +161,7 @@ class ItemReader(wiring.Component):
         with m.If(req.valid & req.ready):
             m.d.comb += used_set.eq(1 << tail)
             m.d.sync += [issuing.eq(1), word.eq(0), i_slot.eq(tail), tail.eq(Mux(tail == n - 1, 0, tail + 1)),
-                         addr.eq(self.base + req.payload.addr * k),
+                         addr.eq(self.base + times_const(req.payload.addr, k)),
                          tag[tail].eq(req.payload.tag), got[tail].eq(0)]
 
         # -- word responses fill their slot ---------------------------------------------------

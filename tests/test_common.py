@@ -1,12 +1,12 @@
 """Shared RTL pieces (``rtl/common.py``): the priority encoder, the round-robin pick, the
-stream register and the two-write-port memory."""
+constant multiply, the stream register and the two-write-port memory."""
 import random
 
 import pytest
 from amaranth.hdl import Module, Signal
 from amaranth.sim import Simulator
 
-from rtl.common import SkidBuffer, TwoWriteMemory, lowest, rr_pick
+from rtl.common import SkidBuffer, TwoWriteMemory, lowest, rr_pick, times_const
 from tb.common import drain, drive, run
 
 
@@ -53,6 +53,30 @@ def test_rr_pick_starts_at_the_pointer():
     want = [(1, next((p + i) % 8 for i in range(8) if r >> ((p + i) % 8) & 1)) if r else (0, None)
             for r, p in cases]
     assert [(a, i if a else None) for a, i in got] == want
+
+
+@pytest.mark.parametrize("k", [0, 1, 2, 3, 5, 7, 10, 64, 255])
+def test_times_const_multiplies(k):
+    """``v * k`` as shifts and adds: random 20-bit values and the extremes, wide enough for
+    the whole product."""
+    m = Module()
+    v, o = Signal(20), Signal(29)
+    m.d.comb += o.eq(times_const(v, k))
+    rng = random.Random(k)
+    vals = [0, 1, (1 << 20) - 1] + [rng.getrandbits(20) for _ in range(100)]
+    got = []
+
+    async def tb(ctx):
+        for x in vals:
+            ctx.set(v, x)
+            got.append(ctx.get(o))
+
+    sim = Simulator(m)
+    sim.add_testbench(tb)
+    sim.run()
+    assert got == [x * k for x in vals]
+    with pytest.raises(ValueError, match="k=-1"):
+        times_const(v, -1)
 
 
 @pytest.mark.parametrize("idle,stall", [(0.0, 0.0), (0.3, 0.0), (0.0, 0.5), (0.3, 0.6)])
