@@ -186,6 +186,10 @@ def test_pnr_args_reach_nextpnr_and_the_report(tmp_path, monkeypatch):
     entry = json.loads((tmp_path / "report.json").read_text())["runs"]["beta"]
     assert entry["pnr_args"] == ["--placer-heap-beta", "0.7"]
     assert entry["status"].startswith("place and route failed")
+    # the stall watchdog reads router1's table: with router2 it is refused, not ignored
+    with pytest.raises(SystemExit, match="--stall-s watches router1"):
+        run("fp_add", cfg, out=tmp_path, reuse="old", label="r2", router="router2", stall_s=60)
+    assert len(calls) == 1
 
 
 def test_congestion_units_and_shares(tmp_path):

