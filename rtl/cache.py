@@ -299,16 +299,30 @@ class Cache(wiring.Component):
             with m.If(fire & (f_m == i)):
                 m.d.sync += [mshr_buf[i].eq(merged[i]), mshr_cnt[i].eq(mshr_cnt[i] + 1)]
         last = Signal()
-        if self.fast:       # per MSHR "the next word completes the line", kept in a register
+        clr_mask = Signal(O)        # the MSHRs whose line this cycle's fill completes
+        if self.fast:
+            # per MSHR "the next word completes the line", kept in a register; and which MSHR
+            # the registered response completes, decided as it is registered (from the raw
+            # response's tag and the "next word" bits after this cycle), so the fill's
+            # completion reaches the MSHR valid bits, ``free`` and the queue's waits from a
+            # register
             nearly = Signal(O, name="mshr_last")
+            nearly_next = Signal(O)
             for i in range(O):
-                with m.If(spare[i]):
-                    m.d.sync += nearly[i].eq(LW == 1)
-                with m.Elif(fire & (f_m == i)):
-                    m.d.sync += nearly[i].eq(mshr_cnt[i] + 1 == LW - 1)
-            m.d.comb += last.eq(fire & nearly.bit_select(f_m, 1))
+                m.d.comb += nearly_next[i].eq(
+                    Mux(spare[i], LW == 1,
+                        Mux(fire & (f_m == i), mshr_cnt[i] + 1 == LW - 1, nearly[i])))
+            m.d.sync += nearly.eq(nearly_next)
+            r_m = self.mem.resp.payload.tag[:self.mshr_bits]
+            done = Signal(O, name="fill_done")
+            for i in range(O):
+                m.d.sync += done[i].eq(self.mem.resp.valid & (r_m == i) & nearly_next[i])
+            m.d.sync += last.eq(self.mem.resp.valid & nearly_next.bit_select(r_m, 1))
+            m.d.comb += clr_mask.eq(done)
         else:
             m.d.comb += last.eq(fire & (Array(mshr_cnt)[f_m] == LW - 1))
+            for i in range(O):
+                m.d.comb += clr_mask[i].eq(last & (f_m == i))
         line_raw = Array(merged)[f_m]
         items = [line_raw[j * g.item_span:j * g.item_span + g.item_bits]
                  for j in range(g.line_items)]
@@ -316,10 +330,8 @@ class Cache(wiring.Component):
                      dwp.data.eq(Cat(*items)), dwp.en.eq(last)]
         # MSHR valid bits: set on allocation, cleared by the last word of the fill
         set_mask = Signal(O)
-        clr_mask = Signal(O)
         for i in range(O):
-            m.d.comb += [set_mask[i].eq(go & ~hit & (free == i)),
-                         clr_mask[i].eq(last & (f_m == i))]
+            m.d.comb += set_mask[i].eq(go & ~hit & (free == i))
         m.d.sync += mshr_valid.eq((mshr_valid | set_mask) & ~clr_mask)
         if self.fast:
             # ``free``/``any_free`` of the next cycle in registers: from the valid bits after
