@@ -11,7 +11,7 @@ Pipeline::
                                     |  miss                       ^ head waits until its
                                     v                             | line's fill is done
                                MSHR + issue FIFO -> mem.req       |
-                               mem.resp -> fill buffer -> data array -> [data read] -> port.resp
+                               mem.resp -> data array (a word at a time) -> [data read] -> port.resp
 
 * Latency: a hit 3 cycles (6 with ``fast``; request accepted in cycle t, response valid in t+3) when nothing older
   waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle
@@ -171,7 +171,6 @@ class Cache(wiring.Component):
         mshr_line = [Signal(g.addr_width - ob, name=f"mshr{i}_line") for i in range(O)]
         mshr_addr = [Signal(g.mem_addr_width, name=f"mshr{i}_addr") for i in range(O)]
         mshr_cnt = [Signal(range(LW), name=f"mshr{i}_cnt") for i in range(O)]
-        mshr_buf = [Signal(LW * WORD_BITS, name=f"mshr{i}_buf") for i in range(O)]
         free = Signal(range(O))                 # the lowest free MSHR
         any_free = Signal(init=int(self.fast))  # fast: a register (all free at reset)
         if not self.fast:
@@ -272,11 +271,23 @@ class Cache(wiring.Component):
         with m.If(mreq.valid & mreq.ready):
             m.d.sync += word.eq(Mux(word == LW - 1, 0, word + 1))
 
-        # --- fill: collect words; the last one writes the line into the data array -----------
-        data = Memory(shape=g.line_items * g.item_bits, depth=S * W, init=[])
-        m.submodules.data = data
-        dwp = data.write_port()
-        drp = data.read_port()
+        # --- fill: each word goes into the data array as it arrives; the last one completes
+        # the line (only then may a request read it: the queue's wait bits) -----------------
+        # the data array: one memory per word of a line, holding the bits of that word the
+        # cache keeps (a line is the concatenation of the words' kept bits, item after item),
+        # so a fill needs no line buffer per MSHR
+        words = self._word_bits()
+        data = []
+        for j, bits in enumerate(words):
+            if bits:
+                mem = Memory(shape=sum(hi - lo for lo, hi in bits), depth=S * W, init=[])
+                m.submodules[f"data{j}"] = mem
+                data.append((j, bits, mem.write_port(), mem.read_port()))
+        drp = SimpleNamespace(addr=Signal(wb + sb, name="data_raddr"),
+                              en=Signal(name="data_ren"),
+                              data=Cat(*(rp.data for _, _, _, rp in data)))
+        for _, _, _, rp in data:
+            m.d.comb += [rp.addr.eq(drp.addr), rp.en.eq(drp.en)]
         mresp = self.mem.resp
         if self.fast:       # the memory's response in a register first (it comes from the bus)
             # (loaded only with a response: the caches' copies of the bus's shared response
@@ -291,14 +302,22 @@ class Cache(wiring.Component):
         f_w = mresp.payload.tag[self.mshr_bits:self.mshr_bits + self.word_bits] if LW > 1 \
             else Const(0, 1)
         fire = mresp.valid
-        merged = []
         for i in range(O):
-            merged.append(Cat(*[Mux(f_w == j, mresp.payload.data,
-                                    mshr_buf[i][j * WORD_BITS:(j + 1) * WORD_BITS])
-                                for j in range(LW)]))
             with m.If(fire & (f_m == i)):
-                m.d.sync += [mshr_buf[i].eq(merged[i]), mshr_cnt[i].eq(mshr_cnt[i] + 1)]
-        last = Signal()
+                m.d.sync += mshr_cnt[i].eq(mshr_cnt[i] + 1)
+        # the word's place: its MSHR's slot (fast: picked as the response is registered; an
+        # MSHR with words in flight keeps its fields)
+        f_slot = Signal(wb + sb, name="fill_slot")
+        if self.fast:
+            r_m = self.mem.resp.payload.tag[:self.mshr_bits]
+            with m.If(self.mem.resp.valid):
+                m.d.sync += f_slot.eq(Cat(Array(mshr_way)[r_m], Array(mshr_set)[r_m]))
+        else:
+            m.d.comb += f_slot.eq(Cat(Array(mshr_way)[f_m], Array(mshr_set)[f_m]))
+        for j, bits, wp, _ in data:
+            m.d.comb += [wp.addr.eq(f_slot),
+                         wp.data.eq(Cat(*(mresp.payload.data[lo:hi] for lo, hi in bits))),
+                         wp.en.eq(fire & (f_w == j))]
         clr_mask = Signal(O)        # the MSHRs whose line this cycle's fill completes
         if self.fast:
             # per MSHR "the next word completes the line", kept in a register; and which MSHR
@@ -313,21 +332,14 @@ class Cache(wiring.Component):
                     Mux(spare[i], LW == 1,
                         Mux(fire & (f_m == i), mshr_cnt[i] + 1 == LW - 1, nearly[i])))
             m.d.sync += nearly.eq(nearly_next)
-            r_m = self.mem.resp.payload.tag[:self.mshr_bits]
             done = Signal(O, name="fill_done")
             for i in range(O):
                 m.d.sync += done[i].eq(self.mem.resp.valid & (r_m == i) & nearly_next[i])
-            m.d.sync += last.eq(self.mem.resp.valid & nearly_next.bit_select(r_m, 1))
             m.d.comb += clr_mask.eq(done)
         else:
-            m.d.comb += last.eq(fire & (Array(mshr_cnt)[f_m] == LW - 1))
+            last = fire & (Array(mshr_cnt)[f_m] == LW - 1)
             for i in range(O):
                 m.d.comb += clr_mask[i].eq(last & (f_m == i))
-        line_raw = Array(merged)[f_m]
-        items = [line_raw[j * g.item_span:j * g.item_span + g.item_bits]
-                 for j in range(g.line_items)]
-        m.d.comb += [dwp.addr.eq(Cat(Array(mshr_way)[f_m], Array(mshr_set)[f_m])),
-                     dwp.data.eq(Cat(*items)), dwp.en.eq(last)]
         # MSHR valid bits: set on allocation, cleared by the last word of the fill
         set_mask = Signal(O)
         for i in range(O):
@@ -411,6 +423,21 @@ class Cache(wiring.Component):
                      resp.payload.data.eq(line.word_select(off, g.item_bits) if ob else line),
                      resp.payload.tag.eq(out_utag)]
         return m
+
+    def _word_bits(self) -> list[list[tuple[int, int]]]:
+        """Per memory word of a line, the bit ranges ``(lo, hi)`` of it the cache keeps (each
+        item's low ``item_bits``), in item order; empty for a word of padding only."""
+        g = self.geom
+        out = []
+        for j in range(g.line_words):
+            if g.item_span <= WORD_BITS:        # whole items in a word
+                per = WORD_BITS // g.item_span
+                out.append([(t * g.item_span, t * g.item_span + g.item_bits) for t in range(per)])
+            else:                               # an item over several words
+                k = j % (g.item_span // WORD_BITS)
+                hi = min(WORD_BITS, g.item_bits - k * WORD_BITS)
+                out.append([(0, hi)] if hi > 0 else [])
+        return out
 
     def _fast_front(self, m: Module, tags, twp, s1_valid, s1_go, s1_fields) -> Signal:
         """``fast``: request register (registered ``ready``, a skid register), stage S0 that
