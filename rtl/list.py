@@ -8,7 +8,7 @@ per entry in entry order, ``last`` on the leaf's final entry.
 """
 from __future__ import annotations
 
-from amaranth.hdl import Array, C, Cat, Module, Mux, Signal
+from amaranth.hdl import Array, Cat, Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
@@ -18,7 +18,7 @@ from model.config import Config
 from model.layout import list_word_layout
 
 from .memport import WORD_BITS, MemReadPort
-from .rtc_streams import LeafRequest, TriRequest
+from .rtc_streams import COUNT_BITS, LeafRequest, TriRequest
 from .common import COUNTER_BITS, SkidBuffer
 
 __all__ = ["ListUnit"]
@@ -76,10 +76,13 @@ class ListUnit(wiring.Component):
         thread = Signal(cfg.thread_bits)
         mask = Signal(cfg.packet_size)
         word = Signal(32)                  # current word index (entry >> 1)
-        last_word = Signal(32)
-        at_last = Signal()                 # word == last_word (set when a leaf or word is taken)
-        first = Signal(33)
-        end = Signal(33)                   # first + count: one past the final entry
+        # where the walk is, from counts and flags rather than compares of 32-bit indices
+        # (set when a leaf or a word is taken): the words after this one, this is the leaf's
+        # last word, its first word, and whether the first / last entry is odd
+        left = Signal(COUNT_BITS, name="words_left")
+        at_last = Signal()
+        at_first = Signal()
+        first_odd, last_odd = Signal(), Signal()
 
         meta = data.StructLayout({"thread": cfg.thread_bits, "mask": cfg.packet_size,
                                   "lo": 1, "hi": 1, "last": 1})
@@ -99,27 +102,29 @@ class ListUnit(wiring.Component):
         m.d.comb += [
             fifo.w_en.eq(issue),
             w_meta.thread.eq(thread), w_meta.mask.eq(mask),
-            w_meta.lo.eq(Cat(C(0, 1), word) >= first),          # entry 2w is in the leaf
-            w_meta.hi.eq(Cat(C(1, 1), word) < end),             # entry 2w+1 is in the leaf
+            w_meta.lo.eq(~(at_first & first_odd)),             # entry 2w is in the leaf
+            w_meta.hi.eq(~at_last | last_odd),                 # entry 2w+1 is in the leaf
             w_meta.last.eq(at_last),
         ]
         final = issue & at_last
         m.d.comb += leaf.ready.eq(~active | final)
         with m.If(issue):
             m.d.sync += [word.eq(word + 1), wr_tag.eq(wr_tag + 1),
-                         at_last.eq((word + 1)[:32] == last_word)]
+                         left.eq(left - 1), at_last.eq(left == 1), at_first.eq(0)]
         with m.If(final):
             m.d.sync += active.eq(0)
         with m.If(leaf.valid & leaf.ready):
             p = leaf.payload
-            stop = Signal(33)
-            m.d.comb += stop.eq(p.first + p.count)
+            odd = p.first[0]
+            # entries [first, first + count) span (count - 1 + first's parity) / 2 words
+            # after the first; one word if count is 1, or 2 from an even first
             m.d.sync += [
                 active.eq(p.count != 0),
                 thread.eq(p.thread), mask.eq(p.mask),
-                first.eq(p.first), end.eq(stop),
-                word.eq(p.first >> 1), last_word.eq((stop - 1) >> 1),
-                at_last.eq((p.first >> 1) == ((stop - 1) >> 1)),
+                word.eq(p.first >> 1),
+                left.eq((p.count - 1 + odd) >> 1),
+                at_last.eq((p.count == 1) | ((p.count == 2) & ~odd)),
+                at_first.eq(1), first_odd.eq(odd), last_odd.eq(odd ^ p.count[0] ^ 1),
             ]
         m.d.sync += inflight.eq(inflight + issue - done_word)
 
