@@ -359,12 +359,15 @@ class _Threads:
         """One bit per thread: the thread is in state ``s``."""
         return Cat(*(self.state[t] == s for t in range(self.T)))
 
-    def set(self, m: Module, field: str, thread: Value, value) -> None:
+    def set(self, m: Module, field: str, thread: Value, value, onehot: Value | None = None) -> None:
         """``field[thread] = value`` at the next clock edge, in the caller's ``If`` context.
 
         Each engine moves only the threads in the states it owns, so no two engines write one
         thread's field in one cycle; with ``fast`` the writes are therefore combined as an
         AND-OR per thread (:meth:`finish`) instead of a chain of one priority mux per writer.
+        ``onehot`` (``fast`` only; called outside any ``If``): the writer's per-thread write
+        enables, e.g. a register set a cycle ahead, instead of the ``If`` context and
+        ``thread``.
         """
         reg = getattr(self, field)
         if not self.fast:
@@ -376,7 +379,7 @@ class _Threads:
         tgt = Signal(self.tbits, name=f"{field}_w{i}_thread")
         val = Signal.like(reg[0], name=f"{field}_w{i}_value")
         m.d.comb += [req.eq(1), tgt.eq(thread), val.eq(value)]
-        writes.append((req, tgt, val))
+        writes.append((req, tgt, val, onehot))
 
     def set_state(self, m: Module, thread: Value, value) -> None:
         self.set(m, "state", thread, value)
@@ -387,9 +390,10 @@ class _Threads:
             reg = getattr(self, field)
             for t in range(self.T):
                 hit = [Signal(name=f"{field}{t}_w{i}") for i in range(len(writes))]
-                m.d.comb += [h.eq(req & (tgt == t)) for h, (req, tgt, _) in zip(hit, writes)]
+                m.d.comb += [h.eq(req & (tgt == t) if onehot is None else onehot[t])
+                             for h, (req, tgt, _, onehot) in zip(hit, writes)]
                 nxt = 0
-                for h, (_, _, val) in zip(hit, writes):
+                for h, (_, _, val, _) in zip(hit, writes):
                     nxt = nxt | Mux(h, Value.cast(val), 0)
                 with m.If(Cat(*hit).any()):
                     m.d.sync += reg[t].eq(nxt)
@@ -739,7 +743,7 @@ class Traversal(wiring.Component):
         def ctl_fields(**values):
             m.d.comb += [c_fields_we.eq(1), *(c_fields[f].eq(v) for f, v in values.items())]
 
-        with m.FSM(name="step"):
+        with m.FSM(name="step") as fsm:
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
                 with m.If(e_any):
@@ -817,9 +821,19 @@ class Traversal(wiring.Component):
         # the engine's writes of the thread it works on: one write per field
         with m.If(c_state_we):
             th.set_state(m, e_t, c_state)
-        with m.If(c_fields_we):
+        if fast:
+            # the fields are written in POP4 (if a lane is live) and PASS3, each entered
+            # unconditionally from the state before, where that is known: the per-thread
+            # enables come from a register set a cycle ahead (the engine keeps e_t meanwhile)
+            we_next = (fsm.ongoing("POP3") & popped.any()) | fsm.ongoing("PASS2")
+            c_hits = Signal(T, name="ctl_fields_hit")
+            m.d.sync += c_hits.eq(Mux(we_next, Const(1, T) << e_t, 0)[:T])
             for f, v in c_fields.items():
-                th.set(m, f, e_t, v)
+                th.set(m, f, e_t, v, onehot=c_hits)
+        else:
+            with m.If(c_fields_we):
+                for f, v in c_fields.items():
+                    th.set(m, f, e_t, v)
 
     def _decide(self, m: Module, th: _Threads, head, order, st_w) -> Signal:
         """The oldest outstanding step, once every sub-unit's verdict is in: both children ->
