@@ -557,9 +557,12 @@ class Traversal(wiring.Component):
             T = self.cfg.threads
             f_any, f_idx = Signal(name="fetch_any_q"), Signal(self.cfg.thread_bits,
                                                               name="fetch_pick_q")
-            sent = Mux(out.i.valid & out.i.ready, Const(1, T) << f_idx, 0)
-            p_any, p_idx = rr_pick(m, (fetching & ~sent)[:T], f_ptr, "fetch")
-            m.d.sync += [f_any.eq(p_any), f_idx.eq(p_idx)]
+            # (both picks are made, the request's handshake only choosing between them)
+            s_any, s_idx = rr_pick(m, (fetching & ~(Const(1, T) << f_idx))[:T], f_ptr,
+                                   "fetch_sent")
+            k_any, k_idx = rr_pick(m, fetching, f_ptr, "fetch")
+            sent = out.i.valid & out.i.ready
+            m.d.sync += [f_any.eq(Mux(sent, s_any, k_any)), f_idx.eq(Mux(sent, s_idx, k_idx))]
         else:
             f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
@@ -663,10 +666,12 @@ class Traversal(wiring.Component):
             # the pick is registered: made a cycle ahead from the threads waiting then, less
             # the one being worked on (only this engine moves a thread out of those states,
             # so a registered pick is still waiting when it is used)
-            busy_bit = Mux(ctl_busy, Const(1, T) << e_t, 0)
-            p_any, p_idx = rr_pick(m, (waiting & ~busy_bit)[:T], e_ptr, "step")
+            # (both picks are made, the engine's state only choosing between them)
+            b_any, b_idx = rr_pick(m, (waiting & ~(Const(1, T) << e_t))[:T], e_ptr, "step_busy")
+            f_any, f_idx = rr_pick(m, waiting, e_ptr, "step")
             e_any, e_idx = Signal(name="step_any_q"), Signal(tb, name="step_pick_q")
-            m.d.sync += [e_any.eq(p_any), e_idx.eq(p_idx)]
+            m.d.sync += [e_any.eq(Mux(ctl_busy, b_any, f_any)),
+                         e_idx.eq(Mux(ctl_busy, b_idx, f_idx))]
         else:
             e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)
