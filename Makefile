@@ -87,13 +87,14 @@ verilog: setup
 	$(SAARCOR) verilog --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
-##   (YoWASP Yosys + nextpnr: Yosys 4 min + placement 9 min + routing 13 min, or a stall; not in CI) -> build/fpga/report.json, README.md
-##   deep FP pipelines, the fast_clock registers, delays in LUT-RAM, 8-entry cache queues, 24-bit
-##   addresses, router1. Whether a placement routes depends on the seed (docs/fpga.md): FPGA_SEEDS
-##   tries seeds in turn, stopping a router1 that gains < 2 % of the arcs in 600 s; FPGA_DEEP= for the default timing
+##   (YoWASP Yosys + nextpnr: Yosys 3 min + placement 10-20 min + routing 14 min, or a stall; not in CI) -> build/fpga/report.json, README.md
+##   8 threads of 4x4-ray packets, deep FP pipelines, the fast_clock registers, delays in LUT-RAM,
+##   8-entry cache queues, 24-bit addresses, router1. Whether a placement routes depends on the seed
+##   (docs/fpga.md): FPGA_SEEDS tries seeds in turn, stopping a router1 that gains < 2 % of the arcs
+##   in 600 s; FPGA_DEEP= for the default timing
 FPGA_TOP    ?= rtc
 FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 5 --fp-div-latency 29 --fp-cmp-latency 3 --fast-clock 1 --delay-ram 4 --router router1
-FPGA_CONFIG ?= --threads 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8 --cache-queue 8 --addr-bits 24 $(FPGA_DEEP)
+FPGA_CONFIG ?= --threads 8 --tile-w 4 --tile-h 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8 --cache-queue 8 --addr-bits 24 $(FPGA_DEEP)
 FPGA_SEEDS  ?= --seed 1 2 3 4 --stall-s 600
 fpga: setup
 	$(VENV)/bin/pip install -q -e ".[fpga]"
