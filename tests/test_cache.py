@@ -99,6 +99,25 @@ def test_item_values_slice_memory_like_the_layout():
 
 # --- the RTL cache ----------------------------------------------------------------------------
 
+@pytest.mark.parametrize("item,line_items", [("node", 1), ("node", 4), ("entry", 2), ("entry", 8),
+                                             ("tri", 1), ("tri", 2), ("tri320", 2)])
+def test_rtl_cache_data_array_words_hold_the_line(item, line_items):
+    """The data array is one memory per word of a line: the words' kept bits, concatenated,
+    are the line's items in order (what the model reads from memory for each item)."""
+    g = geom(item, sets=4, line_items=line_items)
+    words = Cache(g)._word_bits()
+    assert len(words) == g.line_words
+    assert sum(hi - lo for w in words for lo, hi in w) == g.line_items * g.item_bits
+    line = IMAGE[5 * g.line_words:6 * g.line_words]
+    row, at = 0, 0
+    for j, w in enumerate(words):
+        for lo, hi in w:
+            row |= ((int(line[j]) >> lo) & ((1 << (hi - lo)) - 1)) << at
+            at += hi - lo
+    items = item_values(IMAGE, g, range(5 * g.line_items, 6 * g.line_items))
+    assert row == sum(v << (i * g.item_bits) for i, v in enumerate(items))
+
+
 CASES = {
     # name: (geometry, memory, idle, stall)
     "node-dm-ideal": (geom(sets=16, outstanding=4, queue=8), "ideal", 0.0, 0.0),
