@@ -87,6 +87,21 @@ class CacheGeometry:
     def tag_bits(self) -> int:
         return self.addr_width - self.offset_bits - self.set_bits
 
+    @property
+    def word_kept_bits(self) -> list[list[tuple[int, int]]]:
+        """Per memory word of a line, the bit ranges ``(lo, hi)`` of it the cache keeps (each
+        item's low ``item_bits``), in item order; empty for a word of padding only. The kept
+        bits of the words, concatenated, are the line's items in order."""
+        out = []
+        for j in range(self.line_words):
+            if self.item_span <= 64:            # whole items in a word
+                out.append([(t * self.item_span, t * self.item_span + self.item_bits)
+                            for t in range(64 // self.item_span)])
+            else:                               # an item over several words
+                hi = min(64, self.item_bits - (j % (self.item_span // 64)) * 64)
+                out.append([(0, hi)] if hi > 0 else [])
+        return out
+
     def line_word_addr(self, line: int, base: int = 0) -> int:
         """Memory word address of the first word of ``line``."""
         return base + line * self.line_words

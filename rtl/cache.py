@@ -276,9 +276,8 @@ class Cache(wiring.Component):
         # the data array: one memory per word of a line, holding the bits of that word the
         # cache keeps (a line is the concatenation of the words' kept bits, item after item),
         # so a fill needs no line buffer per MSHR
-        words = self._word_bits()
         data = []
-        for j, bits in enumerate(words):
+        for j, bits in enumerate(g.word_kept_bits):
             if bits:
                 mem = Memory(shape=sum(hi - lo for lo, hi in bits), depth=S * W, init=[])
                 m.submodules[f"data{j}"] = mem
@@ -423,21 +422,6 @@ class Cache(wiring.Component):
                      resp.payload.data.eq(line.word_select(off, g.item_bits) if ob else line),
                      resp.payload.tag.eq(out_utag)]
         return m
-
-    def _word_bits(self) -> list[list[tuple[int, int]]]:
-        """Per memory word of a line, the bit ranges ``(lo, hi)`` of it the cache keeps (each
-        item's low ``item_bits``), in item order; empty for a word of padding only."""
-        g = self.geom
-        out = []
-        for j in range(g.line_words):
-            if g.item_span <= WORD_BITS:        # whole items in a word
-                per = WORD_BITS // g.item_span
-                out.append([(t * g.item_span, t * g.item_span + g.item_bits) for t in range(per)])
-            else:                               # an item over several words
-                k = j % (g.item_span // WORD_BITS)
-                hi = min(WORD_BITS, g.item_bits - k * WORD_BITS)
-                out.append([(0, hi)] if hi > 0 else [])
-        return out
 
     def _fast_front(self, m: Module, tags, twp, s1_valid, s1_go, s1_fields) -> Signal:
         """``fast``: request register (registered ``ready``, a skid register), stage S0 that

@@ -3,7 +3,7 @@ the registered stream output and stream register, and the memory's binary32 word
 words."""
 from __future__ import annotations
 
-from amaranth.hdl import C, Cat, Elaboratable, Module, Mux, Signal, Value
+from amaranth.hdl import C, Cat, Const, Elaboratable, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
@@ -82,6 +82,17 @@ def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signa
     idx = Signal(range(n), name=f"{name}_pick")
     m.d.comb += idx.eq((ptr + off)[:ceil_log2(n)])
     return anyb, idx
+
+
+def rr_pick_less(m: Module, req: Value, ptr: Value, idx: Value, drop: Value,
+                 name: str) -> tuple[Value, Value]:
+    """:func:`rr_pick` of ``req`` less the request ``idx`` when ``drop``: both picks are made and
+    ``drop`` only chooses between them, so a late ``drop`` (a handshake, a busy flag) does not
+    run through the pick."""
+    n = len(req)
+    l_any, l_idx = rr_pick(m, (req & ~(Const(1, n) << idx))[:n], ptr, f"{name}_less")
+    k_any, k_idx = rr_pick(m, req, ptr, name)
+    return Mux(drop, l_any, k_any), Mux(drop, l_idx, k_idx)
 
 
 class OutputStage(wiring.Component):

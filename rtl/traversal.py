@@ -51,7 +51,7 @@ from amaranth.utils import ceil_log2
 
 from model.config import Config
 from model.layout import LEAF, NODE_INDEX_BITS, node_layout
-from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, rr_pick
+from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, rr_pick, rr_pick_less
 from .fp import FPAdd, FPCompare, FPMinMax, FPMul
 from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
@@ -375,11 +375,15 @@ class _Threads:
             return
         writes = self.writes.setdefault(field, [])
         i = len(writes)
+        val = Signal.like(reg[0], name=f"{field}_w{i}_value")
+        m.d.comb += val.eq(value)
+        if onehot is not None:
+            writes.append((None, None, val, onehot))
+            return
         req = Signal(name=f"{field}_w{i}")
         tgt = Signal(self.tbits, name=f"{field}_w{i}_thread")
-        val = Signal.like(reg[0], name=f"{field}_w{i}_value")
-        m.d.comb += [req.eq(1), tgt.eq(thread), val.eq(value)]
-        writes.append((req, tgt, val, onehot))
+        m.d.comb += [req.eq(1), tgt.eq(thread)]
+        writes.append((req, tgt, val, None))
 
     def set_state(self, m: Module, thread: Value, value) -> None:
         self.set(m, "state", thread, value)
@@ -554,15 +558,11 @@ class Traversal(wiring.Component):
         if self.cfg.fast_clock:
             # the pick is registered: made a cycle ahead, less the thread whose request goes
             # out then (only this engine moves a thread out of FETCH)
-            T = self.cfg.threads
             f_any, f_idx = Signal(name="fetch_any_q"), Signal(self.cfg.thread_bits,
                                                               name="fetch_pick_q")
-            # (both picks are made, the request's handshake only choosing between them)
-            s_any, s_idx = rr_pick(m, (fetching & ~(Const(1, T) << f_idx))[:T], f_ptr,
-                                   "fetch_sent")
-            k_any, k_idx = rr_pick(m, fetching, f_ptr, "fetch")
-            sent = out.i.valid & out.i.ready
-            m.d.sync += [f_any.eq(Mux(sent, s_any, k_any)), f_idx.eq(Mux(sent, s_idx, k_idx))]
+            p_any, p_idx = rr_pick_less(m, fetching, f_ptr, f_idx, out.i.valid & out.i.ready,
+                                        "fetch")
+            m.d.sync += [f_any.eq(p_any), f_idx.eq(p_idx)]
         else:
             f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
@@ -666,12 +666,9 @@ class Traversal(wiring.Component):
             # the pick is registered: made a cycle ahead from the threads waiting then, less
             # the one being worked on (only this engine moves a thread out of those states,
             # so a registered pick is still waiting when it is used)
-            # (both picks are made, the engine's state only choosing between them)
-            b_any, b_idx = rr_pick(m, (waiting & ~(Const(1, T) << e_t))[:T], e_ptr, "step_busy")
-            f_any, f_idx = rr_pick(m, waiting, e_ptr, "step")
+            p_any, p_idx = rr_pick_less(m, waiting, e_ptr, e_t, ctl_busy, "step")
             e_any, e_idx = Signal(name="step_any_q"), Signal(tb, name="step_pick_q")
-            m.d.sync += [e_any.eq(Mux(ctl_busy, b_any, f_any)),
-                         e_idx.eq(Mux(ctl_busy, b_idx, f_idx))]
+            m.d.sync += [e_any.eq(p_any), e_idx.eq(p_idx)]
         else:
             e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)

@@ -102,10 +102,11 @@ def test_item_values_slice_memory_like_the_layout():
 @pytest.mark.parametrize("item,line_items", [("node", 1), ("node", 4), ("entry", 2), ("entry", 8),
                                              ("tri", 1), ("tri", 2), ("tri320", 2)])
 def test_rtl_cache_data_array_words_hold_the_line(item, line_items):
-    """The data array is one memory per word of a line: the words' kept bits, concatenated,
-    are the line's items in order (what the model reads from memory for each item)."""
+    """The RTL's data array is one memory per word of a line
+    (``CacheGeometry.word_kept_bits``): the words' kept bits, concatenated, are the line's
+    items in order (what the model reads from memory for each item)."""
     g = geom(item, sets=4, line_items=line_items)
-    words = Cache(g)._word_bits()
+    words = g.word_kept_bits
     assert len(words) == g.line_words
     assert sum(hi - lo for w in words for lo, hi in w) == g.line_items * g.item_bits
     line = IMAGE[5 * g.line_words:6 * g.line_words]
