@@ -128,25 +128,49 @@ class Cache(wiring.Component):
         new_row = Signal(len(row))
         if self.fast:
             # S2: S1's compare verdict in a register, so S2 decides (and the stages before it
-            # advance) from registers only; S2's tag write of this cycle is forwarded into
-            # S1's compare and row (S1 moves on in the same cycle, since S2 does)
+            # advance) from registers only. S2 has a skid entry B: S1 hands its request on
+            # while B is empty (a register), to S2 if S2 takes one this cycle, else to B; S2
+            # takes B's request first. So the stall (``go``) stops at S2 and B, and the stages
+            # before them move on registers. S2's tag write of this cycle is forwarded into
+            # the request S2 takes (from S1 or B); S0 and S1 take it in place (a write meets
+            # B only as B moves on: S2 writes only when it goes)
             s2_valid = Signal()
             s2_off, s2_set, s2_tag = Signal(ob), Signal(sb), Signal(tb)
             s2_utag = Signal(utag_bits)
             s2_row = Signal(len(row), name="s2_row")
             s2_hits = Signal(W, name="s2_hits")
             s2_mem = Signal(g.mem_addr_width, name="s2_mem_addr")
+            b_valid = Signal(name="s2b_valid")
+            b_off, b_set, b_tag = Signal(ob, name="s2b_off"), Signal(sb, name="s2b_set"), \
+                Signal(tb, name="s2b_tag")
+            b_utag = Signal(utag_bits, name="s2b_utag")
+            b_row = Signal(len(row), name="s2b_row")
+            b_hits = Signal(W, name="s2b_hits")
+            b_mem = Signal(g.mem_addr_width, name="s2b_mem_addr")
             s2_move = Signal()
-            m.d.comb += [s2_move.eq(~s2_valid | go), s1_go.eq(s1_valid & s2_move)]
-            w2 = twp.en & (twp.addr == s1_set)
-            s1_hits = Mux(w2, hits(new_row, s1_tag),
+            m.d.comb += [s2_move.eq(~s2_valid | go), s1_go.eq(s1_valid & ~b_valid)]
+            w1 = twp.en & (twp.addr == s1_set)
+            wb_ = twp.en & (twp.addr == b_set)
+            s1_hits = Mux(w1, hits(new_row, s1_tag),
                           Mux(self._s1_fwd, hits(self._s1_fwd_row, s1_tag),
                               hits(self._s1_raw, s1_tag)))
+            s1_mem = self.base + self._s1_mem
+            from_s1 = [s2_off.eq(s1_off), s2_set.eq(s1_set), s2_tag.eq(s1_tag),
+                       s2_utag.eq(s1_utag), s2_row.eq(Mux(w1, new_row, row)),
+                       s2_hits.eq(s1_hits), s2_mem.eq(s1_mem)]
             with m.If(s2_move):
-                m.d.sync += [s2_valid.eq(s1_valid), s2_off.eq(s1_off), s2_set.eq(s1_set),
-                             s2_tag.eq(s1_tag), s2_utag.eq(s1_utag),
-                             s2_row.eq(Mux(w2, new_row, row)), s2_hits.eq(s1_hits),
-                             s2_mem.eq(self.base + self._s1_mem)]
+                with m.If(b_valid):
+                    m.d.sync += [s2_valid.eq(1), s2_off.eq(b_off), s2_set.eq(b_set),
+                                 s2_tag.eq(b_tag), s2_utag.eq(b_utag),
+                                 s2_row.eq(Mux(wb_, new_row, b_row)),
+                                 s2_hits.eq(Mux(wb_, hits(new_row, b_tag), b_hits)),
+                                 s2_mem.eq(b_mem), b_valid.eq(0)]
+                with m.Else():
+                    m.d.sync += [s2_valid.eq(s1_valid)] + from_s1
+            with m.Elif(s1_go):     # S2 holds: S1's request into B (no tag write this cycle)
+                m.d.sync += [b_valid.eq(1), b_off.eq(s1_off), b_set.eq(s1_set),
+                             b_tag.eq(s1_tag), b_utag.eq(s1_utag), b_row.eq(row),
+                             b_hits.eq(s1_hits), b_mem.eq(s1_mem)]
             d_valid, d_off, d_set, d_tag, d_utag = s2_valid, s2_off, s2_set, s2_tag, s2_utag
             d_row, hit_vec = s2_row, s2_hits
         else:
@@ -207,14 +231,15 @@ class Cache(wiring.Component):
 
         if self.fast:
             # the victim slot's "busy" from registers: per way, computed a cycle ahead for the
-            # request S2 holds next (S1's if S2 takes it, else its own), plus whether the
+            # request S2 holds next (B's or S1's if S2 takes one, else its own), plus whether the
             # queue entry written in that cycle is in that set; a slot freed meanwhile costs
             # one cycle
             def busy_ways(set_):
                 return Cat(*(slot_busy(set_, w) for w in range(W)))
-            nxt_set = Mux(s2_move, s1_set, d_set)
+            in_set = Mux(b_valid, b_set, s1_set)        # the request S2 would take
+            nxt_set = Mux(s2_move, in_set, d_set)
             b, lw_v, lw_way = Signal(W, name="busy_s2"), Signal(), Signal(wb)
-            m.d.sync += [b.eq(Mux(s2_move, busy_ways(s1_set), busy_ways(d_set))),
+            m.d.sync += [b.eq(Mux(s2_move, busy_ways(in_set), busy_ways(d_set))),
                          lw_v.eq(go & (d_set == nxt_set)), lw_way.eq(way)]
             last_w = Mux(lw_v, Const(1, W) << lw_way, 0)[:W]
             busy = (b | last_w).bit_select(victim, 1) if W > 1 else b | last_w
@@ -453,13 +478,16 @@ class Cache(wiring.Component):
                          k_valid.eq(0)]
         with m.Elif(req.valid & req.ready):
             m.d.sync += k_valid.eq(1)
+        s0_set = s0_addr[ob:ob + sb]
+        w_now = twp.en & (twp.addr == s0_set)
+        with m.If(~s0_load & w_now):        # a tag write to the set of S0's waiting request
+            m.d.sync += [s0_fwd.eq(1), s0_row.eq(twp.data)]
         with m.If(~k_valid):                # the fields follow the request while k is empty
             m.d.sync += [k_addr.eq(a), k_utag.eq(req.payload.tag)]
         # S1: the row as read, or the newest tag write to the set since the read
         s1_off, s1_set, s1_tag, s1_utag = s1_fields
         s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
         s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
-        s0_set = s0_addr[ob:ob + sb]
         # the line's first memory word, formed before an allocation needs it (off the
         # lookup's path): its offset from ``base`` here, S0 -> S1, the sum S1 -> S2 (one
         # carry chain a stage)
@@ -467,12 +495,13 @@ class Cache(wiring.Component):
         with m.If(s1_move):
             m.d.sync += s1_mem.eq(times_const(s0_addr[ob:], g.line_words))
         self._s1_mem = s1_mem
-        w_now = twp.en & (twp.addr == s0_set)
         with m.If(s1_move):
             m.d.sync += [s1_valid.eq(s0_valid), s1_off.eq(s0_addr[:ob]), s1_set.eq(s0_set),
                          s1_tag.eq(s0_addr[ob + sb:]), s1_utag.eq(s0_utag),
                          s1_raw.eq(trp.data), s1_fwd.eq(s0_fwd | w_now),
                          s1_fwd_row.eq(Mux(w_now, twp.data, s0_row))]
+        with m.Elif(twp.en & (twp.addr == s1_set)):     # a write to the set of S1's request
+            m.d.sync += [s1_fwd.eq(1), s1_fwd_row.eq(twp.data)]
         row = Signal(len(trp.data), name="s1_row")
         m.d.comb += row.eq(Mux(s1_fwd, s1_fwd_row, s1_raw))
         self._s1_fwd, self._s1_fwd_row, self._s1_raw = s1_fwd, s1_fwd_row, s1_raw
