@@ -84,15 +84,21 @@ def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signa
     return anyb, idx
 
 
-def rr_pick_less(m: Module, req: Value, ptr: Value, idx: Value, drop: Value,
+def rr_pick_next(m: Module, req: Value, ptr: Value, idx: Value, drop: Value,
                  name: str) -> tuple[Value, Value]:
-    """:func:`rr_pick` of ``req`` less the request ``idx`` when ``drop``: both picks are made and
-    ``drop`` only chooses between them, so a late ``drop`` (a handshake, a busy flag) does not
-    run through the pick."""
+    """The next cycle's :func:`rr_pick` of ``req``, less the request ``idx`` when ``drop``, from
+    registers: both picks (with and without ``idx``) and ``drop`` go into registers, and the
+    pick is a 2:1 mux of them, so a late ``drop`` (a handshake, a busy flag) runs into one
+    register instead of through the pick. Returns (any, index) for the next cycle."""
     n = len(req)
     l_any, l_idx = rr_pick(m, (req & ~(Const(1, n) << idx))[:n], ptr, f"{name}_less")
     k_any, k_idx = rr_pick(m, req, ptr, name)
-    return Mux(drop, l_any, k_any), Mux(drop, l_idx, k_idx)
+    regs = [Signal(name=f"{name}_less_any_q"), Signal.like(l_idx, name=f"{name}_less_pick_q"),
+            Signal(name=f"{name}_any_q"), Signal.like(k_idx, name=f"{name}_pick_q"),
+            Signal(name=f"{name}_drop_q")]
+    m.d.sync += [r.eq(v) for r, v in zip(regs, (l_any, l_idx, k_any, k_idx, drop))]
+    lq_any, lq_idx, kq_any, kq_idx, drop_q = regs
+    return Mux(drop_q, lq_any, kq_any), Mux(drop_q, lq_idx, kq_idx)
 
 
 class OutputStage(wiring.Component):

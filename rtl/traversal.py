@@ -51,7 +51,7 @@ from amaranth.utils import ceil_log2
 
 from model.config import Config
 from model.layout import LEAF, NODE_INDEX_BITS, node_layout
-from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, rr_pick, rr_pick_less
+from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, rr_pick, rr_pick_next
 from .fp import FPAdd, FPCompare, FPMinMax, FPMul
 from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
@@ -556,13 +556,14 @@ class Traversal(wiring.Component):
         f_ptr = Signal(self.cfg.thread_bits)
         fetching = th.in_state(ThreadState.FETCH)
         if self.cfg.fast_clock:
-            # the pick is registered: made a cycle ahead, less the thread whose request goes
-            # out then (only this engine moves a thread out of FETCH)
-            f_any, f_idx = Signal(name="fetch_any_q"), Signal(self.cfg.thread_bits,
-                                                              name="fetch_pick_q")
-            p_any, p_idx = rr_pick_less(m, fetching, f_ptr, f_idx, out.i.valid & out.i.ready,
+            # the pick is made a cycle ahead into registers, with and without the thread whose
+            # request goes out then (only this engine moves a thread out of FETCH); the
+            # handshake, registered, chooses
+            f_any, f_idx = Signal(name="fetch_any"), Signal(self.cfg.thread_bits,
+                                                            name="fetch_pick")
+            p_any, p_idx = rr_pick_next(m, fetching, f_ptr, f_idx, out.i.valid & out.i.ready,
                                         "fetch")
-            m.d.sync += [f_any.eq(p_any), f_idx.eq(p_idx)]
+            m.d.comb += [f_any.eq(p_any), f_idx.eq(p_idx)]
         else:
             f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
@@ -663,12 +664,11 @@ class Traversal(wiring.Component):
         waiting = (th.in_state(ThreadState.HAVE_NODE) | th.in_state(ThreadState.POP) |
                    th.in_state(ThreadState.NEXTPASS))
         if cfg.fast_clock:
-            # the pick is registered: made a cycle ahead from the threads waiting then, less
-            # the one being worked on (only this engine moves a thread out of those states,
-            # so a registered pick is still waiting when it is used)
-            p_any, p_idx = rr_pick_less(m, waiting, e_ptr, e_t, ctl_busy, "step")
-            e_any, e_idx = Signal(name="step_any_q"), Signal(tb, name="step_pick_q")
-            m.d.sync += [e_any.eq(p_any), e_idx.eq(p_idx)]
+            # the pick is made a cycle ahead into registers from the threads waiting then, with
+            # and without the one being worked on (only this engine moves a thread out of
+            # those states, so a pick made a cycle ahead is still waiting when it is used);
+            # ctl_busy, registered, chooses
+            e_any, e_idx = rr_pick_next(m, waiting, e_ptr, e_t, ctl_busy, "step")
         else:
             e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)
