@@ -685,7 +685,9 @@ class Traversal(wiring.Component):
                                      "sp": db})
         m.submodules.order = order = SyncFIFO(width=order_l.size, depth=T)
         disp = Signal()                              # push a step to every sub-unit
-        neg = th.octant[e_t].bit_select(e_word.axis, 1)
+        # the near child's side (by the pass's octant and the node's axis), taken at the pick
+        # with the node word, so the children's sums start at registers
+        neg = Signal(name="e_neg")
         m.d.comb += [order.w_data.eq(Cat(e_t, (e_word.index + neg)[:NODE_BITS],
                                          (e_word.index + 1 - neg)[:NODE_BITS], e_sp)),
                      order.w_en.eq(disp)]
@@ -749,8 +751,10 @@ class Traversal(wiring.Component):
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
                 with m.If(e_any):
+                    p_word = data.View(node_layout(), th.word[e_idx])
                     m.d.sync += [e_t.eq(e_idx), e_kind.eq(th.state[e_idx]),
                                  e_word.eq(th.word[e_idx]), e_mask.eq(th.mask[e_idx]),
+                                 neg.eq(th.octant[e_idx].bit_select(p_word.axis, 1)),
                                  *([e_todo.eq(th.todo[e_idx]), e_term.eq(th.term[e_idx])]
                                    if fast else []),
                                  e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
