@@ -131,14 +131,17 @@ class Cache(wiring.Component):
             # advance) from registers only. S2 has a skid entry B: S1 hands its request on
             # while B is empty (a register), to S2 if S2 takes one this cycle, else to B; S2
             # takes B's request first. So the stall (``go``) stops at S2 and B, and the stages
-            # before them move on registers. S2's tag write of this cycle is forwarded into
-            # the request S2 takes (from S1 or B); S0 and S1 take it in place (a write meets
-            # B only as B moves on: S2 writes only when it goes)
+            # before them move on registers. S2's tag write of the cycle it takes a request
+            # (from S1 or B) is applied a cycle later: S2 keeps the request's row and hits as
+            # they were and as that write leaves them (both formed without ``go``) and a bit
+            # saying whether the write was to its set. S0 and S1 take the write in place (a
+            # write meets B only as B moves on: S2 writes only when it goes)
             s2_valid = Signal()
             s2_off, s2_set, s2_tag = Signal(ob), Signal(sb), Signal(tb)
             s2_utag = Signal(utag_bits)
-            s2_row = Signal(len(row), name="s2_row")
-            s2_hits = Signal(W, name="s2_hits")
+            s2_row_n, s2_row_w = Signal(len(row), name="s2_row"), Signal(len(row), name="s2_row_w")
+            s2_hits_n, s2_hits_w = Signal(W, name="s2_hits"), Signal(W, name="s2_hits_w")
+            s2_wsel = Signal(name="s2_written")
             s2_mem = Signal(g.mem_addr_width, name="s2_mem_addr")
             b_valid = Signal(name="s2b_valid")
             b_off, b_set, b_tag = Signal(ob, name="s2b_off"), Signal(sb, name="s2b_set"), \
@@ -149,30 +152,29 @@ class Cache(wiring.Component):
             b_mem = Signal(g.mem_addr_width, name="s2b_mem_addr")
             s2_move = Signal()
             m.d.comb += [s2_move.eq(~s2_valid | go), s1_go.eq(s1_valid & ~b_valid)]
-            w1 = twp.en & (twp.addr == s1_set)
-            wb_ = twp.en & (twp.addr == b_set)
-            s1_hits = Mux(w1, hits(new_row, s1_tag),
-                          Mux(self._s1_fwd, hits(self._s1_fwd_row, s1_tag),
-                              hits(self._s1_raw, s1_tag)))
+            in_set = Mux(b_valid, b_set, s1_set)        # the request S2 would take
+            in_tag = Mux(b_valid, b_tag, s1_tag)
+            s1_hits = Mux(self._s1_fwd, hits(self._s1_fwd_row, s1_tag), hits(self._s1_raw, s1_tag))
             s1_mem = self.base + self._s1_mem
-            from_s1 = [s2_off.eq(s1_off), s2_set.eq(s1_set), s2_tag.eq(s1_tag),
-                       s2_utag.eq(s1_utag), s2_row.eq(Mux(w1, new_row, row)),
-                       s2_hits.eq(s1_hits), s2_mem.eq(s1_mem)]
             with m.If(s2_move):
+                m.d.sync += [s2_row_w.eq(new_row), s2_hits_w.eq(hits(new_row, in_tag)),
+                             s2_wsel.eq(twp.en & (twp.addr == in_set))]
                 with m.If(b_valid):
                     m.d.sync += [s2_valid.eq(1), s2_off.eq(b_off), s2_set.eq(b_set),
-                                 s2_tag.eq(b_tag), s2_utag.eq(b_utag),
-                                 s2_row.eq(Mux(wb_, new_row, b_row)),
-                                 s2_hits.eq(Mux(wb_, hits(new_row, b_tag), b_hits)),
-                                 s2_mem.eq(b_mem), b_valid.eq(0)]
+                                 s2_tag.eq(b_tag), s2_utag.eq(b_utag), s2_row_n.eq(b_row),
+                                 s2_hits_n.eq(b_hits), s2_mem.eq(b_mem), b_valid.eq(0)]
                 with m.Else():
-                    m.d.sync += [s2_valid.eq(s1_valid)] + from_s1
+                    m.d.sync += [s2_valid.eq(s1_valid), s2_off.eq(s1_off), s2_set.eq(s1_set),
+                                 s2_tag.eq(s1_tag), s2_utag.eq(s1_utag), s2_row_n.eq(row),
+                                 s2_hits_n.eq(s1_hits), s2_mem.eq(s1_mem)]
             with m.Elif(s1_go):     # S2 holds: S1's request into B (no tag write this cycle)
                 m.d.sync += [b_valid.eq(1), b_off.eq(s1_off), b_set.eq(s1_set),
                              b_tag.eq(s1_tag), b_utag.eq(s1_utag), b_row.eq(row),
                              b_hits.eq(s1_hits), b_mem.eq(s1_mem)]
             d_valid, d_off, d_set, d_tag, d_utag = s2_valid, s2_off, s2_set, s2_tag, s2_utag
-            d_row, hit_vec = s2_row, s2_hits
+            d_row, hit_vec = Signal(len(row), name="s2_row_now"), Signal(W, name="s2_hits_now")
+            m.d.comb += [d_row.eq(Mux(s2_wsel, s2_row_w, s2_row_n)),
+                         hit_vec.eq(Mux(s2_wsel, s2_hits_w, s2_hits_n))]
         else:
             m.d.comb += s1_go.eq(go)
             d_valid, d_off, d_set, d_tag, d_utag = s1_valid, s1_off, s1_set, s1_tag, s1_utag
@@ -236,7 +238,6 @@ class Cache(wiring.Component):
             # one cycle
             def busy_ways(set_):
                 return Cat(*(slot_busy(set_, w) for w in range(W)))
-            in_set = Mux(b_valid, b_set, s1_set)        # the request S2 would take
             nxt_set = Mux(s2_move, in_set, d_set)
             b, lw_v, lw_way = Signal(W, name="busy_s2"), Signal(), Signal(wb)
             m.d.sync += [b.eq(Mux(s2_move, busy_ways(in_set), busy_ways(d_set))),
