@@ -70,35 +70,57 @@ def lowest(m: Module, bits: Value, name: str) -> tuple[Signal, Signal]:
     return anyb, idx
 
 
+def lowest_onehot(bits: Value) -> Value:
+    """The lowest set bit of ``bits`` alone (0 if none): bit t is ``bits[t]`` and no lower bit."""
+    bits = Value.cast(bits)
+    return Cat(*(bits[t] & ~bits[:t].any() if t else bits[0] for t in range(len(bits))))
+
+
 def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signal]:
-    """Round-robin: (any, first set bit of ``req`` at or after ``ptr``); len(req) a power of 2."""
+    """Round-robin: (any, first set bit of ``req`` at or after ``ptr``, wrapping around): the
+    lowest request at or after ``ptr`` if there is one, else the lowest request (two priority
+    encoders and a 2:1 mux; no rotation and no add)."""
     n = len(req)
-    assert n & (n - 1) == 0, f"rr_pick: {n} requests, not a power of two"
     if n == 1:
         return lowest(m, req, name)
-    rot = Signal(n, name=f"{name}_rot")
-    m.d.comb += rot.eq((Cat(req, req) >> ptr)[:n])
-    anyb, off = lowest(m, rot, name)
+    req = Value.cast(req)
+    ge = Cat(*(ptr <= t for t in range(n)))         # the requests at or after ptr
+    hi_any, hi_idx = lowest(m, req & ge, f"{name}_hi")
+    lo_any, lo_idx = lowest(m, req, name)
     idx = Signal(range(n), name=f"{name}_pick")
-    m.d.comb += idx.eq((ptr + off)[:ceil_log2(n)])
-    return anyb, idx
+    m.d.comb += idx.eq(Mux(hi_any, hi_idx, lo_idx))
+    return lo_any, idx
 
 
-def rr_pick_next(m: Module, req: Value, ptr: Value, idx: Value, drop: Value,
-                 name: str) -> tuple[Value, Value]:
-    """The next cycle's :func:`rr_pick` of ``req``, less the request ``idx`` when ``drop``, from
-    registers: both picks (with and without ``idx``) and ``drop`` go into registers, and the
-    pick is a 2:1 mux of them, so a late ``drop`` (a handshake, a busy flag) runs into one
-    register instead of through the pick. Returns (any, index) for the next cycle."""
+def rr_pick_onehot(req: Value, ptr: Value) -> Value:
+    """:func:`rr_pick`'s pick as a one-hot vector (0 if no request)."""
     n = len(req)
-    l_any, l_idx = rr_pick(m, (req & ~(Const(1, n) << idx))[:n], ptr, f"{name}_less")
+    req = Value.cast(req)
+    hi = req & Cat(*(ptr <= t for t in range(n)))
+    return Mux(hi.any(), lowest_onehot(hi), lowest_onehot(req))
+
+
+def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
+                 taken: Value | None = None) -> tuple[Value, Value, Value]:
+    """The next cycle's :func:`rr_pick` of ``req`` from registers, less the request ``taken``
+    (one-hot; default: this pick itself) when ``drop``: both picks (with and without it), their
+    one-hot forms and ``drop`` go into registers, and the pick is a 2:1 mux of them, so a late
+    ``drop`` (a handshake, a busy flag) runs into one register instead of through the pick.
+    Returns (any, index, one-hot) for the next cycle."""
+    n = len(req)
+    oh = Signal(n, name=f"{name}_onehot")
+    less = (Value.cast(req) & ~(oh if taken is None else taken))[:n]
+    l_any, l_idx = rr_pick(m, less, ptr, f"{name}_less")
     k_any, k_idx = rr_pick(m, req, ptr, name)
+    vals = (l_any, l_idx, rr_pick_onehot(less, ptr), k_any, k_idx, rr_pick_onehot(req, ptr), drop)
     regs = [Signal(name=f"{name}_less_any_q"), Signal.like(l_idx, name=f"{name}_less_pick_q"),
-            Signal(name=f"{name}_any_q"), Signal.like(k_idx, name=f"{name}_pick_q"),
+            Signal(n, name=f"{name}_less_onehot_q"), Signal(name=f"{name}_any_q"),
+            Signal.like(k_idx, name=f"{name}_pick_q"), Signal(n, name=f"{name}_onehot_q"),
             Signal(name=f"{name}_drop_q")]
-    m.d.sync += [r.eq(v) for r, v in zip(regs, (l_any, l_idx, k_any, k_idx, drop))]
-    lq_any, lq_idx, kq_any, kq_idx, drop_q = regs
-    return Mux(drop_q, lq_any, kq_any), Mux(drop_q, lq_idx, kq_idx)
+    m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
+    lq_any, lq_idx, lq_oh, kq_any, kq_idx, kq_oh, drop_q = regs
+    m.d.comb += oh.eq(Mux(drop_q, lq_oh, kq_oh))
+    return Mux(drop_q, lq_any, kq_any), Mux(drop_q, lq_idx, kq_idx), oh
 
 
 class OutputStage(wiring.Component):

@@ -561,8 +561,8 @@ class Traversal(wiring.Component):
             # handshake, registered, chooses
             f_any, f_idx = Signal(name="fetch_any"), Signal(self.cfg.thread_bits,
                                                             name="fetch_pick")
-            p_any, p_idx = rr_pick_next(m, fetching, f_ptr, f_idx, out.i.valid & out.i.ready,
-                                        "fetch")
+            p_any, p_idx, _ = rr_pick_next(m, fetching, f_ptr, out.i.valid & out.i.ready,
+                                           "fetch")
             m.d.comb += [f_any.eq(p_any), f_idx.eq(p_idx)]
         else:
             f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
@@ -660,6 +660,7 @@ class Traversal(wiring.Component):
         subs = self.subunits
         e_ptr = Signal(tb)
         e_t = Signal(tb)
+        e_taken = Signal(T, name="e_taken")         # fast_clock: e_t one-hot
         ctl_busy = Signal()                          # the engine works on thread e_t
         waiting = (th.in_state(ThreadState.HAVE_NODE) | th.in_state(ThreadState.POP) |
                    th.in_state(ThreadState.NEXTPASS))
@@ -668,7 +669,8 @@ class Traversal(wiring.Component):
             # and without the one being worked on (only this engine moves a thread out of
             # those states, so a pick made a cycle ahead is still waiting when it is used);
             # ctl_busy, registered, chooses
-            e_any, e_idx = rr_pick_next(m, waiting, e_ptr, e_t, ctl_busy, "step")
+            e_any, e_idx, e_oh = rr_pick_next(m, waiting, e_ptr, ctl_busy, "step",
+                                              taken=e_taken)
         else:
             e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)
@@ -755,8 +757,8 @@ class Traversal(wiring.Component):
                     m.d.sync += [e_t.eq(e_idx), e_kind.eq(th.state[e_idx]),
                                  e_word.eq(th.word[e_idx]), e_mask.eq(th.mask[e_idx]),
                                  neg.eq(th.octant[e_idx].bit_select(p_word.axis, 1)),
-                                 *([e_todo.eq(th.todo[e_idx]), e_term.eq(th.term[e_idx])]
-                                   if fast else []),
+                                 *([e_todo.eq(th.todo[e_idx]), e_term.eq(th.term[e_idx]),
+                                    e_taken.eq(e_oh)] if fast else []),
                                  e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
                                  e_ptr.eq(e_idx + 1)]
                     m.next = "DISPATCH"

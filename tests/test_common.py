@@ -6,7 +6,8 @@ import pytest
 from amaranth.hdl import Module, Signal
 from amaranth.sim import Simulator
 
-from rtl.common import SkidBuffer, TwoWriteMemory, lowest, rr_pick, times_const
+from rtl.common import (SkidBuffer, TwoWriteMemory, lowest, rr_pick, rr_pick_next,
+                        rr_pick_onehot, times_const)
 from tb.common import drain, drive, run
 
 
@@ -53,6 +54,69 @@ def test_rr_pick_starts_at_the_pointer():
     want = [(1, next((p + i) % 8 for i in range(8) if r >> ((p + i) % 8) & 1)) if r else (0, None)
             for r, p in cases]
     assert [(a, i if a else None) for a, i in got] == want
+
+
+def _rr_ref(r, p, n=8):
+    return next(((p + i) % n for i in range(n) if r >> ((p + i) % n) & 1), None)
+
+
+def test_rr_pick_onehot_is_the_pick():
+    """The one-hot form of the round-robin pick, for every request vector and pointer."""
+    m = Module()
+    req, ptr = Signal(8), Signal(3)
+    oh = Signal(8)
+    m.d.comb += oh.eq(rr_pick_onehot(req, ptr))
+    got = []
+
+    async def tb(ctx):
+        for r in range(256):
+            for p in range(8):
+                ctx.set(req, r)
+                ctx.set(ptr, p)
+                got.append(ctx.get(oh))
+
+    sim = Simulator(m)
+    sim.add_testbench(tb)
+    sim.run()
+    want = [0 if _rr_ref(r, p) is None else 1 << _rr_ref(r, p)
+            for r in range(256) for p in range(8)]
+    assert got == want
+
+
+def test_rr_pick_next_leaves_out_the_taken_request():
+    """``rr_pick_next``: the pick of the cycle after, from the requests then, less the one
+    picked in this cycle when ``drop`` (a handshake) is high in this cycle."""
+    m = Module()
+    req, ptr, drop = Signal(8), Signal(3), Signal()
+    anyb, idx, oh = rr_pick_next(m, req, ptr, drop, "t")
+    rng = random.Random(5)
+    steps = [(rng.randrange(256), rng.randrange(8), rng.randrange(2)) for _ in range(400)]
+    got = []
+
+    async def tb(ctx):
+        for r, p, d in steps:
+            ctx.set(req, r)
+            ctx.set(ptr, p)
+            ctx.set(drop, d)
+            got.append((ctx.get(anyb), ctx.get(idx), ctx.get(oh)))
+            await ctx.tick()
+
+    sim = Simulator(m)
+    sim.add_clock(1e-6)
+    sim.add_testbench(tb)
+    sim.run()
+    # reference: this cycle's pick comes from last cycle's requests, less last cycle's pick
+    # when last cycle dropped it
+    prev_pick = None
+    for k in range(1, len(steps)):
+        r, p, d = steps[k - 1]
+        if d and prev_pick is not None:
+            r &= ~(1 << prev_pick)
+        want = _rr_ref(r, p)
+        a, i, o = got[k]
+        assert (a, i if a else None, o) == (int(want is not None), want,
+                                            0 if want is None else 1 << want), k
+        prev_pick = i if a else None
 
 
 @pytest.mark.parametrize("k", [0, 1, 2, 3, 5, 7, 10, 64, 255])
