@@ -282,3 +282,60 @@ def test_synthesis_no_latches(tmp_path):
         assert r["generic_ff"] > 0 and r["ecp5"].get("LUT4", 0) > 0, r
         if name == "mul":
             assert r["ecp5"].get("MULT18X18D", 0) >= 1, r
+
+
+# -------------------------------------------------------------------------------------------
+# the multiplier's partial products in the DSP blocks' own registers (rtl/fp/dsp.py)
+# -------------------------------------------------------------------------------------------
+
+def test_regmul_latency_two_and_enable_holds():
+    """``RegMul`` outside the ECP5: the product of the operands of two enabled cycles before;
+    ``en`` = 0 holds both registers."""
+    from rtl.fp.dsp import RegMul
+    dut = RegMul(18, 6)
+    rng = np.random.default_rng(3)
+    steps = [(int(rng.integers(1 << 18)), int(rng.integers(1 << 6)), int(rng.random() < 0.7))
+             for _ in range(300)]
+    got = []
+
+    async def tb(ctx):
+        for a, b, en in steps:
+            ctx.set(dut.a, a)
+            ctx.set(dut.b, b)
+            ctx.set(dut.en, en)
+            await ctx.tick()
+            got.append(ctx.get(dut.p))
+
+    sim = Simulator(dut)
+    sim.add_clock(1e-6)
+    sim.add_testbench(tb)
+    sim.run()
+    # reference: operand register, then product register, each loading when en
+    a_q = b_q = p_q = 0
+    want = []
+    for a, b, en in steps:
+        if en:
+            a_q, b_q, p_q = a, b, a_q * b_q
+        want.append(p_q)
+    assert got[2:] == want[2:]
+
+
+def test_mul_partial_products_use_the_dsp_registers_on_ecp5():
+    """At a latency with registers after unpack and after the partial products (5, ``make
+    fpga``'s), an ECP5 build makes each partial product a MULT18X18D with its input and output
+    registers on, in place of the fabric's operand and product registers; other builds keep
+    the registers in logic."""
+    from amaranth.back import verilog
+    from rtl.fp.dsp import ECP5
+    dut = FPMul(latency=5)
+    assert dut.regs[1] == dut.regs[2] == 1
+    text = verilog.convert(dut, name="m", platform=ECP5)
+    assert text.count("MULT18X18D ") == 4
+    for reg in ("REG_INPUTA_CLK", "REG_INPUTB_CLK", "REG_OUTPUT_CLK"):
+        assert text.count(f'.{reg}("CLK0")') == 4, reg
+    assert text.count('.REG_PIPELINE_CLK("NONE")') == 4
+    assert "p1_0_sa" not in text and "p2_0_ll" not in text
+    plain = verilog.convert(FPMul(latency=5), name="m")
+    assert "MULT18X18D" not in plain
+    # latency 3 has no register after the partial products: the product stays one `*`
+    assert "MULT18X18D" not in verilog.convert(FPMul(latency=3), name="m", platform=ECP5)

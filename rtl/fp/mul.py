@@ -9,6 +9,7 @@ from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
 from .common import canonical_nan, pack, round_inc, special, unpack
+from .dsp import DSP_WIDTH, RegMul
 from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPMul"]
@@ -61,12 +62,31 @@ class FPMul(wiring.Component):
         ua, ub = unpack(fmt, v.a), unpack(fmt, v.b)
         zero = ua.zero | ub.zero
         inf = ua.inf | ub.inf
-        v = st(sa=ua.sig, sb=ub.sig, exp=ua.exp + ub.exp - fmt.bias, sign=ua.sign ^ ub.sign,
-               nan=ua.nan | ub.nan | (zero & inf), inf=inf, zero=zero)
+        H = self.dsp_bits
+        # one register after unpack and one after the partial products: those registers are
+        # the partial multipliers' own (RegMul: a MULT18X18D's input and output registers on
+        # the ECP5), so no fabric wire lies between a register and a multiplier array
+        in_dsp = (self.regs[1] == 1 and self.regs[2] == 1 and H < W <= 2 * H
+                  and H <= DSP_WIDTH)
+        flags = dict(exp=ua.exp + ub.exp - fmt.bias, sign=ua.sign ^ ub.sign,
+                     nan=ua.nan | ub.nan | (zero & inf), inf=inf, zero=zero)
+        if in_dsp:
+            sa, sb = ua.sig, ub.sig
+            v = st(**flags)
+        else:
+            v = st(sa=ua.sig, sb=ub.sig, **flags)
         # -- multiply: 2W-bit product in [2**(2W-2), 2**(2W)) -------------------------------
         flags = dict(sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
-        H = self.dsp_bits
-        if self.regs[2] and W > H:         # partial products registered, summed next stage
+        if in_dsp:
+            parts = {}
+            for name, (x, y) in dict(ll=(sa[:H], sb[:H]), lh=(sa[:H], sb[H:]),
+                                     hl=(sa[H:], sb[:H]), hh=(sa[H:], sb[H:])).items():
+                mul = m.submodules[f"dsp_{name}"] = RegMul(len(x), len(y))
+                m.d.comb += [mul.a.eq(x), mul.b.eq(y), mul.en.eq(self.en)]
+                parts[name] = mul.p
+            v = st(exp=v.exp, **flags)
+            p = parts["ll"] + ((parts["lh"] + parts["hl"]) << H) + (parts["hh"] << (2 * H))
+        elif self.regs[2] and W > H:       # partial products registered, summed next stage
             al, ah, bl, bh = v.sa[:H], v.sa[H:], v.sb[:H], v.sb[H:]
             v = st(ll=al * bl, lh=al * bh, hl=ah * bl, hh=ah * bh, exp=v.exp, **flags)
             p = v.ll + ((v.lh + v.hl) << H) + (v.hh << (2 * H))

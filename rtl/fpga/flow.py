@@ -32,6 +32,7 @@ from amaranth.back import verilog
 from model.config import Config, ConfigError
 from rtl.export import TOPS, add_config_args, build_top, config_from_args
 from rtl import tools
+from rtl.fp.dsp import ECP5
 from rtl.fp.synth import cell_counts
 from .wrapper import PinWrapper, overhead
 
@@ -256,7 +257,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         t0 = time.time()
         dut = build_top(top, cfg, latency)
         wrapper = PinWrapper(dut)
-        (wd / f"{name}.v").write_text(verilog.convert(wrapper, name=name))
+        (wd / f"{name}.v").write_text(verilog.convert(wrapper, name=name, platform=ECP5))
         entry = {"label": label, "top": top, "config": cfg.to_dict(), "fmt": str(cfg.fmt),
                  "latency": getattr(dut, "latency", latency), "device": DEVICE["name"],
                  "port_bits": {"in": wrapper.n_in, "out": wrapper.n_out},
