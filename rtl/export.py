@@ -197,10 +197,14 @@ def build_top(top: str, cfg: Config, latency: int | None = None) -> wiring.Compo
 
 
 def export(top: str, cfg: Config, out_dir: Path | str = "build/verilog",
-           latency: int | None = None, name: str | None = None) -> Path:
-    """Write ``out_dir/<name or top>.v`` (module ``name or top``) and return its path."""
+           latency: int | None = None, name: str | None = None, ecp5: bool = False) -> Path:
+    """Write ``out_dir/<name or top>.v`` (module ``name or top``) and return its path.
+    ``ecp5``: elaborate for the ECP5 (:data:`rtl.fp.dsp.ECP5`): the FP multipliers' partial
+    products become MULT18X18D blocks with their own registers, as in ``rtl.fpga``."""
+    from rtl.fp.dsp import ECP5
     name = name or top
-    text = verilog.convert(build_top(top, cfg, latency), name=name)
+    text = verilog.convert(build_top(top, cfg, latency), name=name,
+                           platform=ECP5 if ecp5 else None)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     path = out / f"{name}.v"
@@ -251,6 +255,11 @@ def main(argv=None) -> None:
     ap.add_argument("--out", default="build/verilog", help="output directory (build/verilog)")
     ap.add_argument("--name", help="Verilog module and file name (default: the top's name)")
     ap.add_argument("--latency", type=int, help="pipeline latency of an fp_* top")
+    ap.add_argument("--ecp5", action="store_true",
+                    help="for a Lattice ECP5 flow: the FP multipliers' partial products as "
+                         "MULT18X18D instances using their own input and output registers "
+                         "(at FP multiply latencies with those registers, e.g. 5); the "
+                         "default is portable Verilog with the registers in logic")
     add_config_args(ap)
     args = ap.parse_args(argv)
     if args.list:
@@ -258,7 +267,8 @@ def main(argv=None) -> None:
             print(f"{k:15s} {desc}")
         return
     try:
-        path = export(args.top, config_from_args(args), args.out, args.latency, args.name)
+        path = export(args.top, config_from_args(args), args.out, args.latency, args.name,
+                      ecp5=args.ecp5)
     except (ConfigError, ValueError) as e:
         raise SystemExit(f"rtl.export: {e}")
     print(f"rtl.export: wrote {path} ({path.stat().st_size // 1024} KB)")

@@ -123,6 +123,15 @@ def test_cli_writes_the_file(tmp_path):
     assert "module fp_mul(" in text and "input [15:0] a;" in text
 
 
+def test_cli_ecp5_puts_the_multipliers_in_dsp_blocks(tmp_path):
+    """``--ecp5``: an FP multiplier at latency 5 as four MULT18X18D with their registers."""
+    ex.main(["--top", "fp_mul", "--latency", "5", "--ecp5", "--out", str(tmp_path)])
+    text = (tmp_path / "fp_mul.v").read_text()
+    assert text.count("MULT18X18D ") == 4 and text.count('.REG_OUTPUT_CLK("CLK0")') == 4
+    ex.main(["--top", "fp_mul", "--latency", "5", "--out", str(tmp_path), "--name", "plain"])
+    assert "MULT18X18D" not in (tmp_path / "plain.v").read_text()
+
+
 class _Adder(wiring.Component):
     """o = a + b registered, plus a flag: enough ports of odd widths for the wrapper test."""
     def __init__(self):
