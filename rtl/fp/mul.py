@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from amaranth.hdl import Module, Mux
+from amaranth.hdl import C, Cat, Module, Mux
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
@@ -70,11 +70,14 @@ class FPMul(wiring.Component):
                   and H <= DSP_WIDTH)
         flags = dict(exp=ua.exp + ub.exp - fmt.bias, sign=ua.sign ^ ub.sign,
                      nan=ua.nan | ub.nan | (zero & inf), inf=inf, zero=zero)
+        # the significands with their hidden bit, not cleared for a zero (or flushed denormal)
+        # operand: that product is never used (the zero flag selects the result), and no
+        # clear stands between the operand and the multiplier's input register
+        sa, sb = Cat(ua.frac, C(1, 1)), Cat(ub.frac, C(1, 1))
         if in_dsp:
-            sa, sb = ua.sig, ub.sig
             v = st(**flags)
         else:
-            v = st(sa=ua.sig, sb=ub.sig, **flags)
+            v = st(sa=sa, sb=sb, **flags)
         # -- multiply: 2W-bit product in [2**(2W-2), 2**(2W)) -------------------------------
         flags = dict(sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
         if in_dsp:
