@@ -57,7 +57,8 @@ class Cache(wiring.Component):
     tag write the read missed is forwarded), the data word is registered before
     ``port.resp``, the line's memory address is formed as the request enters S1 and S2, the
     lowest free MSHR is kept in a register, S1's compare verdict is registered and a stage S2
-    decides from registers (S2's tag write forwarded into S1's compare), each queue entry's
+    decides from registers (S2's tag write applied to the request it takes a cycle later),
+    S2 has a skid entry so the stages before it move on a register, each queue entry's
     "line still being filled" and the head's data address are registers, and the memory's
     response is registered before the fill (``fill_delay``: a miss takes a cycle more). The
     hit/miss sequence is the same either way.
