@@ -317,3 +317,35 @@ def test_seeds_tried_in_turn_until_one_routes(tmp_path, monkeypatch):
     assert [c[0] for c in calls] == [1, 2]
     with pytest.raises(SystemExit, match="several --seed values"):
         flow.main(["--top", "fp_add", "--seed", "1", "2", "--synth-only"])
+
+
+def _dsp_netlist(path, registered):
+    """fpga_top: flip-flop q -> MULT18X18D (A0) -> flip-flop r (from P0)."""
+    reg = "CLK0" if registered else "NONE"
+    cells = {
+        "q": {"type": "TRELLIS_FF", "port_directions": {"DI": "input", "Q": "output"},
+              "connections": {"DI": [10], "Q": [2]}},
+        "dsp": {"type": "MULT18X18D", "parameters": {"REG_INPUTA_CLK": reg,
+                                                    "REG_INPUTB_CLK": reg,
+                                                    "REG_OUTPUT_CLK": reg},
+                "port_directions": {"A0": "input", "P0": "output"},
+                "connections": {"A0": [2], "P0": [3]}},
+        "r": {"type": "TRELLIS_FF", "port_directions": {"DI": "input", "Q": "output"},
+              "connections": {"DI": [3], "Q": [11]}},
+    }
+    path.write_text(json.dumps({"modules": {"fpga_top": {"cells": cells}}}))
+    return path
+
+
+def test_path_estimate_knows_the_dsp_registers(tmp_path):
+    """``--estimate``: a MULT18X18D without its own registers is a 4.5 ns step between two
+    flip-flops; with them, the path into it ends at its inputs and the path out of it starts
+    at its output register."""
+    from rtl.fpga.paths import DSP, DSP_CQ, FF_CQ, SETUP, estimate
+    plain = {e["end"]: e for e in estimate(_dsp_netlist(tmp_path / "a.json", False), route=1.0)}
+    assert plain["r"]["path"] == ["q", "dsp", "r"]
+    assert plain["r"]["ns"] == round(FF_CQ + 1.0 + DSP + 1.0 + SETUP, 2)
+    assert "dsp" not in plain
+    reg = {e["end"]: e for e in estimate(_dsp_netlist(tmp_path / "b.json", True), route=1.0)}
+    assert reg["dsp"]["path"] == ["q", "dsp"] and reg["r"]["path"] == ["dsp", "r"]
+    assert reg["r"]["ns"] == round(DSP_CQ + 1.0 + SETUP, 2)

@@ -4,7 +4,9 @@ nextpnr reports one critical path per clock, after an hour of place and route fo
 This estimate lists *every* register-to-register path class longer than the clock period from
 the netlist alone, in seconds: arrival times through the mapped cells with fixed delays (the
 LFE5U-85 speed grade 6 figures nextpnr reports for its cells: flip-flop clock-to-out 0.52 ns,
-block-RAM clock-to-out 5.8 ns, LUT4 0.24 ns, a carry cell 0.07 ns along its chain) and a guess
+block-RAM clock-to-out 5.8 ns, LUT4 0.24 ns, a carry cell 0.07 ns along its chain; a
+MULT18X18D 4.5 ns through, or, with its own registers on, 0.74 ns clock-to-out and an endpoint
+at its inputs) and a guess
 for each net's routing (``route`` ns, more with fanout; 0 inside a slice: LUT -> PFUMX ->
 L6MUX21, carry chain). It is a ranking of where the long paths are, not a timing sign-off:
 routed delays depend on placement (nextpnr's routed nets ranged from 0.2 to 3.6 ns).
@@ -22,7 +24,7 @@ from pathlib import Path
 
 __all__ = ["estimate", "report"]
 
-FF_CQ, BRAM_CQ, LUTRAM_RD, DSP = 0.52, 5.8, 0.5, 4.5
+FF_CQ, BRAM_CQ, LUTRAM_RD, DSP, DSP_CQ = 0.52, 5.8, 0.5, 4.5, 0.74
 LUT, MUX, CARRY_IN, CARRY, CARRY_OUT = 0.24, 0.26, 0.45, 0.07, 0.44
 SETUP = 0.1
 
@@ -89,6 +91,8 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9) -> list[d
                 memo[b] = (FF_CQ, None); stack.pop(); continue
             if t == "DP16KD":
                 memo[b] = (BRAM_CQ, None); stack.pop(); continue
+            if t == "MULT18X18D" and _dsp_reg(c, "OUTPUT"):
+                memo[b] = (DSP_CQ, None); stack.pop(); continue
             ins = _comb_inputs(c, port)
             pending = [i for i, _ in ins if i not in memo and driver.get(i) is not None]
             if pending:
@@ -113,6 +117,9 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9) -> list[d
                                                                        "OCE", "CS", "RST")))
         elif t == "TRELLIS_DPR16X4":
             ports = ("WAD", "DI", "WRE")
+        elif t == "MULT18X18D" and (_dsp_reg(c, "INPUTA") or _dsp_reg(c, "INPUTB")):
+            ports = tuple(f"{x}{i}" for x in "AB" for i in range(18)
+                          if _dsp_reg(c, f"INPUT{x}")) + ("CE0",)
         else:
             continue
         worst, wbit = -1.0, None
@@ -131,6 +138,11 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9) -> list[d
         out.append({"end": name, "ns": round(worst, 2), "path": path[::-1]})
     out.sort(key=lambda e: -e["ns"])
     return out
+
+
+def _dsp_reg(c: dict, which: str) -> bool:
+    """A MULT18X18D's own register ``which`` (INPUTA, INPUTB, OUTPUT) is on."""
+    return str(c.get("parameters", {}).get(f"REG_{which}_CLK", "NONE")) not in ("", "NONE")
 
 
 def _comb_inputs(c: dict, out_port: str) -> list[tuple[int, float]]:
