@@ -51,7 +51,8 @@ from amaranth.utils import ceil_log2
 
 from model.config import Config
 from model.layout import LEAF, NODE_INDEX_BITS, node_layout
-from .common import COUNTER_BITS, OutputStage, from_binary32, lowest, rr_pick, rr_pick_next
+from .common import (COUNTER_BITS, OutputStage, from_binary32, lowest, lowest_onehot,
+                     rr_pick, rr_pick_next)
 from .fp import FPAdd, FPCompare, FPMinMax, FPMul
 from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
@@ -479,10 +480,15 @@ class Traversal(wiring.Component):
         ld_thread = Signal(cfg.thread_bits)
         acc = [Signal(L, name=f"acc{o}") for o in range(8)]
         acc_lanes = Signal(L)
-        free_any, free_idx = lowest(m, th.in_state(ThreadState.FREE), "free")
+        free = th.in_state(ThreadState.FREE)
+        free_any, free_idx = lowest(m, free, "free")
         with m.If(~ld_active & free_any):
             m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx)]
-            th.set_state(m, free_idx, ThreadState.LOAD)
+            if not th.fast:
+                th.set_state(m, free_idx, ThreadState.LOAD)
+        if th.fast:         # the state write's per-thread enables: the lowest free thread, one-hot
+            th.set(m, "state", None, ThreadState.LOAD,
+                   onehot=Mux(~ld_active, lowest_onehot(free), 0))
         rays = self.rays
         live_in = compare(cfg.fmt, rays.payload.tnear, rays.payload.tfar).le
         if cfg.fast_clock:
@@ -561,16 +567,20 @@ class Traversal(wiring.Component):
             # handshake, registered, chooses
             f_any, f_idx = Signal(name="fetch_any"), Signal(self.cfg.thread_bits,
                                                             name="fetch_pick")
-            p_any, p_idx, _ = rr_pick_next(m, fetching, f_ptr, out.i.valid & out.i.ready,
-                                           "fetch")
+            p_any, p_idx, f_oh = rr_pick_next(m, fetching, f_ptr, out.i.valid & out.i.ready,
+                                              "fetch")
             m.d.comb += [f_any.eq(p_any), f_idx.eq(p_idx)]
+            # the state write's per-thread enables: the pick's one-hot form
+            th.set(m, "state", None, ThreadState.WAIT_MEM,
+                   onehot=Mux(out.i.valid & out.i.ready, f_oh, 0))
         else:
             f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
                      out.i.payload.addr.eq(self.node_base + th.node[f_idx])]
         with m.If(out.i.valid & out.i.ready):
             m.d.sync += f_ptr.eq(f_idx + 1)
-            th.set_state(m, f_idx, ThreadState.WAIT_MEM)
+            if not self.cfg.fast_clock:
+                th.set_state(m, f_idx, ThreadState.WAIT_MEM)
         with m.If(req.valid & req.ready):
             m.d.sync += self.node_reads.eq(self.node_reads + 1)
         resp = self.node.resp
@@ -827,8 +837,11 @@ class Traversal(wiring.Component):
                 m.next = "IDLE"
 
         # the engine's writes of the thread it works on: one write per field
-        with m.If(c_state_we):
-            th.set_state(m, e_t, c_state)
+        if fast:            # per-thread enables: e_t's one-hot register
+            th.set(m, "state", None, c_state, onehot=Mux(c_state_we, e_taken, 0))
+        else:
+            with m.If(c_state_we):
+                th.set_state(m, e_t, c_state)
         if fast:
             # the fields are written in POP4 (if a lane is live) and PASS3, each entered
             # unconditionally from the state before, where that is known: the per-thread
