@@ -76,6 +76,12 @@ def lowest_onehot(bits: Value) -> Value:
     return Cat(*(bits[t] & ~bits[:t].any() if t else bits[0] for t in range(len(bits))))
 
 
+def _at_or_after(ptr: Value, n: int) -> Value:
+    """One bit per request index t < n: ``t >= ptr`` (a constant 1 where no ``ptr`` exceeds t)."""
+    top = (1 << len(Value.cast(ptr))) - 1
+    return Cat(*(Const(1) if t >= top else ptr <= t for t in range(n)))
+
+
 def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signal]:
     """Round-robin: (any, first set bit of ``req`` at or after ``ptr``, wrapping around): the
     lowest request at or after ``ptr`` if there is one, else the lowest request (two priority
@@ -84,7 +90,7 @@ def rr_pick(m: Module, req: Value, ptr: Value, name: str) -> tuple[Signal, Signa
     if n == 1:
         return lowest(m, req, name)
     req = Value.cast(req)
-    ge = Cat(*(ptr <= t for t in range(n)))         # the requests at or after ptr
+    ge = _at_or_after(ptr, n)                       # the requests at or after ptr
     hi_any, hi_idx = lowest(m, req & ge, f"{name}_hi")
     lo_any, lo_idx = lowest(m, req, name)
     idx = Signal(range(n), name=f"{name}_pick")
@@ -96,7 +102,7 @@ def rr_pick_onehot(req: Value, ptr: Value) -> Value:
     """:func:`rr_pick`'s pick as a one-hot vector (0 if no request)."""
     n = len(req)
     req = Value.cast(req)
-    hi = req & Cat(*(ptr <= t for t in range(n)))
+    hi = req & _at_or_after(ptr, n)
     return Mux(hi.any(), lowest_onehot(hi), lowest_onehot(req))
 
 
