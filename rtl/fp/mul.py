@@ -17,6 +17,26 @@ __all__ = ["FPMul"]
 DSP_BITS = 18      # operand width of one ECP5 MULT18X18D
 
 
+def _sum_partials(ll, lh, hl, hh, h: int, width: int):
+    """``ll + ((lh + hl) << h) + (hh << 2h)`` in ``width`` bits with one carry chain.
+
+    ``ll`` < 2**2h, so ``ll + (hh << 2h)`` is their concatenation; its bits from ``h`` up and
+    the two middle products are three addends, reduced to two by one level of full adders
+    (sum and carry bits, a LUT each) before the one carry-propagate add. The path out of the
+    multipliers' output registers (a long wire from the DSP row) then meets one LUT and one
+    carry chain, not three chains in a row.
+    """
+    x = Cat(ll, hh)[h:width]
+    n = width - h
+    s_bits, c_bits = [], []
+    for i in range(n):
+        yi = lh[i] if i < len(lh) else C(0, 1)
+        zi = hl[i] if i < len(hl) else C(0, 1)
+        s_bits.append(x[i] ^ yi ^ zi)
+        c_bits.append((x[i] & yi) | (x[i] & zi) | (yi & zi))
+    return Cat(ll[:h], (Cat(*s_bits) + Cat(C(0, 1), *c_bits[:-1]))[:n])
+
+
 class FPMul(wiring.Component):
     """``o = a * b`` in format ``fmt``.
 
@@ -88,7 +108,7 @@ class FPMul(wiring.Component):
                 m.d.comb += [mul.a.eq(x), mul.b.eq(y), mul.en.eq(self.en)]
                 parts[name] = mul.p
             v = st(exp=v.exp, **flags)
-            p = parts["ll"] + ((parts["lh"] + parts["hl"]) << H) + (parts["hh"] << (2 * H))
+            p = _sum_partials(parts["ll"], parts["lh"], parts["hl"], parts["hh"], H, 2 * W)
         elif self.regs[2] and W > H:       # partial products registered, summed next stage
             al, ah, bl, bh = v.sa[:H], v.sa[H:], v.sb[:H], v.sb[H:]
             v = st(ll=al * bl, lh=al * bh, hl=ah * bl, hh=ah * bh, exp=v.exp, **flags)
