@@ -528,6 +528,11 @@ def main(argv=None) -> None:
     ap.add_argument("--estimate", metavar="LABEL",
                     help="list the path classes of run LABEL's netlist estimated longer than "
                          "the --freq period (seconds; no placement: rtl/fpga/paths.py)")
+    ap.add_argument("--routed", action="store_true",
+                    help="with --estimate: take each net's routed delay from LABEL's "
+                         "report.json (a route with --pnr-arg=--detailed-timing-report), so "
+                         "the list is every routed path class over the period, not only "
+                         "nextpnr's one critical path")
     ap.add_argument("--congestion", metavar="LABEL",
                     help="map where run LABEL congests: router2's congestion per tile beside "
                          "the unit placed there, and each unit's share (LABEL's placed.json "
@@ -556,7 +561,14 @@ def main(argv=None) -> None:
         if not net.exists():
             raise SystemExit(f"rtl.fpga: {net} does not exist; synthesize {args.estimate} "
                              "first (--synth-only)")
-        print(report(net, period=1000.0 / args.freq))
+        kw = {}
+        if args.routed:
+            from .paths import routed_delays
+            try:
+                kw["routed"] = routed_delays(out / args.estimate / "report.json", net)
+            except (OSError, ValueError) as err:
+                raise SystemExit(f"rtl.fpga: --routed: {err}")
+        print(report(net, period=1000.0 / args.freq, **kw))
         return
     if args.path:
         rep = out / args.path / "report.json"

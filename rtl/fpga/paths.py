@@ -13,6 +13,11 @@ routed delays depend on placement (nextpnr's routed nets ranged from 0.2 to 3.6 
 
 Run: ``.venv/bin/python -m rtl.fpga --estimate LABEL`` (a run with a netlist in
 ``build/fpga/LABEL``, e.g. from ``--synth-only``).
+
+After a route with ``--pnr-arg=--detailed-timing-report`` the same walk can take each net's
+routed delay to each sink from nextpnr's report (:func:`routed_delays`; ``--estimate LABEL
+--routed``): then it lists every endpoint's routed path, not only the one critical path
+nextpnr prints, with the cells' delays still the fixed figures above.
 """
 from __future__ import annotations
 
@@ -22,7 +27,7 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-__all__ = ["estimate", "report"]
+__all__ = ["estimate", "report", "routed_delays"]
 
 FF_CQ, BRAM_CQ, LUTRAM_RD, DSP, DSP_CQ = 0.52, 5.8, 0.5, 4.5, 0.74
 LUT, MUX, CARRY_IN, CARRY, CARRY_OUT = 0.24, 0.26, 0.45, 0.07, 0.44
@@ -37,9 +42,53 @@ def base_name(cell: str) -> str:
     return re.sub(r"(\.\d+)+$", "", name)
 
 
-def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9) -> list[dict]:
+def routed_delays(report: Path, netlist: Path, top: str = "fpga_top"
+                  ) -> dict[int, dict[str, float]]:
+    """Routed net delays from a nextpnr ``--report`` written with ``--detailed-timing-report``,
+    keyed by the Yosys netlist's bits: {bit: {sink cell: ns, "*": the net's worst ns}}.
+
+    nextpnr names a net after one of the bit's Yosys net names (``name`` or ``name[i]``) and
+    keeps the cell names, adding a suffix to cells it splits (``$CCU2_COMB0``); both are
+    mapped back to the netlist's."""
+    rep = json.loads(Path(report).read_text())
+    nets = rep.get("detailed_net_timings")
+    if nets is None:
+        raise ValueError(f"{report} has no detailed_net_timings: route with "
+                         "--pnr-arg=--detailed-timing-report")
+    mod = json.loads(Path(netlist).read_text())["modules"][top]
+    bit_of: dict[str, int] = {}
+    for name, n in mod.get("netnames", {}).items():
+        bits = n["bits"]
+        off = int(n.get("offset", 0))
+        for i, b in enumerate(bits):
+            if isinstance(b, int):
+                bit_of[name if len(bits) == 1 else f"{name}[{i + off}]"] = b
+    cells = mod["cells"]
+
+    def cell_of(name: str) -> str:
+        while name not in cells and "$" in name:
+            name = name[:name.rindex("$")]
+        return name
+
+    out: dict[int, dict[str, float]] = {}
+    for n in nets:
+        b = bit_of.get(n["net"])
+        if b is None:
+            continue
+        d = out.setdefault(b, {"*": 0.0})
+        for e in n["endpoints"]:
+            ns = float(e["delay"][1])
+            c = cell_of(e["cell"])
+            d[c] = max(d.get(c, 0.0), ns)
+            d["*"] = max(d["*"], ns)
+    return out
+
+
+def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9,
+             routed: dict[int, dict[str, float]] | None = None) -> list[dict]:
     """Per endpoint (a flip-flop or block-RAM/LUT-RAM input): the estimated arrival time (ns)
-    and the cells of its worst path, for every endpoint; sorted, longest first."""
+    and the cells of its worst path, for every endpoint; sorted, longest first. ``routed``
+    (:func:`routed_delays`): the routed delay of each net found there instead of the guess."""
     mod = json.loads(Path(netlist).read_text())["modules"][top]
     cells = mod["cells"]
     driver: dict[int, tuple[str, str]] = {}
@@ -55,10 +104,13 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9) -> list[d
                 else:
                     fanout[b] += 1
 
-    def net_delay(bit, sink_type, sink_port):
+    def net_delay(bit, sink_type, sink_port, sink=None):
         src = driver.get(bit)
         if src is None:
             return 0.0
+        if routed is not None and bit in routed:
+            r = routed[bit]
+            return r.get(sink, r["*"])
         st = cells[src[0]]["type"]
         if (st == "LUT4" and sink_type in ("PFUMX", "L6MUX21") and sink_port != "C0"
                 and sink_port != "SD") or (st in ("PFUMX",) and sink_type == "L6MUX21"
@@ -100,7 +152,7 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9) -> list[d
                 continue
             best, via = 0.0, None
             for i, cell_delay in ins:
-                a = memo.get(i, (0.0, None))[0] + net_delay(i, t, _port_of(c, i)) + cell_delay
+                a = memo.get(i, (0.0, None))[0] + net_delay(i, t, _port_of(c, i), name) + cell_delay
                 if a > best:
                     best, via = a, i
             memo[b] = (best, via)
@@ -126,7 +178,7 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9) -> list[d
         for p in ports:
             for b in c["connections"].get(p, []):
                 if isinstance(b, int) and b in driver:
-                    a = arrival(b)[0] + net_delay(b, t, p) + SETUP
+                    a = arrival(b)[0] + net_delay(b, t, p, name) + SETUP
                     if a > worst:
                         worst, wbit = a, b
         if wbit is None:
