@@ -351,30 +351,29 @@ def test_path_estimate_knows_the_dsp_registers(tmp_path):
     assert reg["r"]["ns"] == round(DSP_CQ + 1.0 + SETUP, 2)
 
 
-def test_routed_estimate_takes_nextpnr_net_delays(tmp_path):
-    """``--estimate LABEL --routed``: each net's routed delay to each sink (nextpnr's
-    detailed net timings, net names ``name``/``name[i]``, split cells ``cell$SUFFIX``) replaces
-    the guessed one; nets nextpnr does not list keep the guess; a report without the detailed
+def test_routed_estimate_ranks_endpoints_by_nextpnr_arrivals(tmp_path):
+    """``--estimate LABEL --routed``: each endpoint's time is its latest routed arrival from
+    nextpnr's detailed net timings (the worst over its inputs), its path named from the
+    estimate; endpoints nextpnr does not list are left out; a report without the detailed
     timings is refused with the option that writes them."""
-    from rtl.fpga.paths import DSP, FF_CQ, SETUP, estimate, routed_delays
+    from rtl.fpga.paths import estimate, report, routed_arrivals
     net = _dsp_netlist(tmp_path / "n.json", False)
-    d = json.loads(net.read_text())
-    d["modules"]["fpga_top"]["netnames"] = {"q_out": {"bits": [2]},
-                                            "prod": {"bits": [3, 4], "offset": 0}}
-    net.write_text(json.dumps(d))
     rep = tmp_path / "report.json"
     rep.write_text(json.dumps({"detailed_net_timings": [
-        {"net": "q_out", "driver": "q", "port": "Q", "endpoints": [
-            {"cell": "dsp$MULT", "port": "A0", "delay": [0.5, 2.25]}]},
-        {"net": "prod[0]", "driver": "dsp", "port": "P0", "endpoints": [
-            {"cell": "r", "port": "DI", "delay": [1.0, 3.5]}]}]}))
-    routed = routed_delays(rep, net)
-    assert routed == {2: {"*": 2.25, "dsp": 2.25}, 3: {"*": 3.5, "r": 3.5}}
-    ends = {e["end"]: e for e in estimate(net, route=1.0, routed=routed)}
-    assert ends["r"]["ns"] == round(FF_CQ + 2.25 + DSP + 3.5 + SETUP, 2)
-    del routed[3]
-    ends = {e["end"]: e for e in estimate(net, route=1.0, routed=routed)}
-    assert ends["r"]["ns"] == round(FF_CQ + 2.25 + DSP + 1.0 + SETUP, 2)
+        {"net": "a", "driver": "q", "port": "Q", "endpoints": [
+            {"cell": "r", "port": "DI", "delay": [1.0, 11.5]},
+            {"cell": "x", "port": "DI", "delay": [0.5, 3.0]}]},
+        {"net": "b", "driver": "q", "port": "Q", "endpoints": [
+            {"cell": "r", "port": "CE", "delay": [0.5, 12.25]}]}]}))
+    routed = routed_arrivals(rep)
+    assert routed == {"r": 12.25, "x": 3.0}
+    guess = {e["end"]: e for e in estimate(net, route=1.0)}
+    ends = estimate(net, route=1.0, routed=routed)
+    assert [e["end"] for e in ends] == ["r"]          # q is not in the report
+    assert ends[0]["ns"] == 12.25 and ends[0]["est"] == guess["r"]["ns"]
+    assert ends[0]["path"] == ["q", "dsp", "r"]
+    text = report(net, period=10.0, routed=routed)
+    assert text.startswith("1 of 1 endpoints routed over 10.0 ns") and "12.25 ns" in text
     rep.write_text(json.dumps({"critical_paths": []}))
     with pytest.raises(ValueError, match="--detailed-timing-report"):
-        routed_delays(rep, net)
+        routed_arrivals(rep)

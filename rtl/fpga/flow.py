@@ -529,10 +529,10 @@ def main(argv=None) -> None:
                     help="list the path classes of run LABEL's netlist estimated longer than "
                          "the --freq period (seconds; no placement: rtl/fpga/paths.py)")
     ap.add_argument("--routed", action="store_true",
-                    help="with --estimate: take each net's routed delay from LABEL's "
-                         "report.json (a route with --pnr-arg=--detailed-timing-report), so "
-                         "the list is every routed path class over the period, not only "
-                         "nextpnr's one critical path")
+                    help="with --estimate: rank the endpoints by their routed arrival times "
+                         "from LABEL's report.json (a route with "
+                         "--pnr-arg=--detailed-timing-report): every routed path class over "
+                         "the period, not only nextpnr's one critical path")
     ap.add_argument("--congestion", metavar="LABEL",
                     help="map where run LABEL congests: router2's congestion per tile beside "
                          "the unit placed there, and each unit's share (LABEL's placed.json "
@@ -563,9 +563,9 @@ def main(argv=None) -> None:
                              "first (--synth-only)")
         kw = {}
         if args.routed:
-            from .paths import routed_delays
+            from .paths import routed_arrivals
             try:
-                kw["routed"] = routed_delays(out / args.estimate / "report.json", net)
+                kw["routed"] = routed_arrivals(out / args.estimate / "report.json")
             except (OSError, ValueError) as err:
                 raise SystemExit(f"rtl.fpga: --routed: {err}")
         print(report(net, period=1000.0 / args.freq, **kw))

@@ -14,10 +14,12 @@ routed delays depend on placement (nextpnr's routed nets ranged from 0.2 to 3.6 
 Run: ``.venv/bin/python -m rtl.fpga --estimate LABEL`` (a run with a netlist in
 ``build/fpga/LABEL``, e.g. from ``--synth-only``).
 
-After a route with ``--pnr-arg=--detailed-timing-report`` the same walk can take each net's
-routed delay to each sink from nextpnr's report (:func:`routed_delays`; ``--estimate LABEL
---routed``): then it lists every endpoint's routed path, not only the one critical path
-nextpnr prints, with the cells' delays still the fixed figures above.
+After a route with ``--pnr-arg=--detailed-timing-report``, nextpnr's report holds every
+endpoint's routed arrival time (its "detailed net timings": per net into an endpoint, the
+earliest and latest arrival at each endpoint). ``--estimate LABEL --routed`` lists the
+endpoints by those routed times instead (:func:`routed_arrivals`), each named by the start of
+its estimated worst path: every path class over the period after routing, where nextpnr
+prints only the one critical path.
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ import re
 from collections import defaultdict
 from pathlib import Path
 
-__all__ = ["estimate", "report", "routed_delays"]
+__all__ = ["estimate", "report", "routed_arrivals"]
 
 FF_CQ, BRAM_CQ, LUTRAM_RD, DSP, DSP_CQ = 0.52, 5.8, 0.5, 4.5, 0.74
 LUT, MUX, CARRY_IN, CARRY, CARRY_OUT = 0.24, 0.26, 0.45, 0.07, 0.44
@@ -42,53 +44,27 @@ def base_name(cell: str) -> str:
     return re.sub(r"(\.\d+)+$", "", name)
 
 
-def routed_delays(report: Path, netlist: Path, top: str = "fpga_top"
-                  ) -> dict[int, dict[str, float]]:
-    """Routed net delays from a nextpnr ``--report`` written with ``--detailed-timing-report``,
-    keyed by the Yosys netlist's bits: {bit: {sink cell: ns, "*": the net's worst ns}}.
-
-    nextpnr names a net after one of the bit's Yosys net names (``name`` or ``name[i]``) and
-    keeps the cell names, adding a suffix to cells it splits (``$CCU2_COMB0``); both are
-    mapped back to the netlist's."""
+def routed_arrivals(report: Path) -> dict[str, float]:
+    """The latest routed arrival time (ns, setup included) at each endpoint cell, from a
+    nextpnr ``--report`` written with ``--detailed-timing-report``."""
     rep = json.loads(Path(report).read_text())
     nets = rep.get("detailed_net_timings")
     if nets is None:
         raise ValueError(f"{report} has no detailed_net_timings: route with "
                          "--pnr-arg=--detailed-timing-report")
-    mod = json.loads(Path(netlist).read_text())["modules"][top]
-    bit_of: dict[str, int] = {}
-    for name, n in mod.get("netnames", {}).items():
-        bits = n["bits"]
-        off = int(n.get("offset", 0))
-        for i, b in enumerate(bits):
-            if isinstance(b, int):
-                bit_of[name if len(bits) == 1 else f"{name}[{i + off}]"] = b
-    cells = mod["cells"]
-
-    def cell_of(name: str) -> str:
-        while name not in cells and "$" in name:
-            name = name[:name.rindex("$")]
-        return name
-
-    out: dict[int, dict[str, float]] = {}
+    out: dict[str, float] = {}
     for n in nets:
-        b = bit_of.get(n["net"])
-        if b is None:
-            continue
-        d = out.setdefault(b, {"*": 0.0})
         for e in n["endpoints"]:
-            ns = float(e["delay"][1])
-            c = cell_of(e["cell"])
-            d[c] = max(d.get(c, 0.0), ns)
-            d["*"] = max(d["*"], ns)
+            out[e["cell"]] = max(out.get(e["cell"], 0.0), float(e["delay"][1]))
     return out
 
 
 def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9,
-             routed: dict[int, dict[str, float]] | None = None) -> list[dict]:
+             routed: dict[str, float] | None = None) -> list[dict]:
     """Per endpoint (a flip-flop or block-RAM/LUT-RAM input): the estimated arrival time (ns)
     and the cells of its worst path, for every endpoint; sorted, longest first. ``routed``
-    (:func:`routed_delays`): the routed delay of each net found there instead of the guess."""
+    (:func:`routed_arrivals`): each endpoint's time is its routed one (``est``: the
+    estimate), endpoints it does not list are left out."""
     mod = json.loads(Path(netlist).read_text())["modules"][top]
     cells = mod["cells"]
     driver: dict[int, tuple[str, str]] = {}
@@ -104,13 +80,10 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9,
                 else:
                     fanout[b] += 1
 
-    def net_delay(bit, sink_type, sink_port, sink=None):
+    def net_delay(bit, sink_type, sink_port):
         src = driver.get(bit)
         if src is None:
             return 0.0
-        if routed is not None and bit in routed:
-            r = routed[bit]
-            return r.get(sink, r["*"])
         st = cells[src[0]]["type"]
         if (st == "LUT4" and sink_type in ("PFUMX", "L6MUX21") and sink_port != "C0"
                 and sink_port != "SD") or (st in ("PFUMX",) and sink_type == "L6MUX21"
@@ -152,7 +125,7 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9,
                 continue
             best, via = 0.0, None
             for i, cell_delay in ins:
-                a = memo.get(i, (0.0, None))[0] + net_delay(i, t, _port_of(c, i), name) + cell_delay
+                a = memo.get(i, (0.0, None))[0] + net_delay(i, t, _port_of(c, i)) + cell_delay
                 if a > best:
                     best, via = a, i
             memo[b] = (best, via)
@@ -178,7 +151,7 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9,
         for p in ports:
             for b in c["connections"].get(p, []):
                 if isinstance(b, int) and b in driver:
-                    a = arrival(b)[0] + net_delay(b, t, p, name) + SETUP
+                    a = arrival(b)[0] + net_delay(b, t, p) + SETUP
                     if a > worst:
                         worst, wbit = a, b
         if wbit is None:
@@ -187,7 +160,12 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9,
         while b is not None:
             path.append(driver[b][0])
             b = memo[b][1]
-        out.append({"end": name, "ns": round(worst, 2), "path": path[::-1]})
+        e = {"end": name, "ns": round(worst, 2), "path": path[::-1]}
+        if routed is not None:
+            if name not in routed:
+                continue
+            e["est"], e["ns"] = e["ns"], round(routed[name], 2)
+        out.append(e)
     out.sort(key=lambda e: -e["ns"])
     return out
 
@@ -226,15 +204,17 @@ def _port_of(c: dict, bit: int) -> str:
 
 def report(netlist: Path, period: float = 10.0, top_n: int = 25, **kw) -> str:
     """The path classes (start signal -> end signal) estimated longer than ``period`` ns:
-    worst estimate, number of endpoints, and the worst path's cells."""
+    worst estimate, number of endpoints, and the worst path's cells (``routed=``: by the
+    routed arrival times, each endpoint's start taken from its estimated worst path)."""
     ends = estimate(netlist, **kw)
+    what = "routed" if kw.get("routed") is not None else "estimated"
     groups: dict[tuple[str, str], list] = {}
     for e in ends:
         if e["ns"] <= period:
             break
         key = (base_name(e["path"][0]), base_name(e["end"]))
         groups.setdefault(key, []).append(e)
-    lines = [f"{sum(1 for e in ends if e['ns'] > period)} of {len(ends)} endpoints estimated "
+    lines = [f"{sum(1 for e in ends if e['ns'] > period)} of {len(ends)} endpoints {what} "
              f"over {period} ns, in {len(groups)} classes (start -> end):"]
     for (a, b), es in sorted(groups.items(), key=lambda kv: -kv[1][0]["ns"])[:top_n]:
         w = es[0]
