@@ -135,8 +135,8 @@ class Cache(wiring.Component):
             # before them move on registers. S2's tag write of the cycle it takes a request
             # (from S1 or B) is applied a cycle later: S2 keeps the request's row and hits as
             # they were and as that write leaves them (both formed without ``go``) and a bit
-            # saying whether the write was to its set. S0 and S1 take the write in place (a
-            # write meets B only as B moves on: S2 writes only when it goes)
+            # saying whether the write was to its set. S0 and S1 take the write a cycle later,
+            # from a register (a write meets B only as B moves on: S2 writes only when it goes)
             s2_valid = Signal()
             s2_off, s2_set, s2_tag = Signal(ob), Signal(sb), Signal(tb)
             s2_utag = Signal(utag_bits)
@@ -155,7 +155,10 @@ class Cache(wiring.Component):
             m.d.comb += [s2_move.eq(~s2_valid | go), s1_go.eq(s1_valid & ~b_valid)]
             in_set = Mux(b_valid, b_set, s1_set)        # the request S2 would take
             in_tag = Mux(b_valid, b_tag, s1_tag)
-            s1_hits = Mux(self._s1_fwd, hits(self._s1_fwd_row, s1_tag), hits(self._s1_raw, s1_tag))
+            # S1's hits: one compare per row it may have (newest write first), then a choice
+            (w_s1, wq_row), (s1_fwd, s1_fwd_row), (_, s1_raw) = self._s1_rows
+            s1_hits = Mux(w_s1, hits(wq_row, s1_tag),
+                          Mux(s1_fwd, hits(s1_fwd_row, s1_tag), hits(s1_raw, s1_tag)))
             s1_mem = self.base + self._s1_mem
             with m.If(s2_move):
                 m.d.sync += [s2_row_w.eq(new_row), s2_hits_w.eq(hits(new_row, in_tag)),
@@ -465,7 +468,6 @@ class Cache(wiring.Component):
         # S0: the request whose row is being read; the row arrives in the next cycle
         s0_valid = Signal()
         s0_addr, s0_utag = Signal.like(a, name="s0_addr"), Signal.like(req.payload.tag, name="s0_utag")
-        s0_fwd, s0_row = Signal(), Signal(len(trp.data), name="s0_fwd_row")
         s1_move = Signal()                  # S0 -> S1 this cycle
         s0_load = Signal()
         m.d.comb += [s1_move.eq(~s1_valid | s1_go), s0_load.eq(~s0_valid | s1_move)]
@@ -474,19 +476,27 @@ class Cache(wiring.Component):
         in_utag = Mux(k_valid, k_utag, req.payload.tag)
         in_set = in_addr[ob:ob + sb]
         m.d.comb += [trp.addr.eq(in_set), trp.en.eq(s0_load)]
+        # the tag write of the cycle before, registered (``wq``): S0's and S1's requests take
+        # each write a cycle after it, so the deciding stage's ``go`` (the write enable)
+        # reaches these registers, not their rows. A read in the cycle of a write misses it,
+        # a read after it sees it. S2 writes only in a cycle it takes a request, which empties
+        # the skid entry B: in the next cycle S1 and S0 both move on. So a write is always
+        # taken as a request moves (S0 -> S1: into S1's forwarded row; S1 -> S2 or B: at
+        # S1's output), never by a request that waits
+        wq_en, wq_set = Signal(name="tw_q_en"), Signal(sb, name="tw_q_set")
+        wq_row = Signal(len(trp.data), name="tw_q_row")
+        m.d.sync += [wq_en.eq(twp.en), wq_set.eq(twp.addr), wq_row.eq(twp.data)]
         with m.If(s0_load):
             m.d.sync += [s0_valid.eq(in_valid), s0_addr.eq(in_addr), s0_utag.eq(in_utag),
-                         s0_fwd.eq(twp.en & (twp.addr == in_set)), s0_row.eq(twp.data),
                          k_valid.eq(0)]
         with m.Elif(req.valid & req.ready):
             m.d.sync += k_valid.eq(1)
         s0_set = s0_addr[ob:ob + sb]
-        w_now = twp.en & (twp.addr == s0_set)
-        with m.If(~s0_load & w_now):        # a tag write to the set of S0's waiting request
-            m.d.sync += [s0_fwd.eq(1), s0_row.eq(twp.data)]
+        w_now = wq_en & (wq_set == s0_set)   # the last cycle's write, to S0's set
         with m.If(~k_valid):                # the fields follow the request while k is empty
             m.d.sync += [k_addr.eq(a), k_utag.eq(req.payload.tag)]
-        # S1: the row as read, or the newest tag write to the set since the read
+        # S1: the row as read, or the tag write to the set taken as it came from S0, or the
+        # last cycle's write (still in ``wq``, chosen at its output)
         s1_off, s1_set, s1_tag, s1_utag = s1_fields
         s1_raw = Signal(len(trp.data), name="s1_raw_row", reset_less=True)
         s1_fwd, s1_fwd_row = Signal(), Signal(len(trp.data), name="s1_fwd_row")
@@ -500,12 +510,10 @@ class Cache(wiring.Component):
         with m.If(s1_move):
             m.d.sync += [s1_valid.eq(s0_valid), s1_off.eq(s0_addr[:ob]), s1_set.eq(s0_set),
                          s1_tag.eq(s0_addr[ob + sb:]), s1_utag.eq(s0_utag),
-                         s1_raw.eq(trp.data), s1_fwd.eq(s0_fwd | w_now),
-                         s1_fwd_row.eq(Mux(w_now, twp.data, s0_row))]
-        with m.Elif(twp.en & (twp.addr == s1_set)):     # a write to the set of S1's request
-            m.d.sync += [s1_fwd.eq(1), s1_fwd_row.eq(twp.data)]
+                         s1_raw.eq(trp.data), s1_fwd.eq(w_now), s1_fwd_row.eq(wq_row)]
+        w_s1 = wq_en & (wq_set == s1_set)
         row = Signal(len(trp.data), name="s1_row")
-        m.d.comb += row.eq(Mux(s1_fwd, s1_fwd_row, s1_raw))
-        self._s1_fwd, self._s1_fwd_row, self._s1_raw = s1_fwd, s1_fwd_row, s1_raw
+        m.d.comb += row.eq(Mux(w_s1, wq_row, Mux(s1_fwd, s1_fwd_row, s1_raw)))
+        self._s1_rows = ((w_s1, wq_row), (s1_fwd, s1_fwd_row), (None, s1_raw))
         return row
 
