@@ -759,6 +759,17 @@ class Traversal(wiring.Component):
         def ctl_fields(**values):
             m.d.comb += [c_fields_we.eq(1), *(c_fields[f].eq(v) for f, v in values.items())]
 
+        # fast_clock: the states that write the thread's state, as registered one-hot flags
+        # set with each transition, so the write's enable is formed from registers (not from
+        # the FSM's state decode)
+        flags = {k: Signal(name=f"step_in_{k.lower()}")
+                 for k in ("DISPATCH", "LEAF", "POP4", "PASS", "PASS3")}
+
+        def goto(state):
+            m.next = state
+            if fast:
+                m.d.sync += [f.eq(int(k == state)) for k, f in flags.items()]
+
         with m.FSM(name="step") as fsm:
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
@@ -771,7 +782,7 @@ class Traversal(wiring.Component):
                                     e_taken.eq(e_oh)] if fast else []),
                                  e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
                                  e_ptr.eq(e_idx + 1)]
-                    m.next = "DISPATCH"
+                    goto("DISPATCH")
             with m.State("DISPATCH"):
                 with m.If(e_kind == ThreadState.HAVE_NODE):
                     with m.If(e_word.axis != LEAF):
@@ -779,66 +790,74 @@ class Traversal(wiring.Component):
                             m.d.comb += disp.eq(1)
                             m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
                             ctl_state(ThreadState.STEP)
-                            m.next = "IDLE"
+                            goto("IDLE")
                     with m.Elif(e_word.index != 0):
-                        m.next = "LEAF"
+                        goto("LEAF")
                     with m.Else():
-                        m.next = "POP"
+                        goto("POP")
                 with m.Elif(e_kind == ThreadState.POP):
-                    m.next = "POP"
+                    goto("POP")
                 with m.Else():
-                    m.next = "PASS"
+                    goto("PASS")
             with m.State("LEAF"):
                 m.d.comb += lf.i.valid.eq(1)
                 with m.If(lf.i.ready):
                     ctl_state(ThreadState.WAIT_LEAF)
-                    m.next = "IDLE"
+                    goto("IDLE")
             with m.State("POP"):
                 with m.If(e_sp == 0):
-                    m.next = "PASS"
+                    goto("PASS")
                 with m.Else():
                     m.d.comb += st_r.addr.eq(Cat((e_sp - 1)[:db], e_t))
                     m.d.sync += e_sp.eq(e_sp - 1)
-                    m.next = "POP2"
+                    goto("POP2")
             pop_node, pop_mask, pop_any = st_data[:NODE_BITS], popped, popped.any()
             if fast:
                 # POP2: the entry is read; POP3: its lanes still live, registered; POP4: used
                 with m.State("POP2"):
-                    m.next = "POP3"
+                    goto("POP3")
                 regs = (Signal(NODE_BITS, name="pop_node"), Signal(L, name="pop_mask"),
                         Signal(name="pop_any"))
                 with m.State("POP3"):
                     m.d.sync += [r.eq(v) for r, v in zip(regs, (pop_node, pop_mask, pop_any))]
-                    m.next = "POP4"
+                    goto("POP4")
                 pop_node, pop_mask, pop_any = regs
             with m.State("POP4" if fast else "POP2"):
                 with m.If(pop_any):
                     ctl_fields(node=pop_node, mask=pop_mask, sp=e_sp, cur=1)
                     ctl_state(ThreadState.FETCH)
-                    m.next = "IDLE"
+                    goto("IDLE")
                 with m.Else():
-                    m.next = "POP"
+                    goto("POP")
             with m.State("PASS"):
                 with m.If(~lo_oc_any):
                     ctl_state(ThreadState.DONE)
-                    m.next = "IDLE"
+                    goto("IDLE")
                 with m.Else():
                     m.d.comb += pm_r.addr.eq(e_t)
                     m.d.sync += [e_oct.eq(lo_oc),
                                  th.todo[e_t].eq(e_todo & ~(Const(1, 8) << lo_oc))]
-                    m.next = "PASS2"
+                    goto("PASS2")
             if fast:
                 with m.State("PASS2"):
-                    m.next = "PASS3"
+                    goto("PASS3")
             with m.State("PASS3" if fast else "PASS2"):
                 m.d.sync += [th.octant[e_t].eq(e_oct), self.passes.eq(self.passes + 1)]
                 ctl_fields(mask=pm_data.word_select(e_oct, L), node=self.root, sp=0, cur=0)
                 ctl_state(ThreadState.FETCH)
-                m.next = "IDLE"
+                goto("IDLE")
 
         # the engine's writes of the thread it works on: one write per field
-        if fast:            # per-thread enables: e_t's one-hot register
-            th.set(m, "state", None, c_state, onehot=Mux(c_state_we, e_taken, 0))
+        if fast:
+            # the writes of the FSM above (ctl_state), from the flags and the registers they
+            # depend on; the per-thread enables: e_t's one-hot register
+            step = (e_kind == ThreadState.HAVE_NODE) & (e_word.axis != LEAF)
+            we = ((flags["DISPATCH"] & step & room) | (flags["LEAF"] & lf.i.ready) |
+                  (flags["POP4"] & pop_any) | (flags["PASS"] & ~lo_oc_any) | flags["PASS3"])
+            val = Mux(flags["DISPATCH"], ThreadState.STEP,
+                      Mux(flags["LEAF"], ThreadState.WAIT_LEAF,
+                          Mux(flags["PASS"], ThreadState.DONE, ThreadState.FETCH)))
+            th.set(m, "state", None, val, onehot=Mux(we, e_taken, 0))
         else:
             with m.If(c_state_we):
                 th.set_state(m, e_t, c_state)
