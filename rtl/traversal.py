@@ -787,7 +787,8 @@ class Traversal(wiring.Component):
                 with m.If(e_kind == ThreadState.HAVE_NODE):
                     with m.If(e_word.axis != LEAF):
                         with m.If(room):
-                            m.d.comb += disp.eq(1)
+                            if not fast:
+                                m.d.comb += disp.eq(1)
                             m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
                             ctl_state(ThreadState.STEP)
                             goto("IDLE")
@@ -852,6 +853,7 @@ class Traversal(wiring.Component):
             # the writes of the FSM above (ctl_state), from the flags and the registers they
             # depend on; the per-thread enables: e_t's one-hot register
             step = (e_kind == ThreadState.HAVE_NODE) & (e_word.axis != LEAF)
+            m.d.comb += disp.eq(flags["DISPATCH"] & step & room)    # as in DISPATCH above
             we = ((flags["DISPATCH"] & step & room) | (flags["LEAF"] & lf.i.ready) |
                   (flags["POP4"] & pop_any) | (flags["PASS"] & ~lo_oc_any) | flags["PASS3"])
             val = Mux(flags["DISPATCH"], ThreadState.STEP,
