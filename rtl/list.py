@@ -142,20 +142,24 @@ class ListUnit(wiring.Component):
 
         # ---- emit the head word's entries in order ---------------------------------------------
         h = data.View(meta, fifo.r_data)
+        h_full, h_lo, h_hi, h_last = slot_full.bit_select(rd_tag, 1), h.lo, h.hi, h.last
+        if cfg.fast_clock:
+            h_full, h_lo, h_hi, h_last = self._head_registers(
+                m, n, slot_full, got, wr_tag, issue, w_meta, rd_tag, done_word)
         upper = Signal()                   # the head word's low entry is already out
         take_hi = Signal()
         head = Signal(list_word_layout())     # two 32-bit entries, low first
         m.d.comb += [
             head.eq(slot_data[rd_tag]),
-            take_hi.eq(upper | ~h.lo),
-            tri.valid.eq(fifo.r_rdy & slot_full.bit_select(rd_tag, 1)),
+            take_hi.eq(upper | ~h_lo),
+            tri.valid.eq(fifo.r_rdy & h_full),
             tri.payload.thread.eq(h.thread),
             tri.payload.mask.eq(h.mask),
             tri.payload.tri.eq(Mux(take_hi, head[1], head[0])),
-            tri.payload.last.eq(h.last & (take_hi | ~h.hi)),
+            tri.payload.last.eq(h_last & (take_hi | ~h_hi)),
         ]
         emit = tri.valid & tri.ready
-        m.d.comb += [done_word.eq(emit & (take_hi | ~h.hi)), fifo.r_en.eq(done_word)]
+        m.d.comb += [done_word.eq(emit & (take_hi | ~h_hi)), fifo.r_en.eq(done_word)]
         with m.If(emit):
             m.d.sync += upper.eq(~done_word)
         with m.If(done_word):
@@ -172,3 +176,31 @@ class ListUnit(wiring.Component):
         with m.If(working):
             m.d.sync += self.busy.eq(self.busy + 1)
         return m
+
+    def _head_registers(self, m, n, slot_full, got, wr_tag, issue, w_meta, rd_tag, done_word):
+        """``fast_clock``: the head word's "arrived" bit and its ``lo``/``hi``/``last`` flags in
+        registers, so the emit decision starts at registers, not at a mux of the slots by
+        ``rd_tag`` and the metadata FIFO's read. The flags are also kept per tag (a tag's
+        are written as its word is requested and stay until it is emitted: at most ``n``
+        words in flight). Each cycle the registers take the values of the head after it:
+        the next tag's if the head word is done, else the same tag's, with this cycle's
+        response (``got``) to it. A tag's flags written this cycle are in its registers a
+        cycle later, before its word can arrive (a response comes a cycle after its request
+        at the earliest), so they need no such forwarding."""
+        nt = (rd_tag + 1)[:len(rd_tag)]
+        resp_tag = self.mem.resp.payload.tag
+        flags = {k: Signal(n, name=f"slot_{k}") for k in ("lo", "hi", "last")}
+        for i in range(n):
+            with m.If(issue & (wr_tag == i)):
+                m.d.sync += [f[i].eq(getattr(w_meta, k)) for k, f in flags.items()]
+        h_full = Signal(name="head_full")
+        regs = {k: Signal(name=f"head_{k}") for k in flags}
+
+        def at(tag):        # a tag's flags after this cycle
+            return ((slot_full.bit_select(tag, 1) | (got & (resp_tag == tag))),
+                    {k: f.bit_select(tag, 1) for k, f in flags.items()})
+        full0, f0 = at(rd_tag)
+        full1, f1 = at(nt)
+        m.d.sync += [h_full.eq(Mux(done_word, full1, full0)),
+                     *(r.eq(Mux(done_word, f1[k], f0[k])) for k, r in regs.items())]
+        return h_full, regs["lo"], regs["hi"], regs["last"]
