@@ -82,26 +82,35 @@ def special(fmt: FPFormat, sign: Value, inf: bool) -> Value:
     return Cat(C(0, M), C((1 << E) - 1 if inf else 0, E), sign)
 
 
+def exp_flags(fmt: FPFormat, exp: Value) -> dict:
+    """The exponent half of :func:`round_inc`: the exponent and the flush/overflow flags for
+    both outcomes of the increment's carry (``exp`` and ``exp + 1``)."""
+    exp = Value.cast(exp)
+    E = fmt.exp_bits
+    emax = (1 << E) - 1
+    e1 = exp + 1                                     # the exponent if the increment carries
+    return dict(rnd_e0=exp[:E], rnd_e1=e1[:E], rnd_flush0=exp < 1, rnd_flush1=e1 < 1,
+                rnd_over0=exp >= emax, rnd_over1=e1 >= emax)
+
+
 def round_inc(m: Module, fmt: FPFormat, exp: Value, sig: Value,
-              sticky: Value = C(0, 1)) -> dict:
+              sticky: Value = C(0, 1), flags: dict | None = None) -> dict:
     """First half of :func:`round_pack`: the round-to-nearest-even increment of a normalized
     significand, and the flush/overflow flags for both outcomes of its carry (so the second
     half only selects). Returns the values to carry to :func:`pack` (a dict: pass it through a
-    pipeline boundary, e.g. ``st(**rounded, sign=...)``, to cut round and pack in two)."""
+    pipeline boundary, e.g. ``st(**rounded, sign=...)``, to cut round and pack in two).
+    ``flags``: :func:`exp_flags` of ``exp``, formed earlier (then ``exp`` is not used)."""
     E, M = fmt.exp_bits, fmt.frac_bits
     W = M + 1
-    sig, exp = Value.cast(sig), Value.cast(exp)
+    sig = Value.cast(sig)
     n = len(sig)
     assert n >= W, f"round_pack: significand of {n} bits < M+1={W}"
     keep = sig[n - W:]
     guard = sig[n - W - 1] if n > W else C(0, 1)
     rest = (sig[:n - W - 1] != 0) if n > W + 1 else C(0, 1)
     inc = wire(m, guard & (rest | sticky | keep[0]), "rnd_inc")
-    emax = (1 << E) - 1
-    e1 = exp + 1                                     # the exponent if the increment carries
     return dict(rnd_sig=keep + inc,                  # W+1 bits; == 2**W on a carry
-                rnd_e0=exp[:E], rnd_e1=e1[:E], rnd_zero=sig == 0,
-                rnd_flush0=exp < 1, rnd_flush1=e1 < 1, rnd_over0=exp >= emax, rnd_over1=e1 >= emax)
+                rnd_zero=sig == 0, **(exp_flags(fmt, exp) if flags is None else flags))
 
 
 def pack(fmt: FPFormat, sign: Value, r) -> Value:
