@@ -378,7 +378,14 @@ class IntersectionUnit(wiring.Component):
             m.d.comb += [go.eq(en & rem_v & got_cur), issue.eq(go),
                          rest.eq(rem & (rem - 1)),
                          take.eq(n.v & (~rem_v | adv))]
-            _, lane = lowest(m, rem, "issue")
+            # the lowest lane of rem, kept in a register for the rem after each cycle (the
+            # ray store's read address starts at registers): N's lowest lane when H takes N,
+            # the lowest lane above this one when a lane issues, else the same
+            lane = Signal(range(max(2, lanes)), name="issue_lane")
+            _, n_lane = lowest(m, n.mask, "issue_next")
+            above = Cat(*(lane < k for k in range(lanes)))
+            _, up_lane = lowest(m, rem & above, "issue_up")
+            m.d.sync += lane.eq(Mux(take, n_lane, Mux(go & ~last, up_lane, lane)))
 
             def sample(k):
                 return dict(v=s.counted.bit_select(k, 1), mask=s.mask[k], count=s.count[k],
