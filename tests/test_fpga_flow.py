@@ -183,6 +183,7 @@ def test_pnr_args_reach_nextpnr_and_the_report(tmp_path, monkeypatch):
     cmd = calls[0]
     i = cmd.index("--placer-heap-beta")
     assert cmd[i + 1] == "0.7" and cmd[0:3] == ["nice", "-n", "10"]
+    assert cmd.count("--detailed-timing-report") == 1       # for --estimate --routed
     entry = json.loads((tmp_path / "report.json").read_text())["runs"]["beta"]
     assert entry["pnr_args"] == ["--placer-heap-beta", "0.7"]
     assert entry["status"].startswith("place and route failed")
@@ -190,6 +191,10 @@ def test_pnr_args_reach_nextpnr_and_the_report(tmp_path, monkeypatch):
     with pytest.raises(SystemExit, match="--stall-s watches router1"):
         run("fp_add", cfg, out=tmp_path, reuse="old", label="r2", router="router2", stall_s=60)
     assert len(calls) == 1
+    with pytest.raises(SystemExit, match="nextpnr failed"):     # given: not passed twice
+        run("fp_add", cfg, out=tmp_path, reuse="old", label="d",
+            pnr_args=("--detailed-timing-report",))
+    assert calls[-1].count("--detailed-timing-report") == 1
 
 
 def test_congestion_units_and_shares(tmp_path):

@@ -307,7 +307,10 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         for f in ("place.log", "route.log"):
             (wd / f).unlink(missing_ok=True)
         place = base + ["--json", f"{name}.json", "--placer", placer]
-        route = ["--router", router, "--report", "report.json"]
+        # the report with every endpoint's routed arrival (``--estimate LABEL --routed``)
+        route = ["--router", router, "--report", "report.json",
+                 *([] if "--detailed-timing-report" in pnr_args else
+                   ["--detailed-timing-report"])]
         if route_only:        # route the placement of an earlier --place-only run
             src = (out / route_only / "placed.json").resolve()
             if not src.exists():
