@@ -770,6 +770,16 @@ class Traversal(wiring.Component):
             if fast:
                 m.d.sync += [f.eq(int(k == state)) for k, f in flags.items()]
 
+        if fast:
+            # what DISPATCH and PASS decide on, in registers: "a step" (an inner node) taken at
+            # the pick from a per-thread form, "no octant left" a cycle after it (PASS comes
+            # two cycles after the pick at the earliest; e_todo holds from the pick on)
+            is_step = Cat(*((th.state[t] == ThreadState.HAVE_NODE) &
+                            (data.View(node_layout(), th.word[t]).axis != LEAF)
+                            for t in range(T)))
+            e_step, todo_none = Signal(name="e_step"), Signal(name="e_todo_none")
+            m.d.sync += todo_none.eq(e_todo == 0)
+
         with m.FSM(name="step") as fsm:
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
@@ -779,7 +789,8 @@ class Traversal(wiring.Component):
                                  e_word.eq(th.word[e_idx]), e_mask.eq(th.mask[e_idx]),
                                  neg.eq(th.octant[e_idx].bit_select(p_word.axis, 1)),
                                  *([e_todo.eq(th.todo[e_idx]), e_term.eq(th.term[e_idx]),
-                                    e_taken.eq(e_oh)] if fast else []),
+                                    e_taken.eq(e_oh), e_step.eq((is_step & e_oh).any())]
+                                   if fast else []),
                                  e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
                                  e_ptr.eq(e_idx + 1)]
                     goto("DISPATCH")
@@ -850,12 +861,15 @@ class Traversal(wiring.Component):
 
         # the engine's writes of the thread it works on: one write per field
         if fast:
-            # the writes of the FSM above (ctl_state), from the flags and the registers they
-            # depend on; the per-thread enables: e_t's one-hot register
-            step = (e_kind == ThreadState.HAVE_NODE) & (e_word.axis != LEAF)
-            m.d.comb += disp.eq(flags["DISPATCH"] & step & room)    # as in DISPATCH above
-            we = ((flags["DISPATCH"] & step & room) | (flags["LEAF"] & lf.i.ready) |
-                  (flags["POP4"] & pop_any) | (flags["PASS"] & ~lo_oc_any) | flags["PASS3"])
+            # the writes of the FSM above (ctl_state), from the flags and registers only; the
+            # per-thread enables: e_t's one-hot register. STEP and WAIT_LEAF are written in
+            # every cycle of DISPATCH (a step) and LEAF, also while they wait for the sub-units'
+            # room or the leaf output, not only in the cycle they leave: the same value, and
+            # nothing reads a thread's STEP or WAIT_LEAF before its step or leaf request is out
+            # (the engine's own next pick leaves out the thread it works on)
+            m.d.comb += disp.eq(flags["DISPATCH"] & e_step & room)  # as in DISPATCH above
+            we = ((flags["DISPATCH"] & e_step) | flags["LEAF"] |
+                  (flags["POP4"] & pop_any) | (flags["PASS"] & todo_none) | flags["PASS3"])
             val = Mux(flags["DISPATCH"], ThreadState.STEP,
                       Mux(flags["LEAF"], ThreadState.WAIT_LEAF,
                           Mux(flags["PASS"], ThreadState.DONE, ThreadState.FETCH)))
