@@ -383,7 +383,7 @@ class IntersectionUnit(wiring.Component):
             # the lowest lane above this one when a lane issues, else the same
             lane = Signal(range(max(2, lanes)), name="issue_lane")
             _, n_lane = lowest(m, n.mask, "issue_next")
-            above = Cat(*(lane < k for k in range(lanes)))
+            above = Cat(Const(0, 1), *(lane < k for k in range(1, lanes)))
             _, up_lane = lowest(m, rem & above, "issue_up")
             m.d.sync += lane.eq(Mux(take, n_lane, Mux(go & ~last, up_lane, lane)))
 
