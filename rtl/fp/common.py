@@ -93,14 +93,10 @@ def exp_flags(fmt: FPFormat, exp: Value) -> dict:
                 rnd_over0=exp >= emax, rnd_over1=e1 >= emax)
 
 
-def round_inc(m: Module, fmt: FPFormat, exp: Value, sig: Value,
-              sticky: Value = C(0, 1), flags: dict | None = None) -> dict:
-    """First half of :func:`round_pack`: the round-to-nearest-even increment of a normalized
-    significand, and the flush/overflow flags for both outcomes of its carry (so the second
-    half only selects). Returns the values to carry to :func:`pack` (a dict: pass it through a
-    pipeline boundary, e.g. ``st(**rounded, sign=...)``, to cut round and pack in two).
-    ``flags``: :func:`exp_flags` of ``exp``, formed earlier (then ``exp`` is not used)."""
-    E, M = fmt.exp_bits, fmt.frac_bits
+def round_sig(m: Module, fmt: FPFormat, sig: Value, sticky: Value = C(0, 1)) -> dict:
+    """The significand half of :func:`round_inc`: the round-to-nearest-even increment of a
+    normalized significand (``rnd_sig``, W+1 bits, == 2**W on a carry) and ``rnd_zero``."""
+    M = fmt.frac_bits
     W = M + 1
     sig = Value.cast(sig)
     n = len(sig)
@@ -109,8 +105,18 @@ def round_inc(m: Module, fmt: FPFormat, exp: Value, sig: Value,
     guard = sig[n - W - 1] if n > W else C(0, 1)
     rest = (sig[:n - W - 1] != 0) if n > W + 1 else C(0, 1)
     inc = wire(m, guard & (rest | sticky | keep[0]), "rnd_inc")
-    return dict(rnd_sig=keep + inc,                  # W+1 bits; == 2**W on a carry
-                rnd_zero=sig == 0, **(exp_flags(fmt, exp) if flags is None else flags))
+    return dict(rnd_sig=keep + inc, rnd_zero=sig == 0)
+
+
+def round_inc(m: Module, fmt: FPFormat, exp: Value, sig: Value,
+              sticky: Value = C(0, 1)) -> dict:
+    """First half of :func:`round_pack`: the round-to-nearest-even increment of a normalized
+    significand, and the flush/overflow flags for both outcomes of its carry (so the second
+    half only selects). Returns the values to carry to :func:`pack` (a dict: pass it through a
+    pipeline boundary, e.g. ``st(**rounded, sign=...)``, to cut round and pack in two).
+    :func:`round_sig` and :func:`exp_flags` are its two halves, for a unit that forms the
+    exponent's half earlier (the multiplier)."""
+    return {**round_sig(m, fmt, sig, sticky), **exp_flags(fmt, exp)}
 
 
 def pack(fmt: FPFormat, sign: Value, r) -> Value:

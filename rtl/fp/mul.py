@@ -8,7 +8,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
-from .common import canonical_nan, exp_flags, pack, round_inc, special, unpack
+from .common import canonical_nan, exp_flags, pack, round_sig, special, unpack
 from .dsp import DSP_WIDTH, RegMul
 from .pipe import Stager, check_regs, placement, unit_ports
 
@@ -118,17 +118,17 @@ class FPMul(wiring.Component):
             p = v.p
         # the rounding's exponent flags for both normalizations (exp, exp + 1), formed here
         # beside the product's sum, so the round stage only selects them
-        ef = {f"n{k}_{name}": val for k in (0, 1)
-              for name, val in exp_flags(fmt, v.exp + k).items()}
-        v = st(p=p[:2 * W], sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero, **ef)
+        ef = exp_flags(fmt, v.exp)
+        v = st(p=p[:2 * W], sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero,
+               **{f"n0_{k}": x for k, x in ef.items()},
+               **{f"n1_{k}": x for k, x in exp_flags(fmt, v.exp + 1).items()})
         # -- normalize: the MSB has exponent exp + 1 ------------------------------------------
         top = v.p[2 * W - 1]
-        names = [k[3:] for k in ef if k.startswith("n0_")]
-        ef = {k: Mux(top, getattr(v, f"n1_{k}"), getattr(v, f"n0_{k}")) for k in names}
-        v = st(sig=Mux(top, v.p, v.p << 1)[:2 * W], sign=v.sign,
-               nan=v.nan, inf=v.inf, zero=v.zero, **ef)
-        # -- round: RNE increment, flags for both outcomes of its carry -----------------------
-        v = st(**round_inc(m, fmt, None, v.sig, flags={k: getattr(v, k) for k in names}),
+        v = st(sig=Mux(top, v.p, v.p << 1)[:2 * W], sign=v.sign, nan=v.nan, inf=v.inf,
+               zero=v.zero, **{k: Mux(top, getattr(v, f"n1_{k}"), getattr(v, f"n0_{k}"))
+                               for k in ef})
+        # -- round: RNE increment (round_inc's significand half; its exponent half above) -----
+        v = st(**round_sig(m, fmt, v.sig), **{k: getattr(v, k) for k in ef},
                sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
         # -- pack, specials ------------------------------------------------------------------
         o = Mux(v.nan, canonical_nan(fmt),
