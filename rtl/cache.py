@@ -15,7 +15,7 @@ Pipeline::
 
 * Latency: a hit 3 cycles (6 with ``fast``; request accepted in cycle t, response valid in t+3) when nothing older
   waits; a miss ``4 + L + line_words - 1`` behind a memory of latency L delivering a word per cycle
-  (``8 + L + line_words - 1`` with ``fast``). Responses come back **in
+  (``9 + L + line_words - 1`` with ``fast``). Responses come back **in
   request order** (a hit behind a miss waits for it), so tags are returned but never reordered.
 * Throughput: one lookup and one response per cycle; ``outstanding`` line fetches in flight;
   ``queue`` requests inside the cache.
@@ -60,14 +60,16 @@ class Cache(wiring.Component):
     decides from registers (S2's tag write applied to the request it takes a cycle later),
     S2 has a skid entry so the stages before it move on a register, each queue entry's
     "line still being filled" and the head's data address are registers, and the memory's
-    response is registered before the fill (``fill_delay``: a miss takes a cycle more). The
-    hit/miss sequence is the same either way.
+    response is registered before the fill (``fill_delay``: a miss takes a cycle more), as
+    is the miss's entry into the issue FIFO (``issue_delay``: another cycle). The hit/miss
+    sequence is the same either way.
     """
 
     def __init__(self, geom: CacheGeometry, *, tag_width: int = 4, fast: bool = False):
         self.geom, self.fast = geom, fast
         self.hit_latency = 6 if fast else 3
         self.fill_delay = 1 if fast else 0      # cycles between mem.resp and the fill
+        self.issue_delay = 1 if fast else 0     # cycles between the miss and its issue entry
         g = geom
         self.mshr_bits = max(1, ceil_log2(g.outstanding))
         self.word_bits = max(1, ceil_log2(g.line_words))
@@ -278,8 +280,13 @@ class Cache(wiring.Component):
                 m.d.comb += new_row[w * entry:(w + 1) * entry].eq(Cat(Const(1, 1), d_tag))
         if wb:
             m.d.comb += new_row[W * entry:].eq(victim + 1)
-        m.d.comb += [twp.addr.eq(d_set), twp.data.eq(new_row), twp.en.eq(go & ~hit),
-                     issue.w_data.eq(free), issue.w_en.eq(go & ~hit)]
+        m.d.comb += [twp.addr.eq(d_set), twp.data.eq(new_row), twp.en.eq(go & ~hit)]
+        if self.fast:   # the miss's MSHR enters the issue FIFO a cycle later, from registers
+            iw_en, iw_data = Signal(name="issue_w_en_q"), Signal.like(free, name="issue_w_data_q")
+            m.d.sync += [iw_en.eq(go & ~hit), iw_data.eq(free)]
+            m.d.comb += [issue.w_data.eq(iw_data), issue.w_en.eq(iw_en)]
+        else:
+            m.d.comb += [issue.w_data.eq(free), issue.w_en.eq(go & ~hit)]
         spare = [(free == i) & ~mshr_valid[i] for i in range(O)]    # written while free
         for i in range(O):
             with m.If(spare[i]):

@@ -171,9 +171,10 @@ def test_rtl_cache_hit_latency_and_throughput(fast):
     assert cache.hit_latency == hit
     assert lat[1:] == [hit] * 19, f"hit latencies {lat[1:]}, documented {hit}"
     assert r.sent[1:] == list(range(r.sent[1], r.sent[1] + 19)), "one request per cycle"
-    # a miss: hit path + issue FIFO (1) + memory latency (4) + the response's register (fast)
-    assert cache.fill_delay == (1 if fast else 0)
-    assert lat[0] == hit + 1 + 4 + (1 if fast else 0)
+    # a miss: hit path + issue FIFO (1) + memory latency (4) + the response's register and
+    # the issue entry's register (fast)
+    assert cache.fill_delay == cache.issue_delay == (1 if fast else 0)
+    assert lat[0] == hit + 1 + 4 + (2 if fast else 0)
 
 
 def test_rtl_cache_fast_forwards_tag_writes():
