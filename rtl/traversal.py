@@ -339,6 +339,7 @@ class _Threads:
         T, L = cfg.threads, cfg.packet_size
         db = max(1, ceil_log2(cfg.stack_depth))
         self.fast, self.tbits, self.writes = cfg.fast_clock, cfg.thread_bits, {}
+        self.shadows = []                     # (states, per-thread flags): in_states_q
 
         def per_thread(shape, name, init=0):
             return Array(Value.cast(Signal(shape, name=f"{name}{t}", init=init))
@@ -359,6 +360,17 @@ class _Threads:
     def in_state(self, s: ThreadState) -> Value:
         """One bit per thread: the thread is in state ``s``."""
         return Cat(*(self.state[t] == s for t in range(self.T)))
+
+    def in_states_q(self, *states: ThreadState) -> Value:
+        """One bit per thread: the thread is in one of ``states``, from a register per thread
+        kept beside the state (``fast`` only; written by :meth:`finish` with the state, so it
+        always equals the decode of the state register, without the decode's LUT level)."""
+        assert self.fast
+        names = "_".join(s.name.lower() for s in states)
+        flags = [Signal(name=f"state{t}_{names}", init=int(ThreadState.FREE in states))
+                 for t in range(self.T)]
+        self.shadows.append((states, flags))
+        return Cat(*flags)
 
     def set(self, m: Module, field: str, thread: Value, value, onehot: Value | None = None) -> None:
         """``field[thread] = value`` at the next clock edge, in the caller's ``If`` context.
@@ -402,6 +414,13 @@ class _Threads:
                     nxt = nxt | Mux(h, Value.cast(val), 0)
                 with m.If(Cat(*hit).any()):
                     m.d.sync += reg[t].eq(nxt)
+                    if field == "state":        # one writer at a time: OR of its verdicts
+                        for states, flags in self.shadows:
+                            def among(val):
+                                return Cat(*(Value.cast(val) == Value.cast(st)
+                                             for st in states)).any()
+                            m.d.sync += flags[t].eq(Cat(*(
+                                h & among(val) for h, (_, _, val, _) in zip(hit, writes))).any())
 
 
 class Traversal(wiring.Component):
@@ -593,17 +612,29 @@ class Traversal(wiring.Component):
         """One ``LaneResult`` per cycle: the lane ends if it hit and is an any-hit ray or its
         hit lies in the cell (``t <= tfar``, tfar read from its sub-unit); the leaf's ``last``
         result makes the thread pop. Applied 1 + ``RQ_LAT`` cycles after the result arrives
-        (``cfg.fast_clock``: 2 + ``RQ_LAT``, the verdict registered)."""
+        (``cfg.fast_clock``: 3 + ``RQ_LAT``, the result and its thread's sp/cur registered
+        before the read, the verdict registered after it)."""
         cfg, fmt, k, subs = self.cfg, self.cfg.fmt, self.cfg.trav_subunits, self.subunits
         rs = self.result.payload
         m.d.comb += self.result.ready.eq(1)
-        r_sub, r_loc = self._split_lane(m, rs.lane, "rq")
+        r_v, r_thread, r_lane, r_hit, r_t, r_last = (
+            self.result.valid, rs.thread, rs.lane, rs.hit, rs.t, rs.last)
+        r_sp, r_cur = th.sp[rs.thread], th.cur[rs.thread]
+        if cfg.fast_clock:
+            # the result and its thread's stack pointer and slot flag in registers first, so
+            # the sub-units' stack reads are addressed from registers here (the thread waits
+            # for its leaf, so its sp and cur hold)
+            vals = (r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sp, r_cur)
+            regs = [Signal.like(Value.cast(v), name=f"rin_{n}") for v, n in zip(
+                vals, ("v", "thread", "lane", "hit", "t", "last", "sp", "cur"))]
+            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
+            r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sp, r_cur = regs
+        r_sub, r_loc = self._split_lane(m, r_lane, "rq")
         for s in subs:
-            m.d.comb += [s.rq_thread.eq(rs.thread), s.rq_lane.eq(r_loc),
-                         s.rq_sp.eq(th.sp[rs.thread]), s.rq_cur.eq(th.cur[rs.thread])]
+            m.d.comb += [s.rq_thread.eq(r_thread), s.rq_lane.eq(r_loc),
+                         s.rq_sp.eq(r_sp), s.rq_cur.eq(r_cur)]
         # the result waits in registers for the sub-units' read (RQ_LAT cycles)
-        r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = (
-            self.result.valid, rs.thread, rs.lane, rs.hit, rs.t, rs.last, r_sub)
+        r_sub1 = r_sub
         for i in range(subs[0].RQ_LAT):
             regs = (Signal(name=f"r{i}_v"), Signal(cfg.thread_bits, name=f"r{i}_thread"),
                     Signal(lane_bits(cfg), name=f"r{i}_lane"), Signal(name=f"r{i}_hit"),
@@ -672,8 +703,13 @@ class Traversal(wiring.Component):
         e_t = Signal(tb)
         e_taken = Signal(T, name="e_taken")         # fast_clock: e_t one-hot
         ctl_busy = Signal()                          # the engine works on thread e_t
-        waiting = (th.in_state(ThreadState.HAVE_NODE) | th.in_state(ThreadState.POP) |
-                   th.in_state(ThreadState.NEXTPASS))
+        wait_states = (ThreadState.HAVE_NODE, ThreadState.POP, ThreadState.NEXTPASS)
+        if cfg.fast_clock:          # registers beside the states (no decode before the pick)
+            waiting = th.in_states_q(*wait_states)
+        else:
+            waiting = th.in_state(wait_states[0])
+            for st in wait_states[1:]:
+                waiting = waiting | th.in_state(st)
         if cfg.fast_clock:
             # the pick is made a cycle ahead into registers from the threads waiting then, with
             # and without the one being worked on (only this engine moves a thread out of

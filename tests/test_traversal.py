@@ -1,10 +1,14 @@
 """Traversal unit (``rtl/traversal.py``) against the golden model's event log (``tb/traversal.py``)."""
+import random
+
 import numpy as np
 import pytest
+from amaranth.hdl import Module, Signal
+from amaranth.sim import Simulator
 
 from model.config import Config
 from model.traversal import classify
-from rtl.traversal import Traversal, TravSubunit
+from rtl.traversal import ThreadState, Traversal, TravSubunit, _Threads
 from tb.common import run, synth_check
 from tb.traversal import COMPARED, run_traversal, small_case
 
@@ -171,3 +175,46 @@ def test_traversal_synthesizes_without_latches():
     cfg = Config(threads=2, tile_w=2, tile_h=2, trav_subunits=2, kd_max_depth=2)
     stat = synth_check(Traversal(cfg), "traversal")
     assert "Number of cells" in stat or "cells" in stat
+
+
+def test_thread_state_flags_follow_the_state_registers():
+    """``fast_clock``'s registered state flags (``_Threads.in_states_q``) equal the decode of
+    the state registers in every cycle, under random writes from writers of constant and of
+    signal values, by thread index and by one-hot enable (at most one writer per thread)."""
+    cfg = Config(threads=4, fast_clock=True)
+    T, states = cfg.threads, list(ThreadState)
+    m = Module()
+    th = _Threads(cfg, 1)
+    wait = (ThreadState.HAVE_NODE, ThreadState.POP, ThreadState.NEXTPASS)
+    flags_a, flags_b = th.in_states_q(*wait), th.in_states_q(ThreadState.FREE)
+    en = [Signal(name=f"en{i}") for i in range(2)]
+    tgt = [Signal(range(T), name=f"tgt{i}") for i in range(2)]
+    val = [Signal(ThreadState, name=f"val{i}") for i in range(2)]
+    oh = Signal(T)
+    with m.If(en[0]):
+        th.set_state(m, tgt[0], ThreadState.POP)
+    with m.If(en[1]):
+        th.set_state(m, tgt[1], val[0])
+    th.set(m, "state", None, val[1], onehot=oh)
+    th.finish(m)
+    rng = random.Random(21)
+
+    async def bench(ctx):
+        for _ in range(400):
+            free = list(range(T))
+            rng.shuffle(free)
+            for i in range(2):
+                ctx.set(en[i], rng.random() < 0.6)
+                ctx.set(tgt[i], free[i])
+                ctx.set(val[i], rng.choice(states))
+            ctx.set(oh, sum(1 << t for t in free[2:] if rng.random() < 0.5))
+            await ctx.tick()
+            st = [ThreadState(ctx.get(th.state[t])) for t in range(T)]
+            assert ctx.get(flags_a) == sum(1 << t for t in range(T) if st[t] in wait)
+            assert ctx.get(flags_b) == sum(1 << t for t in range(T)
+                                           if st[t] == ThreadState.FREE)
+
+    sim = Simulator(m)
+    sim.add_clock(1e-6)
+    sim.add_testbench(bench)
+    sim.run()
