@@ -113,35 +113,42 @@ class StepIssue(wiring.Component):
     def elaborate(self, platform):
         m = Module()
         R, slay = self.cfg.rays_per_subunit, step_layout(self.cfg)
-        # each queued step carries its mask without the lowest lane and "at most one lane",
-        # formed as it is queued
+        # each queued step carries its mask without the lowest lane, "at most one lane", and
+        # its lowest lane (any, index), formed as it is queued
         without_lowest = lambda x: (x & (x - 1))[:R]
         mask_rest = without_lowest(self.step.payload.mask)
-        m.submodules.queue = q = SyncFIFO(width=slay.size + R + 1, depth=self.queue)
-        m.d.comb += [q.w_data.eq(Cat(self.step.payload, mask_rest, mask_rest == 0)),
+        in_has, in_lane = lowest(m, self.step.payload.mask, "queued")
+        lb = len(self.lane)
+        m.submodules.queue = q = SyncFIFO(width=slay.size + R + 2 + lb, depth=self.queue)
+        m.d.comb += [q.w_data.eq(Cat(self.step.payload, mask_rest, mask_rest == 0, in_has,
+                                     in_lane[:lb])),
                      q.w_en.eq(self.step.valid),
                      self.step.ready.eq(q.w_rdy), self.queued.eq(q.r_rdy)]
         head = slay(q.r_data[:slay.size])
-        head_rest, head_one = q.r_data[slay.size:slay.size + R], q.r_data[-1]
+        head_rest, head_one = q.r_data[slay.size:slay.size + R], q.r_data[slay.size + R]
+        head_has, head_lane = q.r_data[slay.size + R + 1], q.r_data[slay.size + R + 2:]
         act, d = self.active, self.cur
-        rem = Signal(R)                     # lanes of the current step not issued yet
-        rest = Signal(R)                    # rem without its lowest lane
-        has, lane0 = lowest(m, rem, "issue")
-        # ``last`` (at most one lane left) is a register, computed when rem is loaded or
-        # loses its lowest lane: the issue decision does not wait for the priority encoder
-        last = self.last
+        rest = Signal(R)                    # the current step's lanes not issued yet, less
+        #                                     the lowest one (issued now)
+        # ``has_lane``, ``lane`` and ``last`` (at most one lane left) are registers, computed
+        # when a step is taken or loses its lowest lane: the issue decision and the ray
+        # read's address do not wait for a priority encoder
+        has, lane0, last = Signal(name="issue_has"), Signal(lb, name="issue_lane"), self.last
+        _, r_lane = lowest(m, rest, "issue_rest")
         m.d.comb += [self.has_lane.eq(has), self.lane.eq(lane0)]
         take = Signal()
         m.d.comb += [self.can_start.eq(q.r_rdy & (~act | last)),
                      take.eq(self.can_start & self.go), q.r_en.eq(take)]
         with m.If(take):
-            m.d.sync += [act.eq(1), d.eq(head), rem.eq(head.mask), rest.eq(head_rest),
-                         last.eq(head_one)]
+            m.d.sync += [act.eq(1), d.eq(head), rest.eq(head_rest), last.eq(head_one),
+                         has.eq(head_has), lane0.eq(head_lane)]
         with m.Elif(act & last):
             m.d.sync += act.eq(0)
         with m.Elif(act):
             rest_rest = without_lowest(rest)
-            m.d.sync += [rem.eq(rest), rest.eq(rest_rest), last.eq(rest_rest == 0)]
+            # (rest is not empty here: last is 0)
+            m.d.sync += [rest.eq(rest_rest), last.eq(rest_rest == 0), has.eq(1),
+                         lane0.eq(r_lane[:lb])]
         return m
 
 
@@ -169,7 +176,8 @@ class TravSubunit(wiring.Component):
     datapath writes ``N`` this cycle (the loader must wait), ``ld_block_next`` that it will in
     the next cycle (the pipeline never stalls). ``rq_*``: read a lane's ``tfar``
     (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later
-    (1; 2 with ``cfg.fast_clock``: the block-RAM outputs are registered).
+    (1; 2 with ``cfg.fast_clock``: the block-RAM outputs are registered), as are both slots'
+    ``tfar`` (``rq_s_tfar``, ``rq_n_tfar``) and which is current (``rq_slot``).
 
     Block-RAM outputs feed only registers: the ray read is registered before the axis pick,
     the interval read is issued two stages before ``dist`` is valid and registered once.
@@ -203,6 +211,7 @@ class TravSubunit(wiring.Component):
             "ld_block_next": Out(1),
             "rq_thread": In(self.tbits), "rq_lane": In(self.rbits), "rq_sp": In(self.dbits),
             "rq_cur": In(1), "rq_tfar": Out(w), "rq_anyhit": Out(1),
+            "rq_s_tfar": Out(w), "rq_n_tfar": Out(w), "rq_slot": Out(1),
         })
 
     def elaborate(self, platform):
@@ -327,7 +336,9 @@ class TravSubunit(wiring.Component):
             m.d.sync += [regs[0].eq(s_tfar), regs[1].eq(n_tfar), regs[2].eq(anyhit),
                          cur_dd.eq(cur_d)]
             (s_tfar, n_tfar, anyhit), cur_d = regs, cur_dd
-        m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_tfar, n_tfar)), self.rq_anyhit.eq(anyhit)]
+        m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_tfar, n_tfar)), self.rq_anyhit.eq(anyhit),
+                     self.rq_s_tfar.eq(s_tfar), self.rq_n_tfar.eq(n_tfar),
+                     self.rq_slot.eq(cur_d)]
         return m
 
 
@@ -643,9 +654,15 @@ class Traversal(wiring.Component):
             m.d.sync += [a.eq(b) for a, b in zip(regs, (r_v, r_thread, r_lane, r_hit, r_t,
                                                          r_last, r_sub1))]
             r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = regs
-        tfar = Array(s.rq_tfar for s in subs)[r_sub1]
         anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
-        kill = r_hit & (anyhit | compare(fmt, r_t, tfar).le)
+        if cfg.fast_clock:
+            # t against every sub-unit's tfar of both slots at once, the verdict chosen after
+            # the compares (the slot and sub-unit selects leave the compare's path)
+            le = Array(Mux(s.rq_slot, compare(fmt, r_t, s.rq_s_tfar).le,
+                           compare(fmt, r_t, s.rq_n_tfar).le) for s in subs)[r_sub1]
+        else:
+            le = compare(fmt, r_t, Array(s.rq_tfar for s in subs)[r_sub1]).le
+        kill = r_hit & (anyhit | le)
         if cfg.fast_clock:              # the verdict is registered before it is applied
             vals = (r_v, kill, r_thread, r_lane, r_last)
             regs = [Signal.like(Value.cast(v), name=f"rk_{n}") for v, n in zip(
