@@ -17,8 +17,9 @@ __all__ = ["FPMul"]
 DSP_BITS = 18      # operand width of one ECP5 MULT18X18D
 
 
-def _sum_partials(ll, lh, hl, hh, h: int, width: int):
-    """``ll + ((lh + hl) << h) + (hh << 2h)`` in ``width`` bits with one carry chain.
+def _carry_save_partials(ll, lh, hl, hh, h: int, width: int):
+    """``ll + ((lh + hl) << h) + (hh << 2h)`` in ``width`` bits, in carry-save form: ``(low,
+    s, c)`` with the sum ``Cat(low, s + c)`` (:func:`_add_carry_save`).
 
     ``ll`` < 2**2h, so ``ll + (hh << 2h)`` is their concatenation; its bits from ``h`` up and
     the two middle products are three addends, reduced to two by one level of full adders
@@ -34,7 +35,12 @@ def _sum_partials(ll, lh, hl, hh, h: int, width: int):
         zi = hl[i] if i < len(hl) else C(0, 1)
         s_bits.append(x[i] ^ yi ^ zi)
         c_bits.append((x[i] & yi) | (x[i] & zi) | (yi & zi))
-    return Cat(ll[:h], (Cat(*s_bits) + Cat(C(0, 1), *c_bits[:-1]))[:n])
+    return ll[:h], Cat(*s_bits), Cat(C(0, 1), *c_bits[:-1])
+
+
+def _add_carry_save(low, s, c):
+    """The sum of :func:`_carry_save_partials`' form: one carry-propagate add."""
+    return Cat(low, (s + c)[:len(s)])
 
 
 class FPMul(wiring.Component):
@@ -50,7 +56,10 @@ class FPMul(wiring.Component):
     boundaries (input, after unpack, after the partial products, after multiply, after
     normalize, after round, output) by ``regs`` or, by default, output first, then after
     multiply, after unpack, after round, after the partial products, after normalize, input
-    (latencies 1-3 place them as before the round and partial boundaries existed).
+    (latencies 1-3 place them as before the round and partial boundaries existed). With the
+    partial products in DSP registers and the normalize boundary registered (latency 6 and up
+    by default), the multiply register holds the product's sum in carry-save form and its
+    carry-propagate add joins the normalize stage.
     Throughput: one operation per cycle in which ``en`` is 1; ``en`` = 0 holds every register.
 
     Ports: ``a``, ``b``, ``i_valid``, ``en`` in; ``o``, ``o_valid`` out.
@@ -108,7 +117,9 @@ class FPMul(wiring.Component):
                 m.d.comb += [mul.a.eq(x), mul.b.eq(y), mul.en.eq(self.en)]
                 parts[name] = mul.p
             v = st(exp=v.exp, **flags)
-            p = _sum_partials(parts["ll"], parts["lh"], parts["hl"], parts["hh"], H, 2 * W)
+            csa = _carry_save_partials(parts["ll"], parts["lh"], parts["hl"], parts["hh"], H,
+                                       2 * W)
+            p = _add_carry_save(*csa)
         elif self.regs[2] and W > H:       # partial products registered, summed next stage
             al, ah, bl, bh = v.sa[:H], v.sa[H:], v.sb[:H], v.sb[H:]
             v = st(ll=al * bl, lh=al * bh, hl=ah * bl, hh=ah * bh, exp=v.exp, **flags)
@@ -119,12 +130,21 @@ class FPMul(wiring.Component):
         # the rounding's exponent flags for both normalizations (exp, exp + 1), formed here
         # beside the product's sum, so the round stage only selects them
         ef = exp_flags(fmt, v.exp)
-        v = st(p=p[:2 * W], sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero,
-               **{f"n0_{k}": x for k, x in ef.items()},
-               **{f"n1_{k}": x for k, x in exp_flags(fmt, v.exp + 1).items()})
+        fl = dict(sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero,
+                  **{f"n0_{k}": x for k, x in ef.items()},
+                  **{f"n1_{k}": x for k, x in exp_flags(fmt, v.exp + 1).items()})
+        if in_dsp and self.regs[4]:
+            # the normalize boundary registered too: the multiply register holds the sum in
+            # carry-save form (the DSP outputs meet one LUT level), the carry-propagate add
+            # runs in the normalize stage
+            v = st(lo=csa[0], s=csa[1], c=csa[2], **fl)
+            p = _add_carry_save(v.lo, v.s, v.c)
+        else:
+            v = st(p=p[:2 * W], **fl)
+            p = v.p
         # -- normalize: the MSB has exponent exp + 1 ------------------------------------------
-        top = v.p[2 * W - 1]
-        v = st(sig=Mux(top, v.p, v.p << 1)[:2 * W], sign=v.sign, nan=v.nan, inf=v.inf,
+        top = p[2 * W - 1]
+        v = st(sig=Mux(top, p, p << 1)[:2 * W], sign=v.sign, nan=v.nan, inf=v.inf,
                zero=v.zero, **{k: Mux(top, getattr(v, f"n1_{k}"), getattr(v, f"n0_{k}"))
                                for k in ef})
         # -- round: RNE increment (round_inc's significand half; its exponent half above) -----
