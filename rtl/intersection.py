@@ -314,8 +314,13 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += [c2_part[k].eq(popcount(g)) for k, g in enumerate(groups)]
             with m.If(tri_in.valid & tri_in.ready):
                 m.d.sync += [c_slot.eq(nxt), c_mask.eq(tri_in.payload.mask)]
+            # with "one lane" beside the count, so the issue stage's N takes it from a register
+            s.one = Signal(n_slots, name="s_one")
+            c2_sum = Signal(range(lanes + 1), name="c2_sum")
+            m.d.comb += c2_sum.eq(sum_tree(c2_part))
             with m.If(c2_v):
-                m.d.sync += s.count[c2_slot].eq(sum_tree(c2_part))
+                m.d.sync += [s.count[c2_slot].eq(c2_sum),
+                             s.one.bit_select(c2_slot, 1).eq(c2_sum == 1)]
             s.counted = Signal(n_slots)
             m.d.comb += s.counted.eq(alloc & ~Mux(c_v, 1 << c_slot, 0)[:n_slots]
                                      & ~Mux(c2_v, 1 << c2_slot, 0)[:n_slots])
@@ -389,7 +394,7 @@ class IntersectionUnit(wiring.Component):
 
             def sample(k):
                 return dict(v=s.counted.bit_select(k, 1), mask=s.mask[k], count=s.count[k],
-                            one=s.count[k] == 1, thread=s.thread[k], index=s.index[k],
+                            one=s.one.bit_select(k, 1), thread=s.thread[k], index=s.index[k],
                             last=s.last.bit_select(k, 1))
             at_slot, at_after = sample(n_slot), sample(n_after)
             m.d.sync += [getattr(n, f).eq(Mux(take, at_after[f], at_slot[f])) for f in at_slot]
