@@ -274,16 +274,18 @@ class TravSubunit(wiring.Component):
         assert kd == K - c
         # interval read issued two stages earlier and registered, so it meets dist (the
         # block RAM's output feeds only the slot mux and that register; no step of the same
-        # thread is in the pipeline, so reading a cycle earlier sees the same words)
-        m.d.comb += [n_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].thread)),
-                     s_r.addr.eq(Cat(st[kd - 2].lane, st[kd - 2].sp, st[kd - 2].thread))]
+        # thread is in the pipeline, so reading earlier sees the same words). fast_clock:
+        # three stages earlier (when the pipeline has them), the block RAMs' outputs straight
+        # into registers (beside the RAMs), then the slot mux into the interval register
+        rd = 3 if cfg.fast_clock and kd >= 3 else 2
+        m.d.comb += [n_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].thread)),
+                     s_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].sp, st[kd - rd].thread))]
         iv = Signal(2 * w)
-        if cfg.fast_clock:        # the block RAMs' outputs straight into registers
-            s_q, n_q = Signal(2 * w, reset_less=True), Signal(2 * w, reset_less=True)
-            m.d.sync += [s_q.eq(s_r.data), n_q.eq(n_r.data)]
-            m.d.comb += iv.eq(Mux(st[kd].cur, s_q, n_q))
-        else:
-            m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_r.data, n_r.data))
+        s_d, n_d = s_r.data, n_r.data
+        if rd == 3:
+            s_d, n_d = Signal(2 * w, reset_less=True), Signal(2 * w, reset_less=True)
+            m.d.sync += [s_d.eq(s_r.data), n_d.eq(n_r.data)]
+        m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_d, n_d))
         tnear, tfar = iv[:w], iv[w:]
         m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
                      gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(st[kd].v),
