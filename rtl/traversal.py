@@ -176,8 +176,9 @@ class TravSubunit(wiring.Component):
     datapath writes ``N`` this cycle (the loader must wait), ``ld_block_next`` that it will in
     the next cycle (the pipeline never stalls). ``rq_*``: read a lane's ``tfar``
     (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later
-    (1; 2 with ``cfg.fast_clock``: the block-RAM outputs are registered), as are both slots'
-    ``tfar`` (``rq_s_tfar``, ``rq_n_tfar``) and which is current (``rq_slot``).
+    (1; 3 with ``cfg.fast_clock``: the block-RAM outputs are registered beside the RAMs, then
+    again), as are both slots' ``tfar`` (``rq_s_tfar``, ``rq_n_tfar``) and which is current
+    (``rq_slot``).
 
     Block-RAM outputs feed only registers: the ray read is registered before the axis pick,
     the interval read is issued two stages before ``dist`` is valid and registered once.
@@ -199,7 +200,7 @@ class TravSubunit(wiring.Component):
         self.cmp_lat = lat["cmp"] or 1     # compare and min/max units
         self.LAT = 2 + self.add.latency + self.mul.latency + self.cmp_lat  # issue -> write stage
         self.STEP_LAT = self.LAT + 2      # step transfer -> verdict valid, minus active lanes
-        self.RQ_LAT = 2 if cfg.fast_clock else 1    # rq_* address -> rq_tfar, rq_anyhit
+        self.RQ_LAT = 3 if cfg.fast_clock else 1    # rq_* address -> rq_tfar, rq_anyhit
         super().__init__({
             "step": In(stream.Signature(step_layout(cfg))),
             "go": In(1, init=1), "can_start": Out(1),
@@ -332,9 +333,10 @@ class TravSubunit(wiring.Component):
         cur_d = Signal()
         m.d.sync += cur_d.eq(self.rq_cur)
         s_tfar, n_tfar, anyhit = s_rq.data[w:], n_rq.data[w:], ah_r.data
-        if self.RQ_LAT == 2:            # the block RAMs' outputs straight into registers
-            regs = Signal(w, name="rq_s_tfar"), Signal(w, name="rq_n_tfar"), Signal(name="rq_ah")
-            cur_dd = Signal()
+        for i in range(self.RQ_LAT - 1):    # the block RAMs' outputs straight into registers
+            regs = (Signal(w, name=f"rq{i}_s_tfar"), Signal(w, name=f"rq{i}_n_tfar"),
+                    Signal(name=f"rq{i}_ah"))
+            cur_dd = Signal(name=f"rq{i}_cur")
             m.d.sync += [regs[0].eq(s_tfar), regs[1].eq(n_tfar), regs[2].eq(anyhit),
                          cur_dd.eq(cur_d)]
             (s_tfar, n_tfar, anyhit), cur_d = regs, cur_dd
