@@ -508,7 +508,8 @@ class Traversal(wiring.Component):
     def _loader(self, m: Module, th: _Threads, pm_w) -> None:
         """``RayIn`` lanes into a free thread, one per cycle; each lane's octant goes into the
         thread's pass masks (live rays only) and the passes to run into ``todo``
-        (``cfg.fast_clock``: each lane waits a cycle in an input register)."""
+        (``cfg.fast_clock``: each lane waits a cycle in an input register, and the thread's
+        fields are written a cycle after its last lane, by a one-hot from registers)."""
         cfg, L, k, subs = self.cfg, self.cfg.packet_size, self.cfg.trav_subunits, self.subunits
         ld_active = Signal()
         ld_thread = Signal(cfg.thread_bits)
@@ -516,9 +517,12 @@ class Traversal(wiring.Component):
         acc_lanes = Signal(L)
         free = th.in_state(ThreadState.FREE)
         free_any, free_idx = lowest(m, free, "free")
+        ld_onehot = Signal(cfg.threads, name="ld_onehot")      # fast_clock: ld_thread one-hot
         with m.If(~ld_active & free_any):
             m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx)]
-            if not th.fast:
+            if th.fast:
+                m.d.sync += ld_onehot.eq(lowest_onehot(free))
+            else:
                 th.set_state(m, free_idx, ThreadState.LOAD)
         if th.fast:         # the state write's per-thread enables: the lowest free thread, one-hot
             th.set(m, "state", None, ThreadState.LOAD,
@@ -576,16 +580,32 @@ class Traversal(wiring.Component):
                          s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
         m.d.comb += [pm_w.addr.eq(ld_thread), pm_w.data.eq(Cat(*acc_new))]
         with m.If(take):
-            m.d.sync += [th.packet[ld_thread].eq(p.packet), acc_lanes.eq(acc_lanes | lane_one),
-                         acc_any.eq(acc_any_new)]
+            m.d.sync += [acc_lanes.eq(acc_lanes | lane_one), acc_any.eq(acc_any_new)]
             m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
+            if not cfg.fast_clock:
+                m.d.sync += th.packet[ld_thread].eq(p.packet)
             with m.If(p.last):
                 m.d.comb += pm_w.en.eq(1)
-                th.set_state(m, ld_thread, ThreadState.NEXTPASS)
-                m.d.sync += [ld_active.eq(0),
-                             acc_lanes.eq(0), th.lanes[ld_thread].eq(acc_lanes | lane_one),
-                             th.todo[ld_thread].eq(acc_any_new), acc_any.eq(0),
-                             th.term[ld_thread].eq(0)] + [acc[o].eq(0) for o in range(8)]
+                m.d.sync += [ld_active.eq(0), acc_lanes.eq(0), acc_any.eq(0)]
+                m.d.sync += [acc[o].eq(0) for o in range(8)]
+                if not cfg.fast_clock:
+                    th.set_state(m, ld_thread, ThreadState.NEXTPASS)
+                    m.d.sync += [th.lanes[ld_thread].eq(acc_lanes | lane_one),
+                                 th.todo[ld_thread].eq(acc_any_new), th.term[ld_thread].eq(0)]
+        if cfg.fast_clock:
+            # the thread's fields are written a cycle after its last lane, from registers and
+            # by the thread's one-hot (the thread stays LOAD until then: no engine reads it)
+            fin = Signal(name="ld_fin")
+            fin_oh = Signal(cfg.threads, name="ld_fin_onehot")
+            fin_packet = Signal.like(p.packet, name="ld_fin_packet")
+            fin_lanes, fin_todo = Signal(L, name="ld_fin_lanes"), Signal(8, name="ld_fin_todo")
+            m.d.sync += [fin.eq(take & p.last), fin_oh.eq(ld_onehot), fin_packet.eq(p.packet),
+                         fin_lanes.eq(acc_lanes | lane_one), fin_todo.eq(acc_any_new)]
+            th.set(m, "state", None, ThreadState.NEXTPASS, onehot=Mux(fin, fin_oh, 0))
+            for t in range(cfg.threads):
+                with m.If(fin & fin_oh[t]):
+                    m.d.sync += [th.packet[t].eq(fin_packet), th.lanes[t].eq(fin_lanes),
+                                 th.todo[t].eq(fin_todo), th.term[t].eq(0)]
 
     def _fetcher(self, m: Module, th: _Threads) -> None:
         """One 64-bit node read per packet visit, round-robin over threads in ``FETCH``."""
@@ -835,6 +855,12 @@ class Traversal(wiring.Component):
                             (data.View(node_layout(), th.word[t]).axis != LEAF)
                             for t in range(T)))
             e_step, todo_none = Signal(name="e_step"), Signal(name="e_todo_none")
+            # the octants left (PASS) are written in PASS3, from a register, by the thread's
+            # one-hot and PASS3's flag (the thread is this engine's until PASS3 ends)
+            todo_q = Signal(8, name="e_todo_left")
+            for t in range(T):
+                with m.If(flags["PASS3"] & e_taken[t]):
+                    m.d.sync += th.todo[t].eq(todo_q)
             m.d.sync += todo_none.eq(e_todo == 0)
 
         with m.FSM(name="step") as fsm:
@@ -904,8 +930,12 @@ class Traversal(wiring.Component):
                     goto("IDLE")
                 with m.Else():
                     m.d.comb += pm_r.addr.eq(e_t)
-                    m.d.sync += [e_oct.eq(lo_oc),
-                                 th.todo[e_t].eq(e_todo & ~(Const(1, 8) << lo_oc))]
+                    m.d.sync += e_oct.eq(lo_oc)
+                    todo_left = e_todo & ~(Const(1, 8) << lo_oc)
+                    if fast:
+                        m.d.sync += todo_q.eq(todo_left)
+                    else:
+                        m.d.sync += th.todo[e_t].eq(todo_left)
                     goto("PASS2")
             if fast:
                 with m.State("PASS2"):
