@@ -287,19 +287,43 @@ class IntersectionUnit(wiring.Component):
 
         nxt = Signal(self.slot_bits)       # the slot the next request goes to
         req, tri_in = self.mem.req, self.tri_in
-        m.d.comb += tri_in.ready.eq((~req.valid | req.ready) & ~alloc.bit_select(nxt, 1))
+        fast = self.cfg.fast_clock
+        if fast:
+            # nxt one-hot, and "slot nxt is allocated" a cycle ahead, in registers (from the
+            # allocations after this cycle's releases, for nxt or, with a transfer, the slot
+            # after it), so the request's ready and the slot writes start at registers
+            nxt_oh = Signal(n_slots, init=1, name="nxt_onehot")
+            nxt_busy = Signal(name="nxt_busy")
+            kept = alloc & ~s.alloc_clr
+            rot = Cat(nxt_oh[-1], nxt_oh[:-1])          # the slot after nxt
+            xfer = tri_in.valid & tri_in.ready
+            m.d.sync += nxt_busy.eq(Mux(xfer, (kept & rot).any(), (kept & nxt_oh).any()))
+            with m.If(xfer):
+                m.d.sync += nxt_oh.eq(rot)
+            slot_free = ~nxt_busy
+        else:
+            slot_free = ~alloc.bit_select(nxt, 1)
+        m.d.comb += tri_in.ready.eq((~req.valid | req.ready) & slot_free)
         with m.If(req.valid & req.ready):
             m.d.sync += req.valid.eq(0)
         got_set, got_clr = Signal(n_slots), Signal(n_slots)
         with m.If(tri_in.valid & tri_in.ready):
             p = tri_in.payload
-            m.d.comb += [alloc_set.eq(1 << nxt), got_clr.eq(1 << nxt)]
+            m.d.comb += [alloc_set.eq(nxt_oh if fast else 1 << nxt),
+                         got_clr.eq(nxt_oh if fast else 1 << nxt)]
             m.d.sync += [
                 req.valid.eq(1), req.payload.addr.eq(p.tri), req.payload.tag.eq(nxt),
                 nxt.eq(nxt + 1),
-                s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread), s.index[nxt].eq(p.tri),
-                s.last.bit_select(nxt, 1).eq(p.last),
             ]
+            if not fast:
+                m.d.sync += [s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread),
+                             s.index[nxt].eq(p.tri), s.last.bit_select(nxt, 1).eq(p.last)]
+        if fast:
+            for k in range(n_slots):
+                with m.If(tri_in.valid & tri_in.ready & nxt_oh[k]):
+                    p = tri_in.payload
+                    m.d.sync += [s.mask[k].eq(p.mask), s.thread[k].eq(p.thread),
+                                 s.index[k].eq(p.tri), s.last[k].eq(p.last)]
         s.counted = alloc
         if self.cfg.fast_clock:
             # the mask's lane count (for the issue stage) in two cycles after the request:
