@@ -244,10 +244,14 @@ class Cache(wiring.Component):
             # one cycle
             def busy_ways(set_):
                 return Cat(*(slot_busy(set_, w) for w in range(W)))
-            nxt_set = Mux(s2_move, in_set, d_set)
             b, lw_v, lw_way = Signal(W, name="busy_s2"), Signal(), Signal(wb)
-            m.d.sync += [b.eq(Mux(s2_move, busy_ways(in_set), busy_ways(d_set))),
-                         lw_v.eq(go & (d_set == nxt_set)), lw_way.eq(way)]
+            # (one compare per candidate set, B's, S1's and S2's own, each from registers; the
+            # choice after them)
+            m.d.sync += [b.eq(Mux(s2_move, Mux(b_valid, busy_ways(b_set), busy_ways(s1_set)),
+                                  busy_ways(d_set))),
+                         lw_v.eq(go & Mux(s2_move, Mux(b_valid, d_set == b_set, d_set == s1_set),
+                                          1)),
+                         lw_way.eq(way)]
             last_w = Mux(lw_v, Const(1, W) << lw_way, 0)[:W]
             busy = (b | last_w).bit_select(victim, 1) if W > 1 else b | last_w
         else:
