@@ -285,12 +285,12 @@ class Cache(wiring.Component):
         if wb:
             m.d.comb += new_row[W * entry:].eq(victim + 1)
         m.d.comb += [twp.addr.eq(d_set), twp.data.eq(new_row), twp.en.eq(go & ~hit)]
+        iw_en, iw_data = go & ~hit, free
         if self.fast:   # the miss's MSHR enters the issue FIFO a cycle later, from registers
-            iw_en, iw_data = Signal(name="issue_w_en_q"), Signal.like(free, name="issue_w_data_q")
-            m.d.sync += [iw_en.eq(go & ~hit), iw_data.eq(free)]
-            m.d.comb += [issue.w_data.eq(iw_data), issue.w_en.eq(iw_en)]
-        else:
-            m.d.comb += [issue.w_data.eq(free), issue.w_en.eq(go & ~hit)]
+            regs = Signal(name="issue_w_en_q"), Signal.like(free, name="issue_w_data_q")
+            m.d.sync += [regs[0].eq(iw_en), regs[1].eq(iw_data)]
+            iw_en, iw_data = regs
+        m.d.comb += [issue.w_data.eq(iw_data), issue.w_en.eq(iw_en)]
         spare = [(free == i) & ~mshr_valid[i] for i in range(O)]    # written while free
         for i in range(O):
             with m.If(spare[i]):

@@ -300,32 +300,26 @@ class IntersectionUnit(wiring.Component):
             m.d.sync += nxt_busy.eq(Mux(xfer, (kept & rot).any(), (kept & nxt_oh).any()))
             with m.If(xfer):
                 m.d.sync += nxt_oh.eq(rot)
-            slot_free = ~nxt_busy
+            slot_free, nxt_sel = ~nxt_busy, nxt_oh
         else:
-            slot_free = ~alloc.bit_select(nxt, 1)
+            slot_free, nxt_sel = ~alloc.bit_select(nxt, 1), (Const(1, n_slots) << nxt)[:n_slots]
         m.d.comb += tri_in.ready.eq((~req.valid | req.ready) & slot_free)
         with m.If(req.valid & req.ready):
             m.d.sync += req.valid.eq(0)
         got_set, got_clr = Signal(n_slots), Signal(n_slots)
+        p = tri_in.payload
         with m.If(tri_in.valid & tri_in.ready):
-            p = tri_in.payload
-            m.d.comb += [alloc_set.eq(nxt_oh if fast else 1 << nxt),
-                         got_clr.eq(nxt_oh if fast else 1 << nxt)]
+            m.d.comb += [alloc_set.eq(nxt_sel), got_clr.eq(nxt_sel)]
             m.d.sync += [
                 req.valid.eq(1), req.payload.addr.eq(p.tri), req.payload.tag.eq(nxt),
                 nxt.eq(nxt + 1),
             ]
-            if not fast:
-                m.d.sync += [s.mask[nxt].eq(p.mask), s.thread[nxt].eq(p.thread),
-                             s.index[nxt].eq(p.tri), s.last.bit_select(nxt, 1).eq(p.last)]
-        if fast:
-            for k in range(n_slots):
-                with m.If(tri_in.valid & tri_in.ready & nxt_oh[k]):
-                    p = tri_in.payload
+            for k in range(n_slots):        # the slot's fields, by its one-hot
+                with m.If(nxt_sel[k]):
                     m.d.sync += [s.mask[k].eq(p.mask), s.thread[k].eq(p.thread),
                                  s.index[k].eq(p.tri), s.last[k].eq(p.last)]
         s.counted = alloc
-        if self.cfg.fast_clock:
+        if fast:
             # the mask's lane count (for the issue stage) in two cycles after the request:
             # counts of 8-lane groups from a register of the mask, then their sum; the slot
             # counts as allocated for the issue stage once its count is written (its triangle

@@ -181,7 +181,8 @@ class TravSubunit(wiring.Component):
     (``rq_slot``).
 
     Block-RAM outputs feed only registers: the ray read is registered before the axis pick,
-    the interval read is issued two stages before ``dist`` is valid and registered once.
+    the interval read is issued two stages before ``dist`` is valid and registered once
+    (``cfg.fast_clock``: three stages, registered twice, the slot mux between the two).
     ``cfg.fp_cmp_latency`` (default 1) sets the compare and min/max units' latency.
     """
 
@@ -431,11 +432,14 @@ class _Threads:
                     m.d.sync += reg[t].eq(nxt)
                     if field == "state":        # one writer at a time: OR of its verdicts
                         for states, flags in self.shadows:
-                            def among(val):
-                                return Cat(*(Value.cast(val) == Value.cast(st)
-                                             for st in states)).any()
                             m.d.sync += flags[t].eq(Cat(*(
-                                h & among(val) for h, (_, _, val, _) in zip(hit, writes))).any())
+                                h & _among(val, states)
+                                for h, (_, _, val, _) in zip(hit, writes))).any())
+
+
+def _among(value: Value, states) -> Value:
+    """``value`` is one of ``states``."""
+    return Cat(*(Value.cast(value) == Value.cast(st) for st in states)).any()
 
 
 class Traversal(wiring.Component):
@@ -517,7 +521,8 @@ class Traversal(wiring.Component):
         acc_lanes = Signal(L)
         free = th.in_state(ThreadState.FREE)
         free_any, free_idx = lowest(m, free, "free")
-        ld_onehot = Signal(cfg.threads, name="ld_onehot")      # fast_clock: ld_thread one-hot
+        if th.fast:
+            ld_onehot = Signal(cfg.threads, name="ld_onehot")      # ld_thread one-hot
         with m.If(~ld_active & free_any):
             m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx)]
             if th.fast:
@@ -748,9 +753,7 @@ class Traversal(wiring.Component):
         if cfg.fast_clock:          # registers beside the states (no decode before the pick)
             waiting = th.in_states_q(*wait_states)
         else:
-            waiting = th.in_state(wait_states[0])
-            for st in wait_states[1:]:
-                waiting = waiting | th.in_state(st)
+            waiting = Cat(*(_among(th.state[t], wait_states) for t in range(T)))
         if cfg.fast_clock:
             # the pick is made a cycle ahead into registers from the threads waiting then, with
             # and without the one being worked on (only this engine moves a thread out of
