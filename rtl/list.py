@@ -152,7 +152,11 @@ class ListUnit(wiring.Component):
         m.d.comb += [
             head.eq(slot_data[rd_tag]),
             take_hi.eq(upper | ~h_lo),
-            tri.valid.eq(fifo.r_rdy & h_full),
+            # fast_clock: a tag's word arrives after its metadata is queued and leaves the
+            # slot when the metadata is read, so "the head word is in" implies "the queue is
+            # not empty" and the valid comes from the register alone (not from the queue's
+            # level)
+            tri.valid.eq(h_full if cfg.fast_clock else fifo.r_rdy & h_full),
             tri.payload.thread.eq(h.thread),
             tri.payload.mask.eq(h.mask),
             tri.payload.tri.eq(Mux(take_hi, head[1], head[0])),
