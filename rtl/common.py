@@ -112,7 +112,10 @@ def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
     (one-hot; default: this pick itself) when ``drop``: both picks (with and without it), their
     one-hot forms and ``drop`` go into registers, and the pick is a 2:1 mux of them, so a late
     ``drop`` (a handshake, a busy flag) runs into one register instead of through the pick.
-    Returns (any, index, one-hot) for the next cycle."""
+    Returns (any, index, one-hot, select) for the next cycle; ``select(array)`` is the picked
+    element of an ``Array`` (or the bit of a ``Value``) read with both registered indices and
+    then chosen by ``drop``'s register, so the 2:1 index mux does not come before the wide
+    select."""
     n = len(req)
     oh = Signal(n, name=f"{name}_onehot")
     less = (Value.cast(req) & ~(oh if taken is None else taken))[:n]
@@ -126,7 +129,12 @@ def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
     m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
     lq_any, lq_idx, lq_oh, kq_any, kq_idx, kq_oh, drop_q = regs
     m.d.comb += oh.eq(Mux(drop_q, lq_oh, kq_oh))
-    return Mux(drop_q, lq_any, kq_any), Mux(drop_q, lq_idx, kq_idx), oh
+
+    def select(arr):
+        if isinstance(arr, Value):
+            return Mux(drop_q, arr.bit_select(lq_idx, 1), arr.bit_select(kq_idx, 1))
+        return Mux(drop_q, arr[lq_idx], arr[kq_idx])
+    return Mux(drop_q, lq_any, kq_any), Mux(drop_q, lq_idx, kq_idx), oh, select
 
 
 class OutputStage(wiring.Component):

@@ -626,16 +626,17 @@ class Traversal(wiring.Component):
             # handshake, registered, chooses
             f_any, f_idx = Signal(name="fetch_any"), Signal(self.cfg.thread_bits,
                                                             name="fetch_pick")
-            p_any, p_idx, f_oh = rr_pick_next(m, fetching, f_ptr, out.i.valid & out.i.ready,
-                                              "fetch")
+            p_any, p_idx, f_oh, f_sel = rr_pick_next(m, fetching, f_ptr,
+                                                     out.i.valid & out.i.ready, "fetch")
             m.d.comb += [f_any.eq(p_any), f_idx.eq(p_idx)]
             # the state write's per-thread enables: the pick's one-hot form
             th.set(m, "state", None, ThreadState.WAIT_MEM,
                    onehot=Mux(out.i.valid & out.i.ready, f_oh, 0))
         else:
             f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
+        f_node = f_sel(th.node) if self.cfg.fast_clock else th.node[f_idx]
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
-                     out.i.payload.addr.eq(self.node_base + th.node[f_idx])]
+                     out.i.payload.addr.eq(self.node_base + f_node)]
         with m.If(out.i.valid & out.i.ready):
             m.d.sync += f_ptr.eq(f_idx + 1)
             if not self.cfg.fast_clock:
@@ -653,7 +654,7 @@ class Traversal(wiring.Component):
         hit lies in the cell (``t <= tfar``, tfar read from its sub-unit); the leaf's ``last``
         result makes the thread pop. Applied 1 + ``RQ_LAT`` cycles after the result arrives
         (``cfg.fast_clock``: 3 + ``RQ_LAT``, the result and its thread's sp/cur registered
-        before the read, the verdict registered after it)."""
+        before the read, each sub-unit's verdict registered after it)."""
         cfg, fmt, k, subs = self.cfg, self.cfg.fmt, self.cfg.trav_subunits, self.subunits
         rs = self.result.payload
         m.d.comb += self.result.ready.eq(1)
@@ -683,21 +684,23 @@ class Traversal(wiring.Component):
             m.d.sync += [a.eq(b) for a, b in zip(regs, (r_v, r_thread, r_lane, r_hit, r_t,
                                                          r_last, r_sub1))]
             r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = regs
-        anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
         if cfg.fast_clock:
-            # t against every sub-unit's tfar of both slots at once, the verdict chosen after
-            # the compares (the slot and sub-unit selects leave the compare's path)
-            le = Array(Mux(s.rq_slot, compare(fmt, r_t, s.rq_s_tfar).le,
-                           compare(fmt, r_t, s.rq_n_tfar).le) for s in subs)[r_sub1]
-        else:
-            le = compare(fmt, r_t, Array(s.rq_tfar for s in subs)[r_sub1]).le
-        kill = r_hit & (anyhit | le)
-        if cfg.fast_clock:              # the verdict is registered before it is applied
-            vals = (r_v, kill, r_thread, r_lane, r_last)
+            # t against every sub-unit's tfar of both slots at once; each sub-unit's verdict
+            # (its lane already hit, or t <= tfar) is registered, and the result's sub-unit
+            # and hit choose among the registers (the slot and sub-unit selects leave the
+            # compare's path)
+            kills = Cat(*(s.rq_anyhit | Mux(s.rq_slot, compare(fmt, r_t, s.rq_s_tfar).le,
+                                            compare(fmt, r_t, s.rq_n_tfar).le) for s in subs))
+            vals = (r_v, kills, r_hit, r_sub1, r_thread, r_lane, r_last)
             regs = [Signal.like(Value.cast(v), name=f"rk_{n}") for v, n in zip(
-                vals, ("v", "kill", "thread", "lane", "last"))]
+                vals, ("v", "kills", "hit", "sub", "thread", "lane", "last"))]
             m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
-            r_v, kill, r_thread, r_lane, r_last = regs
+            r_v, kills, r_hit, r_sub1, r_thread, r_lane, r_last = regs
+            kill = r_hit & kills.bit_select(r_sub1, 1)
+        else:
+            anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
+            le = compare(fmt, r_t, Array(s.rq_tfar for s in subs)[r_sub1]).le
+            kill = r_hit & (anyhit | le)
         with m.If(r_v):
             with m.If(kill):
                 m.d.sync += th.term[r_thread].eq(th.term[r_thread] |
@@ -759,8 +762,8 @@ class Traversal(wiring.Component):
             # and without the one being worked on (only this engine moves a thread out of
             # those states, so a pick made a cycle ahead is still waiting when it is used);
             # ctl_busy, registered, chooses
-            e_any, e_idx, e_oh = rr_pick_next(m, waiting, e_ptr, ctl_busy, "step",
-                                              taken=e_taken)
+            e_any, e_idx, e_oh, e_sel = rr_pick_next(m, waiting, e_ptr, ctl_busy, "step",
+                                                     taken=e_taken)
         else:
             e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)
@@ -857,6 +860,9 @@ class Traversal(wiring.Component):
             is_step = Cat(*((th.state[t] == ThreadState.HAVE_NODE) &
                             (data.View(node_layout(), th.word[t]).axis != LEAF)
                             for t in range(T)))
+            # the near child's side per thread (its octant's bit on its node's axis)
+            is_neg = Cat(*(th.octant[t].bit_select(data.View(node_layout(), th.word[t]).axis, 1)
+                           for t in range(T)))
             e_step, todo_none = Signal(name="e_step"), Signal(name="e_todo_none")
             # the octants left (PASS) are written in PASS3, from a register, by the thread's
             # one-hot and PASS3's flag (the thread is this engine's until PASS3 ends)
@@ -870,15 +876,20 @@ class Traversal(wiring.Component):
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
                 with m.If(e_any):
-                    p_word = data.View(node_layout(), th.word[e_idx])
-                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(th.state[e_idx]),
-                                 e_word.eq(th.word[e_idx]), e_mask.eq(th.mask[e_idx]),
-                                 neg.eq(th.octant[e_idx].bit_select(p_word.axis, 1)),
-                                 *([e_todo.eq(th.todo[e_idx]), e_term.eq(th.term[e_idx]),
-                                    e_taken.eq(e_oh), e_step.eq((is_step & e_oh).any())]
-                                   if fast else []),
-                                 e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx]),
-                                 e_ptr.eq(e_idx + 1)]
+                    if fast:
+                        # each field read with both registered picks, then chosen (e_sel)
+                        m.d.sync += [e_kind.eq(e_sel(th.state)), e_word.eq(e_sel(th.word)),
+                                     e_mask.eq(e_sel(th.mask)), neg.eq(e_sel(is_neg)),
+                                     e_todo.eq(e_sel(th.todo)), e_term.eq(e_sel(th.term)),
+                                     e_taken.eq(e_oh), e_step.eq(e_sel(is_step)),
+                                     e_sp.eq(e_sel(th.sp)), e_cur.eq(e_sel(th.cur))]
+                    else:
+                        p_word = data.View(node_layout(), th.word[e_idx])
+                        m.d.sync += [e_kind.eq(th.state[e_idx]), e_word.eq(th.word[e_idx]),
+                                     e_mask.eq(th.mask[e_idx]),
+                                     neg.eq(th.octant[e_idx].bit_select(p_word.axis, 1)),
+                                     e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx])]
+                    m.d.sync += [e_t.eq(e_idx), e_ptr.eq(e_idx + 1)]
                     goto("DISPATCH")
             with m.State("DISPATCH"):
                 with m.If(e_kind == ThreadState.HAVE_NODE):

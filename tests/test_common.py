@@ -3,7 +3,7 @@ constant multiply, the stream register and the two-write-port memory."""
 import random
 
 import pytest
-from amaranth.hdl import Module, Signal
+from amaranth.hdl import Array, Module, Signal
 from amaranth.sim import Simulator
 
 from rtl.common import (SkidBuffer, TwoWriteMemory, lowest, rr_pick, rr_pick_next,
@@ -88,7 +88,12 @@ def test_rr_pick_next_leaves_out_the_taken_request():
     picked in this cycle when ``drop`` (a handshake) is high in this cycle."""
     m = Module()
     req, ptr, drop = Signal(8), Signal(3), Signal()
-    anyb, idx, oh = rr_pick_next(m, req, ptr, drop, "t")
+    anyb, idx, oh, select = rr_pick_next(m, req, ptr, drop, "t")
+    # select(): the picked element of an Array and the picked bit of a Value
+    words = Array(Signal(16, name=f"w{t}") for t in range(8))
+    bits = Signal(8)
+    w_sel, b_sel = Signal(16), Signal()
+    m.d.comb += [w_sel.eq(select(words)), b_sel.eq(select(bits))]
     rng = random.Random(5)
     steps = [(rng.randrange(256), rng.randrange(8), rng.randrange(2)) for _ in range(400)]
     got = []
@@ -98,7 +103,13 @@ def test_rr_pick_next_leaves_out_the_taken_request():
             ctx.set(req, r)
             ctx.set(ptr, p)
             ctx.set(drop, d)
-            got.append((ctx.get(anyb), ctx.get(idx), ctx.get(oh)))
+            ctx.set(bits, rng.getrandbits(8))
+            for w in words:
+                ctx.set(w, rng.getrandbits(16))
+            i = ctx.get(idx)
+            assert ctx.get(w_sel) == ctx.get(words[i])
+            assert ctx.get(b_sel) == (ctx.get(bits) >> i) & 1
+            got.append((ctx.get(anyb), i, ctx.get(oh)))
             await ctx.tick()
 
     sim = Simulator(m)
