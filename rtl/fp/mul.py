@@ -104,7 +104,17 @@ class FPMul(wiring.Component):
         # clear stands between the operand and the multiplier's input register
         sa, sb = Cat(ua.frac, C(1, 1)), Cat(ub.frac, C(1, 1))
         if in_dsp:
-            v = st(**flags)
+            # the classes go into the unpack register in pieces (exponent all ones or zero,
+            # fraction not zero, per operand) and are combined after it, beside the
+            # multipliers: one operand may feed many units, and its wires are long
+            v = st(exp=flags["exp"], sign=flags["sign"],
+                   **{f"{n}_{k}": x for n, u in (("a", ua), ("b", ub)) for k, x in
+                      (("top", u.exp == (1 << fmt.exp_bits) - 1), ("zero", u.zero),
+                       ("fnz", u.frac != 0))})
+            zero, top_a, top_b = v.a_zero | v.b_zero, v.a_top, v.b_top
+            inf = (top_a & ~v.a_fnz) | (top_b & ~v.b_fnz)
+            v.nan = (top_a & v.a_fnz) | (top_b & v.b_fnz) | (zero & inf)
+            v.inf, v.zero = inf, zero
         else:
             v = st(sa=sa, sb=sb, **flags)
         # -- multiply: 2W-bit product in [2**(2W-2), 2**(2W)) -------------------------------
