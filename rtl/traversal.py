@@ -519,7 +519,8 @@ class Traversal(wiring.Component):
         ld_thread = Signal(cfg.thread_bits)
         acc = [Signal(L, name=f"acc{o}") for o in range(8)]
         acc_lanes = Signal(L)
-        free = th.in_state(ThreadState.FREE)
+        # fast: the free threads from the registered flags beside the states (no decode)
+        free = th.in_states_q(ThreadState.FREE) if th.fast else th.in_state(ThreadState.FREE)
         free_any, free_idx = lowest(m, free, "free")
         if th.fast:
             ld_onehot = Signal(cfg.threads, name="ld_onehot")      # ld_thread one-hot
@@ -619,7 +620,8 @@ class Traversal(wiring.Component):
                                                               len(req.payload.tag)))
         wiring.connect(m, out.o, wiring.flipped(req))
         f_ptr = Signal(self.cfg.thread_bits)
-        fetching = th.in_state(ThreadState.FETCH)
+        fetching = (th.in_states_q(ThreadState.FETCH) if self.cfg.fast_clock
+                    else th.in_state(ThreadState.FETCH))
         if self.cfg.fast_clock:
             # the pick is made a cycle ahead into registers, with and without the thread whose
             # request goes out then (only this engine moves a thread out of FETCH); the
@@ -719,7 +721,7 @@ class Traversal(wiring.Component):
         if th.fast:
             o_thread = Signal(self.cfg.thread_bits, name="done_thread")
             taken = Mux(dn.valid, Const(1, th.T) << o_thread, 0)[:th.T]
-            d_any, d_idx = lowest(m, th.in_state(ThreadState.DONE) & ~taken, "done")
+            d_any, d_idx = lowest(m, th.in_states_q(ThreadState.DONE) & ~taken, "done")
             with m.If(~dn.valid | dn.ready):
                 m.d.sync += [dn.valid.eq(d_any), o_thread.eq(d_idx)]
             m.d.comb += [dn.payload.thread.eq(o_thread), dn.payload.packet.eq(th.packet[o_thread]),
