@@ -174,9 +174,13 @@ class Cache(wiring.Component):
                                  s2_tag.eq(s1_tag), s2_utag.eq(s1_utag), s2_row_n.eq(row),
                                  s2_hits_n.eq(s1_hits), s2_mem.eq(s1_mem)]
             with m.Elif(s1_go):     # S2 holds: S1's request into B (no tag write this cycle)
-                m.d.sync += [b_valid.eq(1), b_off.eq(s1_off), b_set.eq(s1_set),
-                             b_tag.eq(s1_tag), b_utag.eq(s1_utag), b_row.eq(row),
-                             b_hits.eq(s1_hits), b_mem.eq(s1_mem)]
+                m.d.sync += b_valid.eq(1)
+            # B's fields follow S1 while B is empty (they count only once b_valid is set, in
+            # the cycle S1 hands over), so their enable is a register, not ``go``
+            with m.If(~b_valid):
+                m.d.sync += [b_off.eq(s1_off), b_set.eq(s1_set), b_tag.eq(s1_tag),
+                             b_utag.eq(s1_utag), b_row.eq(row), b_hits.eq(s1_hits),
+                             b_mem.eq(s1_mem)]
             d_valid, d_off, d_set, d_tag, d_utag = s2_valid, s2_off, s2_set, s2_tag, s2_utag
             d_row, hit_vec = Signal(len(row), name="s2_row_now"), Signal(W, name="s2_hits_now")
             m.d.comb += [d_row.eq(Mux(s2_wsel, s2_row_w, s2_row_n)),
