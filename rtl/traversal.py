@@ -139,12 +139,14 @@ class StepIssue(wiring.Component):
         take = Signal()
         m.d.comb += [self.can_start.eq(q.r_rdy & (~act | last)),
                      take.eq(self.can_start & self.go), q.r_en.eq(take)]
-        with m.If(take):
-            m.d.sync += [act.eq(1), d.eq(head), rest.eq(head_rest), last.eq(head_one),
+        # the step's fields are loaded whenever the stage is free or frees, taken or not (they
+        # count only while ``active``), so only ``active`` and the queue's read wait for
+        # ``go`` (with synchronous sub-units, an AND over all of them)
+        m.d.sync += act.eq(take | (act & ~last))
+        with m.If(~act | last):
+            m.d.sync += [d.eq(head), rest.eq(head_rest), last.eq(head_one),
                          has.eq(head_has), lane0.eq(head_lane)]
-        with m.Elif(act & last):
-            m.d.sync += act.eq(0)
-        with m.Elif(act):
+        with m.Else():
             rest_rest = without_lowest(rest)
             # (rest is not empty here: last is 0)
             m.d.sync += [rest.eq(rest_rest), last.eq(rest_rest == 0), has.eq(1),
