@@ -24,8 +24,9 @@ Pipeline::
 * Contents are valid only from reset of the memory contents (``Memory`` init); there is no flush.
 
 Ports: ``port`` (unit side, :class:`MemReadPort` of items), ``mem`` (memory side, 64-bit words,
-tag = ``{word index, mshr}``), ``base`` (word address of item 0), counters ``hits``, ``misses``,
-and ``lookup_valid``/``lookup_hit`` (one pulse per classified request, for testbenches).
+tag = ``{word index, mshr}``), ``base`` (word address of item 0), counters ``hits``, ``misses``
+(``fast``: a cycle after the lookup), and ``lookup_valid``/``lookup_hit`` (one pulse per
+classified request, for testbenches).
 """
 from __future__ import annotations
 
@@ -277,10 +278,15 @@ class Cache(wiring.Component):
         with m.If(go):
             m.d.comb += q_set_bit.eq(1 << q_tail)
             m.d.sync += q_tail.eq(Mux(q_tail == Q - 1, 0, q_tail + 1))
-            with m.If(hit):
-                m.d.sync += self.hits.eq(self.hits + 1)
-            with m.Else():
-                m.d.sync += self.misses.eq(self.misses + 1)
+        count_hit, count_miss = go & hit, go & ~hit
+        if self.fast:       # the counters count a cycle later, from registers
+            regs = Signal(name="count_hit"), Signal(name="count_miss")
+            m.d.sync += [regs[0].eq(count_hit), regs[1].eq(count_miss)]
+            count_hit, count_miss = regs
+        with m.If(count_hit):
+            m.d.sync += self.hits.eq(self.hits + 1)
+        with m.If(count_miss):
+            m.d.sync += self.misses.eq(self.misses + 1)
         # miss: allocate the line in the tag row, an MSHR, and queue its fetch
         m.d.comb += new_row.eq(d_row)
         for w in range(W):
