@@ -796,7 +796,9 @@ class Traversal(wiring.Component):
                          s.step.payload.split.eq(from_binary32(fmt, e_word.value)),
                          s.step.payload.sp.eq(e_sp), s.step.payload.cur.eq(e_cur),
                          s.step.valid.eq(disp)]
-        room = Cat(*(s.step.ready for s in subs)).all()
+        # synchronous sub-units take each step together, so their step queues always hold the
+        # same number of steps and the first one's room is every one's (no path across them)
+        room = subs[0].step.ready if cfg.trav_sync else Cat(*(s.step.ready for s in subs)).all()
         # synchronous sub-units start each step together; asynchronous ones start when free
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]

@@ -98,9 +98,12 @@ class TravRun:
 
 
 def run_traversal(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int = 8,
-                  idle: float = 0.2, delay: int = 20, max_cycles: int = 200_000) -> TravRun:
+                  idle: float = 0.2, delay: int = 20, max_cycles: int = 200_000,
+                  monitor=None) -> TravRun:
     """Simulate the traversal unit on ``rays`` through ``image`` (node port on an
-    ``IdealMemory``) against the model's event log; returns counters and mismatches."""
+    ``IdealMemory``) against the model's event log; returns counters and mismatches.
+    ``monitor(dut)``: an ``async def (ctx)`` run in the background every cycle (invariant
+    checks on the unit's ports)."""
     from amaranth.hdl import Module
     from amaranth.lib import wiring
 
@@ -211,7 +214,7 @@ def run_traversal(image, rays, cfg: Config, *, seed: int = 1, mem_latency: int =
         await ctx.tick()
         state["t_first"] = time.process_time()     # after the simulator compiled the design
 
-    run(top, feeder, responder, clock)
+    run(top, feeder, responder, clock, background=[monitor(dut)] if monitor else ())
     secs = time.process_time() - state["t_first"]
     return TravRun(state["cycle"], sum(seen.values()), done, state["counters"], tot, mismatches,
                    secs)

@@ -64,6 +64,27 @@ def test_traversal_fast_clock_replays_model(kd_cache):
     assert sorted(r.packets_done) == list(range(4))
 
 
+def test_synchronous_subunits_step_queues_fill_together(kd_cache):
+    """Synchronous sub-units take each step together, so their step queues hold the same
+    number of steps in every cycle (the control engine reads the first one's room for all);
+    8 threads on 2 sub-units fill the queues, and the leaves still replay the model."""
+    cfg = Config(threads=8, tile_w=4, tile_h=4, trav_subunits=2, **DEEP)
+    assert cfg.trav_sync
+    image, rays = small_case(ROOT / "scenes/office.toml", 16, 16, cfg, kd_cache)
+    full = []
+
+    def monitor(dut):
+        async def watch(ctx):
+            async for _, _, *ready in ctx.tick().sample(*(s.step.ready for s in dut.subunits)):
+                assert len(set(ready)) == 1, f"step queues differ: ready {ready}"
+                full.append(not ready[0])
+        return watch
+
+    r = run_traversal(image, rays, cfg, seed=7, mem_latency=6, idle=0.0, monitor=monitor)
+    check(r)
+    assert sum(full) > 0, "the step queues never filled"
+
+
 @pytest.mark.parametrize("deep", [False, True], ids=["default", "deep"])
 def test_subunit_classifies_like_model_at_fixed_latency(deep):
     """Steps through one sub-unit: each verdict (near/far masks) equals
