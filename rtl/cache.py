@@ -42,7 +42,7 @@ from amaranth.utils import ceil_log2
 from model.cache import CacheGeometry
 
 from .memport import WORD_BITS, MemReadPort
-from .common import COUNTER_BITS, lowest, times_const
+from .common import COUNTER_BITS, lowest, registered, times_const
 
 __all__ = ["Cache"]
 
@@ -280,9 +280,8 @@ class Cache(wiring.Component):
             m.d.sync += q_tail.eq(Mux(q_tail == Q - 1, 0, q_tail + 1))
         count_hit, count_miss = go & hit, go & ~hit
         if self.fast:       # the counters count a cycle later, from registers
-            regs = Signal(name="count_hit"), Signal(name="count_miss")
-            m.d.sync += [regs[0].eq(count_hit), regs[1].eq(count_miss)]
-            count_hit, count_miss = regs
+            count_hit, count_miss = registered(m, "count", hit=count_hit,
+                                               miss=count_miss).values()
         with m.If(count_hit):
             m.d.sync += self.hits.eq(self.hits + 1)
         with m.If(count_miss):
@@ -297,9 +296,7 @@ class Cache(wiring.Component):
         m.d.comb += [twp.addr.eq(d_set), twp.data.eq(new_row), twp.en.eq(go & ~hit)]
         iw_en, iw_data = go & ~hit, free
         if self.fast:   # the miss's MSHR enters the issue FIFO a cycle later, from registers
-            regs = Signal(name="issue_w_en_q"), Signal.like(free, name="issue_w_data_q")
-            m.d.sync += [regs[0].eq(iw_en), regs[1].eq(iw_data)]
-            iw_en, iw_data = regs
+            iw_en, iw_data = registered(m, "issue_w", en_q=iw_en, data_q=iw_data).values()
         m.d.comb += [issue.w_data.eq(iw_data), issue.w_en.eq(iw_en)]
         spare = [(free == i) & ~mshr_valid[i] for i in range(O)]    # written while free
         for i in range(O):

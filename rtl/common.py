@@ -106,6 +106,19 @@ def rr_pick_onehot(req: Value, ptr: Value) -> Value:
     return Mux(hi.any(), lowest_onehot(hi), lowest_onehot(req))
 
 
+def element(arr, idx: Value) -> Value:
+    """The element ``idx`` of an ``Array``, or the bit ``idx`` of a ``Value``."""
+    return arr.bit_select(idx, 1) if isinstance(arr, Value) else arr[idx]
+
+
+def registered(m: Module, prefix: str, **values) -> dict:
+    """Each value a cycle later, from a register named ``{prefix}_{name}`` (in ``values``'
+    order)."""
+    regs = {k: Signal.like(Value.cast(v), name=f"{prefix}_{k}") for k, v in values.items()}
+    m.d.sync += [regs[k].eq(v) for k, v in values.items()]
+    return regs
+
+
 def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
                  taken: Value | None = None) -> tuple[Value, Value, Value]:
     """The next cycle's :func:`rr_pick` of ``req`` from registers, less the request ``taken``
@@ -131,9 +144,7 @@ def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
     m.d.comb += oh.eq(Mux(drop_q, lq_oh, kq_oh))
 
     def select(arr):
-        if isinstance(arr, Value):
-            return Mux(drop_q, arr.bit_select(lq_idx, 1), arr.bit_select(kq_idx, 1))
-        return Mux(drop_q, arr[lq_idx], arr[kq_idx])
+        return Mux(drop_q, element(arr, lq_idx), element(arr, kq_idx))
     return Mux(drop_q, lq_any, kq_any), Mux(drop_q, lq_idx, kq_idx), oh, select
 
 

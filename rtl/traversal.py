@@ -51,8 +51,8 @@ from amaranth.utils import ceil_log2
 
 from model.config import Config
 from model.layout import LEAF, NODE_INDEX_BITS, node_layout
-from .common import (COUNTER_BITS, OutputStage, from_binary32, lowest, lowest_onehot,
-                     rr_pick, rr_pick_next)
+from .common import (COUNTER_BITS, OutputStage, element, from_binary32, lowest, lowest_onehot,
+                     registered, rr_pick, rr_pick_next)
 from .fp import FPAdd, FPCompare, FPMinMax, FPMul
 from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
@@ -638,7 +638,7 @@ class Traversal(wiring.Component):
                    onehot=Mux(out.i.valid & out.i.ready, f_oh, 0))
         else:
             f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
-        f_node = f_sel(th.node) if self.cfg.fast_clock else th.node[f_idx]
+        f_node = f_sel(th.node) if self.cfg.fast_clock else element(th.node, f_idx)
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
                      out.i.payload.addr.eq(self.node_base + f_node)]
         with m.If(out.i.valid & out.i.ready):
@@ -669,11 +669,9 @@ class Traversal(wiring.Component):
             # the result and its thread's stack pointer and slot flag in registers first, so
             # the sub-units' stack reads are addressed from registers here (the thread waits
             # for its leaf, so its sp and cur hold)
-            vals = (r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sp, r_cur)
-            regs = [Signal.like(Value.cast(v), name=f"rin_{n}") for v, n in zip(
-                vals, ("v", "thread", "lane", "hit", "t", "last", "sp", "cur"))]
-            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
-            r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sp, r_cur = regs
+            r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sp, r_cur = registered(
+                m, "rin", v=r_v, thread=r_thread, lane=r_lane, hit=r_hit, t=r_t, last=r_last,
+                sp=r_sp, cur=r_cur).values()
         r_sub, r_loc = self._split_lane(m, r_lane, "rq")
         for s in subs:
             m.d.comb += [s.rq_thread.eq(r_thread), s.rq_lane.eq(r_loc),
@@ -695,11 +693,9 @@ class Traversal(wiring.Component):
             # compare's path)
             kills = Cat(*(s.rq_anyhit | Mux(s.rq_slot, compare(fmt, r_t, s.rq_s_tfar).le,
                                             compare(fmt, r_t, s.rq_n_tfar).le) for s in subs))
-            vals = (r_v, kills, r_hit, r_sub1, r_thread, r_lane, r_last)
-            regs = [Signal.like(Value.cast(v), name=f"rk_{n}") for v, n in zip(
-                vals, ("v", "kills", "hit", "sub", "thread", "lane", "last"))]
-            m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
-            r_v, kills, r_hit, r_sub1, r_thread, r_lane, r_last = regs
+            r_v, kills, r_hit, r_sub1, r_thread, r_lane, r_last = registered(
+                m, "rk", v=r_v, kills=kills, hit=r_hit, sub=r_sub1, thread=r_thread,
+                lane=r_lane, last=r_last).values()
             kill = r_hit & kills.bit_select(r_sub1, 1)
         else:
             anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
@@ -859,6 +855,9 @@ class Traversal(wiring.Component):
             if fast:
                 m.d.sync += [f.eq(int(k == state)) for k, f in flags.items()]
 
+        # the near child's side per thread (its octant's bit on its node's axis)
+        is_neg = Cat(*(th.octant[t].bit_select(data.View(node_layout(), th.word[t]).axis, 1)
+                       for t in range(T)))
         if fast:
             # what DISPATCH and PASS decide on, in registers: "a step" (an inner node) taken at
             # the pick from a per-thread form, "no octant left" a cycle after it (PASS comes
@@ -866,9 +865,6 @@ class Traversal(wiring.Component):
             is_step = Cat(*((th.state[t] == ThreadState.HAVE_NODE) &
                             (data.View(node_layout(), th.word[t]).axis != LEAF)
                             for t in range(T)))
-            # the near child's side per thread (its octant's bit on its node's axis)
-            is_neg = Cat(*(th.octant[t].bit_select(data.View(node_layout(), th.word[t]).axis, 1)
-                           for t in range(T)))
             e_step, todo_none = Signal(name="e_step"), Signal(name="e_todo_none")
             # the octants left (PASS) are written in PASS3, from a register, by the thread's
             # one-hot and PASS3's flag (the thread is this engine's until PASS3 ends)
@@ -882,20 +878,15 @@ class Traversal(wiring.Component):
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
                 with m.If(e_any):
+                    # fast: each field read with both registered picks, then chosen (e_sel)
+                    pick = e_sel if fast else (lambda arr: element(arr, e_idx))
+                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(pick(th.state)),
+                                 e_word.eq(pick(th.word)), e_mask.eq(pick(th.mask)),
+                                 neg.eq(pick(is_neg)), e_sp.eq(pick(th.sp)),
+                                 e_cur.eq(pick(th.cur)), e_ptr.eq(e_idx + 1)]
                     if fast:
-                        # each field read with both registered picks, then chosen (e_sel)
-                        m.d.sync += [e_kind.eq(e_sel(th.state)), e_word.eq(e_sel(th.word)),
-                                     e_mask.eq(e_sel(th.mask)), neg.eq(e_sel(is_neg)),
-                                     e_todo.eq(e_sel(th.todo)), e_term.eq(e_sel(th.term)),
-                                     e_taken.eq(e_oh), e_step.eq(e_sel(is_step)),
-                                     e_sp.eq(e_sel(th.sp)), e_cur.eq(e_sel(th.cur))]
-                    else:
-                        p_word = data.View(node_layout(), th.word[e_idx])
-                        m.d.sync += [e_kind.eq(th.state[e_idx]), e_word.eq(th.word[e_idx]),
-                                     e_mask.eq(th.mask[e_idx]),
-                                     neg.eq(th.octant[e_idx].bit_select(p_word.axis, 1)),
-                                     e_sp.eq(th.sp[e_idx]), e_cur.eq(th.cur[e_idx])]
-                    m.d.sync += [e_t.eq(e_idx), e_ptr.eq(e_idx + 1)]
+                        m.d.sync += [e_todo.eq(pick(th.todo)), e_term.eq(pick(th.term)),
+                                     e_taken.eq(e_oh), e_step.eq(pick(is_step))]
                     goto("DISPATCH")
             with m.State("DISPATCH"):
                 with m.If(e_kind == ThreadState.HAVE_NODE):
@@ -1025,8 +1016,7 @@ class Traversal(wiring.Component):
             # stack pointer read a cycle before is still its own)
             vals = dict(v=dec, thread=dt, both=both, far_node=far_node, far=mf, sp=d_sp,
                         **{f"new_{k}": v for k, v in new.items()})
-            regs = {k: Signal.like(Value.cast(v), name=f"dec_{k}") for k, v in vals.items()}
-            m.d.sync += [regs[k].eq(v) for k, v in vals.items()]
+            regs = registered(m, "dec", **vals)
             dec, dt, both, far_node, mf, d_sp = (regs[k] for k in (
                 "v", "thread", "both", "far_node", "far", "sp"))
             new = {k: regs[f"new_{k}"] for k in new}
