@@ -42,7 +42,7 @@ from amaranth.utils import ceil_log2
 from model.cache import CacheGeometry
 
 from .memport import WORD_BITS, MemReadPort
-from .common import COUNTER_BITS, lowest, registered, times_const
+from .common import COUNTER_BITS, BlockRAM, lowest, registered, times_const
 
 __all__ = ["Cache"]
 
@@ -97,7 +97,7 @@ class Cache(wiring.Component):
 
         # --- tag array: one row per set = W x {valid, tag} + round-robin pointer -----------
         entry = 1 + tb
-        tags = Memory(shape=W * entry + wb, depth=S, init=[])
+        tags = (BlockRAM if self.fast else Memory)(shape=W * entry + wb, depth=S, init=[])
         m.submodules.tags = tags
         twp = tags.write_port()
         a = req.payload.addr
@@ -327,7 +327,7 @@ class Cache(wiring.Component):
         data = []
         for j, bits in enumerate(g.word_kept_bits):
             if bits:
-                mem = Memory(shape=sum(hi - lo for lo, hi in bits), depth=S * W, init=[])
+                mem = BlockRAM(shape=sum(hi - lo for lo, hi in bits), depth=S * W)
                 m.submodules[f"data{j}"] = mem
                 data.append((j, bits, mem.write_port(), mem.read_port()))
         drp = SimpleNamespace(addr=Signal(wb + sb, name="data_raddr"),

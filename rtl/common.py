@@ -3,6 +3,8 @@ the registered stream output and stream register, and the memory's binary32 word
 words."""
 from __future__ import annotations
 
+import os
+
 from amaranth.hdl import C, Cat, Const, Elaboratable, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
@@ -12,7 +14,7 @@ from amaranth.utils import ceil_log2
 from model.fp import FPFormat
 
 __all__ = ["COUNTER_BITS", "popcount", "sum_tree", "times_const", "lowest", "rr_pick",
-           "OutputStage", "SkidBuffer", "from_binary32"]
+           "OutputStage", "SkidBuffer", "BlockRAM", "from_binary32"]
 
 COUNTER_BITS = 32      # every statistics counter the hardware reports
 
@@ -195,6 +197,54 @@ class SkidBuffer(wiring.Component):
                 m.d.sync += [o.valid.eq(i.valid), o.payload.eq(i.payload)]
         with m.Elif(i.valid & i.ready):
             m.d.sync += [k_valid.eq(1), k_payload.eq(i.payload)]
+        return m
+
+
+POISON_ENV = "SAARCOR_RAM_POISON"
+
+
+class BlockRAM(Memory):
+    """A :class:`Memory` with synchronous, non-transparent read ports whose reads of a row
+    written in the same cycle (by a port of the same domain) are left undefined: Yosys's
+    ``no_rw_check`` attribute. ECP5 block RAM leaves such a read undefined, so for a plain
+    ``Memory`` Yosys emulates the old-data read with a 2:1 mux after the RAM (select: the
+    registered address match) and every read crosses a LUT on its way out; with
+    ``no_rw_check`` the RAM's output is a register's input. For a unit whose colliding reads
+    are never used (overridden by forwarding logic or ignored), which the simulations check:
+    with the environment variable ``SAARCOR_RAM_POISON=1`` at elaboration, every colliding read
+    returns its row with all bits inverted, so a use of it changes the results.
+    Simulation without it returns the row before the write (as ``Memory`` does)."""
+
+    def __init__(self, *, shape, depth: int, init=(), attrs=None, src_loc_at: int = 0):
+        super().__init__(shape=shape, depth=depth, init=list(init),
+                         attrs={**(attrs or {}), "no_rw_check": 1}, src_loc_at=src_loc_at + 1)
+
+    def elaborate(self, platform):
+        for r in self.read_ports:
+            if r.domain == "comb" or r.transparent_for:
+                raise ValueError("BlockRAM: read ports must be synchronous and not transparent "
+                                 "(use Memory for a comb or transparent read)")
+        if os.environ.get(POISON_ENV, "0") in ("", "0"):
+            return super().elaborate(platform)
+        m = Module()
+        m.submodules.inner = inner = Memory(shape=self.shape, depth=self.depth, init=self.init)
+        writes = []
+        for w in self.write_ports:
+            iw = inner.write_port(domain=w.domain, granularity=w.signature.granularity)
+            m.d.comb += [iw.addr.eq(w.addr), iw.data.eq(w.data), iw.en.eq(w.en)]
+            writes.append(w)
+        for r in self.read_ports:
+            ir = inner.read_port(domain=r.domain)
+            m.d.comb += [ir.addr.eq(r.addr), ir.en.eq(r.en)]
+            hit = Signal(name="collision")
+            with m.If(r.en):
+                m.d[r.domain] += hit.eq(0)
+                for w in writes:
+                    if w.domain == r.domain:
+                        with m.If(w.en.any() & (w.addr == r.addr)):
+                            m.d[r.domain] += hit.eq(1)
+            raw = Value.cast(ir.data)
+            m.d.comb += Value.cast(r.data).eq(raw ^ Mux(hit, ~C(0, len(raw)), 0))
         return m
 
 

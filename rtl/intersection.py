@@ -24,7 +24,7 @@ from amaranth.utils import ceil_log2
 from model.config import Config
 from model.fp import FPFormat
 
-from .common import (COUNTER_BITS, OutputStage, SkidBuffer, from_binary32, lowest, popcount,
+from .common import (COUNTER_BITS, BlockRAM, OutputStage, SkidBuffer, from_binary32, lowest, popcount,
                      sum_tree)
 from .fp.cmp import compare
 from .fp.common import unpack
@@ -242,8 +242,9 @@ class IntersectionUnit(wiring.Component):
         best_l = data.StructLayout({"t": w, "u": w, "v": w, "tri": TRI_ID_BITS, "hit": 1})
         depth = 1 << (self.cfg.thread_bits + self.lane_bits)
         # local ray store (read-only data) and best-hit store, one word per (thread, lane)
-        m.submodules.rays = rays = Memory(shape=ray_l, depth=depth, init=[])
-        m.submodules.best = best = Memory(shape=best_l, depth=depth, init=[])
+        m.submodules.rays = rays = BlockRAM(shape=ray_l, depth=depth)
+        m.submodules.best = best = (BlockRAM if self.cfg.fast_clock else Memory)(
+            shape=best_l, depth=depth, init=[])
         ray_w, best_w = rays.write_port(), best.write_port()
         ray_r = rays.read_port()
         # fast_clock: the best-hit read goes straight into a register, the stores it missed

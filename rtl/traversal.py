@@ -45,14 +45,13 @@ from __future__ import annotations
 from amaranth.hdl import Array, Cat, Const, Module, Mux, Signal, Value
 from amaranth.lib import data, enum, stream, wiring
 from amaranth.lib.fifo import SyncFIFO
-from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
 from model.config import Config
 from model.layout import LEAF, NODE_INDEX_BITS, node_layout
-from .common import (COUNTER_BITS, OutputStage, element, from_binary32, lowest, lowest_onehot,
-                     registered, rr_pick, rr_pick_next)
+from .common import (COUNTER_BITS, BlockRAM, OutputStage, element, from_binary32, lowest,
+                     lowest_onehot, registered, rr_pick, rr_pick_next)
 from .fp import FPAdd, FPCompare, FPMinMax, FPMul
 from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
@@ -223,10 +222,10 @@ class TravSubunit(wiring.Component):
         cfg, fmt = self.cfg, self.cfg.fmt
         w, R, rb, tb, db = fmt.width, self.R, self.rbits, self.tbits, self.dbits
         T = cfg.threads
-        m.submodules.ray = ray = Memory(shape=6 * w, depth=T << rb, init=[])
-        m.submodules.anyhit = ah = Memory(shape=1, depth=T << rb, init=[])
-        m.submodules.nmem = nmem = Memory(shape=2 * w, depth=T << rb, init=[])
-        m.submodules.smem = smem = Memory(shape=2 * w, depth=T << (rb + db), init=[])
+        m.submodules.ray = ray = BlockRAM(shape=6 * w, depth=T << rb, init=[])
+        m.submodules.anyhit = ah = BlockRAM(shape=1, depth=T << rb, init=[])
+        m.submodules.nmem = nmem = BlockRAM(shape=2 * w, depth=T << rb, init=[])
+        m.submodules.smem = smem = BlockRAM(shape=2 * w, depth=T << (rb + db), init=[])
         ray_r, ray_w = ray.read_port(), ray.write_port()
         ah_r, ah_w = ah.read_port(), ah.write_port()
         n_r, n_rq, n_w = nmem.read_port(), nmem.read_port(), nmem.write_port()
@@ -497,9 +496,9 @@ class Traversal(wiring.Component):
             m.submodules[f"sub{j}"] = s
         th = _Threads(self.cfg, len(self.rays.payload.packet))
         db = max(1, ceil_log2(self.cfg.stack_depth))
-        m.submodules.stack = stack = Memory(shape=NODE_BITS + self.cfg.packet_size,
+        m.submodules.stack = stack = BlockRAM(shape=NODE_BITS + self.cfg.packet_size,
                                             depth=self.cfg.threads << db, init=[])
-        m.submodules.passmask = pmem = Memory(shape=8 * self.cfg.packet_size,
+        m.submodules.passmask = pmem = BlockRAM(shape=8 * self.cfg.packet_size,
                                               depth=self.cfg.threads, init=[])
         pm_r = pmem.read_port()
         self._loader(m, th, pmem.write_port())

@@ -259,3 +259,65 @@ def test_two_write_memory_block_must_divide_the_depth():
     for block in (0, 3, 32):
         with pytest.raises(ValueError, match="block"):
             TwoWriteMemory(8, 16, block)
+
+
+@pytest.mark.parametrize("poison", [False, True])
+def test_block_ram_poisons_colliding_reads_only_when_asked(monkeypatch, poison):
+    """Random reads and writes, often to the row being read, with random read enables: every
+    read returns what a plain ``Memory`` returns, except (with ``SAARCOR_RAM_POISON=1``) a read
+    of a row written in its cycle, which returns the row inverted, held while the enable is
+    low."""
+    from amaranth.lib import data
+    from amaranth.lib.memory import Memory
+    from rtl.common import BlockRAM, POISON_ENV
+    monkeypatch.setenv(POISON_ENV, "1" if poison else "0")
+    layout = data.StructLayout({"a": 5, "b": 7})
+    m = Module()
+    m.submodules.dut = dut = BlockRAM(shape=layout, depth=8)
+    m.submodules.ref = ref = Memory(shape=layout, depth=8, init=[])
+    dw, dr = dut.write_port(), dut.read_port()
+    rw, rr = ref.write_port(), ref.read_port()
+    rng = random.Random(9)
+    seen = []
+
+    async def tb(ctx):
+        hit = False
+        for _ in range(2000):
+            wa, ra = rng.randrange(8), rng.randrange(8)
+            if rng.random() < 0.3:
+                ra = wa
+            we, re, wd = rng.random() < 0.6, rng.random() < 0.7, rng.getrandbits(12)
+            for w in (dw, rw):
+                ctx.set(w.addr, wa)
+                ctx.set(w.data.as_value(), wd)
+                ctx.set(w.en, we)
+            for r in (dr, rr):
+                ctx.set(r.addr, ra)
+                ctx.set(r.en, re)
+            if re:
+                hit = we and wa == ra
+            await ctx.tick()
+            seen.append((hit, ctx.get(dr.data.as_value()), ctx.get(rr.data.as_value())))
+
+    sim = Simulator(m)
+    sim.add_clock(1e-8)
+    sim.add_testbench(tb)
+    sim.run()
+    assert sum(h for h, _, _ in seen) > 100
+    assert all(d == (r ^ 0xfff if poison and h else r) for h, d, r in seen)
+
+
+def test_block_ram_needs_synchronous_opaque_reads():
+    from amaranth.back import rtlil
+    from rtl.common import BlockRAM
+
+    def convert(transparent=False, domain="sync"):
+        m = Module()
+        m.submodules.mem = mem = BlockRAM(shape=4, depth=4)
+        w = mem.write_port()
+        r = mem.read_port(domain=domain, transparent_for=(w,) if transparent else ())
+        return rtlil.convert(m, ports=[w.addr, w.data, w.en, r.addr, r.data])
+    for kw in ({"domain": "comb"}, {"transparent": True}):
+        with pytest.raises(ValueError, match="synchronous and not transparent"):
+            convert(**kw)
+    assert "no_rw_check" in convert()
