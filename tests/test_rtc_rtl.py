@@ -3,6 +3,7 @@ ray's result (triangle, t, u, v bits) and the trav-op / list-op / int-op counter
 import pytest
 
 from model.config import Config
+from rtl.common import POISON_ENV
 from rtl.rtc import RTC
 from tb.common import synth_check
 from tb.rtc import run_rtc, run_rtc_free
@@ -36,9 +37,12 @@ def test_rtc_matches_model(scene, res, seed, kd_cache):
         assert r.cycles == TIMING["rtc/cornell_12x4"], timing_changed("rtc/cornell_12x4", r.cycles)
 
 
-def test_rtc_matches_model_with_deep_fp_pipelines_and_async_subunits(kd_cache):
+def test_rtc_matches_model_with_deep_fp_pipelines_and_async_subunits(kd_cache, monkeypatch):
     """The FPGA timing configuration (add 6, mul 5, div 20 stages) with asynchronous sub-units:
-    the same bits and counters (the units re-time themselves from the FP latencies)."""
+    the same bits and counters (the units re-time themselves from the FP latencies). Every
+    block-RAM read of a row written in its cycle returns garbage (``SAARCOR_RAM_POISON``):
+    no such read is used."""
+    monkeypatch.setenv(POISON_ENV, "1")
     cfg = TINY.replace(fp_add_latency=6, fp_mul_latency=5, fp_div_latency=20, trav_sync=False)
     image, rays = small_case(ROOT / "scenes/office.toml", 4, 4, cfg, kd_cache)
     r = run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=4)
@@ -51,9 +55,11 @@ DEEP = dict(fast_clock=True, fp_add_latency=8, fp_mul_latency=5, fp_div_latency=
             fp_cmp_latency=3)
 
 
-def test_rtc_matches_model_fast_clock(kd_cache):
+def test_rtc_matches_model_fast_clock(kd_cache, monkeypatch):
     """The FPGA build's settings, 3 packets through 2 threads (a thread is reused), bubbles
-    and back-pressure: the same bits and counters as the model."""
+    and back-pressure: the same bits and counters as the model, with every block-RAM read of
+    a row written in its cycle returning garbage (``SAARCOR_RAM_POISON``)."""
+    monkeypatch.setenv(POISON_ENV, "1")
     cfg = TINY.replace(**DEEP)
     image, rays = small_case(ROOT / "scenes/cornell.toml", 12, 4, cfg, kd_cache)
     r = run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=5)
