@@ -8,9 +8,10 @@ per entry in entry order, ``last`` on the leaf's final entry.
 """
 from __future__ import annotations
 
-from amaranth.hdl import Array, Cat, Module, Mux, Signal
+from amaranth.hdl import Module, Mux, Signal
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.fifo import SyncFIFO
+from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
@@ -129,7 +130,11 @@ class ListUnit(wiring.Component):
         m.d.sync += inflight.eq(inflight + issue - done_word)
 
         # ---- responses land in their slot (any order) -------------------------------------------
-        slot_data = Array(Signal(WORD_BITS, name=f"slot{i}") for i in range(n))
+        # the slots' words: a memory written by the responses and read without a clock by
+        # ``rd_tag`` (LUT-RAM on an FPGA, whose read is one LUT deep, not a mux tree over
+        # ``outstanding`` x 64 flip-flops)
+        m.submodules.slots = slots = Memory(shape=WORD_BITS, depth=n, init=[])
+        slot_w, slot_r = slots.write_port(), slots.read_port(domain="comb")
         slot_full = Signal(n)
         m.d.comb += resp.ready.eq(1)
         rd_tag = Signal(self.tag_width)
@@ -137,8 +142,8 @@ class ListUnit(wiring.Component):
         set_bits = Mux(got, 1 << resp.payload.tag, 0)
         clr_bits = Mux(done_word, 1 << rd_tag, 0)
         m.d.sync += slot_full.eq((slot_full | set_bits) & ~clr_bits)
-        with m.If(got):
-            m.d.sync += slot_data[resp.payload.tag].eq(resp.payload.data)
+        m.d.comb += [slot_w.addr.eq(resp.payload.tag), slot_w.data.eq(resp.payload.data),
+                     slot_w.en.eq(got), slot_r.addr.eq(rd_tag)]
 
         # ---- emit the head word's entries in order ---------------------------------------------
         h = data.View(meta, fifo.r_data)
@@ -150,7 +155,7 @@ class ListUnit(wiring.Component):
         take_hi = Signal()
         head = Signal(list_word_layout())     # two 32-bit entries, low first
         m.d.comb += [
-            head.eq(slot_data[rd_tag]),
+            head.eq(slot_r.data),
             take_hi.eq(upper | ~h_lo),
             # fast_clock: a tag's word arrives after its metadata is queued and leaves the
             # slot when the metadata is read, so "the head word is in" implies "the queue is
