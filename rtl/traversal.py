@@ -463,7 +463,12 @@ class Traversal(wiring.Component):
 
     def __init__(self, cfg: Config, *, addr_width: int = 32):
         self.cfg = cfg
-        self.subunits = [TravSubunit(cfg) for _ in range(cfg.trav_subunits)]
+        # fast_clock: a step queue per sub-unit as deep as the threads: each thread has at most
+        # one step outstanding, so a queue is never full and the dispatch needs no room (no
+        # path from the sub-units' queue levels into the control engine)
+        self.step_queue = max(4, cfg.threads) if cfg.fast_clock else 4
+        self.subunits = [TravSubunit(cfg, queue=self.step_queue)
+                         for _ in range(cfg.trav_subunits)]
         tb = cfg.thread_bits
         counters = {name: Out(COUNTER_BITS) for name in (
             "busy", "ctl_busy", "trav_ops", "trav_steps", "node_reads", "leaf_reqs", "passes", "pushes",
@@ -792,8 +797,10 @@ class Traversal(wiring.Component):
                          s.step.payload.sp.eq(e_sp), s.step.payload.cur.eq(e_cur),
                          s.step.valid.eq(disp)]
         # synchronous sub-units take each step together, so their step queues always hold the
-        # same number of steps and the first one's room is every one's (no path across them)
-        room = subs[0].step.ready if cfg.trav_sync else Cat(*(s.step.ready for s in subs)).all()
+        # same number of steps and the first one's room is every one's (no path across them);
+        # a queue as deep as the threads always has room
+        room = Const(1) if self.step_queue >= cfg.threads else \
+            subs[0].step.ready if cfg.trav_sync else Cat(*(s.step.ready for s in subs)).all()
         # synchronous sub-units start each step together; asynchronous ones start when free
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]

@@ -67,8 +67,10 @@ def test_traversal_fast_clock_replays_model(kd_cache):
 def test_synchronous_subunits_step_queues_fill_together(kd_cache):
     """Synchronous sub-units take each step together, so their step queues hold the same
     number of steps in every cycle (the control engine reads the first one's room for all);
-    8 threads on 2 sub-units fill the queues, and the leaves still replay the model."""
-    cfg = Config(threads=8, tile_w=4, tile_h=4, trav_subunits=2, **DEEP)
+    8 threads on 2 sub-units fill the queues (4 steps deep without ``fast_clock``), and the
+    leaves still replay the model."""
+    cfg = Config(threads=8, tile_w=4, tile_h=4, trav_subunits=2,
+                 **{**DEEP, "fast_clock": False})
     assert cfg.trav_sync
     image, rays = small_case(ROOT / "scenes/office.toml", 16, 16, cfg, kd_cache)
     full = []
@@ -83,6 +85,34 @@ def test_synchronous_subunits_step_queues_fill_together(kd_cache):
     r = run_traversal(image, rays, cfg, seed=7, mem_latency=6, idle=0.0, monitor=monitor)
     check(r)
     assert sum(full) > 0, "the step queues never filled"
+
+
+@pytest.mark.parametrize("sync", [True, False], ids=["sync", "async"])
+def test_fast_step_queues_never_fill(kd_cache, sync):
+    """``fast_clock``: each sub-unit's step queue is as deep as the threads (8), so the control
+    engine dispatches without reading their room: no step is ever pushed into a full queue,
+    more than 4 steps do wait in a queue at times, and the leaves replay the model."""
+    cfg = Config(threads=8, tile_w=4, tile_h=4, trav_subunits=2, trav_sync=sync, **DEEP)
+    image, rays = small_case(ROOT / "scenes/office.toml", 16, 16, cfg, kd_cache)
+    most = [0] * cfg.trav_subunits
+
+    def monitor(dut):
+        subs = dut.subunits
+        sigs = [x for s in subs for x in (s.step.valid, s.step.ready, s.can_start, s.go)]
+
+        async def watch(ctx):
+            level = [0] * len(subs)
+            async for _, _, *v in ctx.tick().sample(*sigs):
+                for j in range(len(subs)):
+                    valid, ready, can, go = v[4 * j:4 * j + 4]
+                    assert ready or not valid, f"a step pushed into sub-unit {j}'s full queue"
+                    level[j] += (valid and ready) - (can and go)
+                    most[j] = max(most[j], level[j])
+        return watch
+
+    r = run_traversal(image, rays, cfg, seed=7, mem_latency=6, idle=0.0, monitor=monitor)
+    check(r)
+    assert max(most) > 4, f"at most {most} steps waited: a 4-deep queue would have done"
 
 
 @pytest.mark.parametrize("deep", [False, True], ids=["default", "deep"])
