@@ -153,12 +153,18 @@ class FPMul(wiring.Component):
             v = st(p=p[:2 * W], **fl)
             p = v.p
         # -- normalize: the MSB has exponent exp + 1 ------------------------------------------
+        # the normalized product's top W + 1 bits (the kept significand and the guard bit) and
+        # whether any bit below them is set (its low bits leave the sum's carry chain first),
+        # so the round stage is the increment alone
         top = p[2 * W - 1]
-        v = st(sig=Mux(top, p, p << 1)[:2 * W], sign=v.sign, nan=v.nan, inf=v.inf,
-               zero=v.zero, **{k: Mux(top, getattr(v, f"n1_{k}"), getattr(v, f"n0_{k}"))
-                               for k in ef})
+        sig = Mux(top, p, p << 1)[:2 * W]
+        v = st(sig=sig[W - 1:], rest=Mux(top, p[:W - 1] != 0, p[:W - 2] != 0),
+               sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero,
+               **{k: Mux(top, getattr(v, f"n1_{k}"), getattr(v, f"n0_{k}")) for k in ef})
         # -- round: RNE increment (round_inc's significand half; its exponent half above) -----
-        v = st(**round_sig(m, fmt, v.sig), **{k: getattr(v, k) for k in ef},
+        rounded = round_sig(m, fmt, v.sig, sticky=v.rest)
+        rounded["rnd_zero"] = (v.sig == 0) & ~v.rest        # the whole product is zero
+        v = st(**rounded, **{k: getattr(v, k) for k in ef},
                sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
         # -- pack, specials ------------------------------------------------------------------
         o = Mux(v.nan, canonical_nan(fmt),
