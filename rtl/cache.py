@@ -156,16 +156,18 @@ class Cache(wiring.Component):
             b_mem = Signal(g.mem_addr_width, name="s2b_mem_addr")
             s2_move = Signal()
             m.d.comb += [s2_move.eq(~s2_valid | go), s1_go.eq(s1_valid & ~b_valid)]
-            in_set = Mux(b_valid, b_set, s1_set)        # the request S2 would take
-            in_tag = Mux(b_valid, b_tag, s1_tag)
             # S1's hits: one compare per row it may have (newest write first), then a choice
             (w_s1, wq_row), (s1_fwd, s1_fwd_row), (_, s1_raw) = self._s1_rows
             s1_hits = Mux(w_s1, hits(wq_row, s1_tag),
                           Mux(s1_fwd, hits(s1_fwd_row, s1_tag), hits(s1_raw, s1_tag)))
             s1_mem = self.base + self._s1_mem
             with m.If(s2_move):
-                m.d.sync += [s2_row_w.eq(new_row), s2_hits_w.eq(hits(new_row, in_tag)),
-                             s2_wsel.eq(twp.en & (twp.addr == in_set))]
+                # (a compare per candidate request, B's and S1's, then the choice)
+                m.d.sync += [s2_row_w.eq(new_row),
+                             s2_hits_w.eq(Mux(b_valid, hits(new_row, b_tag),
+                                              hits(new_row, s1_tag))),
+                             s2_wsel.eq(twp.en & Mux(b_valid, twp.addr == b_set,
+                                                     twp.addr == s1_set))]
                 with m.If(b_valid):
                     m.d.sync += [s2_valid.eq(1), s2_off.eq(b_off), s2_set.eq(b_set),
                                  s2_tag.eq(b_tag), s2_utag.eq(b_utag), s2_row_n.eq(b_row),

@@ -152,6 +152,12 @@ def test_build_key_follows_configuration_and_sources(tmp_path, monkeypatch):
         vl.build_key(TINY, **kw)
     monkeypatch.delenv(vl.CXX_OPT_ENV)
     assert vl.cxx_opt() == ""
+    # the block-RAM collision poison (SAARCOR_RAM_POISON) builds its own binary
+    plain = vl.build_key(TINY, **kw)
+    monkeypatch.setenv(vl.POISON_ENV, "1")
+    assert vl.build_key(TINY, **kw) != plain
+    monkeypatch.setenv(vl.POISON_ENV, "0")
+    assert vl.build_key(TINY, **kw) == plain
     src = tmp_path / "unit.py"
     src.write_text("a = 1\n")
     monkeypatch.setattr(vl, "ROOT", tmp_path)
