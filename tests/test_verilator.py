@@ -57,6 +57,24 @@ def test_cornell_frame_matches_model(kd_cache):
     assert 8 * len(rays) <= r.load_cycles < 8 * len(rays) + 256
 
 
+# the FPGA build's configuration (make fpga): 8 threads, deep FP pipelines, fast_clock,
+# asynchronous sub-units
+FPGA = Config(threads=8, tile_w=4, tile_h=4, trav_subunits=2, trav_sync=False,
+              fp_add_latency=8, fp_mul_latency=6, fp_div_latency=29, fp_cmp_latency=3,
+              fast_clock=True, delay_ram=4)
+
+
+def test_fpga_configuration_frame_with_poisoned_collisions(kd_cache, monkeypatch):
+    """Office 32x24 (48 packets through 8 threads: rays load while other threads test) in the
+    FPGA build's configuration, every block-RAM read of a row written in its cycle returning
+    its row inverted (``SAARCOR_RAM_POISON``): every ray and counter equals the model's."""
+    monkeypatch.setenv(vl.POISON_ENV, "1")
+    image, rays = small_case(ROOT / "scenes/office.toml", 32, 24, FPGA, kd_cache)
+    r = vl.run_frame(image, rays, FPGA, mem_latency=LATENCY, progress=False,
+                     idle=0.1, stall=0.1, seed=3)
+    check(r, rays)
+
+
 def test_same_cycles_as_pysim(kd_cache):
     """The same RTC, rays, seed and bubbles in Amaranth's simulator (``run_rtc_free``): the
     same counters, busy cycles included, and the same cycle count (pysim samples ``finished``
