@@ -25,7 +25,7 @@ from model.config import Config
 from model.fp import FPFormat
 
 from .common import (COUNTER_BITS, BlockRAM, OutputStage, SkidBuffer, from_binary32, lowest,
-                     popcount, registered, sum_tree)
+                     popcount, sum_tree)
 from .fp.cmp import compare
 from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
@@ -500,16 +500,12 @@ class IntersectionUnit(wiring.Component):
         a new ray's initial best) and the LaneResult, from the deciding stage's values."""
         ray_in = self.ray_in
         rp = ray_in.payload
-        ray = dict(addr=self._addr(rp.thread, rp.ray.lane),
-                   data=Cat(rp.ray.org, rp.ray.k, rp.ray.s), en=ray_in.valid & ray_in.ready)
+        m.d.comb += [
+            ray_w.addr.eq(self._addr(rp.thread, rp.ray.lane)),
+            ray_w.data.org.eq(rp.ray.org), ray_w.data.k.eq(rp.ray.k), ray_w.data.s.eq(rp.ray.s),
+            ray_w.en.eq(ray_in.valid & ray_in.ready),
+        ]
         fast = self.cfg.fast_clock
-        if fast:
-            # the ray store's write a cycle later, from registers (the lane's first read comes
-            # after its thread's traversal reaches a leaf): the handshake, which the traversal
-            # unit's loader drives, ends at a register, not at the block RAM's write enable
-            ray = registered(m, "ray_w", **ray)
-        m.d.comb += [ray_w.addr.eq(ray["addr"]), ray_w.data.as_value().eq(ray["data"]),
-                     ray_w.en.eq(ray["en"])]
         # the best-hit store's write: the store of a better hit, else a new ray's initial best
         # (fast_clock: chosen by "stage B holds a hit", from registers, rather than by the
         # store's verdict: the ray input waits while B holds a hit, so only the enable
