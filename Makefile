@@ -93,7 +93,7 @@ verilog: setup
 ##   (docs/fpga.md): FPGA_SEEDS tries seeds in turn, stopping a router1 that gains < 2 % of the arcs
 ##   in 600 s; FPGA_DEEP= for the default timing
 FPGA_TOP    ?= rtc
-FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 5 --fp-div-latency 29 --fp-cmp-latency 3 --fast-clock 1 --delay-ram 4 --router router1
+FPGA_DEEP   ?= --fp-add-latency 8 --fp-mul-latency 6 --fp-div-latency 29 --fp-cmp-latency 3 --fast-clock 1 --delay-ram 4 --router router1
 FPGA_CONFIG ?= --threads 8 --tile-w 4 --tile-h 4 --trav-subunits 2 --trav-cache-kb 4 --list-cache-kb 4 --int-cache-kb 8 --cache-queue 8 --addr-bits 24 $(FPGA_DEEP)
 FPGA_SEEDS  ?= --seed 1 2 3 4 --stall-s 600
 fpga: setup
