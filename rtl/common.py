@@ -14,7 +14,7 @@ from amaranth.utils import ceil_log2
 from model.fp import FPFormat
 
 __all__ = ["COUNTER_BITS", "popcount", "sum_tree", "times_const", "lowest", "rr_pick",
-           "OutputStage", "SkidBuffer", "BlockRAM", "from_binary32"]
+           "OutputStage", "SkidBuffer", "BlockRAM", "ram_poison", "from_binary32"]
 
 COUNTER_BITS = 32      # every statistics counter the hardware reports
 
@@ -203,6 +203,12 @@ class SkidBuffer(wiring.Component):
 POISON_ENV = "SAARCOR_RAM_POISON"
 
 
+def ram_poison() -> bool:
+    """``SAARCOR_RAM_POISON`` is set (not empty, not 0): :class:`BlockRAM` poisons colliding
+    reads in the designs elaborated now."""
+    return os.environ.get(POISON_ENV, "0") not in ("", "0")
+
+
 class BlockRAM(Memory):
     """A :class:`Memory` with synchronous, non-transparent read ports whose reads of a row
     written in the same cycle (by a port of the same domain) are left undefined: Yosys's
@@ -224,22 +230,20 @@ class BlockRAM(Memory):
             if r.domain == "comb" or r.transparent_for:
                 raise ValueError("BlockRAM: read ports must be synchronous and not transparent "
                                  "(use Memory for a comb or transparent read)")
-        if os.environ.get(POISON_ENV, "0") in ("", "0"):
+        if not ram_poison():
             return super().elaborate(platform)
         m = Module()
         m.submodules.inner = inner = Memory(shape=self.shape, depth=self.depth, init=self.init)
-        writes = []
         for w in self.write_ports:
             iw = inner.write_port(domain=w.domain, granularity=w.signature.granularity)
             m.d.comb += [iw.addr.eq(w.addr), iw.data.eq(w.data), iw.en.eq(w.en)]
-            writes.append(w)
         for r in self.read_ports:
             ir = inner.read_port(domain=r.domain)
             m.d.comb += [ir.addr.eq(r.addr), ir.en.eq(r.en)]
             hit = Signal(name="collision")
             with m.If(r.en):
                 m.d[r.domain] += hit.eq(0)
-                for w in writes:
+                for w in self.write_ports:
                     if w.domain == r.domain:
                         with m.If(w.en.any() & (w.addr == r.addr)):
                             m.d[r.domain] += hit.eq(1)

@@ -491,13 +491,14 @@ class IntersectionUnit(wiring.Component):
         m.d.comb += [accept.eq(pipe.o_valid & pipe.hit & compare(fmt, Const(0, w), pipe.t).lt &
                                compare(fmt, pipe.t, old.t).lt),
                      store.eq(en & accept), self.ray_in.ready.eq(~store)]
-        self._ray_store_writes(m, store, pipe.o_valid, pipe.t, pipe.u, pipe.v, o_meta, accept,
-                               old.t, old.hit, best_w, ray_w)
+        self._ray_store_writes(m, store, store, pipe.o_valid, pipe.t, pipe.u, pipe.v, o_meta,
+                               accept, old.t, old.hit, best_w, ray_w)
 
-    def _ray_store_writes(self, m, store, valid, t, u, v, meta, accept, old_t, old_hit,
+    def _ray_store_writes(self, m, store, upd, valid, t, u, v, meta, accept, old_t, old_hit,
                           best_w, ray_w) -> None:
-        """The ray store's writes, the best-hit store's write (the store of a better hit, else
-        a new ray's initial best) and the LaneResult, from the deciding stage's values."""
+        """The ray store's writes, the best-hit store's write (while ``upd``: the update's
+        address and data, written if ``store``; else a new ray's initial best) and the
+        LaneResult, from the deciding stage's values."""
         ray_in = self.ray_in
         rp = ray_in.payload
         m.d.comb += [
@@ -505,12 +506,6 @@ class IntersectionUnit(wiring.Component):
             ray_w.data.org.eq(rp.ray.org), ray_w.data.k.eq(rp.ray.k), ray_w.data.s.eq(rp.ray.s),
             ray_w.en.eq(ray_in.valid & ray_in.ready),
         ]
-        fast = self.cfg.fast_clock
-        # the best-hit store's write: the store of a better hit, else a new ray's initial best
-        # (fast_clock: chosen by "stage B holds a hit", from registers, rather than by the
-        # store's verdict: the ray input waits while B holds a hit, so only the enable
-        # follows the verdict)
-        upd = (valid & self._b_hit) if fast else store
         with m.If(upd):
             m.d.comb += [
                 best_w.addr.eq(self._addr(meta.thread, meta.lane)), best_w.en.eq(store),
@@ -576,9 +571,10 @@ class IntersectionUnit(wiring.Component):
         accept = Signal()
         m.d.comb += [accept.eq(b_valid & b_hit & b_gt0 & lt_best), store.eq(en & accept),
                      self.ray_in.ready.eq(~(b_valid & b_hit))]
-        self._b_hit = b_hit
-        self._ray_store_writes(m, store, b_valid, b_t, b_u, b_v, b_meta, accept, old_t,
-                               old_hit, best_w, ray_w)
+        # the best-hit write's address and data are the update's while B holds a hit (from
+        # registers; the ray input waits then), so only its enable follows the verdict
+        self._ray_store_writes(m, store, b_valid & b_hit, b_valid, b_t, b_u, b_v, b_meta,
+                               accept, old_t, old_hit, best_w, ray_w)
 
     def _readout(self, m: Module, out_r) -> None:
         """Final results of a finished packet: one ``RayResult`` per lane of the ``done``

@@ -222,10 +222,10 @@ class TravSubunit(wiring.Component):
         cfg, fmt = self.cfg, self.cfg.fmt
         w, R, rb, tb, db = fmt.width, self.R, self.rbits, self.tbits, self.dbits
         T = cfg.threads
-        m.submodules.ray = ray = BlockRAM(shape=6 * w, depth=T << rb, init=[])
-        m.submodules.anyhit = ah = BlockRAM(shape=1, depth=T << rb, init=[])
-        m.submodules.nmem = nmem = BlockRAM(shape=2 * w, depth=T << rb, init=[])
-        m.submodules.smem = smem = BlockRAM(shape=2 * w, depth=T << (rb + db), init=[])
+        m.submodules.ray = ray = BlockRAM(shape=6 * w, depth=T << rb)
+        m.submodules.anyhit = ah = BlockRAM(shape=1, depth=T << rb)
+        m.submodules.nmem = nmem = BlockRAM(shape=2 * w, depth=T << rb)
+        m.submodules.smem = smem = BlockRAM(shape=2 * w, depth=T << (rb + db))
         ray_r, ray_w = ray.read_port(), ray.write_port()
         ah_r, ah_w = ah.read_port(), ah.write_port()
         n_r, n_rq, n_w = nmem.read_port(), nmem.read_port(), nmem.write_port()
@@ -502,9 +502,9 @@ class Traversal(wiring.Component):
         th = _Threads(self.cfg, len(self.rays.payload.packet))
         db = max(1, ceil_log2(self.cfg.stack_depth))
         m.submodules.stack = stack = BlockRAM(shape=NODE_BITS + self.cfg.packet_size,
-                                            depth=self.cfg.threads << db, init=[])
+                                              depth=self.cfg.threads << db)
         m.submodules.passmask = pmem = BlockRAM(shape=8 * self.cfg.packet_size,
-                                              depth=self.cfg.threads, init=[])
+                                                depth=self.cfg.threads)
         pm_r = pmem.read_port()
         self._loader(m, th, pmem.write_port())
         self._fetcher(m, th)
@@ -799,8 +799,12 @@ class Traversal(wiring.Component):
         # synchronous sub-units take each step together, so their step queues always hold the
         # same number of steps and the first one's room is every one's (no path across them);
         # a queue as deep as the threads always has room
-        room = Const(1) if self.step_queue >= cfg.threads else \
-            subs[0].step.ready if cfg.trav_sync else Cat(*(s.step.ready for s in subs)).all()
+        if self.step_queue >= cfg.threads:
+            room = Const(1)
+        elif cfg.trav_sync:
+            room = subs[0].step.ready
+        else:
+            room = Cat(*(s.step.ready for s in subs)).all()
         # synchronous sub-units start each step together; asynchronous ones start when free
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]

@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config, ConfigError
-from rtl.common import POISON_ENV
+from rtl.common import POISON_ENV, ram_poison
 from rtl.tools import ToolMissing, tool
 
 from . import compare
@@ -121,7 +121,7 @@ def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
                          "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
                          "cxx_opt": cxx_opt(),
                          "amaranth": amaranth.__version__, "verilator": vl,
-                         "ram_poison": os.environ.get(POISON_ENV, "0") not in ("", "0")},
+                         "ram_poison": ram_poison()},
                         sort_keys=True).encode())
     for p in _sources():
         h.update(str(p.relative_to(ROOT)).encode())

@@ -95,7 +95,8 @@ def exp_flags(fmt: FPFormat, exp: Value) -> dict:
 
 def round_sig(m: Module, fmt: FPFormat, sig: Value, sticky: Value = C(0, 1)) -> dict:
     """The significand half of :func:`round_inc`: the round-to-nearest-even increment of a
-    normalized significand (``rnd_sig``, W+1 bits, == 2**W on a carry) and ``rnd_zero``."""
+    normalized significand (``rnd_sig``, W+1 bits, == 2**W on a carry) and ``rnd_zero`` (the
+    value is zero: the significand and the sticky bit)."""
     M = fmt.frac_bits
     W = M + 1
     sig = Value.cast(sig)
@@ -105,7 +106,7 @@ def round_sig(m: Module, fmt: FPFormat, sig: Value, sticky: Value = C(0, 1)) -> 
     guard = sig[n - W - 1] if n > W else C(0, 1)
     rest = (sig[:n - W - 1] != 0) if n > W + 1 else C(0, 1)
     inc = wire(m, guard & (rest | sticky | keep[0]), "rnd_inc")
-    return dict(rnd_sig=keep + inc, rnd_zero=sig == 0)
+    return dict(rnd_sig=keep + inc, rnd_zero=(sig == 0) & ~sticky)
 
 
 def round_inc(m: Module, fmt: FPFormat, exp: Value, sig: Value,

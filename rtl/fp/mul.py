@@ -162,9 +162,7 @@ class FPMul(wiring.Component):
                sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero,
                **{k: Mux(top, getattr(v, f"n1_{k}"), getattr(v, f"n0_{k}")) for k in ef})
         # -- round: RNE increment (round_inc's significand half; its exponent half above) -----
-        rounded = round_sig(m, fmt, v.sig, sticky=v.rest)
-        rounded["rnd_zero"] = (v.sig == 0) & ~v.rest        # the whole product is zero
-        v = st(**rounded, **{k: getattr(v, k) for k in ef},
+        v = st(**round_sig(m, fmt, v.sig, sticky=v.rest), **{k: getattr(v, k) for k in ef},
                sign=v.sign, nan=v.nan, inf=v.inf, zero=v.zero)
         # -- pack, specials ------------------------------------------------------------------
         o = Mux(v.nan, canonical_nan(fmt),
