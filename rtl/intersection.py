@@ -25,7 +25,7 @@ from model.config import Config
 from model.fp import FPFormat
 
 from .common import (COUNTER_BITS, BlockRAM, OutputStage, SkidBuffer, from_binary32, lowest,
-                     popcount, sum_tree)
+                     popcount, registered, sum_tree)
 from .fp.cmp import compare
 from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
@@ -501,11 +501,15 @@ class IntersectionUnit(wiring.Component):
         LaneResult, from the deciding stage's values."""
         ray_in = self.ray_in
         rp = ray_in.payload
-        m.d.comb += [
-            ray_w.addr.eq(self._addr(rp.thread, rp.ray.lane)),
-            ray_w.data.org.eq(rp.ray.org), ray_w.data.k.eq(rp.ray.k), ray_w.data.s.eq(rp.ray.s),
-            ray_w.en.eq(ray_in.valid & ray_in.ready),
-        ]
+        ray = dict(addr=self._addr(rp.thread, rp.ray.lane),
+                   data=Cat(rp.ray.org, rp.ray.k, rp.ray.s), en=ray_in.valid & ray_in.ready)
+        if self.cfg.fast_clock:
+            # the ray store's write a cycle later, from registers (a lane's first read comes
+            # after its thread's traversal reaches a leaf): the handshake, which the traversal
+            # unit's loader drives, ends at a register, not at the block RAM's write pins
+            ray = registered(m, "ray_w", **ray)
+        m.d.comb += [ray_w.addr.eq(ray["addr"]), ray_w.data.as_value().eq(ray["data"]),
+                     ray_w.en.eq(ray["en"])]
         with m.If(upd):
             m.d.comb += [
                 best_w.addr.eq(self._addr(meta.thread, meta.lane)), best_w.en.eq(store),
