@@ -272,6 +272,34 @@ def test_placement_and_errors():
         BINARY32.from_fixed(np.array([0.5]))
 
 
+def test_gt_const_every_value():
+    """``gt_const`` (the adder's shift saturation) is ``x > c`` for every x of 1-5 bits and
+    every constant from below 0 to above the range."""
+    from amaranth.hdl import Module, Signal
+    from rtl.fp.common import gt_const
+    m = Module()
+    cases = []
+    for w in range(1, 6):
+        x = Signal(w, name=f"x{w}")
+        for c in range(-1, (1 << w) + 2):
+            o = Signal(name=f"gt{w}_{c + 1}")
+            m.d.comb += o.eq(gt_const(x, c))
+            cases.append((w, x, c, o))
+    wrong = []
+
+    async def bench(ctx):
+        for v in range(32):
+            for w, x, c, o in cases:
+                ctx.set(x, v % (1 << w))
+            for w, x, c, o in cases:
+                if ctx.get(o) != int(v % (1 << w) > c):
+                    wrong.append((w, v % (1 << w), c))
+    sim = Simulator(m)
+    sim.add_testbench(bench)
+    sim.run()
+    assert not wrong, wrong[:5]
+
+
 @pytest.mark.slow
 def test_synthesis_no_latches(tmp_path):
     """Each unit (small format) through Yosys synth and synth_ecp5 with the latch assertion;

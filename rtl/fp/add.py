@@ -8,7 +8,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In
 
 from model.fp import BINARY32, FPFormat
-from .common import bits_for, canonical_nan, lzc, pack, round_inc, special, unpack
+from .common import bits_for, canonical_nan, gt_const, lzc, pack, round_inc, special, unpack
 from .pipe import Stager, check_regs, placement, unit_ports
 
 __all__ = ["FPAdd"]
@@ -61,14 +61,17 @@ class FPAdd(wiring.Component):
         # swap muxes, not an (E+M)-bit one); on a tie the add step resolves the order
         ua, ub = unpack(fmt, v.a), unpack(fmt, v.b)
         sb = ub.sign ^ v.op                                  # sign of the addend b
-        swap = ub.exp > ua.exp
+        # shift distance, saturated at n: both differences at once, the swap is a's borrow,
+        # the saturation plain logic on a difference's bits (not a second carry chain)
+        E = fmt.exp_bits
+        dab, dba = ua.exp - ub.exp, ub.exp - ua.exp
+        swap = dab[E]                                        # ub.exp > ua.exp
         eff_sub = ua.sign ^ sb
         nan = ua.nan | ub.nan | (ua.inf & ub.inf & eff_sub)
         inf = ua.inf | ub.inf
-        # shift distance, saturated at n (both signs computed beside the exponent compare)
-        dab, dba = ua.exp - ub.exp, ub.exp - ua.exp
         sh = bits_for(n)
-        d = Mux(swap, Mux(dba > n, n, dba[:sh]), Mux(dab > n, n, dab[:sh]))[:sh]
+        d = Mux(swap, Mux(gt_const(dba[:E], n), n, dba[:sh]),
+                Mux(gt_const(dab[:E], n), n, dab[:sh]))[:sh]
         v = st(big_sig=Mux(swap, ub.sig, ua.sig), small_sig=Mux(swap, ua.sig, ub.sig),
                big_exp=Mux(swap, ub.exp, ua.exp), d=d,
                sign=Mux(swap, sb, ua.sign), small_sign=Mux(swap, ua.sign, sb),

@@ -21,6 +21,19 @@ def bits_for(n: int) -> int:
     return max(1, int(n).bit_length())
 
 
+def gt_const(x: Value, c: int) -> Value:
+    """``x > c`` for a constant ``c`` as and/or terms (a LUT or two), not a compare that
+    synthesis would map to a carry chain: some bit where ``c`` has a 0 is set in ``x`` with
+    every higher bit where ``c`` has a 1 (a higher 0 of ``c`` set in ``x`` is a term itself)."""
+    x = Value.cast(x)
+    w = len(x)
+    if c < 0 or c >= 1 << w:
+        return C(int(c < 0), 1)
+    terms = [x[i] & Cat(*(x[j] for j in range(i + 1, w) if c >> j & 1), C(1, 1)).all()
+             for i in range(w) if not c >> i & 1]
+    return Cat(*terms).any() if terms else C(0, 1)
+
+
 def unpack(fmt: FPFormat, x: Value) -> SimpleNamespace:
     """Split an encoding: sign, biased exponent, significand with its hidden bit (0 for zero and
     denormal encodings), and the class flags zero / inf / nan."""
