@@ -558,7 +558,7 @@ class Traversal(wiring.Component):
             # the input lane's sub-unit's block, a cycle ahead: the sub-units' pipelines never
             # stall, and the lane in the input register next cycle is known now
             blocked = Signal(name="ld_blocked")
-            nxt_lane = Mux(rays.valid & rays.ready, rays.payload.lane, p.lane)
+            nxt_lane = Mux(rays.ready, rays.payload.lane, p.lane)
             nxt_sub, _ = self._split_lane(m, nxt_lane, "ld_next")
             m.d.sync += blocked.eq(Array(s.ld_block_next for s in subs)[nxt_sub] if k > 1
                                    else subs[0].ld_block_next)
@@ -569,11 +569,15 @@ class Traversal(wiring.Component):
         take = valid & ready
         if cfg.fast_clock:
             m.d.comb += rays.ready.eq(ld_active & ~got_last & (~valid | ready))
-            with m.If(rays.valid & rays.ready):
-                m.d.sync += [valid.eq(1), p.eq(rays.payload), live.eq(live_in),
+            # the lane's registers load whenever the loader is ready, valid or not (only
+            # `valid` follows the handshake): their wide enable is the loader's own, not the
+            # input's valid, which the intersection unit's ready gates
+            with m.If(rays.ready):
+                m.d.sync += [p.eq(rays.payload), live.eq(live_in),
                              lane_one.eq(Const(1, L) << rays.payload.lane),
-                             oct_one.eq(Const(1, 8) << rays.payload.octant),
-                             got_last.eq(rays.payload.last)]
+                             oct_one.eq(Const(1, 8) << rays.payload.octant)]
+            with m.If(rays.valid & rays.ready):
+                m.d.sync += [valid.eq(1), got_last.eq(rays.payload.last)]
             with m.Elif(take):
                 m.d.sync += valid.eq(0)
             with m.If(take & p.last):
