@@ -251,15 +251,21 @@ class Cache(wiring.Component):
             # one cycle
             def busy_ways(set_):
                 return Cat(*(slot_busy(set_, w) for w in range(W)))
-            b, lw_v, lw_way = Signal(W, name="busy_s2"), Signal(), Signal(wb)
             # (one compare per candidate set, B's, S1's and S2's own, each from registers; the
-            # choice after them)
-            m.d.sync += [b.eq(Mux(s2_move, Mux(b_valid, busy_ways(b_set), busy_ways(s1_set)),
-                                  busy_ways(d_set))),
-                         lw_v.eq(go & Mux(s2_move, Mux(b_valid, d_set == b_set, d_set == s1_set),
-                                          1)),
+            # choice between a new request and S2's own after the registers, by whether S2
+            # moved: the lookup's verdict ends at one flip-flop, not at the busy bits)
+            b_mv, b_hd = Signal(W, name="busy_s2_move"), Signal(W, name="busy_s2_hold")
+            moved, lw_go, lw_same, lw_way = (Signal(name="s2_moved"), Signal(name="lw_go"),
+                                             Signal(name="lw_same"), Signal(wb))
+            m.d.sync += [b_mv.eq(Mux(b_valid, busy_ways(b_set), busy_ways(s1_set))),
+                         b_hd.eq(busy_ways(d_set)), moved.eq(s2_move),
+                         # the entry written with `go` is in the next request's set (a `go`
+                         # moves S2)
+                         lw_go.eq(go), lw_same.eq(Mux(b_valid, d_set == b_set, d_set == s1_set)),
                          lw_way.eq(way)]
-            last_w = Mux(lw_v, Const(1, W) << lw_way, 0)[:W]
+            b = Signal(W, name="busy_s2")
+            m.d.comb += b.eq(Mux(moved, b_mv, b_hd))
+            last_w = Mux(lw_go & lw_same, Const(1, W) << lw_way, 0)[:W]
             busy = (b | last_w).bit_select(victim, 1) if W > 1 else b | last_w
         else:
             busy = slot_busy(d_set, victim)
