@@ -61,7 +61,7 @@ class FPAdd(wiring.Component):
         # swap muxes, not an (E+M)-bit one); on a tie the add step resolves the order
         ua, ub = unpack(fmt, v.a), unpack(fmt, v.b)
         sb = ub.sign ^ v.op                                  # sign of the addend b
-        # shift distance, saturated at n: both differences at once, the swap is a's borrow,
+        # shift distance, saturated at n: both differences at once, the swap is a - b's sign,
         # the saturation plain logic on a difference's bits (not a second carry chain)
         E = fmt.exp_bits
         dab, dba = ua.exp - ub.exp, ub.exp - ua.exp
