@@ -279,6 +279,22 @@ def test_router1_stall_rule():
     assert not router1_stalled("Info: Router2 time 301.25s\n", 300)
 
 
+def test_router1_watch_stops_a_batch_longer_than_the_window():
+    """The watch: router1's rule over the log, and a log whose last row is older than the
+    window in wall time; before routing starts (no rows) nothing is stalled."""
+    from rtl.fpga.flow import Router1Watch
+    steady = [(10.0 * i, 200_000 - 300 * i) for i in range(20)]
+    w = Router1Watch(300)
+    assert not w.stalled("Info: HeAP placer\n", 0.0)
+    assert not w.stalled("Info: HeAP placer\n", 1000.0)       # placing: no rows yet
+    assert not w.stalled(_router1_log(steady[:10]), 1000.0)
+    assert not w.stalled(_router1_log(steady[:10]), 1299.0)    # the last row 299 s ago
+    assert not w.stalled(_router1_log(steady[:11]), 1299.5)    # a new row: the clock restarts
+    assert w.stalled(_router1_log(steady[:11]), 1600.0)        # 300.5 s without a row
+    stuck = steady + [(200.0 + 10 * i, 194_000) for i in range(40)]
+    assert Router1Watch(300).stalled(_router1_log(stuck), 0.0)  # the table's own rule
+
+
 def test_watched_nextpnr_is_stopped_when_router1_stalls(tmp_path, monkeypatch):
     """``_nextpnr`` with a stall window stops a process whose log shows router1 stalled, and
     lets one that finishes run to its end."""

@@ -117,23 +117,40 @@ def router1_stalled(log: str, window_s: float) -> bool:
     return min(n for _, n in rows) > before * (1 - STALL_GAIN)
 
 
+class Router1Watch:
+    """:func:`router1_stalled` over a running nextpnr's log, plus the case the progress
+    table cannot show: router1 has printed rows but no new one for ``window_s`` seconds of
+    wall time (a batch of 1,000 arcs that alone outlasts the window)."""
+
+    def __init__(self, window_s: float):
+        self.window_s, self.rows, self.since = window_s, 0, 0.0
+
+    def stalled(self, log: str, now: float) -> bool:
+        rows = router1_progress(log)
+        if len(rows) != self.rows:
+            self.rows, self.since = len(rows), now
+        return bool(rows) and (now - self.since >= self.window_s
+                               or router1_stalled(log, self.window_s))
+
+
 class RouteStalled(RuntimeError):
     """nextpnr was stopped because router1 stalled (:func:`router1_stalled`)."""
 
 
 def _nextpnr(cmd: list[str], cwd: Path, log: Path, stall_s: float | None):
     """Run nextpnr; with ``stall_s``, read its log every ``POLL_S`` seconds and stop it once
-    router1 has stalled. Returns (exit code, stderr, stalled)."""
+    router1 has stalled (:class:`Router1Watch`). Returns (exit code, stderr, stalled)."""
     if not stall_s:
         p = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True)
         return p.returncode, p.stderr, False
     err = cwd / "nextpnr.stderr"
     stalled = False
+    watch = Router1Watch(stall_s)
     with err.open("w") as f, subprocess.Popen(cmd, cwd=cwd, stdout=subprocess.DEVNULL,
                                               stderr=f) as p:
         while p.poll() is None:
             time.sleep(POLL_S)
-            if log.exists() and router1_stalled(log.read_text(errors="replace"), stall_s):
+            if log.exists() and watch.stalled(log.read_text(errors="replace"), time.time()):
                 stalled = True
                 p.terminate()
                 p.wait()
