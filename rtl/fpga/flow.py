@@ -510,8 +510,9 @@ def main(argv=None) -> None:
     ap.add_argument("--stall-s", type=float, metavar="S",
                     help=f"stop router1 once it has not cut the arcs left to route by "
                          f"{100 * STALL_GAIN:.0f} %% in S seconds of routing (a congested "
-                         "placement; routes that finish cut them steadily) and record the run "
-                         "as stalled (router1 only)")
+                         "placement; routes that finish cut them steadily), or has printed "
+                         "no progress row for S seconds, and record the run as stalled "
+                         "(router1 only)")
     ap.add_argument("--speed", type=int, default=6, choices=SPEEDS,
                     help="speed grade of the part for nextpnr's timing (6, the slowest: "
                          "default; 7; 8)")
