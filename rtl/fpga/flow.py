@@ -109,7 +109,11 @@ def router1_stalled(log: str, window_s: float) -> bool:
     are not ``STALL_GAIN`` fewer than the fewest left ``window_s`` seconds earlier (a
     congested placement: each batch rips up more arcs than it routes, the batches slow down
     and the arcs left stay or grow, while a placement that routes cuts them steadily)."""
-    rows = router1_progress(log)
+    return _rows_stalled(router1_progress(log), window_s)
+
+
+def _rows_stalled(rows: list[tuple[float, int]], window_s: float) -> bool:
+    """:func:`router1_stalled` on the parsed progress rows."""
     if not rows or rows[-1][0] - rows[0][0] < window_s:
         return False
     now = rows[-1][0]
@@ -130,7 +134,7 @@ class Router1Watch:
         if len(rows) != self.rows:
             self.rows, self.since = len(rows), now
         return bool(rows) and (now - self.since >= self.window_s
-                               or router1_stalled(log, self.window_s))
+                               or _rows_stalled(rows, self.window_s))
 
 
 class RouteStalled(RuntimeError):
