@@ -725,15 +725,19 @@ class Traversal(wiring.Component):
         thread just taken)."""
         dn = self.done
         if th.fast:
+            # the thread's id and its one-hot in registers: the one-hot leaves the thread just
+            # taken out of the next pick and writes its DRAIN, with no decoder on the loop
             o_thread = Signal(self.cfg.thread_bits, name="done_thread")
-            taken = Mux(dn.valid, Const(1, th.T) << o_thread, 0)[:th.T]
-            d_any, d_idx = lowest(m, th.in_states_q(ThreadState.DONE) & ~taken, "done")
+            o_oh = Signal(th.T, name="done_onehot")
+            cand = th.in_states_q(ThreadState.DONE) & ~Mux(dn.valid, o_oh, 0)
+            d_any, d_idx = lowest(m, cand, "done")
             with m.If(~dn.valid | dn.ready):
-                m.d.sync += [dn.valid.eq(d_any), o_thread.eq(d_idx)]
+                m.d.sync += [dn.valid.eq(d_any), o_thread.eq(d_idx),
+                             o_oh.eq(lowest_onehot(cand))]
             m.d.comb += [dn.payload.thread.eq(o_thread), dn.payload.packet.eq(th.packet[o_thread]),
                          dn.payload.mask.eq(th.lanes[o_thread])]
-            with m.If(dn.valid & dn.ready):
-                th.set_state(m, o_thread, ThreadState.DRAIN)
+            th.set(m, "state", None, ThreadState.DRAIN,
+                   onehot=Mux(dn.valid & dn.ready, o_oh, 0))
         else:
             m.submodules.done_out = out = OutputStage(PacketDone(self.cfg))
             wiring.connect(m, out.o, wiring.flipped(dn))
@@ -813,10 +817,14 @@ class Traversal(wiring.Component):
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]
         fast = cfg.fast_clock
-        # the thread's octants to do and terminated lanes: fast_clock copies them at the pick
-        # (only this engine changes todo; term does not change while the thread pops)
+        # the thread's octants to do and terminated lanes: fast_clock copies todo at the pick
+        # (only this engine changes todo) and term in every cycle from the registered thread
+        # e_t (term does not change while the thread is this engine's, and the first use, in
+        # POP3, comes three cycles after the pick)
         e_todo, e_term = (Signal(8, name="e_todo"), Signal(L, name="e_term")) if fast else \
             (th.todo[e_t], th.term[e_t])
+        if fast:
+            m.d.sync += e_term.eq(th.term[e_t])
         lo_oc_any, lo_oc = lowest(m, e_todo, "pass")
         # the stack entry and the pass masks as read (fast_clock: the block RAMs' outputs
         # straight into registers, used a cycle later: POP3, PASS3)
@@ -899,8 +907,8 @@ class Traversal(wiring.Component):
                                  neg.eq(pick(is_neg)), e_sp.eq(pick(th.sp)),
                                  e_cur.eq(pick(th.cur)), e_ptr.eq(e_idx + 1)]
                     if fast:
-                        m.d.sync += [e_todo.eq(pick(th.todo)), e_term.eq(pick(th.term)),
-                                     e_taken.eq(e_oh), e_step.eq(pick(is_step))]
+                        m.d.sync += [e_todo.eq(pick(th.todo)), e_taken.eq(e_oh),
+                                     e_step.eq(pick(is_step))]
                     goto("DISPATCH")
             with m.State("DISPATCH"):
                 with m.If(e_kind == ThreadState.HAVE_NODE):
