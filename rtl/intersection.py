@@ -606,8 +606,11 @@ class IntersectionUnit(wiring.Component):
         else:
             m.d.comb += [adv.eq(~res.valid | res.ready), done.ready.eq(~d_active)]
             r_valid = res.valid
+        # fast_clock: a packet has at least one lane (its last), so a done packet always has
+        # results to read out (with none its thread would never be released)
+        d_any = Const(1) if self.cfg.fast_clock else done.payload.mask != 0
         with m.If(done.valid & done.ready):
-            m.d.sync += [d_active.eq(done.payload.mask != 0), d_rem.eq(done.payload.mask),
+            m.d.sync += [d_active.eq(d_any), d_rem.eq(done.payload.mask),
                          d_thread.eq(done.payload.thread), d_packet.eq(done.payload.packet)]
         m.d.comb += [out_r.addr.eq(self._addr(d_thread, d_lane)), out_r.en.eq(adv)]
         r_lane = Signal(self.lane_bits)
