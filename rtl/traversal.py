@@ -849,7 +849,12 @@ class Traversal(wiring.Component):
 
         dec = self._decide(m, th, data.View(order_l, order.r_data), order, st_w)
         m.d.comb += ctl_busy.eq(1)
-        with m.If(ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()):
+        busy = ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()
+        if fast:
+            # counted a cycle later, from a register: the counter's 32 enables do not hang on
+            # the verdict queues' handshake (the total is the same once the unit is idle)
+            busy = registered(m, "busy", inc=busy)["inc"]
+        with m.If(busy):
             m.d.sync += self.busy.eq(self.busy + 1)
         with m.If(ctl_busy):
             m.d.sync += self.ctl_busy.eq(self.ctl_busy + 1)

@@ -62,6 +62,10 @@ def test_traversal_fast_clock_replays_model(kd_cache):
     r = run_traversal(image, rays, cfg, seed=5, mem_latency=6)
     check(r)
     assert sorted(r.packets_done) == list(range(4))
+    # `busy` counts a cycle later (from a register): it covers every sub-unit's busy cycles
+    # but the last one's at most, and no more than the cycles run
+    c = r.counters
+    assert max(c["sub_busy"]) - 1 <= c["busy"] <= r.cycles, c
 
 
 def test_synchronous_subunits_step_queues_fill_together(kd_cache):
