@@ -536,44 +536,52 @@ class IntersectionUnit(wiring.Component):
         (issued two stages earlier, registered: it misses the last three stores) and those
         three stores (the one being decided in stage B now, and the two before, in
         registers). Stage B (a register stage) knows which of them stored, picks the newest
-        matching one's verdict, accepts and stores. The LaneResult leaves a cycle later than
-        without ``fast_clock``; a ray write waits while stage B holds a hit."""
+        matching one's verdict, accepts and stores. Only whether B's predecessor stored is
+        new in B: the choice among the other candidates (the two older stores and the read)
+        is made in A and registered, so B's verdict is a 2:1 choice. The LaneResult leaves a
+        cycle later than without ``fast_clock``; a ray write waits while stage B holds a
+        hit."""
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
         a_meta = data.View(self.pipe_meta, pipe.o_tag)
         a_addr = self._addr(a_meta.thread, a_meta.lane)
         q_t, q_hit = Signal(w, name="best_q_t"), Signal(name="best_q_hit")
         # stage B registers
-        b_valid, b_hit, b_gt0 = Signal(name="b_valid"), Signal(name="b_hit"), Signal(name="b_gt0")
+        b_valid, b_hit = Signal(name="b_valid"), Signal(name="b_hit")
         b_t, b_u, b_v = (Signal(w, name=f"b_{n}") for n in "tuv")
         b_meta = Signal(self.pipe_meta, name="b_meta")
         b_addr = Signal(len(a_addr), name="b_addr")
-        b_q_t, b_q_hit = Signal(w, name="b_q_t"), Signal(name="b_q_hit")
-        # the last three stores: (valid, address, t), newest first
+        # the older candidates' choice, made in A: the newest matching of st1, st2 (as they
+        # are in A) and the read, its verdict, its t and whether it is a hit
+        r_lt, r_t, r_hit = Signal(name="b_rest_lt"), Signal(w, name="b_rest_t"), \
+            Signal(name="b_rest_hit")
+        b_ok = Signal(name="b_ok")          # B holds a hit with t > 0
+        # the last two stores before B's: (valid, address, t), newest first
         st = [(Signal(name=f"st{i}_v"), Signal(len(a_addr), name=f"st{i}_addr"),
-               Signal(w, name=f"st{i}_t")) for i in (1, 2, 3)]
+               Signal(w, name=f"st{i}_t")) for i in (1, 2)]
         # stage A: one compare per candidate (B's op, st1, st2 as they are now; the read)
         cands = [(Const(1), b_addr, b_t), st[0], st[1]]
         lt_a = [compare(fmt, pipe.t, c[2]).lt for c in cands] + [compare(fmt, pipe.t, q_t).lt]
         match_a = [c[0] & (c[1] == a_addr) for c in cands]
-        lt_q, match_q = Signal(4, name="b_lt"), Signal(3, name="b_match")
+        lt_q0, match_q0 = Signal(name="b_lt0"), Signal(name="b_match0")
         store = Signal()
+        gt0 = compare(fmt, Const(0, w), pipe.t).lt
         with m.If(en):
             m.d.sync += [q_t.eq(best_r.data.t), q_hit.eq(best_r.data.hit),
                          b_valid.eq(pipe.o_valid), b_hit.eq(pipe.hit),
-                         b_gt0.eq(compare(fmt, Const(0, w), pipe.t).lt),
+                         b_ok.eq(pipe.o_valid & pipe.hit & gt0),
                          b_t.eq(pipe.t), b_u.eq(pipe.u), b_v.eq(pipe.v), b_meta.eq(pipe.o_tag),
-                         b_addr.eq(a_addr), b_q_t.eq(q_t), b_q_hit.eq(q_hit),
-                         lt_q.eq(Cat(*lt_a)), match_q.eq(Cat(*match_a))]
+                         b_addr.eq(a_addr), lt_q0.eq(lt_a[0]), match_q0.eq(match_a[0]),
+                         r_lt.eq(Mux(match_a[1], lt_a[1], Mux(match_a[2], lt_a[2], lt_a[3]))),
+                         r_t.eq(Mux(match_a[1], st[0][2], Mux(match_a[2], st[1][2], q_t))),
+                         r_hit.eq(match_a[1] | match_a[2] | q_hit)]
             m.d.sync += [st[0][0].eq(store), st[0][1].eq(b_addr), st[0][2].eq(b_t)]
-            for i in (1, 2):
-                m.d.sync += [a.eq(b) for a, b in zip(st[i], st[i - 1])]
-        # stage B: candidate i matched in A and stored (st1 = B's predecessor, now known)
-        mt = [match_q[0] & st[0][0], match_q[1], match_q[2]]
-        lt_best = Mux(mt[0], lt_q[0], Mux(mt[1], lt_q[1], Mux(mt[2], lt_q[2], lt_q[3])))
-        old_t = Mux(mt[0], st[0][2], Mux(mt[1], st[1][2], Mux(mt[2], st[2][2], b_q_t)))
-        old_hit = mt[0] | mt[1] | mt[2] | b_q_hit
+            m.d.sync += [a.eq(b) for a, b in zip(st[1], st[0])]
+        # stage B: B's predecessor (st1 now) matched in A and stored, else the older choice
+        mt0 = match_q0 & st[0][0]
+        old_t = Mux(mt0, st[0][2], r_t)
+        old_hit = mt0 | r_hit
         accept = Signal()
-        m.d.comb += [accept.eq(b_valid & b_hit & b_gt0 & lt_best), store.eq(en & accept),
+        m.d.comb += [accept.eq(b_ok & Mux(mt0, lt_q0, r_lt)), store.eq(en & accept),
                      self.ray_in.ready.eq(~(b_valid & b_hit))]
         # the best-hit write's address and data are the update's while B holds a hit (from
         # registers; the ray input waits then), so only its enable follows the verdict
