@@ -537,10 +537,10 @@ class IntersectionUnit(wiring.Component):
         three stores (the one being decided in stage B now, and the two before, in
         registers). Stage B (a register stage) knows which of them stored, picks the newest
         matching one's verdict, accepts and stores. Only whether B's predecessor stored is
-        new in B: the choice among the other candidates (the two older stores and the read)
-        is made in A and registered, so B's verdict is a 2:1 choice. The LaneResult leaves a
-        cycle later than without ``fast_clock``; a ray write waits while stage B holds a
-        hit."""
+        new in B: the older candidates' t and hit (the two older stores and the read) are
+        chosen in A, by the address matches alone, and registered; their verdicts are
+        chosen in B from registers, beside the predecessor's. The LaneResult leaves a cycle
+        later than without ``fast_clock``; a ray write waits while stage B holds a hit."""
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
         a_meta = data.View(self.pipe_meta, pipe.o_tag)
         a_addr = self._addr(a_meta.thread, a_meta.lane)
@@ -551,9 +551,8 @@ class IntersectionUnit(wiring.Component):
         b_meta = Signal(self.pipe_meta, name="b_meta")
         b_addr = Signal(len(a_addr), name="b_addr")
         # the older candidates' choice, made in A: the newest matching of st1, st2 (as they
-        # are in A) and the read, its verdict, its t and whether it is a hit
-        r_lt, r_t, r_hit = Signal(name="b_rest_lt"), Signal(w, name="b_rest_t"), \
-            Signal(name="b_rest_hit")
+        # are in A) and the read, its t and whether it is a hit
+        r_t, r_hit = Signal(w, name="b_rest_t"), Signal(name="b_rest_hit")
         b_ok = Signal(name="b_ok")          # B holds a hit with t > 0
         # the last two stores before B's: (valid, address, t), newest first
         st = [(Signal(name=f"st{i}_v"), Signal(len(a_addr), name=f"st{i}_addr"),
@@ -562,7 +561,7 @@ class IntersectionUnit(wiring.Component):
         cands = [(Const(1), b_addr, b_t), st[0], st[1]]
         lt_a = [compare(fmt, pipe.t, c[2]).lt for c in cands] + [compare(fmt, pipe.t, q_t).lt]
         match_a = [c[0] & (c[1] == a_addr) for c in cands]
-        lt_q0, match_q0 = Signal(name="b_lt0"), Signal(name="b_match0")
+        lt_q, match_q = Signal(4, name="b_lt"), Signal(3, name="b_match")
         store = Signal()
         gt0 = compare(fmt, Const(0, w), pipe.t).lt
         with m.If(en):
@@ -570,18 +569,18 @@ class IntersectionUnit(wiring.Component):
                          b_valid.eq(pipe.o_valid), b_hit.eq(pipe.hit),
                          b_ok.eq(pipe.o_valid & pipe.hit & gt0),
                          b_t.eq(pipe.t), b_u.eq(pipe.u), b_v.eq(pipe.v), b_meta.eq(pipe.o_tag),
-                         b_addr.eq(a_addr), lt_q0.eq(lt_a[0]), match_q0.eq(match_a[0]),
-                         r_lt.eq(Mux(match_a[1], lt_a[1], Mux(match_a[2], lt_a[2], lt_a[3]))),
+                         b_addr.eq(a_addr), lt_q.eq(Cat(*lt_a)), match_q.eq(Cat(*match_a)),
                          r_t.eq(Mux(match_a[1], st[0][2], Mux(match_a[2], st[1][2], q_t))),
                          r_hit.eq(match_a[1] | match_a[2] | q_hit)]
             m.d.sync += [st[0][0].eq(store), st[0][1].eq(b_addr), st[0][2].eq(b_t)]
             m.d.sync += [a.eq(b) for a, b in zip(st[1], st[0])]
         # stage B: B's predecessor (st1 now) matched in A and stored, else the older choice
-        mt0 = match_q0 & st[0][0]
+        mt0 = match_q[0] & st[0][0]
+        r_lt = Mux(match_q[1], lt_q[1], Mux(match_q[2], lt_q[2], lt_q[3]))
         old_t = Mux(mt0, st[0][2], r_t)
         old_hit = mt0 | r_hit
         accept = Signal()
-        m.d.comb += [accept.eq(b_ok & Mux(mt0, lt_q0, r_lt)), store.eq(en & accept),
+        m.d.comb += [accept.eq(b_ok & Mux(mt0, lt_q[0], r_lt)), store.eq(en & accept),
                      self.ray_in.ready.eq(~(b_valid & b_hit))]
         # the best-hit write's address and data are the update's while B holds a hit (from
         # registers; the ray input waits then), so only its enable follows the verdict
