@@ -503,11 +503,16 @@ class IntersectionUnit(wiring.Component):
         rp = ray_in.payload
         ray = dict(addr=self._addr(rp.thread, rp.ray.lane),
                    data=Cat(rp.ray.org, rp.ray.k, rp.ray.s), en=ray_in.valid & ray_in.ready)
+        init = dict(addr=ray["addr"], tmax=rp.ray.tmax, en=ray_in.valid)
         if self.cfg.fast_clock:
-            # the ray store's write a cycle later, from registers (a lane's first read comes
-            # after its thread's traversal reaches a leaf): the handshake, which the traversal
-            # unit's loader drives, ends at a register, not at the block RAM's write pins
+            # the ray store's write and the initial best a cycle later, from registers (a
+            # lane's first read comes after its thread's traversal reaches a leaf): the
+            # handshake, which the traversal unit's loader drives, ends at registers, not at
+            # the block RAMs' write pins (the ray input waits while stage B will hold a hit
+            # in the next cycle, so the initial best has the write port then)
             ray = registered(m, "ray_w", **ray)
+            init = registered(m, "best_init", addr=init["addr"], tmax=init["tmax"],
+                              en=ray_in.valid & ray_in.ready)
         m.d.comb += [ray_w.addr.eq(ray["addr"]), ray_w.data.as_value().eq(ray["data"]),
                      ray_w.en.eq(ray["en"])]
         with m.If(upd):
@@ -518,8 +523,8 @@ class IntersectionUnit(wiring.Component):
             ]
         with m.Else():
             m.d.comb += [
-                best_w.addr.eq(self._addr(rp.thread, rp.ray.lane)), best_w.en.eq(ray_in.valid),
-                best_w.data.t.eq(rp.ray.tmax), best_w.data.hit.eq(0),
+                best_w.addr.eq(init["addr"]), best_w.en.eq(init["en"]),
+                best_w.data.t.eq(init["tmax"]), best_w.data.hit.eq(0),
             ]
         lo = self._lane_stage.i
         m.d.comb += [
@@ -540,7 +545,8 @@ class IntersectionUnit(wiring.Component):
         new in B: the older candidates' t and hit (the two older stores and the read) are
         chosen in A, by the address matches alone, and registered; their verdicts are
         chosen in B from registers, beside the predecessor's. The LaneResult leaves a cycle
-        later than without ``fast_clock``; a ray write waits while stage B holds a hit."""
+        later than without ``fast_clock``; a new ray waits while stage B will hold a hit in
+        the next cycle (its initial best is written then)."""
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
         a_meta = data.View(self.pipe_meta, pipe.o_tag)
         a_addr = self._addr(a_meta.thread, a_meta.lane)
@@ -580,10 +586,15 @@ class IntersectionUnit(wiring.Component):
         old_t = Mux(mt0, st[0][2], r_t)
         old_hit = mt0 | r_hit
         accept = Signal()
+        # the ray input waits while B holds a hit in the next cycle (the update has the
+        # best-hit write port then; a new ray's initial best is written a cycle after it
+        # enters)
+        b_hit_next = Mux(en, pipe.o_valid & pipe.hit, b_valid & b_hit)
         m.d.comb += [accept.eq(b_ok & Mux(mt0, lt_q[0], r_lt)), store.eq(en & accept),
-                     self.ray_in.ready.eq(~(b_valid & b_hit))]
+                     self.ray_in.ready.eq(~b_hit_next)]
         # the best-hit write's address and data are the update's while B holds a hit (from
-        # registers; the ray input waits then), so only its enable follows the verdict
+        # registers; a new ray's initial best waits then), so only its enable follows the
+        # verdict
         self._ray_store_writes(m, store, b_valid & b_hit, b_valid, b_t, b_u, b_v, b_meta,
                                accept, old_t, old_hit, best_w, ray_w)
 
