@@ -175,7 +175,9 @@ class TravSubunit(wiring.Component):
 
     ``ld_*``: write one lane's ray data and initial interval (the loader); ``ld_block`` says the
     datapath writes ``N`` this cycle (the loader must wait), ``ld_block_next`` that it will in
-    the next cycle (the pipeline never stalls). ``rq_*``: read a lane's ``tfar``
+    the next cycle, ``ld_block_next2`` in the cycle after (the pipeline never stalls).
+    ``cfg.fast_clock``: the ``ld_*`` write lands a cycle later, from registers beside the
+    memories (the loader checks ``ld_block_next`` for the cycle it writes). ``rq_*``: read a lane's ``tfar``
     (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later
     (1; 3 with ``cfg.fast_clock``: the block-RAM outputs are registered beside the RAMs, then
     again), as are both slots' ``tfar`` (``rq_s_tfar``, ``rq_n_tfar``) and which is current
@@ -211,7 +213,7 @@ class TravSubunit(wiring.Component):
             "ld_en": In(1), "ld_thread": In(self.tbits), "ld_lane": In(self.rbits),
             "ld_org": In(data.ArrayLayout(w, 3)), "ld_inv": In(data.ArrayLayout(w, 3)),
             "ld_tnear": In(w), "ld_tfar": In(w), "ld_anyhit": In(1), "ld_block": Out(1),
-            "ld_block_next": Out(1),
+            "ld_block_next": Out(1), "ld_block_next2": Out(1),
             "rq_thread": In(self.tbits), "rq_lane": In(self.rbits), "rq_sp": In(self.dbits),
             "rq_cur": In(1), "rq_tfar": Out(w), "rq_anyhit": Out(1),
             "rq_s_tfar": Out(w), "rq_n_tfar": Out(w), "rq_slot": Out(1),
@@ -314,19 +316,28 @@ class TravSubunit(wiring.Component):
             m.d.sync += [near.eq(Mux(sw.last, 0, near_n)), far.eq(Mux(sw.last, 0, far_n))]
         m.d.comb += [s_w.addr.eq(Cat(sw.lane, sw.sp, sw.thread)),
                      s_w.data.eq(Cat(vmax.o, tfar_d)), s_w.en.eq(sw.v)]
-        m.d.comb += [self.ld_block.eq(sw.v), self.ld_block_next.eq(st[K - 1].v)]
+        m.d.comb += [self.ld_block.eq(sw.v), self.ld_block_next.eq(st[K - 1].v),
+                     self.ld_block_next2.eq(st[K - 2].v)]
+        ld = dict(en=self.ld_en, thread=self.ld_thread, lane=self.ld_lane,
+                  org=self.ld_org.as_value(), inv=self.ld_inv.as_value(),
+                  tnear=self.ld_tnear, tfar=self.ld_tfar, anyhit=self.ld_anyhit)
+        if cfg.fast_clock:
+            # the loader's write a cycle later, from registers beside the memories (the
+            # loader's handshake, far away, ends at a register; it checked that the datapath
+            # does not write N in the cycle the write lands)
+            ld = registered(m, "ld_q", **ld)
+        ld_addr = Cat(ld["lane"], ld["thread"])
         # N: the datapath's write wins; the loader is held off by ld_block
         with m.If(sw.v):
             m.d.comb += [n_w.addr.eq(Cat(sw.lane, sw.thread)), n_w.data.eq(Cat(tnear_d, vmin.o)),
                          n_w.en.eq(1)]
         with m.Else():
-            m.d.comb += [n_w.addr.eq(Cat(self.ld_lane, self.ld_thread)),
-                         n_w.data.eq(Cat(self.ld_tnear, self.ld_tfar)), n_w.en.eq(self.ld_en)]
-        m.d.comb += [ray_w.addr.eq(Cat(self.ld_lane, self.ld_thread)),
-                     ray_w.data.eq(Cat(self.ld_org.as_value(), self.ld_inv.as_value())),
-                     ray_w.en.eq(self.ld_en & ~sw.v),
-                     ah_w.addr.eq(Cat(self.ld_lane, self.ld_thread)), ah_w.data.eq(self.ld_anyhit),
-                     ah_w.en.eq(self.ld_en & ~sw.v)]
+            m.d.comb += [n_w.addr.eq(ld_addr), n_w.data.eq(Cat(ld["tnear"], ld["tfar"])),
+                         n_w.en.eq(ld["en"])]
+        m.d.comb += [ray_w.addr.eq(ld_addr), ray_w.data.eq(Cat(ld["org"], ld["inv"])),
+                     ray_w.en.eq(ld["en"] & ~sw.v),
+                     ah_w.addr.eq(ld_addr), ah_w.data.eq(ld["anyhit"]),
+                     ah_w.en.eq(ld["en"] & ~sw.v)]
 
         # ---- result-side read: tfar of the current slot and anyhit, one cycle later
         m.d.comb += [n_rq.addr.eq(Cat(self.rq_lane, self.rq_thread)),
@@ -555,13 +566,14 @@ class Traversal(wiring.Component):
             m.d.comb += [lane_one.eq(Const(1, L) << p.lane), oct_one.eq(Const(1, 8) << p.octant)]
         lane_sub, lane_loc = self._split_lane(m, p.lane, "ld")
         if cfg.fast_clock:
-            # the input lane's sub-unit's block, a cycle ahead: the sub-units' pipelines never
-            # stall, and the lane in the input register next cycle is known now
+            # the input lane's sub-unit's block in the cycle after (when its write lands, from
+            # the sub-unit's registers), a cycle ahead: the sub-units' pipelines never stall,
+            # and the lane in the input register next cycle is known now
             blocked = Signal(name="ld_blocked")
             nxt_lane = Mux(rays.ready, rays.payload.lane, p.lane)
             nxt_sub, _ = self._split_lane(m, nxt_lane, "ld_next")
-            m.d.sync += blocked.eq(Array(s.ld_block_next for s in subs)[nxt_sub] if k > 1
-                                   else subs[0].ld_block_next)
+            m.d.sync += blocked.eq(Array(s.ld_block_next2 for s in subs)[nxt_sub] if k > 1
+                                   else subs[0].ld_block_next2)
         else:
             blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
         ready = Signal()                    # the loader writes the lane this cycle if valid
