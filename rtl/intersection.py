@@ -503,7 +503,9 @@ class IntersectionUnit(wiring.Component):
         rp = ray_in.payload
         ray = dict(addr=self._addr(rp.thread, rp.ray.lane),
                    data=Cat(rp.ray.org, rp.ray.k, rp.ray.s), en=ray_in.valid & ray_in.ready)
-        init = dict(addr=ray["addr"], tmax=rp.ray.tmax, en=ray_in.valid)
+        # (the initial best's write is used only while no update holds the port, when the
+        # ray input is ready: its enable is the handshake, as the ray store's)
+        init = dict(addr=ray["addr"], tmax=rp.ray.tmax, en=ray["en"])
         if self.cfg.fast_clock:
             # the ray store's write and the initial best a cycle later, from registers (a
             # lane's first read comes after its thread's traversal reaches a leaf): the
@@ -511,8 +513,7 @@ class IntersectionUnit(wiring.Component):
             # the block RAMs' write pins (the ray input waits while stage B will hold a hit
             # in the next cycle, so the initial best has the write port then)
             ray = registered(m, "ray_w", **ray)
-            init = registered(m, "best_init", addr=init["addr"], tmax=init["tmax"],
-                              en=ray_in.valid & ray_in.ready)
+            init = registered(m, "best_init", **init)
         m.d.comb += [ray_w.addr.eq(ray["addr"]), ray_w.data.as_value().eq(ray["data"]),
                      ray_w.en.eq(ray["en"])]
         with m.If(upd):

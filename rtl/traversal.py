@@ -177,10 +177,11 @@ class TravSubunit(wiring.Component):
     datapath writes ``N`` this cycle (the loader must wait), ``ld_block_next`` that it will in
     the next cycle, ``ld_block_next2`` in the cycle after (the pipeline never stalls).
     ``cfg.fast_clock``: the ``ld_*`` write lands a cycle later, from registers beside the
-    memories (the loader checks ``ld_block_next`` for the cycle it writes). ``rq_*``: read a lane's ``tfar``
-    (current slot) and ``anyhit``; ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later
-    (1; 3 with ``cfg.fast_clock``: the block-RAM outputs are registered beside the RAMs, then
-    again), as are both slots' ``tfar`` (``rq_s_tfar``, ``rq_n_tfar``) and which is current
+    memories (the loader registers ``ld_block_next2``, so it checks the cycle the write
+    lands). ``rq_*``: read a lane's ``tfar`` (current slot) and ``anyhit``;
+    ``rq_tfar``/``rq_anyhit`` are valid ``RQ_LAT`` cycles later (1; 3 with
+    ``cfg.fast_clock``: the block-RAM outputs are registered beside the RAMs, then again), as
+    are both slots' ``tfar`` (``rq_s_tfar``, ``rq_n_tfar``) and which is current
     (``rq_slot``).
 
     Block-RAM outputs feed only registers: the ray read is registered before the axis pick,
