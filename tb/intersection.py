@@ -470,19 +470,45 @@ def golden_stack(cfg, cache_dir, layers: int = 10, rays_per_packet: int = 1,
     ``near_first`` lists them near to far, each layer as two overlapping triangles that
     both cover every ray: every test after the first hits at or beyond the best and must be
     rejected, back to back (a stale best-hit read would accept it)."""
-    from model.kdtree import build_kdtree
-    from model.layout import build_image
-    from tb.list import Golden
     quads = []
     for i in range(layers):
         z = float(-i)
         if near_first:
-            quads += [[(-3, -3, z), (3, -3, z), (0, 4, z)], [(3, 3, z), (-3, 3, z), (0, -4, z)]]
+            quads += [_cover(z), [(3, 3, z), (-3, 3, z), (0, -4, z)]]
         else:
             quads += [[(-1, -1, z), (1, -1, z), (1, 1, z)], [(-1, -1, z), (1, 1, z), (-1, 1, z)]]
     # reversed: memory (and list) order runs from the farthest layer to the nearest
-    tris = cfg.fmt.quantize(np.array(quads if near_first else quads[::-1],
-                                     np.float64)).astype(np.float32)
+    return golden_tris(cfg, cache_dir, quads if near_first else quads[::-1], rays_per_packet)
+
+
+def _cover(z: float) -> list:
+    """A triangle in the plane ``z`` that covers every ray of ``golden_tris``."""
+    return [(-3, -3, z), (3, -3, z), (0, 4, z)]
+
+
+def _aside(z: float) -> list:
+    """A triangle in the plane ``z`` beside every ray of ``golden_tris`` (a miss)."""
+    return [(5, -1, z), (6, -1, z), (5, 1, z)]
+
+
+def golden_newest_store(cfg, cache_dir):
+    """One leaf listing, for every ray: a miss, a hit at t 9, a hit at t 7, a miss, a hit at
+    t 8. Back to back (one ray a packet), the last test's candidates for the lane's best are
+    the two stores three and two tests before it (t 9, then t 7): the newer, 7, is the best
+    and rejects t 8; the older would accept it."""
+    # rays start at z = 5 heading -z: t = 5 - z
+    tris = [_aside(-4), _cover(-4), _cover(-2), _aside(-2), _cover(-3)]
+    return golden_tris(cfg, cache_dir, tris)
+
+
+def golden_tris(cfg, cache_dir, tris: list, rays_per_packet: int = 1):
+    """The golden run of 8 rays from z = 5 heading -z (within x, y in [-1, 1] down to z = -10)
+    against ``tris`` (one leaf when they are at most ``cfg.kd_leaf_size``, listed in order),
+    ``rays_per_packet`` rays a packet."""
+    from model.kdtree import build_kdtree
+    from model.layout import build_image
+    from tb.list import Golden
+    tris = cfg.fmt.quantize(np.array(tris, np.float64)).astype(np.float32)
     tree = build_kdtree(tris, cfg, cache_dir=cache_dir)
     image = build_image(tris, tree, cfg)
     rng = np.random.default_rng(3)

@@ -107,6 +107,21 @@ def test_unit_every_test_accepts_small_slots_fast_memory(kd_cache, deep):
     assert r.mismatches[:5] == []
 
 
+@pytest.mark.parametrize("deep", [False, True], ids=["default", "deep"])
+def test_unit_newest_forwarded_store_wins(kd_cache, deep):
+    """Per ray: a miss, hits at t 9 and t 7, a miss, a hit at t 8, back to back through the
+    int cache (one ray a packet). With the deep settings the t 8 test's best-hit read misses
+    the two stores before it, both of the lane: the newer (t 7) must reject it."""
+    from tb.intersection import golden_newest_store, run_unit
+    cfg = Config(kd_leaf_size=32, int_cache_kb=1, **(DEEP if deep else {}))
+    g = golden_newest_store(cfg, kd_cache)
+    tri, t = np.asarray(g.hits.tri), np.asarray(g.hits.t)
+    assert (tri == 2).all() and np.allclose(t, 7, atol=0.1)   # the t 7 triangle, every ray
+    r = run_unit(g, seed=6, idle=0.0, stall=0.0, latency=4, tri_slots=8, cache=True)
+    assert r.mismatches[:5] == []
+    assert r.int_ops == 5 * len(tri)
+
+
 @pytest.mark.slow
 def test_unit_synthesizes_small_config():
     """Yosys, generic synth (about 5 minutes): 2 threads of 2x2 rays (the ray and best-hit
