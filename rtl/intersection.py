@@ -551,7 +551,9 @@ class IntersectionUnit(wiring.Component):
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
         a_meta = data.View(self.pipe_meta, pipe.o_tag)
         a_addr = self._addr(a_meta.thread, a_meta.lane)
-        q_t, q_hit = Signal(w, name="best_q_t"), Signal(name="best_q_hit")
+        # the best-hit read, registered (no reset: a block-RAM read, rtl/fpga/outreg.py)
+        q_t = Signal(w, name="best_q_t", reset_less=True)
+        q_hit = Signal(name="best_q_hit", reset_less=True)
         # stage B registers
         b_valid, b_hit = Signal(name="b_valid"), Signal(name="b_hit")
         b_t, b_u, b_v = (Signal(w, name=f"b_{n}") for n in "tuv")

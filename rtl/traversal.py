@@ -261,7 +261,7 @@ class TravSubunit(wiring.Component):
         # ---- k=0: ray read; k=1: register; k=2: split - org[axis]
         m.d.comb += ray_r.addr.eq(Cat(st[0].lane, st[0].thread))
         axis1, split1, axis2, split2 = Signal(2), Signal(w), Signal(2), Signal(w)
-        ray2 = Signal(6 * w)
+        ray2 = Signal(6 * w, reset_less=True)   # a block-RAM read: no reset (rtl/fpga/outreg.py)
         m.d.sync += [axis1.eq(d.axis), split1.eq(d.split), axis2.eq(axis1), split2.eq(split1),
                      ray2.eq(ray_r.data)]
         org = [ray2[i * w:(i + 1) * w] for i in range(3)]
@@ -348,8 +348,8 @@ class TravSubunit(wiring.Component):
         m.d.sync += cur_d.eq(self.rq_cur)
         s_tfar, n_tfar, anyhit = s_rq.data[w:], n_rq.data[w:], ah_r.data
         for i in range(self.RQ_LAT - 1):    # the block RAMs' outputs straight into registers
-            regs = (Signal(w, name=f"rq{i}_s_tfar"), Signal(w, name=f"rq{i}_n_tfar"),
-                    Signal(name=f"rq{i}_ah"))
+            regs = (Signal(w, name=f"rq{i}_s_tfar", reset_less=True),
+                    Signal(w, name=f"rq{i}_n_tfar", reset_less=True), Signal(name=f"rq{i}_ah"))
             cur_dd = Signal(name=f"rq{i}_cur")
             m.d.sync += [regs[0].eq(s_tfar), regs[1].eq(n_tfar), regs[2].eq(anyhit),
                          cur_dd.eq(cur_d)]

