@@ -4,7 +4,8 @@ nextpnr reports one critical path per clock, after an hour of place and route fo
 This estimate lists *every* register-to-register path class longer than the clock period from
 the netlist alone, in seconds: arrival times through the mapped cells with fixed delays (the
 LFE5U-85 speed grade 6 figures nextpnr reports for its cells: flip-flop clock-to-out 0.52 ns,
-block-RAM clock-to-out 5.8 ns, LUT4 0.24 ns, a carry cell 0.07 ns along its chain; a
+block-RAM clock-to-out 5.8 ns, 0.9 ns from its output register (``REGMODE OUTREG``,
+``rtl/fpga/outreg.py``), LUT4 0.24 ns, a carry cell 0.07 ns along its chain; a
 MULT18X18D 4.5 ns through, or, with its own registers on, 0.74 ns clock-to-out and an endpoint
 at its inputs) and a guess
 for each net's routing (``route`` ns, more with fanout; 0 inside a slice: LUT -> PFUMX ->
@@ -32,6 +33,7 @@ from pathlib import Path
 __all__ = ["estimate", "report", "routed_arrivals"]
 
 FF_CQ, BRAM_CQ, LUTRAM_RD, DSP, DSP_CQ = 0.52, 5.8, 0.5, 4.5, 0.74
+BRAM_OUTREG_CQ = 0.9
 LUT, MUX, CARRY_IN, CARRY, CARRY_OUT = 0.24, 0.26, 0.45, 0.07, 0.44
 SETUP = 0.1
 
@@ -115,7 +117,8 @@ def estimate(netlist: Path, top: str = "fpga_top", route: float = 0.9,
             if t == "TRELLIS_FF":
                 memo[b] = (FF_CQ, None); stack.pop(); continue
             if t == "DP16KD":
-                memo[b] = (BRAM_CQ, None); stack.pop(); continue
+                reg = c["parameters"].get(f"REGMODE_{port[2]}", "NOREG") == "OUTREG"
+                memo[b] = (BRAM_OUTREG_CQ if reg else BRAM_CQ, None); stack.pop(); continue
             if t == "MULT18X18D" and _dsp_reg(c, "OUTPUT"):
                 memo[b] = (DSP_CQ, None); stack.pop(); continue
             ins = _comb_inputs(c, port)
