@@ -345,10 +345,19 @@ class IntersectionUnit(wiring.Component):
                                      & ~Mux(c2_v, 1 << c2_slot, 0)[:n_slots])
         resp = self.mem.resp
         m.d.comb += resp.ready.eq(1)
-        with m.If(resp.valid):
-            m.d.comb += got_set.eq(1 << resp.payload.tag[:self.slot_bits])
-        m.d.comb += [s.item_w.addr.eq(resp.payload.tag[:self.slot_bits]),
-                     s.item_w.data.eq(resp.payload.data), s.item_w.en.eq(resp.valid)]
+        r_valid, r_tag, r_data = resp.valid, resp.payload.tag[:self.slot_bits], resp.payload.data
+        if fast:
+            # a response lands in registers beside the unit first, a cycle later (the
+            # cache's output register sits elsewhere on the die: h7_s1's critical path was
+            # its valid's 4.8 ns wire into got_cur)
+            r = registered(m, "resp_q", valid=r_valid, tag=r_tag)
+            q_data = Signal.like(Value.cast(r_data), name="resp_q_data", reset_less=True)
+            m.d.sync += q_data.eq(r_data)
+            r_valid, r_tag, r_data = r["valid"], r["tag"], q_data
+        with m.If(r_valid):
+            m.d.comb += got_set.eq(1 << r_tag)
+        m.d.comb += [s.item_w.addr.eq(r_tag), s.item_w.data.eq(r_data),
+                     s.item_w.en.eq(r_valid)]
         s.got_in = Signal(n_slots)                   # s.got with this cycle's arrivals
         m.d.comb += s.got_in.eq(s.got | got_set)
         m.d.sync += s.got.eq(s.got_in & ~got_clr)
