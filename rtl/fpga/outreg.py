@@ -17,7 +17,8 @@ enable (a net or always on, not inverted) shared by all of them, and no set/rese
 tied low: the RTL's registers after the RAMs are ``reset_less``), and the RAM's own reset is
 tied low. In the 36-bit (pseudo dual port) mode the read port is B and its data leave on both
 halves (``DOA``, ``DOB``); both output registers are enabled (``REGMODE_A``, ``REGMODE_B``)
-and both clock enables driven. Anything else is left as it is and counted in the result.
+and both clock enables driven. A RAM whose output register is in use already (a netlist the
+pass has rewritten) and anything else is left as it is and counted in the result.
 """
 from __future__ import annotations
 
@@ -72,22 +73,19 @@ def absorb_output_registers(netlist: dict, top: str | None = None) -> dict:
                     if pin in conn and isinstance(conn[pin][0], int) and sinks.get(conn[pin][0])]
             if not used:
                 continue
-            why = _reason(cells, c, port, used, sinks)
+            why, oce = _check(cells, c, port, used, sinks)
             if why:
                 res["skipped"][why] += 1
                 continue
-            ffs = [cells[sinks[b][0][0]] for _, b in used]
-            f0 = ffs[0]
-            oce = ["1"] if f0["parameters"]["CEMUX"] in _ONE else f0["connections"]["CE"]
-            for (pin, b), (ffname, _) in zip(used, (sinks[b][0] for _, b in used)):
-                q = cells[ffname]["connections"]["Q"][0]
+            for pin, b in used:
+                ff = sinks[b][0][0]
+                q = cells[ff]["connections"]["Q"][0]
                 conn[pin] = [q]                   # the RAM's output drives the register's net
                 rename[b] = q
-                del cells[ffname]
-            regs = "AB" if len(pins) == 36 else port
-            for p in regs:
+                del cells[ff]
+            for p in ("AB" if len(pins) == 36 else port):
                 par[f"REGMODE_{p}"] = "OUTREG"
-                conn[f"OCE{p}"] = list(oce)
+                conn[f"OCE{p}"] = [oce]
             res["ports"] += 1
             res["bits"] += len(used)
     for n in mod["netnames"].values():             # the old output nets join the register's
@@ -96,32 +94,36 @@ def absorb_output_registers(netlist: dict, top: str | None = None) -> dict:
     return res
 
 
-def _reason(cells: dict, ram: dict, port: str, used: list, sinks: dict) -> str | None:
-    """Why the read port's flip-flops cannot move into the RAM (``None``: they can)."""
+def _check(cells: dict, ram: dict, port: str, used: list,
+           sinks: dict) -> tuple[str | None, str | int | None]:
+    """(why the read port's flip-flops cannot move into the RAM, ``None`` if they can; their
+    shared clock enable: a net, or ``"1"``)."""
     conn, par = ram["connections"], ram["parameters"]
     clk = conn.get(f"CLK{port}")
     if par.get(f"CLK{port}MUX", f"CLK{port}") != f"CLK{port}":
-        return "inverted RAM clock"
+        return "inverted RAM clock", None
+    if any(par.get(f"REGMODE_{p}", "NOREG") != "NOREG" for p in "AB"):
+        return "output register in use", None     # (a second pass would take one more)
     if any(conn.get(f"RST{p}", ["0"]) != ["0"] for p in "AB"):
-        return "RAM reset used"
+        return "RAM reset used", None
     ces = set()
     for _, b in used:
         s = sinks[b]
         if len(s) != 1 or not s[0][0] or cells[s[0][0]]["type"] != "TRELLIS_FF" \
                 or s[0][1] != "DI":
-            return "output not only a flip-flop's D"
+            return "output not only a flip-flop's D", None
         f = cells[s[0][0]]
         fp, fc = f["parameters"], f["connections"]
         if fc["CLK"] != clk or fp.get("CLKMUX", "CLK") != "CLK":
-            return "flip-flop on another clock"
+            return "flip-flop on another clock", None
         if fc.get("LSR", ["0"]) != ["0"] or fp.get("LSRMUX", "LSR") != "LSR":
-            return "flip-flop with set/reset"
+            return "flip-flop with set/reset", None
         if fp.get("CEMUX", "1 ") in _ONE:
             ces.add("1")
         elif fp["CEMUX"] == "CE":
             ces.add(fc["CE"][0])
         else:
-            return "inverted clock enable"
+            return "inverted clock enable", None
     if len(ces) != 1:
-        return "flip-flops with different enables"
-    return None
+        return "flip-flops with different enables", None
+    return None, ces.pop()
