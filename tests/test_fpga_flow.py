@@ -197,6 +197,40 @@ def test_pnr_args_reach_nextpnr_and_the_report(tmp_path, monkeypatch):
     assert calls[-1].count("--detailed-timing-report") == 1
 
 
+def test_outreg_only_on_a_reused_netlist(tmp_path):
+    """``bram_outreg_only`` rewrites the reused netlist's copy (the original stays), records
+    the result and takes the moved flip-flops off ``resources``; a netlist that has output
+    registers already is refused."""
+    from tests.test_fpga_outreg import CE, _ff, _netlist
+    cfg = Config()
+    (tmp_path / "old").mkdir()
+    net = _netlist(9, ["DOB0", "DOB1"], {"f0": _ff(100, 200, ce=CE), "f1": _ff(101, 201, ce=CE)})
+    (tmp_path / "old" / "fpga_top.json").write_text(json.dumps(net))
+    (tmp_path / "old" / "fpga_top.stat").write_text(
+        "   Number of cells:                  3\n     DP16KD                          1\n"
+        "     TRELLIS_FF                      2\n")
+    old = {"top": "fp_add", "config": cfg.to_dict(), "fmt": "E8M23", "latency": None,
+           "wrapper": {"ff": 0},
+           "resources": dict.fromkeys(("lut4", "ff", "dsp", "bram", "carry", "pfumx", "l6mux",
+                                       "lutram", "alu54"), 0)}
+    (tmp_path / "report.json").write_text(json.dumps({"runs": {"old": old}}))
+    e = run("fp_add", cfg, out=tmp_path, reuse="old", label="o", pnr=False,
+            bram_outreg_only="^ra")
+    assert e["bram_outreg"] == {"ports": 1, "bits": 2, "skipped": {}, "only": "^ra"}
+    assert e["cells"]["TRELLIS_FF"] == 0 and e["cells"]["DP16KD"] == 1
+    ram = json.loads((tmp_path / "o" / "fpga_top.json").read_text())[
+        "modules"]["fpga_top"]["cells"]["ram"]
+    assert ram["parameters"]["REGMODE_B"] == "OUTREG"
+    assert json.loads((tmp_path / "old" / "fpga_top.json").read_text()) == net
+    e = run("fp_add", cfg, out=tmp_path, reuse="old", label="n", pnr=False,
+            bram_outreg_only="stack")
+    assert e["bram_outreg"]["skipped"] == {"not selected": 1}
+    assert e["cells"]["TRELLIS_FF"] == 2
+    with pytest.raises(SystemExit, match="output registers already"):
+        run("fp_add", cfg, out=tmp_path, reuse="o", label="twice", pnr=False,
+            bram_outreg_only="^ra")
+
+
 def test_congestion_units_and_shares(tmp_path):
     """Cells are mapped to the unit path in their names, each tile's overuse is split between
     the units by their cells there, the quietest iteration is chosen, and the map is drawn."""

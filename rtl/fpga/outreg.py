@@ -22,6 +22,7 @@ pass has rewritten) and anything else is left as it is and counted in the result
 """
 from __future__ import annotations
 
+import re
 from collections import defaultdict
 
 __all__ = ["absorb_output_registers"]
@@ -41,10 +42,14 @@ def _read_ports(c: dict) -> list[tuple[str, list[str]]]:
     return [(p, [f"DO{p}{i}" for i in range(18)]) for p in "AB"]
 
 
-def absorb_output_registers(netlist: dict, top: str | None = None) -> dict:
+def absorb_output_registers(netlist: dict, top: str | None = None,
+                            only: str | None = None) -> dict:
     """Rewrite ``netlist`` (Yosys JSON, flattened) in place; returns counts: ``ports`` (read
     ports given an output register), ``bits`` (flip-flops removed), ``skipped`` (read ports
-    with used outputs left as they were, by reason)."""
+    with used outputs left as they were, by reason). ``only``: a regular expression; only the
+    RAMs whose cell name it matches (``re.search``) are rewritten, the others are counted as
+    skipped ("not selected")."""
+    sel = re.compile(only) if only else None
     mods = netlist["modules"]
     mod = mods[top] if top else next(m for m in mods.values()
                                      if m.get("attributes", {}).get("top"))
@@ -73,7 +78,8 @@ def absorb_output_registers(netlist: dict, top: str | None = None) -> dict:
                     if pin in conn and isinstance(conn[pin][0], int) and sinks.get(conn[pin][0])]
             if not used:
                 continue
-            why, oce = _check(cells, c, port, used, sinks)
+            why, oce = ("not selected", None) if sel and not sel.search(name) else \
+                _check(cells, c, port, used, sinks)
             if why:
                 res["skipped"][why] += 1
                 continue
