@@ -122,7 +122,7 @@ def registered(m: Module, prefix: str, **values) -> dict:
 
 
 def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
-                 taken: Value | None = None) -> tuple[Value, Value, Value]:
+                 taken: Value | None = None, copies: int = 1) -> tuple[Value, Value, Value]:
     """The next cycle's :func:`rr_pick` of ``req`` from registers, less the request ``taken``
     (one-hot; default: this pick itself) when ``drop``: both picks (with and without it), their
     one-hot forms and ``drop`` go into registers, and the pick is a 2:1 mux of them, so a late
@@ -130,7 +130,13 @@ def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
     Returns (any, index, one-hot, select) for the next cycle; ``select(array)`` is the picked
     element of an ``Array`` (or the bit of a ``Value``) read with both registered indices and
     then chosen by ``drop``'s register, so the 2:1 index mux does not come before the wide
-    select."""
+    select. ``copies`` (1 or 2): the registered indices and ``drop`` are kept twice,
+    ``select(array, copy)`` reads with copy 0 or 1, so each copy drives half of a wide select's
+    multiplexers. The second copy resets to other values (a different cell, which synthesis
+    does not merge with the first); the indices are only read while a pick is valid, which
+    no reset value is."""
+    if copies not in (1, 2):
+        raise ValueError(f"rr_pick_next copies={copies}: 1 or 2")
     n = len(req)
     oh = Signal(n, name=f"{name}_onehot")
     less = (Value.cast(req) & ~(oh if taken is None else taken))[:n]
@@ -144,9 +150,19 @@ def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
     m.d.sync += [r.eq(v) for r, v in zip(regs, vals)]
     lq_any, lq_idx, lq_oh, kq_any, kq_idx, kq_oh, drop_q = regs
     m.d.comb += oh.eq(Mux(drop_q, lq_oh, kq_oh))
+    sels = [(drop_q, lq_idx, kq_idx)]
+    if copies == 2 and len(k_idx):
+        dup = (Signal(name=f"{name}_drop_q1", init=1),
+               Signal.like(l_idx, name=f"{name}_less_pick_q1", init=1),
+               Signal.like(k_idx, name=f"{name}_pick_q1", init=1))
+        m.d.sync += [r.eq(v) for r, v in zip(dup, (drop, l_idx, k_idx))]
+        sels.append(dup)
+    else:
+        sels.append(sels[0])
 
-    def select(arr):
-        return Mux(drop_q, element(arr, lq_idx), element(arr, kq_idx))
+    def select(arr, copy: int = 0):
+        d, lq, kq = sels[copy]
+        return Mux(d, element(arr, lq), element(arr, kq))
     return Mux(drop_q, lq_any, kq_any), Mux(drop_q, lq_idx, kq_idx), oh, select
 
 

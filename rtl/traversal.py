@@ -787,8 +787,10 @@ class Traversal(wiring.Component):
             # and without the one being worked on (only this engine moves a thread out of
             # those states, so a pick made a cycle ahead is still waiting when it is used);
             # ctl_busy, registered, chooses
+            # (the picked thread's fields, about 100 bits, read with two copies of the
+            # registered picks: each drives half of the multiplexers)
             e_any, e_idx, e_oh, e_sel = rr_pick_next(m, waiting, e_ptr, ctl_busy, "step",
-                                                     taken=e_taken)
+                                                     taken=e_taken, copies=2)
         else:
             e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
         e_kind = Signal(ThreadState)
@@ -918,15 +920,17 @@ class Traversal(wiring.Component):
             with m.State("IDLE"):
                 m.d.comb += ctl_busy.eq(0)
                 with m.If(e_any):
-                    # fast: each field read with both registered picks, then chosen (e_sel)
-                    pick = e_sel if fast else (lambda arr: element(arr, e_idx))
-                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(pick(th.state)),
-                                 e_word.eq(pick(th.word)), e_mask.eq(pick(th.mask)),
-                                 neg.eq(pick(is_neg)), e_sp.eq(pick(th.sp)),
-                                 e_cur.eq(pick(th.cur)), e_ptr.eq(e_idx + 1)]
+                    # fast: each field read with both registered picks, then chosen (e_sel);
+                    # the node word's low 48 bits with the picks' copy 0, the rest with copy 1
+                    pick = e_sel if fast else (lambda arr, copy=0: element(arr, e_idx))
+                    word = Cat(pick(th.word, 0)[:48], pick(th.word, 1)[48:])
+                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(pick(th.state, 1)),
+                                 e_word.eq(word), e_mask.eq(pick(th.mask, 1)),
+                                 neg.eq(pick(is_neg, 1)), e_sp.eq(pick(th.sp, 1)),
+                                 e_cur.eq(pick(th.cur, 1)), e_ptr.eq(e_idx + 1)]
                     if fast:
-                        m.d.sync += [e_todo.eq(pick(th.todo)), e_taken.eq(e_oh),
-                                     e_step.eq(pick(is_step))]
+                        m.d.sync += [e_todo.eq(pick(th.todo, 1)), e_taken.eq(e_oh),
+                                     e_step.eq(pick(is_step, 1))]
                     goto("DISPATCH")
             with m.State("DISPATCH"):
                 with m.If(e_kind == ThreadState.HAVE_NODE):
