@@ -281,16 +281,20 @@ class TravSubunit(wiring.Component):
         # interval read issued two stages earlier and registered, so it meets dist (the
         # block RAM's output feeds only the slot mux and that register; no step of the same
         # thread is in the pipeline, so reading earlier sees the same words). fast_clock:
-        # three stages earlier (when the pipeline has them), the block RAMs' outputs straight
-        # into registers (beside the RAMs), then the slot mux into the interval register
-        rd = 3 if cfg.fast_clock and kd >= 3 else 2
+        # four stages earlier (three, two when the pipeline has fewer), the block RAMs'
+        # outputs through two registers (the first has no other load, so it sits beside the
+        # RAM), then the slot mux into the interval register
+        rd = min(4, kd) if cfg.fast_clock else 2
+        rd = max(rd, 2)
         m.d.comb += [n_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].thread)),
                      s_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].sp, st[kd - rd].thread))]
         iv = Signal(2 * w)
         s_d, n_d = s_r.data, n_r.data
-        if rd == 3:
-            s_d, n_d = Signal(2 * w, reset_less=True), Signal(2 * w, reset_less=True)
-            m.d.sync += [s_d.eq(s_r.data), n_d.eq(n_r.data)]
+        for i in range(rd - 2):
+            s_q, n_q = (Signal(2 * w, name=f"s_d{i}", reset_less=True),
+                        Signal(2 * w, name=f"n_d{i}", reset_less=True))
+            m.d.sync += [s_q.eq(s_d), n_q.eq(n_d)]
+            s_d, n_d = s_q, n_q
         m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_d, n_d))
         tnear, tfar = iv[:w], iv[w:]
         m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
