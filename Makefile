@@ -87,7 +87,7 @@ verilog: setup
 	$(SAARCOR) verilog --top $(TOP) $(CONFIG)
 
 ## make fpga: synth + place & route of the one-RTC FPGA configuration on an ECP5-85k
-##   (YoWASP Yosys + nextpnr: Yosys 3 min + placement 10-20 min + routing 14 min, or a stall; not in CI) -> build/fpga/report.json, README.md
+##   (YoWASP Yosys + nextpnr: Yosys 4-5 min + placement 6-7 min + routing 23-47 min, or a stall; not in CI) -> build/fpga/report.json, README.md
 ##   8 threads of 4x4-ray packets, deep FP pipelines, the fast_clock registers, delays in LUT-RAM,
 ##   8-entry cache queues, 24-bit addresses, router1. Whether a placement routes depends on the seed
 ##   (docs/fpga.md): FPGA_SEEDS tries seeds in turn, stopping a router1 that gains < 2 % of the arcs
