@@ -4,6 +4,7 @@ words."""
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 
 from amaranth.hdl import C, Cat, Const, Elaboratable, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
@@ -122,7 +123,8 @@ def registered(m: Module, prefix: str, **values) -> dict:
 
 
 def rr_pick_next(m: Module, req: Value, ptr: Value, drop: Value, name: str,
-                 taken: Value | None = None, copies: int = 1) -> tuple[Value, Value, Value]:
+                 taken: Value | None = None, copies: int = 1) -> tuple[Value, Value, Value,
+                                                                     Callable]:
     """The next cycle's :func:`rr_pick` of ``req`` from registers, less the request ``taken``
     (one-hot; default: this pick itself) when ``drop``: both picks (with and without it), their
     one-hot forms and ``drop`` go into registers, and the pick is a 2:1 mux of them, so a late

