@@ -109,7 +109,7 @@ class ChipFrame(wiring.Component):
     """
 
     def __init__(self, cfg: Config, *, mem_words: int, verilog_memories: bool = True,
-                 preload: dict | None = None):
+                 preload: dict | None = None, dedup: bool = False):
         from amaranth.hdl import Signal
         from amaranth.lib.memory import Memory
         from amaranth.utils import ceil_log2
@@ -118,6 +118,20 @@ class ChipFrame(wiring.Component):
         from .lfsr import LFSR
         self.cfg = cfg
         self.chip = Chip(cfg)
+        # dedup (Verilator builds): each kind of repeated unit exported once as its own module,
+        # its copies Instances of it (tb/blackbox.py); ``units``: (module name, the unit to
+        # export, its stand-ins)
+        self.hold = Signal()
+        self.units = []
+        if dedup:
+            from .blackbox import deduplicate
+            c = self.chip
+            for slots, name in ((c.slaves, "slave"), (c.array.rtcs, "rtc"),
+                                (c.array.mis, "rtcmi"), (c.shade_caches, "shade_cache"),
+                                (c.tex_caches, "tex_cache")):
+                unit = deduplicate(slots, name, self.hold)
+                if unit is not None:
+                    self.units.append((name, unit, slots))
         # no more words than the chip's addresses reach (cfg.addr_bits)
         self.mem_words = 1 << min(cfg.addr_bits, max(1, ceil_log2(max(1, mem_words))))
         init = [] if preload is None else [int(w) for w in preload["image"]]
@@ -153,6 +167,7 @@ class ChipFrame(wiring.Component):
         m.d.comb += [self.lfsr.en.eq(run), self.lfsr.seed.eq(self.const["seed"]),
                      self.mem_lfsr.en.eq(run), self.mem_lfsr.seed.eq(self.const["mem_seed"])]
         m.submodules.run = ResetInserter({"sync": ~run})(_ChipRun(self))
+        m.d.comb += self.hold.eq(~run)
         with m.If(self.res_valid):
             m.d.sync += self.results.eq(self.results + 1)
         chip = self.chip

