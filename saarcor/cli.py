@@ -52,6 +52,9 @@ BENCHES: dict[str, Command] = {
                                    "exact oracle"),
     "resources": Command("tb.resources", "the chip's FP units by kind, flip-flop and memory "
                                          "bits, from its netlist"),
+    "simspeed": Command("tb.bench_simspeed", "a chip frame's wall time step by step (build, "
+                                             "simulation, golden model, outputs) and the "
+                                             "simulation's cost by unit"),
     "skipping": Command("tb.skipping", "what skipping work a scene doesn't need saves: run-time "
                                        "skips, the chip built for the scene, second runs"),
 }

@@ -170,6 +170,9 @@ class ChipRun:
     build: object = None           # the Verilator binary (tb.verilator.FrameBuild), if any
     # counters every ``sample_every`` cycles: columns cycle, results, then chip_counter_names
     samples: np.ndarray | None = None
+    # wall seconds of the frame's host-side steps (run_chip_frame): build, input file,
+    # simulation, golden model, check
+    timings: dict = field(default_factory=dict)
 
 
 def const_values(cfg: Config, regs: dict, *, stall: float = 0.0, seed: int = 1,
@@ -223,29 +226,50 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     if mem_words is not None and words > mem_words:
         raise ValueError(f"the memory image has {words} words, mem_words={mem_words} holds "
                          "fewer (leave mem_words out to size the binary from the image)")
+    import time
+    t0 = time.perf_counter()
     b = chip_build(cfg, words if mem_words is None else mem_words,
                    trace=_trace_kind(trace_file), build_root=build_root, log=log)
+    took = {"build_s": time.perf_counter() - t0}
     names = chip_counter_names(cfg)
-    # the golden model traces the frame while the simulation runs (another process)
+
+    def timed(key, f, *a):
+        t = time.perf_counter()
+        try:
+            return f(*a)
+        finally:
+            took[key] = time.perf_counter() - t
+
+    # the golden model traces the frame while the simulation runs (another thread; numba
+    # releases the GIL)
     from concurrent.futures import ThreadPoolExecutor
     pool = ThreadPoolExecutor(max_workers=1)
-    golden = pool.submit(golden_frame, cfg, image, camera, width, height, scene, box_cull)
+    golden = pool.submit(timed, "golden_s", golden_frame, cfg, image, camera, width, height,
+                         scene, box_cull)
     pool.shutdown(wait=False)
-    out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs, stall=stall,
-                                                              seed=seed, mem_stall=mem_stall)),
+    t1 = time.perf_counter()
+    out = run_binary(b, lambda f: timed("input_s", write_blocks, f, chip_blocks(
+                         cfg, image, regs, stall=stall, seed=seed, mem_stall=mem_stall)),
                      cfg, len(rays), max_cycles=max_cycles, trace_file=trace_file,
                      trace_from=trace_from, progress=progress, log=log,
                      desc="chip (Verilator)", names=names, allow_limit=True,
                      sample_every=sample_every)
+    took["simulation_s"] = time.perf_counter() - t1 - took.get("input_s", 0.0)
+    t2 = time.perf_counter()
+    golden.result()
+    took["golden_wait_s"] = time.perf_counter() - t2
     lay = SlaveResult(cfg)
     records = {name: _field(out.results, off, wd)
                for name, off, wd in compare.record_fields(lay)}
     if out.status == 2:
         raise FrameError(stuck(cfg, rays, records, out.counters, max_cycles,
                                golden.result()[1]))
+    t3 = time.perf_counter()
     run = _finish(cfg, image, records, out.cycles, out.seconds, out.counters,
                   golden.result())
+    took["check_s"] = time.perf_counter() - t3
     run.build, run.samples = b, out.samples
+    run.timings = {k: round(v, 3) for k, v in took.items()}
     return run
 
 
@@ -253,9 +277,12 @@ def chip_build(cfg: Config, mem_words: int, *, trace=False, build_root=None, log
     """The Verilator binary of :class:`ChipFrame` for ``cfg`` holding at least ``mem_words``
     words (rounded up to a power of two, at least :data:`CHIP_MIN_MEM_WORDS`): built, or found
     in ``build_root`` (default ``build/verilator``). Returns a ``tb.verilator.FrameBuild``."""
-    from .verilator import BUILD_ROOT, _pow2, build
+    import os
+
+    from .verilator import BUILD_ROOT, BUILD_ROOT_ENV, _pow2, build
+    build_root = build_root or os.environ.get(BUILD_ROOT_ENV) or BUILD_ROOT
     return build(cfg, mem_words=_pow2(mem_words, CHIP_MIN_MEM_WORDS), ray_slots=0,
-                 mem_latency=cfg.mem_latency, trace=trace, root=build_root or BUILD_ROOT,
+                 mem_latency=cfg.mem_latency, trace=trace, root=build_root,
                  log=log, top="chip")
 
 

@@ -285,6 +285,7 @@ def main(argv=None) -> int:
         scene = load_scene(args.scene)
     except SceneError as e:
         raise SystemExit(f"sim: {e}")
+    phases = {"scene_s": time.perf_counter() - t0}
     extra = {}
     if args.narrowest_fmt:
         if args.fmt:
@@ -292,7 +293,9 @@ def main(argv=None) -> int:
         narrow = pick_format(scene, w, h, cfg, quiet=args.quiet)
         cfg = cfg.replace(fmt=narrow["fmt"])
         extra["narrowest_fmt"] = {**narrow, "fmt": str(narrow["fmt"])}
+    t1 = time.perf_counter()
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
+    phases["kdtree_s"] = time.perf_counter() - t1
     if args.for_scene:
         try:
             cfg = cfg.for_scene(scene, prep.image, w, h)
@@ -328,7 +331,7 @@ def main(argv=None) -> int:
     stats = frame_stats(cfg, r, scene=args.scene, width=w, height=h, backend=args.backend,
                         wall=wall)
     stats.update(extra)
-    (out / "stats.json").write_text(json.dumps(stats, indent=1))
+    t2 = time.perf_counter()
     from PIL import Image
     if r.color is not None and not r.mismatches:
         color = r.color                 # the chip's colour, checked against the model
@@ -340,6 +343,12 @@ def main(argv=None) -> int:
         write_usage_plot(cfg, r.samples, chip_counter_names(cfg), out / "usage.png",
                          f"{Path(args.scene).stem} {w}x{h}, {cfg.rtcs} RTCs x "
                          f"{cfg.threads} threads ({args.backend})")
+    phases.update(getattr(r, "timings", {}))
+    phases["outputs_s"] = time.perf_counter() - t2
+    stats["wall_phases"] = {k: round(v, 3) for k, v in phases.items()}
+    if r.build is not None and r.build.built:
+        stats["build"]["phases"] = json.loads((r.build.dir / "build.json").read_text())["phases"]
+    (out / "stats.json").write_text(json.dumps(stats, indent=1))
     built = stats["build"]
     print(f"{args.scene} {w}x{h} on {cfg.rtcs} RTC(s) ({args.backend}"
           f"{', built in %.0f s' % built['seconds'] if built['built'] else ''}): "

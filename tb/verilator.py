@@ -49,6 +49,7 @@ __all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "
 
 ROOT = Path(__file__).resolve().parents[1]
 BUILD_ROOT = ROOT / "build" / "verilator"
+BUILD_ROOT_ENV = "SAARCOR_BUILD_ROOT"     # another cache folder for the chip's binaries
 MAIN_CPP = Path(__file__).with_name("verilator_main.cpp")
 MEM_V = Path(__file__).with_name("frame_mem.sv")
 TOP = "frame"
@@ -110,11 +111,23 @@ def _frame_top(top: str, cfg: Config, mem_words: int, ray_slots: int, mem_latenc
 EXPORT_VERSION = 2
 
 
+HIER_ENV = "SAARCOR_VERILATOR_HIER"
+# a command the frame binary runs under (``perf record -o FILE --``: tb/bench_simspeed.py)
+WRAPPER_ENV = "SAARCOR_SIM_WRAPPER"
+
+
+def hier() -> bool:
+    """Verilator's hierarchical mode for the deduplicated units: each unit is translated and
+    compiled once, as a library its copies share (default; ``$SAARCOR_VERILATOR_HIER=0``
+    translates the chip as one flat model instead)."""
+    return os.environ.get(HIER_ENV, "1") not in ("", "0")
+
+
 def make_cmd() -> list[str]:
     """The ``make`` command that compiles Verilator's C++ in ``obj_dir``."""
     opt = cxx_opt()
     oflags = [f"{v}={opt}" for v in ("OPT_FAST", "OPT_SLOW", "OPT_GLOBAL") if opt]
-    return ["make", "-j", str(MAKE_JOBS), "-f", "Vframe.mk", *MAKE_VARS, *oflags, "Vframe"]
+    return ["make", "-j", str(MAKE_JOBS), "-f", "Vframe.mk", *MAKE_VARS, *oflags]
 
 
 def _cxx_files(obj_dir: Path) -> int:
@@ -175,7 +188,7 @@ def build_key(cfg: Config, *, mem_words: int, ray_slots: int, mem_latency: int,
     h.update(json.dumps({"top": top, "cfg": cfg.hardware_dict(), "mem_words": mem_words,
                          "ray_slots": ray_slots,
                          "mem_latency": mem_latency, "trace": trace, "flags": FLAGS,
-                         "make": MAKE_VARS, "export": EXPORT_VERSION,
+                         "make": MAKE_VARS, "export": EXPORT_VERSION, "hier": hier(),
                          "cxx_opt": cxx_opt(),
                          "amaranth": amaranth.__version__, "verilator": vl,
                          "ram_poison": ram_poison()},
@@ -236,8 +249,14 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         t1 = time.perf_counter()
         tflags = {False: [], "fst": ["--trace-fst"], "vcd": ["--trace"]}[trace]
         sources = sorted(p.name for p in d.glob("*.v")) + [MEM_V.name, MAIN_CPP.name]
-        cmd = [exe, *FLAGS, *tflags, "--top-module", TOP, "-o", "Vframe", "-Mdir", "obj_dir",
-               *sources]
+        units = [p.stem for p in d.glob("*.v") if p.stem != TOP]
+        hflags = []
+        if units and hier():
+            (d / "hier.vlt").write_text("`verilator_config\n" + "".join(
+                f'hier_block -module "{u}"\n' for u in sorted(units)))
+            hflags = ["--hierarchical", "--build-jobs", str(MAKE_JOBS), "hier.vlt"]
+        cmd = [exe, *FLAGS, *hflags, *tflags, "--top-module", TOP, "-o", "Vframe", "-Mdir",
+               "obj_dir", *sources]
         print(f"tb.verilator: export {t1 - t0:.1f} s; translating with Verilator ...", file=log,
               flush=True)
         logs = [_run_step(cmd, d, "Verilator")]
@@ -408,6 +427,10 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
             cmd += ["--trace", str(Path(trace_file).resolve()), "--trace-from", str(trace_from)]
         if sample_every:
             cmd += ["--samples", str(fsmp), "--sample-every", str(sample_every)]
+        wrapper = os.environ.get(WRAPPER_ENV, "")
+        if wrapper:                       # a profiler around the binary (bench simspeed)
+            import shlex
+            cmd = shlex.split(wrapper) + cmd
         other = []
         with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
                 tqdm(total=n, unit="ray", desc=desc, disable=not progress, file=log) as bar:

@@ -1,0 +1,161 @@
+"""``saarcor bench simspeed``: where a chip frame's wall time goes, and which units cost what.
+
+Runs ``saarcor sim`` on a fixed frame (default: the standard chip on ``scenes/cornell.toml``
+at 128x96, all rays, as ``make sim``) and splits its wall time into the steps ``stats.json``
+records (``wall_phases``): the scene, its kd-tree, the chip's build (with ``--fresh``: from
+nothing, in a private build folder, itself split into constructing the design, the Verilog
+export of each unit, Verilator's translation and the C++ compile), the input file, the
+simulation, the golden model (it runs beside the simulation; ``golden_wait_s`` is the time the
+host waited for it afterwards), the check and the outputs. With ``--profile`` (and ``perf`` on
+the machine) the simulation runs under ``perf record`` and the report gives the share of the
+simulation's CPU time by unit (the Verilated class: ``slave``, ``rtc``, ``rtcmi``, ...) and
+by instance (``slave0``, ``rtc2``, ...).
+
+Writes ``OUT/simspeed.json`` and appends one line (commit, cycles, cycles/s, seconds) to
+``OUT/simspeed_history.jsonl``, so a change in simulation speed shows from one commit to the
+next.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from pathlib import Path
+
+__all__ = ["main", "perf_shares"]
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _scope(symbol: str) -> tuple[str, str]:
+    """``(unit, instance)`` of a Verilated function's symbol: the class (``Vframe_slave`` ->
+    ``slave``; ``Vframe___024root`` -> ``top``) and the first chip-level instance in its scope
+    path (``...__DOT__chip__DOT__slave0__DOT__unit...`` -> ``slave0``)."""
+    m = re.match(r"V[A-Za-z0-9]+?_(_024root|[a-z][a-z0-9_]*?)(?:___|__\d|$)", symbol)
+    unit = "other" if m is None else ("top" if m.group(1) == "_024root" else m.group(1))
+    if not symbol.startswith("V"):
+        unit = "runtime" if "verilated" in symbol.lower() or symbol.startswith("VL_") else "other"
+    path = symbol.split("__DOT__")
+    inst = "-"
+    for part in path[1:]:
+        name = re.sub(r"__\d+$|__0\d+.*$", "", part)
+        if re.fullmatch(r"(rtc|rtcmi|slave|shade_cache|tex_cache)\d+", name):
+            inst = name
+            break
+        if name in ("bus", "master", "memory", "res_out"):
+            inst = name
+    return unit, inst
+
+
+def perf_shares(report: str) -> dict:
+    """Shares of the samples of ``perf report --stdio --sort symbol`` text, by unit and by
+    instance (see :func:`_scope`)."""
+    by_unit, by_inst = defaultdict(float), defaultdict(float)
+    for line in report.splitlines():
+        m = re.match(r"\s*([\d.]+)%\s+.*?\[[.k]\]\s+(\S+)", line)
+        if not m:
+            continue
+        pct, sym = float(m.group(1)), m.group(2)
+        unit, inst = _scope(sym)
+        by_unit[unit] += pct
+        by_inst[inst] += pct
+    r = lambda d: {k: round(v, 2) for k, v in sorted(d.items(), key=lambda kv: -kv[1])}
+    return {"by_unit_percent": r(by_unit), "by_instance_percent": r(by_inst)}
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                              capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="saarcor bench simspeed",
+        description="Time a chip frame step by step (scene, kd-tree, build, input, simulation, "
+                    "golden model, check, outputs), optionally from a fresh build and with a "
+                    "perf profile of the simulation by unit; writes OUT/simspeed.json and "
+                    "appends to OUT/simspeed_history.jsonl.",
+        epilog="Example: saarcor bench simspeed --fresh --profile  (the default frame: the "
+               "standard chip on scenes/cornell.toml at 128x96, all rays)")
+    ap.add_argument("--scene", default="scenes/cornell.toml",
+                    help="scene file (default scenes/cornell.toml, make sim's)")
+    ap.add_argument("--res", default="128x96", help="image WxH (default 128x96, make sim's)")
+    ap.add_argument("--fresh", action="store_true",
+                    help="build the chip from nothing in a temporary build folder (times the "
+                         "build; default: reuse build/verilator's binary if there is one)")
+    ap.add_argument("--profile", action="store_true",
+                    help="run the simulation under `perf record` and report its CPU time by "
+                         "unit and instance (needs perf)")
+    ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bars")
+    args, rest = ap.parse_known_args(argv)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    from .sim import main as sim_main
+    from .verilator import BUILD_ROOT_ENV, WRAPPER_ENV
+
+    tmp = Path(tempfile.mkdtemp(prefix="simspeed"))
+    perf_data = tmp / "perf.data"
+    env_before = os.environ.get(WRAPPER_ENV)
+    try:
+        if args.profile:
+            if shutil.which("perf") is None:
+                raise SystemExit("bench simspeed: --profile needs perf (apt-get install "
+                                 "linux-perf)")
+            os.environ[WRAPPER_ENV] = f"perf record -q -F 499 -e cpu-clock -o {perf_data} --"
+        sim_args = ["--scene", args.scene, "--res", args.res, "--out", str(tmp / "sim"),
+                    *(["--quiet"] if args.quiet else []), *rest]
+        if args.fresh:
+            os.environ[BUILD_ROOT_ENV] = str(tmp / "verilator")
+        t0 = time.perf_counter()
+        rc = sim_main(sim_args)
+        wall = time.perf_counter() - t0
+        stats = json.loads((tmp / "sim" / "stats.json").read_text())
+        res = {"commit": _commit(), "scene": args.scene, "res": args.res, "fresh": args.fresh,
+               "load_average": round(os.getloadavg()[0], 2), "wall_s": round(wall, 1),
+               "cycles": stats["cycles"], "rays": stats["rays_total"],
+               "sim_cycles_per_second": stats["sim_cycles_per_second"],
+               "sim_seconds": stats["sim_seconds"], "wall_phases": stats["wall_phases"],
+               "build": stats["build"], "mismatches": stats["mismatches"],
+               "config": stats["config"], "options": rest}
+        if args.profile and perf_data.exists():
+            rep = subprocess.run(["perf", "report", "-i", str(perf_data), "--stdio",
+                                  "--sort", "symbol", "--no-children"],
+                                 capture_output=True, text=True)
+            res["profile"] = perf_shares(rep.stdout)
+            (out / "simspeed_perf.txt").write_text(rep.stdout)
+    finally:
+        if env_before is None:
+            os.environ.pop(WRAPPER_ENV, None)
+        else:
+            os.environ[WRAPPER_ENV] = env_before
+        if args.fresh:
+            os.environ.pop(BUILD_ROOT_ENV, None)
+        shutil.rmtree(tmp, ignore_errors=True)
+    (out / "simspeed.json").write_text(json.dumps(res, indent=1))
+    with open(out / "simspeed_history.jsonl", "a") as f:
+        f.write(json.dumps({k: res[k] for k in ("commit", "scene", "res", "cycles",
+                                                "sim_cycles_per_second", "sim_seconds",
+                                                "wall_s", "load_average")}) + "\n")
+    ph = res["wall_phases"]
+    print(f"bench simspeed: {args.scene} {args.res}: {res['cycles']:,} cycles at "
+          f"{res['sim_cycles_per_second']:,} cycles/s; wall {wall:.1f} s = "
+          + ", ".join(f"{k[:-2]} {v:.1f}" for k, v in ph.items()) + f" -> {out}/simspeed.json")
+    if "profile" in res:
+        print("  simulation CPU by unit: " + ", ".join(
+            f"{k} {v:.1f} %" for k, v in res["profile"]["by_unit_percent"].items()))
+    return rc
+
+
+if __name__ == "__main__":
+    sys.exit(main())
