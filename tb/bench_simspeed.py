@@ -34,40 +34,34 @@ __all__ = ["main", "perf_shares"]
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _scope(symbol: str) -> tuple[str, str]:
-    """``(unit, instance)`` of a Verilated function's symbol: the class (``Vframe_slave`` ->
-    ``slave``; ``Vframe___024root`` -> ``top``) and the first chip-level instance in its scope
-    path (``...__DOT__chip__DOT__slave0__DOT__unit...`` -> ``slave0``)."""
-    m = re.match(r"V[A-Za-z0-9]+?_(_024root|[a-z][a-z0-9_]*?)(?:___|__\d|$)", symbol)
-    unit = "other" if m is None else ("top" if m.group(1) == "_024root" else m.group(1))
-    if not symbol.startswith("V"):
-        unit = "runtime" if "verilated" in symbol.lower() or symbol.startswith("VL_") else "other"
-    path = symbol.split("__DOT__")
-    inst = "-"
-    for part in path[1:]:
-        name = re.sub(r"__\d+$|__0\d+.*$", "", part)
-        if re.fullmatch(r"(rtc|rtcmi|slave|shade_cache|tex_cache)\d+", name):
-            inst = name
-            break
-        if name in ("bus", "master", "memory", "res_out"):
-            inst = name
-    return unit, inst
+def _unit(symbol: str) -> str:
+    """The unit a Verilated function's symbol belongs to: its class (``Vslave___024root...``
+    -> ``slave``; ``Vframe___024root...`` -> ``frame``: the chip's glue, RGS master, bus and
+    SDRAM model), ``boundary`` for the glue of the hierarchical units' ports
+    (``*_protectlib_*``), ``runtime`` for Verilator's library and libc."""
+    if "_protectlib_" in symbol:
+        return "boundary"
+    m = re.match(r"V([A-Za-z0-9_]+?)___024root", symbol)
+    if m:
+        return m.group(1)
+    return "runtime"
 
 
 def perf_shares(report: str) -> dict:
-    """Shares of the samples of ``perf report --stdio --sort symbol`` text, by unit and by
-    instance (see :func:`_scope`)."""
-    by_unit, by_inst = defaultdict(float), defaultdict(float)
+    """Percent of the samples of ``perf report --stdio --sort symbol`` text by unit (see
+    :func:`_unit`), and the ten hottest functions."""
+    by_unit, top = defaultdict(float), []
     for line in report.splitlines():
-        m = re.match(r"\s*([\d.]+)%\s+.*?\[[.k]\]\s+(\S+)", line)
+        m = re.match(r"\s*([\d.]+)%\s+\[[.k]\]\s+(\S+)", line)
         if not m:
             continue
         pct, sym = float(m.group(1)), m.group(2)
-        unit, inst = _scope(sym)
-        by_unit[unit] += pct
-        by_inst[inst] += pct
-    r = lambda d: {k: round(v, 2) for k, v in sorted(d.items(), key=lambda kv: -kv[1])}
-    return {"by_unit_percent": r(by_unit), "by_instance_percent": r(by_inst)}
+        by_unit[_unit(sym)] += pct
+        if len(top) < 10:
+            top.append([sym, pct])
+    return {"by_unit_percent": {k: round(v, 2) for k, v in
+                                sorted(by_unit.items(), key=lambda kv: -kv[1])},
+            "hottest": top}
 
 
 def _commit() -> str:
