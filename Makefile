@@ -68,6 +68,7 @@ bench: setup
 	$(SAARCOR) bench skipping --scene scenes/cornell.toml --res 128x96 --rtl
 	$(SAARCOR) bench skipping --scene scenes/game.toml --res 128x96 --elab
 	$(SAARCOR) bench ladder --out build/bench
+	$(SAARCOR) bench simspeed --fresh --profile --quiet --out build/bench
 	$(PY) -m pytest -q -m slow
 
 clean:

@@ -64,6 +64,17 @@ def perf_shares(report: str) -> dict:
             "hottest": top}
 
 
+def _perf_missing(tmp: Path) -> str | None:
+    """Why ``perf record`` cannot sample here, or None if it can."""
+    if shutil.which("perf") is None:
+        return "perf is not installed (apt-get install linux-perf)"
+    p = subprocess.run(["perf", "record", "-q", "-e", "cpu-clock", "-o", str(tmp / "probe"),
+                        "--", "true"], capture_output=True, text=True)
+    if p.returncode:
+        return f"perf record fails here: {(p.stderr or p.stdout).strip()[:200]}"
+    return None
+
+
 def _commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
@@ -102,10 +113,10 @@ def main(argv=None) -> int:
     perf_data = tmp / "perf.data"
     env_before = os.environ.get(WRAPPER_ENV)
     try:
-        if args.profile:
-            if shutil.which("perf") is None:
-                raise SystemExit("bench simspeed: --profile needs perf (apt-get install "
-                                 "linux-perf)")
+        no_perf = _perf_missing(tmp) if args.profile else None
+        if no_perf:
+            print(f"bench simspeed: no profile: {no_perf}", file=sys.stderr)
+        elif args.profile:
             os.environ[WRAPPER_ENV] = f"perf record -q -F 499 -e cpu-clock -o {perf_data} --"
         sim_args = ["--scene", args.scene, "--res", args.res, "--out", str(tmp / "sim"),
                     *(["--quiet"] if args.quiet else []), *rest]
@@ -122,7 +133,9 @@ def main(argv=None) -> int:
                "sim_seconds": stats["sim_seconds"], "wall_phases": stats["wall_phases"],
                "build": stats["build"], "mismatches": stats["mismatches"],
                "config": stats["config"], "options": rest}
-        if args.profile and perf_data.exists():
+        if no_perf:
+            res["profile"] = {"error": no_perf}
+        elif args.profile and perf_data.exists():
             rep = subprocess.run(["perf", "report", "-i", str(perf_data), "--stdio",
                                   "--sort", "symbol", "--no-children"],
                                  capture_output=True, text=True)
@@ -145,7 +158,7 @@ def main(argv=None) -> int:
     print(f"bench simspeed: {args.scene} {args.res}: {res['cycles']:,} cycles at "
           f"{res['sim_cycles_per_second']:,} cycles/s; wall {wall:.1f} s = "
           + ", ".join(f"{k[:-2]} {v:.1f}" for k, v in ph.items()) + f" -> {out}/simspeed.json")
-    if "profile" in res:
+    if "by_unit_percent" in res.get("profile", {}):
         print("  simulation CPU by unit: " + ", ".join(
             f"{k} {v:.1f} %" for k, v in res["profile"]["by_unit_percent"].items()))
     return rc

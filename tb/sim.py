@@ -136,6 +136,8 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "sim_seconds": round(run.seconds, 3),
         "sim_cycles_per_second": round(run.cycles / max(run.seconds, 1e-9)),
         "wall_seconds": round(wall, 2),
+        # wall seconds of the host's steps around the simulation (tb.chip.run_chip_frame)
+        "host_seconds": dict(getattr(run, "timings", {}) or {}),
         "build": {"built": bool(run.build and run.build.built),
                   "seconds": round(run.build.seconds, 1) if run.build else 0},
         "image": ("the chip's colour (ambient + Phong, shadows, reflections"

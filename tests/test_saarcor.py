@@ -30,6 +30,7 @@ OPTION = {
     ("bench", "ladder"): "--fraction",
     ("bench", "resources"): "--json",
     ("bench", "skipping"): "--second-run",
+    ("bench", "simspeed"): "--profile",
 }
 
 
