@@ -55,11 +55,13 @@ def check_frame(r, cfg, image, rays):
     assert sum(c["mem_words"]) == c["mem_reads"] == sum(sum(g.values()) for g in c["grants"])
 
 
-@pytest.mark.parametrize("rtcs", [1, 2])
+@pytest.mark.parametrize("rtcs", [1, pytest.param(2, marks=pytest.mark.slow)])
 def test_chip_frame_in_amaranth_sim(rtcs, cornell):
     """An 8x4 Cornell frame (2 packets): eye rays made by the RGS slaves in FP hardware,
     traced by 1 or 2 RTCs through their caches and the SDRAM model, under result
-    back-pressure; with 2 RTCs the master gives each a packet."""
+    back-pressure; with 2 RTCs the master gives each a packet. The 2-RTC run (about 150 s of
+    Amaranth's simulator) is a slow test: its timing entry is checked on every run by
+    ``test_chip_verilator_same_cycles_as_amaranth_sim`` (the same frame in Verilator)."""
     from tb.chip import run_chip
     scene, image = cornell
     cfg = TINY.replace(rtcs=rtcs)
