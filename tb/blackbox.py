@@ -156,7 +156,8 @@ def export_units(units, jobs: int = 1):
         else:
             done = map(_export_one, range(len(_UNITS)))
         for i, text, secs in done:
-            module, _, stand_ins = _UNITS[i]
+            module, unit, stand_ins = _UNITS[i]
+            _silence(unit)                 # elaborated in a worker process, not in this one
             have = module_ports(text, module)
             for bb in stand_ins:
                 bb._module_ports = have
