@@ -148,7 +148,7 @@ def _print_render(name: str, r: dict) -> None:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="saarcor bench model", description=__doc__.split("\n")[0])
     ap.add_argument("--out", default="build/bench", help="output directory")
     ap.add_argument("--mesh", default=None,
                     help="scene or mesh for the primary-ray and eye-ray render benchmarks")

@@ -22,7 +22,7 @@ def parse_res(text: str) -> tuple[int, int]:
 def build_parser() -> argparse.ArgumentParser:
     # every Config field as an option, generated from the dataclass in one place
     from rtl.export import add_config_args
-    p = argparse.ArgumentParser(prog="python -m model",
+    p = argparse.ArgumentParser(prog="saarcor",
                                 description="SaarCOR golden model: bit-exact ray tracing of a "
                                             "scene in the hardware's arithmetic.")
     sub = p.add_subparsers(dest="cmd", required=True)

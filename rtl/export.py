@@ -248,7 +248,7 @@ def config_and_res(args: argparse.Namespace, prog: str) -> tuple[Config, int, in
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m rtl.export",
+    ap = argparse.ArgumentParser(prog="saarcor verilog",
                                  description="Write the Verilog of a unit or of the one-RTC top.")
     ap.add_argument("--top", default="rtc", help="what to export (default rtc; --list names all)")
     ap.add_argument("--list", action="store_true", help="list the tops and exit")

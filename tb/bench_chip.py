@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     from .sim import frame_stats
     from .verilator import FrameError
     ap = argparse.ArgumentParser(
-        prog="python -m tb.bench_chip",
+        prog="saarcor bench chip",
         description="Render a frame on the chip (rtl/chip.py) in Verilator — eye rays and the "
                     "shadow and reflection rays the slaves make — check every ray against the "
                     "golden model, and report cycles, fps and the paper's relative performance "

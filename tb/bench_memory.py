@@ -79,7 +79,7 @@ def bandwidth(cfg: Config, words_per_chip: int) -> list[dict]:
 
 def main(argv=None) -> dict:
     from rtl.export import add_config_args, config_from_args
-    ap = argparse.ArgumentParser(prog="python -m tb.bench_memory",
+    ap = argparse.ArgumentParser(prog="saarcor bench memory",
                                  description=__doc__.split("\n")[0] + " The hit rates are "
                                  "measured for 1, 2 and 4 ways whatever --cache-ways says.")
     ap.add_argument("--out", default="build/bench", help="output directory")

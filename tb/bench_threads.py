@@ -65,7 +65,7 @@ def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], 
 def main(argv=None) -> dict:
     from rtl.export import add_config_args, config_from_args
     ap = argparse.ArgumentParser(
-        prog="python -m tb.bench_threads",
+        prog="saarcor bench threads",
         description=__doc__.splitlines()[0] + " Configuration defaults as Config's except "
                     "4x4 packet tiles (16 rays) and 2 traversal sub-units; --threads is "
                     "replaced by the sweep's --thread-counts, the memories' latency is "

@@ -152,7 +152,7 @@ def yosys_resources(make, name: str = "top") -> dict:
 def main(argv=None) -> int:
     from rtl.export import add_config_args, config_from_args
     ap = argparse.ArgumentParser(
-        prog="python -m tb.resources",
+        prog="saarcor bench resources",
         description="Count the chip's FP units by kind, flip-flop bits and memory bits from its "
                     "elaborated netlist (no synthesis), per part, beside the paper's figures.")
     ap.add_argument("--json", metavar="FILE", help="also write the figures as JSON")

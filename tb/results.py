@@ -1019,7 +1019,7 @@ def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog="python -m tb.results",
+        prog="saarcor results",
         description="Regenerate docs/results.md (the paper's Section 5 tables beside ours) "
                     "from the sweeps of a plan, with matplotlib plots. Exit status 1 when a "
                     "sweep point failed or a table has cells without a value.",

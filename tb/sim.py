@@ -212,7 +212,7 @@ def build_parser() -> argparse.ArgumentParser:
     from .lfsr import add_stall_args
     from .verilator import add_trace_args
     ap = argparse.ArgumentParser(
-        prog="python -m tb.sim",
+        prog="saarcor sim",
         description="Render a frame through the whole SaarCOR chip (RGS, RTCs, caches, bus, "
                     "SDRAM model) in Verilator or Amaranth's simulator, check every ray against "
                     "the golden model, and write image.png, stats.json, rays.npz, hits.npz "

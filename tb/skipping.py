@@ -252,7 +252,7 @@ def second_run(scene_path: str, width: int, height: int, log=None) -> dict:
 
 
 def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m tb.skipping", description=__doc__.split("\n")[0])
+    ap = argparse.ArgumentParser(prog="saarcor bench skipping", description=__doc__.split("\n")[0])
     ap.add_argument("--scene", default="scenes/office.toml")
     ap.add_argument("--res", default="128x96", help="WxH (default 128x96)")
     ap.add_argument("--rtl", action="store_true",

@@ -562,7 +562,7 @@ def bench(n_max: int, formats, meshes: dict, log=None) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(
-        prog="python -m tb.stress",
+        prog="saarcor bench stress",
         description="Numerical stress bench of the golden model against the exact oracle "
                     "(tb/exact.py): rays through shared edges and vertices of closed meshes "
                     "(leaks, and the leaks of a float32 Möller–Trumbore baseline on the same "

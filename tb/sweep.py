@@ -689,7 +689,7 @@ def run_sweep(spec: Spec, *, out: Path | str, cache: Path | str, client=None,
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(
-        prog="python -m tb.sweep",
+        prog="saarcor sweep",
         description="Run a design-space sweep (a TOML spec: configurations x scenes x "
                     "resolutions, backend chip or model) as independent Dask jobs, with every "
                     "point's result cached, and write one table (CSV, and Parquet when pyarrow "

@@ -513,7 +513,7 @@ def run_frame(image, rays, cfg: Config, *, mem_latency: int = 20, idle: float = 
 def main(argv=None) -> int:
     from rtl.export import add_config_args, config_and_res
     ap = argparse.ArgumentParser(
-        prog="python -m tb.verilator",
+        prog="saarcor verilator",
         description="Trace a frame of eye rays through one RTC (rtl/rtc.py) in Verilator and "
                     "compare every ray (triangle, t, u, v bits) and the counters with the golden "
                     "model. The binary is built once per configuration into build/verilator/ "

@@ -79,6 +79,7 @@ def test_command_help_is_the_modules_help(cmd, capsys):
     status, out, err = call([*cmd, "--help"], capsys)
     assert status == 0, err
     assert OPTION[cmd] in out, out
+    assert out.startswith(f"usage: saarcor {' '.join(cmd)} "), out.splitlines()[0]
     if cmd in (("render",), ("verilog",), ("bench", "threads")):   # Config options, generated
         assert "--trav-cache-kb" in out and "--fmt" in out
 

@@ -529,7 +529,7 @@ def table(runs: dict) -> str:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m rtl.fpga", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="saarcor fpga", description=__doc__.splitlines()[0])
     ap.add_argument("--top", default="rtc", help=f"what to build: {', '.join(TOPS)}")
     ap.add_argument("--latency", type=int, help="pipeline latency of an fp_* top")
     ap.add_argument("--freq", type=float, default=100.0, help="target clock, MHz (100)")
