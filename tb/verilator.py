@@ -251,7 +251,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         sources = sorted(p.name for p in d.glob("*.v")) + [MEM_V.name, MAIN_CPP.name]
         units = [p.stem for p in d.glob("*.v") if p.stem != TOP]
         hflags = []
-        if units and hier():
+        if units and hier() and not trace:    # a waveform build stays flat: every signal
             (d / "hier.vlt").write_text("`verilator_config\n" + "".join(
                 f'hier_block -module "{u}"\n' for u in sorted(units)))
             hflags = ["--hierarchical", "--build-jobs", str(MAKE_JOBS), "hier.vlt"]
