@@ -344,3 +344,25 @@ def test_chip_shared_slots_that_never_meet_verilator(cornell):
                        scene=scene, progress=False, max_cycles=3_000_000)
     check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
     assert r.color is not None and r.color.max() > 0
+
+
+@pytest.mark.slow
+def test_chip_waveform_holds_the_units_signals(cornell, tmp_path):
+    """A waveform of the chip (``--trace``): the binary is a flat model of the deduplicated
+    export, so the VCD holds the signals inside the units (a slave's, an RTC's), and the frame
+    is bit-exact with the cycles of the build without a waveform."""
+    from tb.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2)
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    vcd = tmp_path / "chip.vcd"
+    r = run_chip_frame(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3, progress=False,
+                       trace_file=vcd)
+    check_frame(r, cfg, image, rays)
+    assert r.cycles == TIMING["chip/cornell_8x4_rtcs2"], timing_changed(
+        "chip/cornell_8x4_rtcs2", r.cycles)
+    text = vcd.read_text()
+    scopes = {line.split()[2] for line in text.splitlines()
+              if line.lstrip().startswith("$scope")}
+    assert {"slave0", "slave1", "rtc0", "rtc1"} <= scopes, (sorted(scopes)[:40], text[:600])
+    assert "packets_done" in text and "rays_eye" in text
