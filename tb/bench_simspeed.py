@@ -9,7 +9,7 @@ simulation, the golden model (it runs beside the simulation; ``golden_wait_s`` i
 host waited for it afterwards), the check and the outputs. With ``--profile`` (and ``perf`` on
 the machine) the simulation runs under ``perf record`` and the report gives the share of the
 simulation's CPU time by unit (the Verilated class: ``slave``, ``rtc``, ``rtcmi``, ...) and
-by instance (``slave0``, ``rtc2``, ...).
+its hottest functions.
 
 Writes ``OUT/simspeed.json`` and appends one line (commit, cycles, cycles/s, seconds) to
 ``OUT/simspeed_history.jsonl``, so a change in simulation speed shows from one commit to the
@@ -18,6 +18,7 @@ next.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -75,6 +76,21 @@ def _perf_missing(tmp: Path) -> str | None:
     return None
 
 
+@contextlib.contextmanager
+def _env(name: str, value: str | None):
+    """``$name`` set to ``value`` (None: left as it is) inside the block, restored after."""
+    before = os.environ.get(name)
+    if value is not None:
+        os.environ[name] = value
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = before
+
+
 def _commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
@@ -100,7 +116,7 @@ def main(argv=None) -> int:
                          "build; default: reuse build/verilator's binary if there is one)")
     ap.add_argument("--profile", action="store_true",
                     help="run the simulation under `perf record` and report its CPU time by "
-                         "unit and instance (needs perf)")
+                         "unit (needs perf; skipped, saying why, where perf cannot sample)")
     ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args, rest = ap.parse_known_args(argv)
@@ -111,19 +127,18 @@ def main(argv=None) -> int:
 
     tmp = Path(tempfile.mkdtemp(prefix="simspeed"))
     perf_data = tmp / "perf.data"
-    env_before = os.environ.get(WRAPPER_ENV)
     try:
         no_perf = _perf_missing(tmp) if args.profile else None
         if no_perf:
             print(f"bench simspeed: no profile: {no_perf}", file=sys.stderr)
-        elif args.profile:
-            os.environ[WRAPPER_ENV] = f"perf record -q -F 499 -e cpu-clock -o {perf_data} --"
+        wrapper = (f"perf record -q -F 499 -e cpu-clock -o {perf_data} --"
+                   if args.profile and not no_perf else None)
         sim_args = ["--scene", args.scene, "--res", args.res, "--out", str(tmp / "sim"),
                     *(["--quiet"] if args.quiet else []), *rest]
-        if args.fresh:
-            os.environ[BUILD_ROOT_ENV] = str(tmp / "verilator")
         t0 = time.perf_counter()
-        rc = sim_main(sim_args)
+        with _env(WRAPPER_ENV, wrapper), \
+                _env(BUILD_ROOT_ENV, str(tmp / "verilator") if args.fresh else None):
+            rc = sim_main(sim_args)
         wall = time.perf_counter() - t0
         stats = json.loads((tmp / "sim" / "stats.json").read_text())
         res = {"commit": _commit(), "scene": args.scene, "res": args.res, "fresh": args.fresh,
@@ -142,12 +157,6 @@ def main(argv=None) -> int:
             res["profile"] = perf_shares(rep.stdout)
             (out / "simspeed_perf.txt").write_text(rep.stdout)
     finally:
-        if env_before is None:
-            os.environ.pop(WRAPPER_ENV, None)
-        else:
-            os.environ[WRAPPER_ENV] = env_before
-        if args.fresh:
-            os.environ.pop(BUILD_ROOT_ENV, None)
         shutil.rmtree(tmp, ignore_errors=True)
     (out / "simspeed.json").write_text(json.dumps(res, indent=1))
     with open(out / "simspeed_history.jsonl", "a") as f:
