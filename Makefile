@@ -109,7 +109,7 @@ fpga: setup
 SPEC       ?= scenes/sweeps/rtcs.toml
 SWEEP_ARGS ?=
 sweep: setup
-	$(PY) -m tb.sweep $(SPEC) $(SWEEP_ARGS)
+	$(PY) -m saarcor.sweep $(SPEC) $(SWEEP_ARGS)
 
 .PHONY: sweep
 

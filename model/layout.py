@@ -17,16 +17,12 @@ of values of the configured format (for M < 23 the low fraction bits are zero).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 from pathlib import Path
 
 import numpy as np
 
 from .config import Config
 from .fp import FPFormat
-
-if TYPE_CHECKING:
-    from .kdtree import KdTree
 
 MAGIC = int(np.frombuffer(b"SAARCOR1", "<u8")[0])
 SHADE_MAGIC = int(np.frombuffer(b"SHADING1", "<u8")[0])
@@ -253,7 +249,8 @@ def decode_node(word: int) -> tuple:
     return (axis, idx, split)
 
 
-def encode_nodes(tree: KdTree) -> np.ndarray:
+# ``KdTree`` below is model.kdtree.KdTree, named but not imported (model/kdtree.py imports this module)
+def encode_nodes(tree: "KdTree") -> np.ndarray:
     """The node section: one uint64 word per node."""
     axis = tree.axis.astype(np.uint64)
     leaf = tree.axis == LEAF
@@ -381,7 +378,7 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
     return np.concatenate(parts)
 
 
-def build_image(tris: np.ndarray, tree: KdTree, cfg: Config, tri_id: np.ndarray | None = None,
+def build_image(tris: np.ndarray, tree: "KdTree", cfg: Config, tri_id: np.ndarray | None = None,
                 shading: ShadingData | None = None) -> MemoryImage:
     """Lay out header, kd-nodes, triangle list, triangles and shading data in memory words.
 

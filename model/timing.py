@@ -25,7 +25,7 @@ thread at a time (numba, no per-cycle loop):
   misses in flight, responses in request order;
 * bus and memory: one grant a cycle for the whole chip (a calendar of cycles, so accesses
   booked ahead by the list and intersection units do not block earlier ones), the SDRAM
-  chips of ``rtl/memory.py`` (XOR address hashing, a start on an SDRAM clock edge, the data
+  chips of ``tb/harness/memory.py`` (XOR address hashing, a start on an SDRAM clock edge, the data
   bus busy ``burst`` cycles per word, the response ``latency + burst`` after the start, one
   response a cycle).
 

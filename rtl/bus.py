@@ -34,7 +34,7 @@ class RoundRobinBus(wiring.Component):
     tags are ``tag_width + ceil_log2(n)`` bits (requester id in the top bits).
 
     ``policy="fixed"`` grants the lowest requesting id instead (unfair; a baseline for
-    comparisons and for checking that the fairness check in ``tb/bus.py`` can fail).
+    comparisons and for checking that the fairness check in ``tb/units/bus.py`` can fail).
     """
 
     def __init__(self, n: int, *, addr_width: int, tag_width: int, data_width: int = WORD_BITS,

@@ -560,7 +560,7 @@ class IntersectionUnit(wiring.Component):
         fmt, w, pipe = self.fmt, self.fmt.width, self.pipe
         a_meta = data.View(self.pipe_meta, pipe.o_tag)
         a_addr = self._addr(a_meta.thread, a_meta.lane)
-        # the best-hit read, registered (no reset: a block-RAM read, rtl/fpga/outreg.py)
+        # the best-hit read, registered (no reset: a block-RAM read, saarcor/flows/fpga/outreg.py)
         q_t = Signal(w, name="best_q_t", reset_less=True)
         q_hit = Signal(name="best_q_hit", reset_less=True)
         # stage B registers

@@ -2,10 +2,8 @@
 
 :class:`RTC` wires the three units with ``lib.stream`` interfaces (``wiring.connect``) and
 exposes their three memory read ports (node and list: 64-bit words; triangle: whole
-triangles by index) for the RTC-MI's caches (``rtl/rtcmi.py``). :class:`RTCSim` puts an
-:class:`~rtl.memory.IdealMemory` holding the memory image behind each port (the unit-level
-simulation set-up; the triangle port through an :class:`~rtl.memport.ItemReader`, 5 words a
-triangle).
+triangles by index) for the RTC-MI's caches (``rtl/rtcmi.py``); where no int-cache serves the triangle port, an
+:class:`~rtl.memport.ItemReader` (:func:`tri_reader`) reads triangles as 5 words each.
 
 Packets: ``rays`` takes ``RayIn`` lanes; a free thread of the traversal unit takes the next
 packet (``rays.ready`` is low while every thread is busy). Each lane goes, in the same cycle,
@@ -24,13 +22,12 @@ from model.config import Config
 from model.layout import TRI_WORDS
 from .intersection import IntersectionUnit
 from .list import ListUnit
-from .memory import IdealMemory
 from .memport import WORD_BITS, ItemReader, MemReadPort
 from .rtc_streams import RayIn, RayResult
 from .traversal import NODE_BITS, Traversal
 from .common import COUNTER_BITS
 
-__all__ = ["RTC", "RTCSim", "COUNTERS", "HEADER", "drive_header", "attach_memories",
+__all__ = ["RTC", "COUNTERS", "HEADER", "drive_header", "attach_memories",
            "tri_reader"]
 
 # the memory image's header constants an RTC top takes as inputs
@@ -152,42 +149,4 @@ class RTC(wiring.Component):
         for j in range(self.cfg.trav_subunits):
             m.d.comb += self.sub_busy[j].eq(trav.sub_busy[j])
         m.d.sync += self.cycles.eq(self.cycles + 1)
-        return m
-
-
-class RTCSim(wiring.Component):
-    """An :class:`RTC` with an :class:`IdealMemory` (``mem_latency`` cycles) holding ``image``
-    behind each of its three memory ports; image constants from the image header.
-
-    Ports: ``rays``, ``results`` as the RTC's; the RTC itself is ``self.rtc`` (its counters
-    can be read in simulation).
-    """
-
-    def __init__(self, cfg: Config, image, *, mem_latency: int = 20, queue: int | None = None):
-        self.cfg, self.image = cfg, image
-        self.rtc = RTC(cfg)
-        q = queue if queue is not None else mem_latency + 8
-        self.tri_reader = tri_reader(cfg, self.rtc)
-        self.mems = {
-            "node": IdealMemory(image.data, addr_width=cfg.addr_bits, tag_width=cfg.thread_bits,
-                                latency=mem_latency, queue=max(q, cfg.threads)),
-            "list": IdealMemory(image.data, addr_width=cfg.addr_bits,
-                                tag_width=self.rtc.list.tag_width,
-                                latency=mem_latency, queue=q),
-            "tri": IdealMemory(image.data, addr_width=cfg.addr_bits,
-                               tag_width=len(self.tri_reader.mem.req.payload.tag),
-                               latency=mem_latency, queue=q),
-        }
-        super().__init__({
-            "rays": In(stream.Signature(RayIn(cfg))),
-            "results": Out(stream.Signature(RayResult(cfg))),
-        })
-
-    def elaborate(self, platform):
-        m = Module()
-        m.submodules.rtc = rtc = self.rtc
-        attach_memories(m, rtc, self.mems, self.image.tri_base, self.tri_reader)
-        drive_header(m, rtc, self.image)
-        wiring.connect(m, wiring.flipped(self.rays), rtc.rays)
-        wiring.connect(m, rtc.results, wiring.flipped(self.results))
         return m

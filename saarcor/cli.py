@@ -22,40 +22,40 @@ class Command:
 
 
 COMMANDS: dict[str, Command] = {
-    "sim": Command("tb.sim", "render a scene on the simulated chip (RTL) and check it against "
+    "sim": Command("saarcor.sim", "render a scene on the simulated chip (RTL) and check it against "
                              "the golden model"),
-    "render": Command("model.cli", "render a scene with the golden model alone: image.png, "
+    "render": Command("saarcor.render", "render a scene with the golden model alone: image.png, "
                                    "stats.json, rays.npz, hits.npz", prefix=("render",)),
-    "verilog": Command("rtl.export", "write the Verilog of the one-RTC top or of one unit"),
-    "fpga": Command("rtl.fpga.flow", "synthesis, place and route on an ECP5-85k (YoWASP Yosys, "
+    "verilog": Command("saarcor.verilog", "write the Verilog of the one-RTC top or of one unit"),
+    "fpga": Command("saarcor.flows.fpga.flow", "synthesis, place and route on an ECP5-85k (YoWASP Yosys, "
                                      "nextpnr); resources and Fmax"),
-    "verilator": Command("tb.verilator", "trace a frame through one RTC in Verilator, every ray "
+    "verilator": Command("saarcor.verilator", "trace a frame through one RTC in Verilator, every ray "
                                          "compared with the golden model"),
-    "sweep": Command("tb.sweep", "a design-space sweep (configurations x scenes x resolutions) "
+    "sweep": Command("saarcor.sweep", "a design-space sweep (configurations x scenes x resolutions) "
                                  "on Dask, cached per point, into one results table"),
-    "results": Command("tb.results", "docs/results.md: the paper's Section 5 tables beside "
+    "results": Command("saarcor.results", "docs/results.md: the paper's Section 5 tables beside "
                                      "ours, from sweeps, with plots"),
 }
 """Top-level commands; ``bench`` (below) is a group of its own."""
 
 BENCHES: dict[str, Command] = {
-    "chip": Command("tb.bench_chip", "a frame on the whole chip in Verilator: cycles, fps, "
+    "chip": Command("saarcor.bench.chip", "a frame on the whole chip in Verilator: cycles, fps, "
                                      "relative performance"),
-    "memory": Command("tb.bench_memory", "cache hit rates per unit and SDRAM bandwidth"),
-    "threads": Command("tb.bench_threads", "RTC cycles against threads per RTC (the paper's "
+    "memory": Command("saarcor.bench.memory", "cache hit rates per unit and SDRAM bandwidth"),
+    "threads": Command("saarcor.bench.threads", "RTC cycles against threads per RTC (the paper's "
                                            "speed-up)"),
-    "model": Command("model.bench", "golden-model rays per second (trace kernel and whole "
+    "model": Command("saarcor.bench.model", "golden-model rays per second (trace kernel and whole "
                                     "render) next to Embree, kd-tree build time"),
-    "ladder": Command("tb.ladder", "the simulation ladder: golden model, cycle estimate, "
+    "ladder": Command("saarcor.ladder", "the simulation ladder: golden model, cycle estimate, "
                                    "sampled RTL, Verilator, Amaranth: run time against fps error"),
-    "stress": Command("tb.stress", "numerical stress cases of the golden model against the "
+    "stress": Command("saarcor.stress", "numerical stress cases of the golden model against the "
                                    "exact oracle"),
-    "resources": Command("tb.resources", "the chip's FP units by kind, flip-flop and memory "
+    "resources": Command("saarcor.bench.resources", "the chip's FP units by kind, flip-flop and memory "
                                          "bits, from its netlist"),
-    "simspeed": Command("tb.bench_simspeed", "a chip frame's wall time step by step (build, "
+    "simspeed": Command("saarcor.bench.simspeed", "a chip frame's wall time step by step (build, "
                                              "simulation, golden model, outputs) and the "
                                              "simulation's cost by unit"),
-    "skipping": Command("tb.skipping", "what skipping work a scene doesn't need saves: run-time "
+    "skipping": Command("saarcor.skipping", "what skipping work a scene doesn't need saves: run-time "
                                        "skips, the chip built for the scene, second runs"),
 }
 

@@ -23,7 +23,7 @@ if ! command -v iverilog >/dev/null 2>&1; then
     echo "setup: iverilog missing and apt-get unavailable (run as root: apt-get install iverilog)" >&2
   fi
 fi
-# liblz4-dev: Verilator's FST waveform writer (`tb.verilator --trace x.fst`) needs its headers.
+# liblz4-dev: Verilator's FST waveform writer (`tb.harness.verilator --trace x.fst`) needs its headers.
 if ! [ -f /usr/include/lz4.h ]; then
   if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
     (apt-get install -y -q liblz4-dev >/dev/null 2>&1 || (apt-get update -q >/dev/null && apt-get install -y -q liblz4-dev >/dev/null)) \

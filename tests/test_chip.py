@@ -15,7 +15,7 @@ from model.render import prepare
 from model.rtc import trace
 from model.scene import load_scene
 from rtl.rtcmi import rtcmi_geometries
-from tb.compare import COMPARED
+from tb.harness.compare import COMPARED
 
 from .conftest import ROOT, TIMING, timing_changed
 
@@ -62,7 +62,7 @@ def test_chip_frame_in_amaranth_sim(rtcs, cornell):
     back-pressure; with 2 RTCs the master gives each a packet. The 2-RTC run (about 150 s of
     Amaranth's simulator) is a slow test: its timing entry is checked on every run by
     ``test_chip_verilator_same_cycles_as_amaranth_sim`` (the same frame in Verilator)."""
-    from tb.chip import run_chip
+    from tb.harness.chip import run_chip
     scene, image = cornell
     cfg = TINY.replace(rtcs=rtcs)
     rays = eye_rays(scene.camera, 8, 4, cfg)
@@ -77,7 +77,7 @@ def test_chip_frame_in_amaranth_sim(rtcs, cornell):
 def test_cache_hits_are_the_cache_models(cornell):
     """One RTC of one thread traces packet after packet in the model's event order, so each
     cache sees the model's request sequence: ``model.cache.CacheModel`` predicts its hits."""
-    from tb.chip import run_chip
+    from tb.harness.chip import run_chip
     scene, image = cornell
     cfg = TINY.replace(threads=1)
     rays = eye_rays(scene.camera, 8, 4, cfg)
@@ -103,7 +103,7 @@ def test_cache_hits_are_the_cache_models(cornell):
 def test_chip_verilator_same_cycles_as_amaranth_sim(cornell):
     """The same frame, stall pattern and seed in Verilator: the same results, counters and
     cycle count as in Amaranth's simulator (the timing contract)."""
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
     rays = eye_rays(scene.camera, 8, 4, cfg)
@@ -117,7 +117,7 @@ def test_chip_verilator_cornell_16x16(cornell):
     """A 16x16 Cornell frame (16 packets) on 2 RTCs in Verilator with result back-pressure
     and random memory latency (the SDRAM model holds its responses in half the cycles): every
     ray bit-exact, the packets spread over both RTCs by the master."""
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
     rays = eye_rays(scene.camera, 16, 16, cfg)
@@ -140,7 +140,7 @@ def test_chip_secondary_rays_in_amaranth_sim(cornell, buffers):
     every pixel's colour, summed from the slaves' records, equals the model's. (Slow: 5-10
     minutes; ``test_chip_secondary_rays_verilator`` checks the same frame's cycles in CI.)
     ``buffers`` 13: one pending buffer more than the default (``rgs_buffers``)."""
-    from tb.chip import run_chip
+    from tb.harness.chip import run_chip
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_buffers=buffers)
     rays = eye_rays(scene.camera, 4, 4, cfg)
@@ -169,7 +169,7 @@ def test_chip_secondary_rays_verilator(cornell):
     """The same 4x4 frame with secondary rays in Verilator: the same cycle count as in
     Amaranth's simulator; then 16x16 (shadows, a reflective sphere, the textured floor) under
     back-pressure and random memory latency: every ray bit-exact, reflections included."""
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
     r = run_chip_frame(cfg, image, scene.camera, 4, 4, stall=0.25, seed=3, scene=scene,
@@ -193,7 +193,7 @@ def test_chip_reflections_of_reflections_verilator(kd_cache):
     reflections and many reflection packets waiting for their reservations. (The standard chip
     hung on office while the slave's sender tried only the lowest ready buffer: a reflection
     packet waiting for its reservation blocked the shadow packets that return it.)"""
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     cfg = TINY.replace(rtcs=2)
     scene = load_scene(ROOT / "scenes/office.toml")
     image = prepare(scene, cfg, cache_dir=kd_cache).image
@@ -207,7 +207,7 @@ def test_chip_reflections_of_reflections_verilator(kd_cache):
 def test_a_stuck_frame_names_its_packets_and_rtcs():
     """When a frame hits the cycle limit, the message names the packets whose results are
     missing and, per RTC, packets given against packets finished."""
-    from tb.chip import stuck
+    from tb.harness.chip import stuck
     cfg = TINY.replace(rtcs=2)
     rays = eye_rays(load_scene(ROOT / "scenes/cornell.toml").camera, 8, 8, cfg)   # 4 packets
     records = {"packet": np.array([0] * 16 + [1] * 16 + [3] * 10)}
@@ -225,12 +225,12 @@ def test_a_stuck_frame_names_its_packets_and_rtcs():
 
 
 def test_stall_bench_passes_and_can_fail(cornell, tmp_path):
-    """``tb.bench_chip --seeds``: a few seeds of back-pressure and memory-latency jitter on the
+    """``saarcor.bench.chip --seeds``: a few seeds of back-pressure and memory-latency jitter on the
     small chip finish bit-exact; with a cycle limit no frame can meet, every seed is reported
     as a failure naming the unfinished packets (a later part of the seeds: ``first_seed``)."""
     import json
 
-    from tb.bench_chip import stall_bench
+    from saarcor.bench.chip import stall_bench
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
     path = tmp_path / "stalls.json"
@@ -249,7 +249,7 @@ def test_colour_check_finds_a_wrong_pixel():
     """The chip's colour records summed per pixel against the model's sums: equal sums give
     no mismatch, whatever the records' order; one channel off by one unit is named."""
     from model.render import render
-    from tb.chip import colour_mismatches
+    from tb.harness.chip import colour_mismatches
     cfg = TINY
     scene = load_scene(ROOT / "scenes/cornell.toml")
     res = render(scene, cfg, 8, 4, textures=False)
@@ -283,7 +283,7 @@ def test_chip_shared_fp_units_verilator(cornell):
     own; in CI the pool below runs the slaves at ``ii`` > 1 in the chip, and
     ``tests/test_rgs.py`` checks each shared datapath bit for bit.)"""
     from rtl.rgs_slave import Slave
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4)
     slave = Slave(cfg)
@@ -310,7 +310,7 @@ def test_chip_shade_pool_verilator(cornell):
     never meet in one cycle: the texture's inputs wait in their queue."""
     from math import gcd
     from rtl.rgs_slave import Slave
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
     slave = Slave(cfg)
@@ -334,7 +334,7 @@ def test_chip_shared_slots_that_never_meet_verilator(cornell):
     pixel bit-exact."""
     from math import gcd
     from rtl.rgs_slave import Slave
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=1, rgs_fp_muls=2)
     slave = Slave(cfg)
@@ -351,7 +351,7 @@ def test_chip_waveform_holds_the_units_signals(cornell, tmp_path):
     """A waveform of the chip (``--trace``): the binary is a flat model of the deduplicated
     export, so the VCD holds the signals inside the units (a slave's, an RTC's), and the frame
     is bit-exact with the cycles of the build without a waveform."""
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
     rays = eye_rays(scene.camera, 8, 4, cfg)

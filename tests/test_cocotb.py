@@ -1,4 +1,4 @@
-"""cocotb benches (``tb/cocotb/``) on the exported Verilog of every pipeline (``rtl.export``).
+"""cocotb benches (``tb/harness/cocotb/``) on the exported Verilog of every pipeline (``tb.harness.tops``).
 
 CI (``make test``) runs them under Icarus Verilog: no C++ build, so each bench costs its
 simulator start-up (~2-3 s) plus the run; the same benches under Verilator (a 15-60 s C++ build
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from model.config import Config
-from tb.cocotb.runner import BenchFailed
+from tb.harness.cocotb.runner import BenchFailed
 
 from .conftest import ROOT, TIMING, timing_changed
 from .test_chip import TINY as CHIP, check_frame
@@ -32,13 +32,13 @@ TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1, l
 @pytest.fixture(scope="module")
 def cornell(kd_cache):
     """Cornell box, 16x16 eye rays in the standard configuration, with the event log."""
-    from tb.list import golden
+    from tb.units.list import golden
     return golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(), kd_cache)
 
 
 @pytest.fixture(scope="module")
 def cornell_tiny(kd_cache):
-    from tb.list import golden
+    from tb.units.list import golden
     return golden(ROOT / "scenes" / "cornell.toml", 12, 4, TINY, kd_cache)
 
 
@@ -47,7 +47,7 @@ def cornell_tiny(kd_cache):
 @pytest.mark.parametrize("sim", SIMS)
 @pytest.mark.parametrize("kind", ["add", "mul", "div", "cmp", "min", "conv"])
 def test_fp_unit(kind, sim, tmp_path):
-    from tb.cocotb.fp import run_fp
+    from tb.harness.cocotb.fp import run_fp
     r = run_fp(kind, sim, tmp_path, n=300, seed=zlib.crc32(kind.encode()))
     v = r.values
     assert v["ops"] > 300 and v["cycles"] > v["ops"]       # bubbles and stalls happened
@@ -63,7 +63,7 @@ def round_half_up(verilog: str) -> str:
 def test_fp_bench_fails_on_broken_rounding(sim, tmp_path):
     """The multiplier's Verilog with ties rounded away from zero: the bench names the first
     operation whose result differs (a tie), its cycle and both results."""
-    from tb.cocotb.fp import run_fp
+    from tb.harness.cocotb.fp import run_fp
     with pytest.raises(BenchFailed, match=r"fp_mul: cycle \d+, operation #\d+ \(a=0x[0-9a-f]+, "
                                           r"b=0x[0-9a-f]+\): o=0x[0-9a-f]+, model 0x[0-9a-f]+"):
         run_fp("mul", sim, tmp_path, n=300, seed=1, patch=round_half_up)
@@ -73,7 +73,7 @@ def test_fp_bench_fails_on_broken_rounding(sim, tmp_path):
 
 @pytest.mark.parametrize("sim", SIMS)
 def test_list_unit(cornell, sim, tmp_path):
-    from tb.cocotb.list import run_list
+    from tb.harness.cocotb.list import run_list
     r = run_list(cornell, sim, tmp_path, seed=3)
     assert r.values["entries"] > 500
 
@@ -85,7 +85,7 @@ def drop_last_flag(verilog: str) -> str:
 
 
 def test_list_bench_fails_on_broken_output(cornell, tmp_path):
-    from tb.cocotb.list import run_list
+    from tb.harness.cocotb.list import run_list
     with pytest.raises(BenchFailed, match=r"tri #\d+ at cycle \d+: 0x[0-9a-f]+: "
                                           r"last 0x0 \(model 0x1\)"):
         run_list(cornell, CI_SIM, tmp_path, seed=3, patch=drop_last_flag)
@@ -94,14 +94,14 @@ def test_list_bench_fails_on_broken_output(cornell, tmp_path):
 @pytest.mark.parametrize("sim", SIMS)
 @pytest.mark.parametrize("unit", ["trav", "list", "int"])
 def test_cache(unit, sim, cornell_tiny, tmp_path):
-    from tb.cocotb.cache import run_cache
+    from tb.harness.cocotb.cache import run_cache
     _, cr = run_cache(unit, cornell_tiny, sim, tmp_path, n=300, seed=len(unit))
     assert cr.hits > 0 and cr.misses > 0
 
 
 @pytest.mark.parametrize("sim", SIMS)
 def test_bus(cornell, sim, tmp_path):
-    from tb.cocotb.bus import run_bus
+    from tb.harness.cocotb.bus import run_bus
     r = run_bus(cornell, sim, tmp_path, n=200, seed=2)
     assert r.values["counters"]["req_cycles"] == 600
 
@@ -109,8 +109,8 @@ def test_bus(cornell, sim, tmp_path):
 @pytest.mark.parametrize("sim", SIMS)
 def test_traversal(sim, kd_cache, tmp_path):
     """3 packets through 2 threads (a thread is released and reused)."""
-    from tb.cocotb.traversal import run_traversal
-    from tb.traversal import small_case
+    from tb.harness.cocotb.traversal import run_traversal
+    from tb.units.traversal import small_case
     image, rays = small_case(ROOT / "scenes" / "cornell.toml", 12, 4, TINY, kd_cache)
     r = run_traversal(image, rays, TINY, sim, tmp_path, seed=1)
     assert r.values["leaf_requests"] > 10
@@ -121,8 +121,8 @@ def test_intersect_pipe(sim, tmp_path):
     """The 42-FP-unit datapath on corner-case ray/triangle tests, every output at its exact
     cycle (Icarus runs it at well under 100 cycles/s: CI keeps it short)."""
     from model.fp import BINARY32
-    from tb.cocotb.intersection import run_pipe
-    from tb.intersection import random_tests
+    from tb.harness.cocotb.intersection import run_pipe
+    from tb.units.intersection import random_tests
     r = run_pipe(random_tests(96, BINARY32, seed=4), sim, tmp_path, seed=4)
     assert r.values["ops"] == 96
 
@@ -134,8 +134,8 @@ def test_intersect_pipe(sim, tmp_path):
 def test_rtc(top, sim, kd_cache, tmp_path):
     """One 4x4 packet of Cornell eye rays through the whole RTC (``rtc``: with its RTC-MI caches
     and bus, one memory port): every ray's result and every counter against the model."""
-    from tb.cocotb.rtc import run_rtc
-    from tb.traversal import small_case
+    from tb.harness.cocotb.rtc import run_rtc
+    from tb.units.traversal import small_case
     image, rays = small_case(ROOT / "scenes" / "cornell.toml", 4, 4, TINY, kd_cache)
     run, r = run_rtc(image, rays, TINY, sim, tmp_path, top=top, seed=2)
     assert run.mismatches == [] and run.counter_mismatches() == {}
@@ -145,8 +145,8 @@ def test_rtc(top, sim, kd_cache, tmp_path):
 @pytest.mark.parametrize("sim", SIMS)
 def test_intersection_unit(sim, kd_cache, tmp_path):
     """Every leaf of two 4x4 Cornell packets; the triangle port answers whole triangles."""
-    from tb.cocotb.intersection import run_unit
-    from tb.list import golden
+    from tb.harness.cocotb.intersection import run_unit
+    from tb.units.list import golden
     g = golden(ROOT / "scenes" / "cornell.toml", 8, 4, TINY, kd_cache)
     r = run_unit(g, sim, tmp_path, seed=1)
     assert r.values["counters"]["int_ops"] > 50
@@ -157,8 +157,8 @@ def test_ray_setup(sim, tmp_path):
     """The edge cases of ray setup (zero and signed-zero components, |d| ties, origins on the
     box's faces, infinities, tiny and huge values) and random rays."""
     from model.fp import BINARY32
-    from tb.cocotb.rgs import run_ray_setup
-    from tb.rgs import AXIS_BOX, edge_rays
+    from tb.harness.cocotb.rgs import run_ray_setup
+    from tb.units.rgs import AXIS_BOX, edge_rays
     bounds = BINARY32.quantize(AXIS_BOX)
     rays = edge_rays(BINARY32, bounds, n_random=40, seed=3)
     r = run_ray_setup(rays, bounds, Config(), sim, tmp_path, seed=3)
@@ -170,8 +170,8 @@ def test_eye_rays(sim, tmp_path):
     """Two 8x8 tiles of a 15x12 frame requested out of order with arbitrary ids: the last
     (7x4 pixels, partial) and the first (8x8)."""
     from model.fp import BINARY32
-    from tb.cocotb.rgs import run_eye_rays
-    from tb.rgs import AXIS_BOX, axis_camera
+    from tb.harness.cocotb.rgs import run_eye_rays
+    from tb.units.rgs import AXIS_BOX, axis_camera
     r = run_eye_rays(axis_camera(), 15, 12, Config(), BINARY32.quantize(AXIS_BOX), sim,
                      tmp_path, tiles=[3, 0], packet_ids=[7, 0xFFFFFFFF], seed=2)
     assert r.values["outputs"] == 7 * 4 + 8 * 8
@@ -180,12 +180,12 @@ def test_eye_rays(sim, tmp_path):
 # ---- the whole chip -----------------------------------------------------------------------------
 
 def test_lfsr_pattern_is_the_hardware_lfsr():
-    """The benches' :class:`LFSRPattern` holds a stream in exactly the cycles ``tb/lfsr.py``'s
+    """The benches' :class:`LFSRPattern` holds a stream in exactly the cycles ``tb/harness/lfsr.py``'s
     LFSR does (what ``ChipFrame`` uses for its result back-pressure), from its seed on."""
     from amaranth.sim import Simulator
 
-    from tb.cocotb.streams import LFSRPattern
-    from tb.lfsr import LFSR, lfsr_seeds, passes
+    from tb.harness.cocotb.streams import LFSRPattern
+    from tb.harness.lfsr import LFSR, lfsr_seeds, passes
     seed, q = lfsr_seeds(3, 3)[1], 4
     dut = LFSR(loadable=True)
     sim = Simulator(dut)
@@ -223,7 +223,7 @@ def run_chip_frame(cornell_chip, sim, tmp_path, *, top="chip", secondary=False, 
     ``tests/test_chip.py``'s frames); checked as ``tests/test_chip.py`` checks the Amaranth and
     Verilator frames."""
     from model.raygen import eye_rays
-    from tb.cocotb.chip import run_chip
+    from tb.harness.cocotb.chip import run_chip
     scene, image = cornell_chip
     run, r = run_chip(CHIP, image, scene.camera, width, height, sim, tmp_path, top=top,
                       scene=scene if secondary else None, stall=0.25, seed=3, **kw)
@@ -251,7 +251,7 @@ def test_chip(sim, secondary, cornell_chip, tmp_path):
 
 @pytest.mark.slow
 def test_chip_on_sdram_has_the_amaranth_cycles(cornell_chip, tmp_path):
-    """The chip on the SDRAM model (``tb/chip_sdram.py``) in Verilator through cocotb, with
+    """The chip on the SDRAM model (``tb/harness/chip_sdram.py``) in Verilator through cocotb, with
     ``ChipFrame``'s result back-pressure: the cycle counts of the Amaranth-simulator runs of
     ``tests/test_chip.py`` (the timing contract), eye rays and with the secondary rays."""
     run, _ = run_chip_frame(cornell_chip, "verilator", tmp_path / "eye", top="chip_sdram",
@@ -286,7 +286,7 @@ def stuck_t_lsb(verilog: str) -> str:
 def test_chip_bench_fails_on_broken_output(cornell_chip, tmp_path):
     """The chip's Verilog with bit 0 of t stuck at 0: the comparison by ray id names the rays
     whose t is odd, and nothing else."""
-    from tb.cocotb.chip import run_chip
+    from tb.harness.cocotb.chip import run_chip
     scene, image = cornell_chip
     run, _ = run_chip(CHIP, image, scene.camera, 4, 4, CI_SIM, tmp_path, stall=0.25, seed=3,
                       patch=stuck_t_lsb)

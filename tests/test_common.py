@@ -8,7 +8,7 @@ from amaranth.sim import Simulator
 
 from rtl.common import (SkidBuffer, TwoWriteMemory, lowest, rr_pick, rr_pick_next,
                         rr_pick_onehot, times_const)
-from tb.common import drain, drive, run
+from tb.harness.common import drain, drive, run
 
 
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 8, 9, 17, 32, 64])
@@ -139,7 +139,7 @@ def test_rr_pick_next_copies_survive_synthesis():
     own half of a wide select."""
     from amaranth.lib import wiring
     from amaranth.lib.wiring import In, Out
-    from tb.common import synth_ecp5_json
+    from tb.harness.common import synth_ecp5_json
 
     class Top(wiring.Component):
         def __init__(self):

@@ -46,8 +46,8 @@ def config_names_the_hardware_reads() -> set[str]:
     import re
     from pathlib import Path
     root = Path(__file__).resolve().parent.parent
-    files = sorted((root / "rtl").rglob("*.py")) + [root / "tb" / n for n in (
-        "frame.py", "chip_frame.py", "lfsr.py")]
+    files = sorted((root / "rtl").rglob("*.py")) + [root / "tb" / "harness" / n for n in (
+        "frame.py", "chip_frame.py", "lfsr.py", "memory.py", "tops.py")]
     read = set()
     for p in files:
         read |= set(re.findall(r"cfg\.(\w+)", p.read_text()))
@@ -103,7 +103,7 @@ def test_every_config_option_has_help():
     import dataclasses
 
     from model.config import field_help
-    from rtl.export import add_config_args
+    from saarcor.args import add_config_args
     text = field_help()
     names = {f.name for f in dataclasses.fields(Config)} - {"fmt"}
     assert names <= set(text), sorted(names - set(text))

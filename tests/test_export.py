@@ -1,5 +1,5 @@
-"""Verilog export (``rtl/export.py``): every unit and the one-RTC top export, pass
-``verilator --lint-only -Wall`` with only the waivers of ``rtl/saarcor.vlt``, and read into
+"""Verilog export (``tb/harness/tops.py``): every unit and the one-RTC top export, pass
+``verilator --lint-only -Wall`` with only the waivers of ``tb/harness/saarcor.vlt``, and read into
 Yosys (``hierarchy -check``); the FPGA pin wrapper moves every bit in and out; the flow's
 parsers read Yosys and nextpnr output. Full-chip synthesis and place and route (``make fpga``)
 are not run here.
@@ -17,14 +17,14 @@ from amaranth.sim import Simulator
 
 from model.config import Config
 from model.fp import FPFormat
-from rtl import export as ex
-from rtl.fpga import PinWrapper, port_bits
-from rtl.fpga.flow import parse_report, parse_stat
+from tb.harness import tops as ex
+from saarcor.flows.fpga import PinWrapper, port_bits
+from saarcor.flows.fpga.flow import parse_report, parse_stat
 from rtl.rtc import drive_header
-from rtl.tools import tool
+from tb.harness.tools import tool
 
 ROOT = Path(__file__).resolve().parents[1]
-VLT = ROOT / "rtl" / "saarcor.vlt"
+VLT = ROOT / "tb" / "harness" / "saarcor.vlt"
 
 # small but complete: every unit, caches in a few KB, a 4-level stack
 SMALL = Config(threads=2, trav_subunits=2, trav_cache_kb=1, list_cache_kb=1, int_cache_kb=9,
@@ -230,11 +230,11 @@ def test_big_units_export(tmp_path, top):
 
 class _TopSim(wiring.Component):
     """The ``rtc`` top with an IdealMemory holding ``image`` on its one memory port: a stand-in
-    for ``tb.rtc``'s RTCSim (same ``rays``/``results`` ports, counters on ``.rtc``)."""
+    for ``tb.units.rtc``'s RTCSim (same ``rays``/``results`` ports, counters on ``.rtc``)."""
 
     def __init__(self, cfg, image, *, mem_latency: int, caches: bool = True):
         from amaranth.lib import stream
-        from rtl.memory import IdealMemory
+        from tb.harness.memory import IdealMemory
         from rtl.rtc_streams import RayIn, RayResult
         self.image = image
         self.rtc = ex.RTCTop(cfg, caches=caches)
@@ -262,17 +262,17 @@ def test_rtc_top_matches_model(caches, fast, kd_cache, monkeypatch):
     """The ``rtc`` top (RTC + word caches + bus, one memory port) on an ideal memory traces
     2 packets of 4x4 eye rays bit-exactly like the golden model, with the model's counters
     (``fast``: the FPGA build's settings, the caches' registers included)."""
-    import tb.rtc
-    from tb.traversal import small_case
+    import tb.units.rtc
+    from tb.units.traversal import small_case
     cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_cache_kb=1,
                  list_cache_kb=1, int_cache_kb=1, cache_outstanding=2)
     if fast:
         cfg = cfg.replace(fast_clock=True, fp_add_latency=8, fp_mul_latency=5,
                           fp_div_latency=29, fp_cmp_latency=3)
     image, rays = small_case(ROOT / "scenes/cornell.toml", 8, 4, cfg, kd_cache)
-    monkeypatch.setattr(tb.rtc, "RTCSim", lambda c, img, mem_latency: _TopSim(
+    monkeypatch.setattr(tb.units.rtc, "RTCSim", lambda c, img, mem_latency: _TopSim(
         c, img, mem_latency=mem_latency, caches=caches))
-    r = tb.rtc.run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=5,
+    r = tb.units.rtc.run_rtc_free(image, rays, cfg, mem_latency=4, idle=0.25, stall=0.3, seed=5,
                             max_cycles=20_000)
     print(f"rtc top: {r.cycles} cycles")
     assert r.mismatches == []

@@ -13,7 +13,7 @@ from hypothesis import given, settings, strategies as st
 
 from model.fp import (FPFormat, BINARY32, fadd, fsub, fmul, fdiv, fsqrt, flt, fle, feq, fmin,
                       fmax)
-from tb.fp_vectors import corner_pairs, special_values
+from tb.units.fp_vectors import corner_pairs, special_values
 from tests.fp_exact import ExactFormat
 
 OPS = ("add", "sub", "mul", "div")

@@ -1,4 +1,4 @@
-"""The FP units of rtl/fp against the golden model, in Amaranth simulation (tb/fp.py).
+"""The FP units of rtl/fp against the golden model, in Amaranth simulation (tb/units/fp.py).
 
 Every test checks every output on the exact cycle it must appear (o_valid on every cycle).
 CI runs reduced vector counts; ``-m slow`` (``make bench``) runs the large ones.
@@ -14,7 +14,7 @@ from hypothesis import given, settings, strategies as st
 
 from model.fp import BINARY32, FPFormat
 from rtl.fp import FPAdd, FPDiv, FPFromInt, FPMinMax, FPMul, FPSqrt, placement
-from tb.fp import make_unit, pair_inputs, run_exhaustive, run_random, simulate
+from tb.units.fp import make_unit, pair_inputs, run_exhaustive, run_random, simulate
 
 E4M3 = FPFormat(4, 3)
 E8M16, E8M10 = FPFormat(8, 16), FPFormat(8, 10)
@@ -304,7 +304,7 @@ def test_gt_const_every_value():
 def test_synthesis_no_latches(tmp_path):
     """Each unit (small format) through Yosys synth and synth_ecp5 with the latch assertion;
     the multiplier maps to a DSP block."""
-    from rtl.fp.synth import UNITS, synth_unit
+    from saarcor.flows.synth import UNITS, synth_unit
     for name in UNITS:
         r = synth_unit(name, E8M10, tmp_path)
         assert r["generic_ff"] > 0 and r["ecp5"].get("LUT4", 0) > 0, r

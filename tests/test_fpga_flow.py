@@ -1,4 +1,4 @@
-"""rtl.fpga.flow helpers that need no Yosys or nextpnr run: log parsing, --reuse checks."""
+"""saarcor.flows.fpga.flow helpers that need no Yosys or nextpnr run: log parsing, --reuse checks."""
 from __future__ import annotations
 
 import json
@@ -8,7 +8,7 @@ import time
 import pytest
 
 from model.config import Config
-from rtl.fpga.flow import placement_fmax, pnr_times, run
+from saarcor.flows.fpga.flow import placement_fmax, pnr_times, run
 
 LOG = """Info: HeAP Placer Time: 668.70s
 Info:   of which solving equations: 419.13s
@@ -50,7 +50,7 @@ def test_reuse_checks(tmp_path):
 
 
 def test_set_router_rewrites_the_stored_setting(tmp_path):
-    from rtl.fpga.flow import _set_router
+    from saarcor.flows.fpga.flow import _set_router
     placed = tmp_path / "placed.json"
     text = '{"modules": {"top": {"settings": {"placer": "heap", "router": "router1"}}}}'
     placed.write_text(text)
@@ -61,7 +61,7 @@ def test_set_router_rewrites_the_stored_setting(tmp_path):
 
 
 def test_native_yosys_is_named_when_missing(monkeypatch):
-    from rtl.tools import ToolMissing, tool
+    from tb.harness.tools import ToolMissing, tool
     monkeypatch.setenv("PATH", "")
     with pytest.raises(ToolMissing, match="apt-get install yosys"):
         tool("yosys")
@@ -76,7 +76,7 @@ def test_native_yosys_synthesizes(tmp_path):
 
 
 def test_speed_grade_checked_and_shown(tmp_path):
-    from rtl.fpga.flow import _fmax_text
+    from saarcor.flows.fpga.flow import _fmax_text
     with pytest.raises(SystemExit, match="grades 6, 7, 8"):
         run("fp_add", Config(), out=tmp_path, pnr=False, speed=5)
     fmax = {"achieved_mhz": 84.2}
@@ -125,7 +125,7 @@ STAT = """
 
 
 def test_unit_resources_and_chip_estimate():
-    from rtl.fpga.flow import chip_estimate, chip_unit, stat_sections, unit_resources
+    from saarcor.flows.fpga.flow import chip_estimate, chip_unit, stat_sections, unit_resources
     assert chip_unit("\\\\fpga_top.dut.array.rtcmi0.cache_int") == "rtcmi0"
     assert chip_unit("fpga_top.dut.master.queue0") == "master"
     assert stat_sections(STAT)["fpga_top.dut.array.bus"].count("LUT4") == 1
@@ -159,7 +159,7 @@ def test_pnr_args_reach_nextpnr_and_the_report(tmp_path, monkeypatch):
     import subprocess
     import types
 
-    import rtl.fpga.flow as flow
+    import saarcor.flows.fpga.flow as flow
     cfg = Config()
     (tmp_path / "old").mkdir()
     for f in ("fpga_top.json", "fpga_top.stat"):
@@ -234,8 +234,8 @@ def test_outreg_only_on_a_reused_netlist(tmp_path):
 def test_congestion_units_and_shares(tmp_path):
     """Cells are mapped to the unit path in their names, each tile's overuse is split between
     the units by their cells there, the quietest iteration is chosen, and the map is drawn."""
-    from rtl.fpga.congestion import attribute, read_heatmap, report, tile_units, unit_of
-    from rtl.fpga.flow import main
+    from saarcor.flows.fpga.congestion import attribute, read_heatmap, report, tile_units, unit_of
+    from saarcor.flows.fpga.flow import main
     assert unit_of("dut.rtcmi.cache_int.q_wait_TRELLIS_FF_Q") == "rtcmi.cache_int"
     assert unit_of("dut.rtc.int.pipe.add3.s2_TRELLIS_FF_Q") == "rtc.int.pipe"
     assert unit_of("dut.rtc.int.n_mask_LUT4_Z") == "rtc.int"
@@ -300,7 +300,7 @@ def _router1_log(rows) -> str:
 def test_router1_stall_rule():
     """Stalled: the fewest arcs left have not fallen 2 % in the last window of routing time;
     steady progress, a log shorter than the window, or no router1 table: not stalled."""
-    from rtl.fpga.flow import router1_progress, router1_stalled
+    from saarcor.flows.fpga.flow import router1_progress, router1_stalled
     steady = [(10.0 * i, 200_000 - 300 * i) for i in range(100)]          # 990 s
     assert router1_progress(_router1_log(steady[:2])) == [(0.0, 200_000), (10.0, 199_700)]
     assert not router1_stalled(_router1_log(steady), 300)
@@ -316,7 +316,7 @@ def test_router1_stall_rule():
 def test_router1_watch_stops_a_batch_longer_than_the_window():
     """The watch: router1's rule over the log, and a log whose last row is older than the
     window in wall time; before routing starts (no rows) nothing is stalled."""
-    from rtl.fpga.flow import Router1Watch
+    from saarcor.flows.fpga.flow import Router1Watch
     steady = [(10.0 * i, 200_000 - 300 * i) for i in range(20)]
     w = Router1Watch(300)
     assert not w.stalled("Info: HeAP placer\n", 0.0)
@@ -334,7 +334,7 @@ def test_watched_nextpnr_is_stopped_when_router1_stalls(tmp_path, monkeypatch):
     lets one that finishes run to its end."""
     import sys
 
-    import rtl.fpga.flow as flow
+    import saarcor.flows.fpga.flow as flow
     monkeypatch.setattr(flow, "POLL_S", 0.05)
     stuck = [(10.0 * i, 100_000) for i in range(40)]
     log = tmp_path / "place.log"
@@ -351,7 +351,7 @@ def test_watched_nextpnr_is_stopped_when_router1_stalls(tmp_path, monkeypatch):
 def test_seeds_tried_in_turn_until_one_routes(tmp_path, monkeypatch):
     """``--seed 1 2 3``: a stalled seed moves on to the next, which places the first run's
     netlist again under LABEL_sN; the first that routes ends the loop; none: an error."""
-    import rtl.fpga.flow as flow
+    import saarcor.flows.fpga.flow as flow
     calls = []
 
     def fake_run(top, cfg, **kw):
@@ -396,7 +396,7 @@ def test_path_estimate_knows_the_dsp_registers(tmp_path):
     """``--estimate``: a MULT18X18D without its own registers is a 4.5 ns step between two
     flip-flops; with them, the path into it ends at its inputs and the path out of it starts
     at its output register."""
-    from rtl.fpga.paths import DSP, DSP_CQ, FF_CQ, SETUP, estimate
+    from saarcor.flows.fpga.paths import DSP, DSP_CQ, FF_CQ, SETUP, estimate
     plain = {e["end"]: e for e in estimate(_dsp_netlist(tmp_path / "a.json", False), route=1.0)}
     assert plain["r"]["path"] == ["q", "dsp", "r"]
     assert plain["r"]["ns"] == round(FF_CQ + 1.0 + DSP + 1.0 + SETUP, 2)
@@ -411,7 +411,7 @@ def test_routed_estimate_ranks_endpoints_by_nextpnr_arrivals(tmp_path):
     nextpnr's detailed net timings (the worst over its inputs), its path named from the
     estimate; endpoints nextpnr does not list are left out; a report without the detailed
     timings is refused with the option that writes them."""
-    from rtl.fpga.paths import estimate, report, routed_arrivals
+    from saarcor.flows.fpga.paths import estimate, report, routed_arrivals
     net = _dsp_netlist(tmp_path / "n.json", False)
     rep = tmp_path / "report.json"
     rep.write_text(json.dumps({"detailed_net_timings": [

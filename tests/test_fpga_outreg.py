@@ -1,4 +1,4 @@
-"""rtl.fpga.outreg: the flip-flops after block-RAM reads move into the RAMs' output registers."""
+"""saarcor.flows.fpga.outreg: the flip-flops after block-RAM reads move into the RAMs' output registers."""
 from __future__ import annotations
 
 import copy
@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from rtl.fpga.outreg import absorb_output_registers
+from saarcor.flows.fpga.outreg import absorb_output_registers
 
 CLK, CE, RST = 7, 8, 9
 
@@ -126,7 +126,7 @@ def test_yosys_netlist_of_a_registered_block_ram_read():
     from amaranth.lib import wiring
     from amaranth.lib.wiring import In, Out
     from rtl.common import BlockRAM
-    from tb.common import synth_ecp5_json
+    from tb.harness.common import synth_ecp5_json
 
     class Top(wiring.Component):
         def __init__(self):
@@ -164,7 +164,7 @@ def test_path_estimate_starts_at_the_output_register(tmp_path):
     """``--estimate``: a read through the RAM's output register leaves it 0.9 ns after the
     clock (the plain RAM's 5.8 ns went into the flip-flop the pass removed), so the design's
     worst path, the RAM into that flip-flop, is gone."""
-    from rtl.fpga.paths import BRAM_CQ, BRAM_OUTREG_CQ, FF_CQ, SETUP, estimate
+    from saarcor.flows.fpga.paths import BRAM_CQ, BRAM_OUTREG_CQ, FF_CQ, SETUP, estimate
     ffs = {"f0": _ff(100, 200)}
     net = _netlist(9, ["DOB0"], ffs)
     net["modules"]["fpga_top"]["cells"]["g"] = _ff(300, 301)     # the LUT's output, registered

@@ -8,7 +8,7 @@ import pytest
 from model.config import Config
 from model.fp import FPFormat
 from model.rtc import C
-from tb.intersection import random_tests, run_pipe
+from tb.units.intersection import random_tests, run_pipe
 
 from .conftest import TIMING, timing_changed
 
@@ -40,7 +40,7 @@ def test_pipe_random_binary32_thousands():
 
 @pytest.fixture(scope="module")
 def cornell(kd_cache):
-    from tb.list import golden
+    from tb.units.list import golden
     from .conftest import ROOT
     return golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(), kd_cache)
 
@@ -48,7 +48,7 @@ def cornell(kd_cache):
 def test_unit_matches_model_first_leaves(cornell):
     """The first leaves of 4 Cornell packets: every datapath output against EV_INT in order,
     every LaneResult against the model's best hit after the leaf, every lane's final hit."""
-    from tb.intersection import run_unit
+    from tb.units.intersection import run_unit
     r = run_unit(cornell, max_leaves=8, seed=1, idle=0.3, stall=0.3, latency=20)
     assert r.mismatches[:5] == []
     assert r.int_ops > 100 and r.counters["busy"] > 0
@@ -58,8 +58,8 @@ def test_unit_matches_model_first_leaves(cornell):
 
 def test_unit_deep_settings_first_leaves(kd_cache):
     """The deep settings on the first leaves of 4 Cornell packets, bubbles and back-pressure."""
-    from tb.list import golden
-    from tb.intersection import run_unit
+    from tb.units.list import golden
+    from tb.units.intersection import run_unit
     from .conftest import ROOT
     g = golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(**DEEP), kd_cache)
     r = run_unit(g, max_leaves=6, seed=3, idle=0.3, stall=0.3, latency=20)
@@ -68,7 +68,7 @@ def test_unit_deep_settings_first_leaves(kd_cache):
 
 @pytest.mark.slow
 def test_unit_matches_model_whole_image(cornell):
-    from tb.intersection import run_unit
+    from tb.units.intersection import run_unit
     r = run_unit(cornell, seed=2, idle=0.2, stall=0.2, latency=20)
     assert r.mismatches[:5] == []
     assert r.counters["int_ops"] == cornell.counters.sum(axis=0)[C["int_ops"]]
@@ -88,7 +88,7 @@ def test_unit_every_test_accepts_small_slots_fast_memory(kd_cache, deep):
     tests of one lane after a stall, each needing the previous one's store (with the deep
     settings: a store the best-hit read missed, forwarded); two triangle slots and a 2-cycle
     memory; LaneResults back-pressured."""
-    from tb.intersection import golden_stack, run_unit
+    from tb.units.intersection import golden_stack, run_unit
     from model.events import EV_INT
     cfg = Config(kd_leaf_size=32, **(DEEP if deep else {}))
     for near_first in (False, True):
@@ -113,7 +113,7 @@ def test_unit_newest_forwarded_store_wins(kd_cache, deep):
     int cache (one ray a packet). With the deep settings the t 8 test's best-hit read misses
     the two stores before it, both of the lane: the newer (t 7) must reject it."""
     from model.events import EV_INT
-    from tb.intersection import golden_newest_store, run_unit
+    from tb.units.intersection import golden_newest_store, run_unit
     cfg = Config(kd_leaf_size=32, int_cache_kb=1, **(DEEP if deep else {}))
     g = golden_newest_store(cfg, kd_cache)
     tri = np.asarray(g.hits.tri)
@@ -135,7 +135,7 @@ def test_unit_synthesizes_small_config():
     """Yosys, generic synth (about 5 minutes): 2 threads of 2x2 rays (the ray and best-hit
     memories become flip-flops in the generic flow, so keep them small); no latches."""
     from rtl.intersection import IntersectionUnit
-    from tb.common import synth_check
+    from tb.harness.common import synth_check
     stat = synth_check(IntersectionUnit(Config(threads=2, tile_w=2, tile_h=2)), "intersection")
     assert "cells" in stat          # synth_check raises on a latch or a failed `check`
 
@@ -173,8 +173,8 @@ def test_pipe_delay_rings_exact_cycle(lat):
 @pytest.mark.slow
 def test_unit_reduced_format(kd_cache):
     """E8M16: triangles come from memory as binary32 patterns and are sliced to the format."""
-    from tb.list import golden
-    from tb.intersection import run_unit
+    from tb.units.list import golden
+    from tb.units.intersection import run_unit
     from .conftest import ROOT
     g = golden(ROOT / "scenes" / "cornell.toml", 16, 16, Config(fmt=FPFormat(8, 16)), kd_cache)
     r = run_unit(g, max_leaves=20, seed=1)

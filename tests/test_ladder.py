@@ -1,5 +1,5 @@
 """The simulation ladder: the cycle estimate (``model/timing.py``), the bands of the sampled
-RTL (``tb/ladder.py``) and ``saarcor sim --fidelity``. Comparisons with the RTL itself
+RTL (``saarcor/ladder.py``) and ``saarcor sim --fidelity``. Comparisons with the RTL itself
 (Verilator builds) are ``slow``."""
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from model.render import prepare
 from model.rtc import trace
 from model.scene import load_scene
 from model.timing import estimate_events, estimate_frame, fps_error, record_work, work_of
-from tb.ladder import (LADDER_CONFIGS, band_rays, band_registers, choose_bands,
+from saarcor.ladder import (LADDER_CONFIGS, band_rays, band_registers, choose_bands,
                        ideal_cycles)
 
 SMALL = Config(**LADDER_CONFIGS["1x4"])
@@ -133,7 +133,7 @@ def test_band_rays_are_the_frames_rays(cornell):
 
 
 def test_sim_fidelity_estimate_writes_marked_stats(tmp_path):
-    from tb.sim import main
+    from saarcor.sim import main
     out = tmp_path / "est"
     assert main(["--fidelity", "estimate", "--scene", "scenes/cornell.toml", "--res", "16x8",
                  "--rtcs", "1", "--threads", "2", "--tile-w", "4", "--tile-h", "4",
@@ -153,7 +153,7 @@ def test_estimate_and_sampled_within_bounds_of_verilator(scene_path):
     """The estimate within 5 % of the RTL's frame rate, the sampled RTL within 5 % too (the
     bounds docs/ladder.md states), on a 1-RTC chip of 4 threads; every ray of the whole frame
     checked."""
-    from tb.ladder import ladder_point
+    from saarcor.ladder import ladder_point
     p = ladder_point(SMALL, scene_path, 64, 48, fraction=0.25)
     m = p["methods"]
     assert m["rtl"]["mismatches"] == 0

@@ -7,8 +7,8 @@ import pytest
 
 from model.config import Config
 from model.list import list_entry, list_words
-from tb.common import synth_check
-from tb.list import golden, leaf_stream, run_list
+from tb.harness.common import synth_check
+from tb.units.list import golden, leaf_stream, run_list
 from rtl.list import ListUnit
 
 from .conftest import ROOT, TIMING, timing_changed

@@ -1,10 +1,10 @@
-"""Simulation memories (rtl/memory.py): data, tags, exact latency, SDRAM bandwidth per chip."""
+"""Simulation memories (tb/harness/memory.py): data, tags, exact latency, SDRAM bandwidth per chip."""
 import numpy as np
 import pytest
 
 from model.config import Config
-from rtl.memory import IdealMemory, SDRAMMemory, chip_of
-from tb.memory import run_memory, sdram_bandwidth
+from tb.harness.memory import IdealMemory, SDRAMMemory, chip_of
+from tb.units.memory import run_memory, sdram_bandwidth
 
 RNG = np.random.default_rng(5)
 IMAGE = RNG.integers(0, 1 << 63, 256, dtype=np.uint64) | np.uint64(1 << 63)
@@ -93,8 +93,8 @@ def test_item_reader_assembles_items_in_order_from_out_of_order_words(slots, see
     import random
 
     from rtl.memport import ItemReader
-    from tb.common import drain, drive, run
-    from tb.memory import random_memory
+    from tb.harness.common import drain, drive, run
+    from tb.units.memory import random_memory
     base, n_items = 16, (256 - 16) // 5
     items = RNG.integers(0, n_items, 40)
     dut = ItemReader(item_bits=288, item_words=5, addr_width=8, tag_width=3, slots=slots)

@@ -1,4 +1,4 @@
-"""The precision study's measures (tb/precision.py) and its float64 reference
+"""The precision study's measures (saarcor/precision.py) and its float64 reference
 (model/reference.py): they score a correct render well and a deliberately wrong one badly."""
 import numpy as np
 import pytest
@@ -11,7 +11,7 @@ from model.reference import Reference, render64
 from model.render import prepare, render
 from model.rtc import trace
 from model.scene import load_scene
-from tb.precision import (image_error, leaks, narrowest_format, ray_error, smallest_m,
+from saarcor.precision import (image_error, leaks, narrowest_format, ray_error, smallest_m,
                           study_scene)
 
 from .conftest import ROOT
@@ -152,7 +152,7 @@ def test_narrowest_format_walks_down_and_stops_at_the_first_failure(cornell):
 
 
 def test_narrowest_format_needs_no_leak_and_can_find_none(cornell, monkeypatch):
-    import tb.precision as tp
+    import saarcor.precision as tp
     # a leak at every format below binary32 stops the walk at binary32
     monkeypatch.setattr(tp, "leaks", lambda mesh, fmt, n: {"leaks": int(fmt.frac_bits < 23)})
     r = narrowest_format(cornell, W, H, candidates=NARROW, leak_rays=10)

@@ -98,7 +98,7 @@ def test_binary32_classify_matches_exact():
 
 
 def test_bench_render_speed_runs(tmp_path):
-    from model.bench import render_speed
+    from saarcor.bench.model import render_speed
     from model.scene import load_scene
     r = render_speed(load_scene(ROOT / "scenes/cornell.toml"), (32, 24), 1, None)
     assert r["rays"] == 32 * 24 and r["rays_per_second"] > 0 and r["threads"] >= 1

@@ -1,10 +1,10 @@
-"""``tb.resources``: FP units by kind and memory bits counted from a component's netlist."""
+"""``saarcor.bench.resources``: FP units by kind and memory bits counted from a component's netlist."""
 import pytest
 
 from model.cache import cache_geometry
 from model.config import Config
 from model.fp import FPFormat
-from tb.resources import resources
+from saarcor.bench.resources import resources
 
 
 @pytest.mark.filterwarnings("ignore:.*created but never used")
@@ -37,7 +37,7 @@ def test_yosys_counts_agree_with_the_netlist():
     unused bits), it never adds any."""
     from rtl.cache import Cache
     from rtl.rgs import SecondaryPipe
-    from tb.resources import yosys_resources
+    from saarcor.bench.resources import yosys_resources
     g = cache_geometry(Config(trav_cache_kb=1), "trav")
     net, y = resources(lambda: Cache(g)), yosys_resources(lambda: Cache(g), "cache")
     assert y["memory_bits"] == net["totals"]["memory_bits"] > g.size_bytes * 8
@@ -56,7 +56,7 @@ def test_parse_stat_counts_flip_flop_bits_and_products():
     ``$mul`` cells by width; a report that is not one module's statistics is refused."""
     import json
 
-    from tb.resources import parse_stat
+    from saarcor.bench.resources import parse_stat
     mod = {"num_cells": 166138, "num_memories": 216, "num_memory_bits": 26354240,
            "num_cells_by_type": {"$dff_48": 12, "$dffe_1": 3, "$sdffe_7": 2, "$mul_48": 596,
                                  "$mul_40": 4, "$add_28": 396, "$mem_v2": 216}}

@@ -1,4 +1,4 @@
-"""``saarcor results`` (tb/results.py): a tiny plan fills every table of the page.
+"""``saarcor results`` (saarcor/results.py): a tiny plan fills every table of the page.
 
 The golden-model sweeps run for real (Cornell 8x8); the chip points are put in the result
 cache beforehand (a chip frame needs a Verilator build of minutes), with figures made up here,
@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 
 from model.config import Config
-from tb import results, sweep
-from tb.sim import relative_performance
+from saarcor import results
+from saarcor import sweep
+from saarcor.sim import relative_performance
 
 from .conftest import ROOT
 

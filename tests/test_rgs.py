@@ -15,7 +15,7 @@ from model.fp import FPFormat
 from model.raygen import eye_rays
 from rtl.rgs import (COORD_BITS, EyeRays, LightPipe, RaySetup, RaySetupPipe, SecondaryPipe,
                      div_const_params, sample_converter)
-from tb.rgs import (AXIS_BOX, axis_camera, edge_rays, oblique_camera, run_eye_rays,
+from tb.units.rgs import (AXIS_BOX, axis_camera, edge_rays, oblique_camera, run_eye_rays,
                     run_ray_setup, run_secondary, run_shadow, secondary_cases, tile_grid)
 
 B32 = FPFormat(8, 23)
@@ -245,7 +245,7 @@ def test_light_pipe(fmt, latencies):
     cases, point and parallel lights) at its exact cycle, bit for bit with the model
     (``model.rgs.shadow_rays``, ``light_colours``, ``hit_colours``), with 20 % bubbles and
     20 % stalls."""
-    from tb.rgs import colour_cases, run_light
+    from tb.units.rgs import colour_cases, run_light
     c = colour_cases(fmt, 90, seed=fmt.frac_bits)
     r = run_light(c, LIGHTS, POINT, fmt, latencies=latencies)
     assert r.mismatches == [], r.mismatches[:5]
@@ -256,7 +256,7 @@ def test_light_pipe_cases_reach_every_branch():
     """The colour cases make the model saturate and zero contributions, clamp n.l and r.l,
     and use exponents 0 and 1023, so the pipe test covers them."""
     from model.rgs import FIX_MAX
-    from tb.rgs import colour_cases, light_ports
+    from tb.units.rgs import colour_cases, light_ports
     fmt = B32
     c = colour_cases(fmt, 90, seed=fmt.frac_bits)
     _, outs = light_ports(c, LIGHTS, POINT, fmt, 8)
@@ -336,7 +336,7 @@ def test_texture(fmt, seed):
     """``rtl.rgs.Texture`` on a 256-byte texel cache (misses and evictions) and a memory that
     holds its answers 30 % of the cycles, with input gaps and output back-pressure: every
     hit's kd bit-exact with ``model.rgs.texture_kd``, in order."""
-    from tb.rgs import run_texture, texture_cases
+    from tb.units.rgs import run_texture, texture_cases
     cfg = Config(fmt=fmt)
     c = texture_cases(fmt, 120, seed=seed)
     bad, cycles = run_texture(c, cfg, seed=seed)
@@ -358,7 +358,7 @@ def test_shared_secondary_and_light_pipes(fmt, latencies, budget):
     """With an FP unit budget, SecondaryPipe and LightPipe take a hit every ``ii`` cycles and
     every output of every hit still comes at its exact cycle, bit for bit with the model,
     under 20 % bubbles and 20 % stalls (an input offered outside its slot waits)."""
-    from tb.rgs import colour_cases, run_light
+    from tb.units.rgs import colour_cases, run_light
     hits = secondary_cases(fmt, 30, seed=fmt.frac_bits)
     r = run_secondary(hits, fmt, latencies=latencies, budget=budget)
     assert r.mismatches == [], r.mismatches[:5]
@@ -372,7 +372,7 @@ def test_shared_secondary_and_light_pipes(fmt, latencies, budget):
 def test_shared_texture():
     """The texture unit with shared units (both pipes at ``ii`` 2 or more): every hit's kd
     bit-exact, in order, with misses, memory holds, gaps and back-pressure."""
-    from tb.rgs import run_texture, texture_cases
+    from tb.units.rgs import run_texture, texture_cases
     from rtl.rgs import Texture
     cfg = Config(rgs_fp_adders=1, rgs_fp_muls=2)
     tex = Texture(cfg)
@@ -466,7 +466,7 @@ def test_shade_pool(fmt, latencies, budget, copies):
     """SecondaryPipe and ``copies`` LightPipe graphs on one pool of units: hits and (hit,
     light) tokens offered together with 20 % bubbles, each taken in its datapath's slots, every
     output at its exact cycle bit for bit with the model."""
-    from tb.rgs import colour_cases, run_pool
+    from tb.units.rgs import colour_cases, run_pool
     hits = secondary_cases(fmt, 16, seed=fmt.frac_bits)
     c = colour_cases(fmt, 30, seed=fmt.frac_bits)
     pool, cycles, bad = run_pool(hits, c, LIGHTS, POINT, fmt, budget=budget, copies=copies,

@@ -21,7 +21,7 @@ from model.config import Config
 from model.fp import FPFormat
 from model.raygen import Rays, camera_registers, eye_rays, setup
 from model.rgs import sample_coord
-from tb.rgs import AXIS_BOX, axis_camera, edge_rays, oblique_camera
+from tb.units.rgs import AXIS_BOX, axis_camera, edge_rays, oblique_camera
 from tests.fp_exact import INF, NAN, ExactFormat
 
 FORMATS = [FPFormat(8, 23), FPFormat(8, 14), FPFormat(6, 10), FPFormat(5, 10)]
@@ -113,7 +113,7 @@ def test_eye_rays_match_vectorized(fmt, n, tile, res):
 
 def test_axis_camera_makes_the_edge_cases():
     """The axis camera gives exact zero direction components (infinite reciprocals), ±0
-    products, and with :data:`tb.rgs.AXIS_BOX` (lo.x on the camera's x) the flat rule: checked
+    products, and with :data:`tb.units.rgs.AXIS_BOX` (lo.x on the camera's x) the flat rule: checked
     here, so the tests using them do cover those paths."""
     fmt = FPFormat(8, 23)
     cfg = Config(fmt=fmt)
@@ -283,7 +283,7 @@ def np_secondary(h, fmt):
 
 @pytest.mark.parametrize("fmt", FORMATS, ids=str)
 def test_secondary_matches_vectorized(fmt):
-    from tb.rgs import secondary_cases
+    from tb.units.rgs import secondary_cases
     h = secondary_cases(fmt, 3000, seed=11)
     got = h.secondary(fmt)
     for name, a, b in zip(("p0", "g", "n", "r"), got, np_secondary(h, fmt)):
@@ -294,7 +294,7 @@ def test_secondary_geometry_float64():
     """What the steps are for, checked in float64 at binary32: the origin lies on g's side of
     the hit point's tangent plane and before it along the ray; the shading normal has unit
     length and lies on g's side; the reflection keeps |d| and mirrors d about n."""
-    from tb.rgs import secondary_cases
+    from tb.units.rgs import secondary_cases
     fmt = FPFormat(8, 23)
     h = secondary_cases(fmt, 2000, seed=12)
     p0, g, n, r = (x.astype(np.float64) for x in h.secondary(fmt))
@@ -357,7 +357,7 @@ def np_colour(c, fmt: FPFormat):
 @pytest.mark.parametrize("fmt", FORMATS, ids=str)
 def test_colour_matches_vectorized(fmt):
     from model.rgs import hit_colours, light_colours
-    from tb.rgs import colour_cases
+    from tb.units.rgs import colour_cases
     c = colour_cases(fmt, 3000, seed=21)
     E, M = fmt.em
     light = light_colours(c.ld, c.n, c.r, c.kd, c.ks, c.shin, c.lc, c.wt, E, M)
@@ -463,7 +463,7 @@ def np_texture_kd(c, fmt):
 @pytest.mark.parametrize("fmt", FORMATS, ids=str)
 def test_texture_matches_vectorized(fmt):
     from model.rgs import texture_kd
-    from tb.rgs import texture_cases
+    from tb.units.rgs import texture_cases
     c = texture_cases(fmt, 1500, seed=23)
     got = texture_kd(c.kd, c.u, c.v, c.uv, c.tex, c.tw, c.th, c.texels, *fmt.em)
     want = np_texture_kd(c, fmt)

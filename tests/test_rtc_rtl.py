@@ -1,13 +1,13 @@
-"""The whole RTC in Amaranth (``rtl/rtc.py``) against the golden model (``tb/rtc.py``): every
+"""The whole RTC in Amaranth (``rtl/rtc.py``) against the golden model (``tb/units/rtc.py``): every
 ray's result (triangle, t, u, v bits) and the trav-op / list-op / int-op counters."""
 import pytest
 
 from model.config import Config
 from rtl.common import POISON_ENV
 from rtl.rtc import RTC
-from tb.common import synth_check
-from tb.rtc import run_rtc, run_rtc_free
-from tb.traversal import small_case
+from tb.harness.common import synth_check
+from tb.units.rtc import run_rtc, run_rtc_free
+from tb.units.traversal import small_case
 
 from .conftest import ROOT, TIMING, timing_changed
 
@@ -92,9 +92,9 @@ def test_rtc_synthesizes_without_latches():
 
 @pytest.mark.slow
 def test_threads_sweep_writes_bench():
-    """``make bench``: the threads sweep (``tb.bench_threads``) -> build/bench/threads.json;
+    """``make bench``: the threads sweep (``saarcor.bench.threads``) -> build/bench/threads.json;
     every run is checked against the model, and more threads must not be slower."""
-    from tb.bench_threads import main
+    from saarcor.bench.threads import main
     res = main(["--out", str(ROOT / "build" / "bench")])
     cycles = [r["cycles"] for r in res["runs"]]
     assert all(b <= a for a, b in zip(cycles, cycles[1:])), cycles

@@ -129,14 +129,63 @@ def test_console_script_is_declared():
                for p in meta["tool"]["setuptools"]["packages"]["find"]["include"])
 
 
-def test_golden_model_imports_no_testbench():
-    """model/ is the golden model: it must not import tb/ (the testbenches import it)."""
-    bad = []
-    for path in sorted((ROOT / "model").rglob("*.py")):
+# the dependency rule: each package imports only the ones before it
+LAYERS = ("model", "rtl", "tb", "saarcor")
+
+
+def _imports() -> dict[str, set[str]]:
+    """Every module of the four packages -> the modules of the four it imports (at any depth of
+    the file: imports inside functions count too)."""
+    files = {}
+    for pkg in LAYERS:
+        for path in sorted((ROOT / pkg).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            files[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    graph = {}
+    for mod, path in files.items():
+        here = mod.split(".") if path.name == "__init__.py" else mod.split(".")[:-1]
+        out = set()
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
-                     [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level
-                     else [])
-            bad += [f"{path.relative_to(ROOT)}:{node.lineno} imports {n}" for n in names
-                    if n == "tb" or n.startswith("tb.")]
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = (".".join(here[:len(here) - node.level + 1] + [node.module or ""])
+                        if node.level else node.module or "").rstrip(".")
+                names = [f"{base}.{a.name}" if f"{base}.{a.name}" in files else base
+                         for a in node.names]
+            else:
+                continue
+            out |= {n for n in names if n in files and n != mod}
+        graph[mod] = out
+    return graph
+
+
+def test_each_package_imports_only_the_ones_below_it():
+    """model <- rtl <- tb <- saarcor: the golden model imports none of the others, the hardware
+    only the model, the harness and benches not the commands."""
+    bad = [f"{m} imports {d}" for m, deps in _imports().items() for d in deps
+           if LAYERS.index(d.split(".")[0]) > LAYERS.index(m.split(".")[0])]
     assert not bad, bad
+
+
+def test_no_import_cycles():
+    """No module reaches itself through imports (module-level or inside functions)."""
+    graph = _imports()
+    cycles, state = [], {}
+
+    def visit(m, stack):
+        state[m] = 1
+        for d in sorted(graph[m]):
+            if state.get(d) == 1:
+                cycles.append(" -> ".join(stack[stack.index(d):] + [d]))
+            elif d not in state:
+                visit(d, stack + [d])
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m, [m])
+    # a package's __init__ importing its own modules is not a cycle of modules
+    cycles = [c for c in cycles if not any(c.startswith(p + " ") or f" {p} -" in c
+                                           for p in graph if (ROOT / p.replace(".", "/")).is_dir())]
+    assert not cycles, cycles

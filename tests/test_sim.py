@@ -1,4 +1,4 @@
-"""``make sim`` (``tb/sim.py``): a frame through the chip in Verilator, its outputs and errors.
+"""``make sim`` (``saarcor/sim.py``): a frame through the chip in Verilator, its outputs and errors.
 
 Uses the small 2-RTC chip configuration of ``tests/test_chip.py`` (its Verilator binary is
 shared with those tests)."""
@@ -21,7 +21,7 @@ TINY_ARGS = ["--rtcs", "2", "--threads", "2", "--tile-w", "4", "--tile-h", "4",
 
 def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
     from model.config import Config
-    from tb.sim import main
+    from saarcor.sim import main
     out = tmp_path / "sim"
     rc = main(["--scene", str(ROOT / "scenes/cornell.toml"), "--res", "16x12", "--out",
                str(out), "--kd-cache", str(kd_cache), "--quiet", "--sample-every", "100",
@@ -72,7 +72,7 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
 
 
 def test_sim_errors_name_the_problem(tmp_path):
-    from tb.sim import main
+    from saarcor.sim import main
     with pytest.raises(SystemExit, match="--res '0x4'"):
         main(["--res", "0x4", "--out", str(tmp_path)])
     with pytest.raises(SystemExit, match="scene 'nope.toml' not found"):
@@ -88,7 +88,7 @@ def test_sim_errors_name_the_problem(tmp_path):
 def test_sim_narrowest_format_for_the_scene(tmp_path, kd_cache):
     """--narrowest-fmt --for-scene: the chip's configuration in stats.json has the chosen
     format (below binary32 on Cornell) and the scene's light and reflection needs."""
-    from tb.sim import main
+    from saarcor.sim import main
     out = tmp_path / "sim"
     rc = main(["--scene", str(ROOT / "scenes/cornell.toml"), "--res", "16x12", "--out",
                str(out), "--kd-cache", str(kd_cache), "--quiet", "--fidelity", "estimate",
@@ -107,7 +107,7 @@ def test_sim_narrowest_format_for_the_scene(tmp_path, kd_cache):
 def test_a_mismatch_names_the_rays_pixel_kind_and_packet():
     """The text a mismatching run prints: ray id, pixel, kind, packet and lane, both values."""
     from model.config import Config
-    from tb.compare import describe
+    from tb.harness.compare import describe
     rays = eye_rays(load_scene(ROOT / "scenes/cornell.toml").camera, 16, 8,
                     Config(tile_w=4, tile_h=4))
     text = describe([(37, "t", 0x3f800000, 0x3f800001)], rays=rays)

@@ -1,6 +1,6 @@
 """Skipping what a scene doesn't need: the box cull and empty tiles at run time
 (``model.render.Skip``), and the chip built for the scene (``Config.for_scene``: stack depth,
-light registers, no secondary-ray hardware). The measurements are ``python -m tb.skipping``."""
+light registers, no secondary-ray hardware). The measurements are ``python -m saarcor.skipping``."""
 import dataclasses
 
 import numpy as np
@@ -133,7 +133,7 @@ def test_narrow_addresses_shrink_the_cache_tags():
     from rtl.cache import Cache
     from rtl.rgs_slave import shade_cache_geometry
     from rtl.rtcmi import rtcmi_geometries
-    from tb.resources import resources
+    from saarcor.bench.resources import resources
     for a in (32, 18):
         assert all(g.mem_addr_width == g.addr_width == a for g in
                    [*rtcmi_geometries(TINY.replace(addr_bits=a)).values(),
@@ -152,7 +152,7 @@ def test_eye_only_slave_has_no_secondary_ray_units():
     the light datapath (LightPipe: 59 mul, 16 add, 2 sqrt, 2 div), the texture unit
     (12 mul, 6 add, 3 int -> FP), and its ray store and pending buffers."""
     from rtl.rgs_slave import Slave
-    from tb.resources import resources
+    from saarcor.bench.resources import resources
     full = resources(lambda: Slave(TINY))
     eye = resources(lambda: Slave(TINY.replace(rgs_lights=0, reflect_depth=0)))
     diff = {k: full["fp_units"].get(k, 0) - eye["fp_units"].get(k, 0)
@@ -167,7 +167,7 @@ def test_eye_only_chip_same_frame_same_cycles(cornell):
     renders an eye-ray frame bit-exact, in the same cycles as the whole chip
     (``tests/test_chip.py``, same frame, stall and seed)."""
     from rtl.chip import Chip
-    from tb.chip import run_chip
+    from tb.harness.chip import run_chip
 
     from .test_chip import check_frame
     scene, prep = cornell
@@ -186,7 +186,7 @@ def test_chip_box_cull_off_traverses_the_missing_rays(cornell):
     8x4's 32 eye rays that miss the box are traversed with ``[0, +inf]``: every ray bit-exact
     with the model's frame without the cull and the RTC's counters equal to its counters,
     which have more traversal work than the culled frame's (same hits)."""
-    from tb.chip import golden_frame, run_chip
+    from tb.harness.chip import golden_frame, run_chip
 
     from .test_chip import check_frame
     scene, prep = cornell

@@ -1,5 +1,5 @@
-"""Numerical stress cases (``tb/stress.py``): the golden model against the exact oracle
-(``tb/exact.py``, integer arithmetic), and the RTC (Verilator) against the model, bit for bit.
+"""Numerical stress cases (``saarcor/stress.py``): the golden model against the exact oracle
+(``saarcor/exact.py``, integer arithmetic), and the RTC (Verilator) against the model, bit for bit.
 
 The RTL cases share one small configuration (2 threads, 2 sub-units, 4x4 packets, memory
 latency 4: the one ``tests/test_verilator.py`` builds), so one cached binary serves them all.
@@ -12,10 +12,10 @@ import pytest
 from model.config import Config
 from model.fp import FPFormat
 from model.raygen import Rays
-from tb import stress
-from tb.exact import exact_closest, exact_pairs
+from saarcor import stress
+from saarcor.exact import exact_closest, exact_pairs
 
-import tb.verilator as vl           # verilator missing: the tests fail saying `make setup`
+import tb.harness.verilator as vl           # verilator missing: the tests fail saying `make setup`
 
 CFG = Config()
 TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2)
@@ -94,7 +94,7 @@ def test_no_leaks_through_shared_edges(fmt, exact):
     """Rays through vertices and shared edges of closed meshes: the exact oracle says every one
     enters the mesh there; the model reports a hit on every ray, and never a triangle whose
     plane the ray meets away from the entry point. (The float32 Möller–Trumbore baseline on the
-    same rounded rays leaks: counted, not asserted, in ``python -m tb.stress``.)"""
+    same rounded rays leaks: counted, not asserted, in ``python -m saarcor.stress``.)"""
     cfg = Config(fmt=fmt)
     for name, mesh in stress.closed_meshes().items():
         case = stress.watertight_case(mesh, cfg, n_max=400, exact=exact)

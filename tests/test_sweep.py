@@ -1,4 +1,4 @@
-"""Design-space sweeps (``tb/sweep.py``): the spec, the per-point cache, the table, failures,
+"""Design-space sweeps (``saarcor/sweep.py``): the spec, the per-point cache, the table, failures,
 and the cluster options, on a local Dask cluster of two worker processes."""
 import csv
 import dataclasses
@@ -7,7 +7,7 @@ import json
 import pytest
 
 from model.config import Config
-from tb import sweep
+from saarcor import sweep
 
 from .conftest import ROOT
 
@@ -32,7 +32,7 @@ def read_csv(path):
 
 
 def run(args, capsys):
-    """``tb.sweep.main(args)``: (exit status, printed output)."""
+    """``saarcor.sweep.main(args)``: (exit status, printed output)."""
     rc = sweep.main([str(a) for a in args] + ["--quiet"])
     return rc, capsys.readouterr().out
 
@@ -278,7 +278,7 @@ def test_chip_backend_point(tmp_path, scheduler, kd_cache, capsys):
     a direct run, with the frame's shadow and reflection rays (the Config asks for them)."""
     from model.render import prepare
     from model.scene import load_scene
-    from tb.chip import run_chip_frame
+    from tb.harness.chip import run_chip_frame
     spec = write_spec(tmp_path / "chip.toml", f"""
 backend = "chip"
 scenes = ["{CORNELL.as_posix()}"]

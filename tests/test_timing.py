@@ -13,7 +13,7 @@ import re
 import pytest
 
 from model.config import Config
-from tb.traversal import small_case
+from tb.units.traversal import small_case
 
 from .conftest import ROOT, TIMING, timing_changed
 
@@ -31,7 +31,7 @@ SWEEP = (1, 16)
 
 @pytest.mark.parametrize("threads", SWEEP)
 def test_threads_sweep_cycles(threads, kd_cache):
-    from tb.verilator import run_frame
+    from tb.harness.verilator import run_frame
     cfg = Config(tile_w=4, tile_h=4, trav_subunits=2, threads=threads)
     image, rays = small_case(ROOT / "scenes/cornell.toml", 32, 32, cfg, kd_cache)
     r = run_frame(image, rays, cfg, mem_latency=20, progress=False)

@@ -1,4 +1,4 @@
-"""Traversal unit (``rtl/traversal.py``) against the golden model's event log (``tb/traversal.py``)."""
+"""Traversal unit (``rtl/traversal.py``) against the golden model's event log (``tb/units/traversal.py``)."""
 import random
 
 import numpy as np
@@ -9,8 +9,8 @@ from amaranth.sim import Simulator
 from model.config import Config
 from model.traversal import classify
 from rtl.traversal import ThreadState, Traversal, TravSubunit, _Threads
-from tb.common import run, synth_check
-from tb.traversal import COMPARED, run_traversal, small_case
+from tb.harness.common import run, synth_check
+from tb.units.traversal import COMPARED, run_traversal, small_case
 
 from .conftest import ROOT, TIMING, timing_changed
 

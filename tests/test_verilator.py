@@ -1,4 +1,4 @@
-"""The Verilator frame path (``tb/frame.py``, ``tb/verilator.py``, ``tb/verilator_main.cpp``):
+"""The Verilator frame path (``tb/harness/frame.py``, ``tb/harness/verilator.py``, ``tb/harness/verilator_main.cpp``):
 an RTC on a real image in Verilator against the golden model, cycle for cycle against the
 Amaranth simulator, the binary cache, and the errors users see.
 
@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from model.config import Config
-from rtl.memory import IdealMemory
-from tb.common import drain, drive, run
-from tb.traversal import small_case
+from tb.harness.memory import IdealMemory
+from tb.harness.common import drain, drive, run
+from tb.units.traversal import small_case
 
 from .conftest import ROOT, TIMING, timing_changed
 
-import tb.verilator as vl           # verilator missing: the tests fail saying `make setup`
+import tb.harness.verilator as vl           # verilator missing: the tests fail saying `make setup`
 
 TINY = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2)
 LATENCY = 4
@@ -79,7 +79,7 @@ def test_same_cycles_as_pysim(kd_cache):
     """The same RTC, rays, seed and bubbles in Amaranth's simulator (``run_rtc_free``): the
     same counters, busy cycles included, and the same cycle count (pysim samples ``finished``
     one clock edge later, so it reports one cycle more)."""
-    from tb.rtc import run_rtc_free
+    from tb.units.rtc import run_rtc_free
     image, rays = case("cornell", 4, 4, kd_cache)
     r = frame(image, rays, idle=0.25, stall=0.25, seed=7)
     p = run_rtc_free(image, rays, TINY, mem_latency=LATENCY, idle=0.25, stall=0.25, seed=7)
@@ -98,7 +98,7 @@ def test_memory_jitter_same_as_pysim(kd_cache):
     """``mem_stall``: each memory holds its responses in a random half of the cycles (in-order,
     random latency, as behind a cache). The same bits, and the same cycles in both simulators;
     slower than with fixed latency, so the holds do act."""
-    from tb.rtc import run_rtc_free
+    from tb.units.rtc import run_rtc_free
     image, rays = case("cornell", 12, 4, kd_cache)
     kw = {"idle": 0.25, "stall": 0.3, "seed": 5}
     r = frame(image, rays, mem_stall=0.5, **kw)

@@ -1,7 +1,7 @@
 """An unsigned multiply with its operands and its product registered, for the FP multiplier's
 partial products.
 
-On the ECP5 (elaborated with :data:`ECP5` as the platform, as ``rtl.fpga`` does) it is one
+On the ECP5 (elaborated with :data:`ECP5` as the platform, as ``saarcor.flows.fpga`` does) it is one
 MULT18X18D using its own input and output registers, so no fabric wire lies between a register
 and the multiplier array: the path into the block ends at its input registers and the path out
 of it starts at its output register. Anywhere else (simulation, other exports) it is the same

@@ -1,3 +1,0 @@
-from .flow import main
-
-main()

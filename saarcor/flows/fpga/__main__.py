@@ -1,0 +1,3 @@
+from saarcor.flows.fpga.flow import main
+
+main()

@@ -1,0 +1,468 @@
+"""``make sim``: a frame through the whole chip (``rtl/chip.py``), every ray checked.
+
+The chip renders the frame: its RGS slaves make the eye rays in FP hardware from the camera
+registers and, from the results, the shadow and reflection rays and every pixel's colour; its
+RTCs trace the rays through their caches, the round-robin bus and the SDRAM model.
+The simulation runs in Verilator (default; the binary is built once per configuration and
+cached in ``build/verilator/``) or in Amaranth's simulator (``--backend amaranth``, small
+frames). Every ray's result (triangle, t, u, v bits) and every pixel's colour is compared
+with the golden model (``model.render``): a mismatch exits with status 1 and names the rays
+or pixels.
+
+Outputs in ``--out`` (default ``build/sim``):
+
+* ``image.png``: the chip's own colour: every pixel the sum of what its RGS slaves computed
+  for its rays (ambient, the Phong term of every light a shadow ray reached, reflections,
+  background, textures bilinearly filtered by the slaves' texture units; ``model.shading``),
+  checked pixel for pixel against the golden model. Where the chip makes no colour (eye-ray-only slaves,
+  ``--eye-only``, lights without shadow rays) the chip's hits are shaded on the host instead.
+* ``stats.json``: cycles, fps at ``clock_mhz``, the paper's relative performance (fps /
+  fps_ideal), op counts, cache hit rates, memory traffic per SDRAM chip, unit and bus usage,
+  mismatches, simulator speed and the whole configuration (see :func:`frame_stats`).
+* ``rays.npz`` / ``hits.npz``: the rays and the chip's hits in the golden model's format.
+* ``usage.png``: unit usage, memory-port usage and cache hit rates over the frame, and each
+  SDRAM chip's share of the words (the counters sampled every ``--sample-every`` cycles).
+
+CLI: ``python -m saarcor.sim [--scene S] [--res WxH] [--backend verilator|amaranth] [config
+options] [--out DIR]`` (``--help``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from model.config import Config
+
+__all__ = ["relative_performance", "frame_stats", "shade_eye_hits", "write_usage_plot",
+           "main"]
+
+ROOT = Path(__file__).resolve().parents[1]
+UNITS = ("trav", "list", "int")
+
+
+def shade_eye_hits(scene, cfg: Config, image, rays, hits, n_pixels: int) -> np.ndarray:
+    """``(n_pixels, 3)`` linear colour of eye rays ``rays`` with hits ``hits`` (scene ids):
+    background on a miss, else ambient + Phong of every light, unshadowed; the
+    ``oversampling``² rays of a pixel averaged."""
+    from model.shading import AMBIENT, Shader, surface_offset
+    color = np.zeros((n_pixels, 3), np.float32)
+    weight = np.float32(1.0 / cfg.oversampling ** 2)
+    bg = np.asarray(scene.background, np.float32)
+    hit = np.flatnonzero(hits.tri >= 0)
+    miss = np.flatnonzero(hits.tri < 0)
+    np.add.at(color, rays.pixel[miss], bg * weight)
+    if hit.size:
+        shader = Shader(scene, cfg.fmt, eps=surface_offset(image.bounds))
+        surf = shader.surface(rays, hit, hits.tri[hit], hits.t[hit], hits.u[hit], hits.v[hit])
+        local = AMBIENT * surf.albedo
+        lit = np.ones(hit.size, np.float32)
+        for light in scene.lights:
+            local = local + shader.phong(rays.dir[hit], surf.n, surf.albedo, surf.mat, light,
+                                         lit, surf.p0)
+        np.add.at(color, rays.pixel[hit], local * weight)
+    return color
+
+
+def relative_performance(cfg, cycles: int, trav_ops: int, int_ops: int) -> dict:
+    """fps, fps_ideal, the bound (trav or int) and their ratio for a frame of ``cycles``.
+
+    Relative performance (the paper's measure) = fps / fps_ideal with
+    ``fps_ideal = clock / max(trav_ops / (rtcs * trav_subunits), int_ops / rtcs)``: the
+    frame's cycles against the cycles its traversal and intersection work would take at one
+    operation per cycle on every sub-unit and intersection unit, so 100 % means the busiest
+    kind of unit never waited. Both op counts are the chip's own counters (equal to the
+    golden model's)."""
+    trav = trav_ops / (cfg.rtcs * cfg.trav_subunits)
+    inter = int_ops / cfg.rtcs
+    ideal = max(trav, inter, 1)
+    clock = cfg.clock_mhz * 1e6
+    return {"fps": clock / cycles, "fps_ideal": clock / ideal,
+            "relative_performance": ideal / cycles,
+            "bound": "trav-ops" if trav >= inter else "int-ops",
+            "trav_cycles_ideal": trav, "int_cycles_ideal": inter}
+
+
+def _sum(per_rtc: list, key: str) -> int:
+    return int(sum(x[key] for x in per_rtc))
+
+
+def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backend: str,
+                wall: float) -> dict:
+    """The figures of a chip frame (``run``: a :class:`tb.harness.chip.ChipRun`) as ``stats.json``."""
+    c, cyc = run.counters, max(1, run.cycles)
+    rtc = c["rtc"]
+    trav, inter, lst = _sum(rtc, "trav_ops"), _sum(rtc, "int_ops"), _sum(rtc, "list_ops")
+    perf = relative_performance(cfg, cyc, trav, inter)
+    def cache_stats(k):                  # one kind of cache, summed over the RTCs / slaves
+        hh, mm = sum(x[k] for x in c["hits"]), sum(x[k] for x in c["misses"])
+        return {"hits": hh, "misses": mm, "hit_rate": hh / max(1, hh + mm),
+                "memory_words": sum(x[k] for x in c["grants"])}
+    cache = {k: cache_stats(k) for k in UNITS}
+    seconds = cyc / (cfg.clock_mhz * 1e6)
+    words = c["mem_words"]
+    total = max(1, sum(words))
+    memory = {"words": int(c["mem_reads"]), "bytes": 8 * int(c["mem_reads"]),
+              "bandwidth_mb_s": 8 * c["mem_reads"] / seconds / 1e6,
+              "per_chip": [{"words": int(wd), "share": wd / total, "busy": b / cyc}
+                           for wd, b in zip(words, c["mem_busy"])]}
+    sub = [[x[f"sub_busy{j}"] / cyc for j in range(cfg.trav_subunits)] for x in rtc]
+    units = {"trav": float(np.mean([x["trav_busy"] for x in rtc])) / cyc,
+             "trav_subunits": float(np.mean(sub)),
+             "list": float(np.mean([x["list_busy"] for x in rtc])) / cyc,
+             "int": float(np.mean([x["int_busy"] for x in rtc])) / cyc,
+             "per_rtc": [{"trav": x["trav_busy"] / cyc, "trav_subunits": s,
+                          "list": x["list_busy"] / cyc, "int": x["int_busy"] / cyc}
+                         for x, s in zip(rtc, sub)]}
+    from model.render import KIND_NAMES
+    kinds = np.bincount(run.frame_rays.kind, minlength=3)
+    slaves = c.get("slave", [])
+    return {
+        "scene": scene, "resolution": [width, height], "backend": backend,
+        "rays": {KIND_NAMES[k]: int(kinds[k]) for k in range(3)}, "rays_total": run.rays,
+        "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
+        "trav_ops": trav, "int_ops": inter, "list_ops": lst,
+        "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
+        "memory": memory,
+        "units": units,
+        "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
+        "bus": {"words_per_cycle": c["mem_reads"] / cyc},
+        "packets_per_rtc": c["packets"],
+        "mismatches": len(run.mismatches),
+        "sim_seconds": round(run.seconds, 3),
+        "sim_cycles_per_second": round(run.cycles / max(run.seconds, 1e-9)),
+        "wall_seconds": round(wall, 2),
+        # wall seconds of the frame's steps (tb.harness.chip.run_chip_frame; saarcor sim adds the
+        # scene, the kd-tree and the outputs)
+        "wall_phases": dict(run.timings),
+        "build": {"built": bool(run.build and run.build.built),
+                  "seconds": round(run.build.seconds, 1) if run.build else 0},
+        "image": ("the chip's colour (ambient + Phong, shadows, reflections"
+                  + (", textures" if cfg.tex_cache_kb > 0 else "; no texture unit") + "), "
+                  "equal to the golden model's pixel for pixel"
+                  if run.color is not None and not run.mismatches else
+                  "the chip's eye-ray hits shaded on the host (ambient + Phong, unshadowed)"),
+        "config": cfg.to_dict(),
+        "counters": c,
+    }
+
+
+def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: Path,
+                     title: str) -> None:
+    """``usage.png``: per sample interval, the mean busy share of each unit kind over the
+    RTCs, the memory port's words per cycle, each cache's hit rate, and (right) each SDRAM
+    chip's share of the words read."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    col = {n: 2 + i for i, n in enumerate(names)}
+    cyc = samples[:, 0]
+    d = np.diff(samples, axis=0, prepend=np.zeros((1, samples.shape[1]), np.int64))
+    dc = np.maximum(d[:, 0], 1)
+
+    def per_rtc(key):
+        return sum(d[:, col[f"rtc{r}_{key}"]] for r in range(cfg.rtcs)) / cfg.rtcs
+
+    fig, ax = plt.subplots(2, 2, figsize=(11, 7), gridspec_kw={"width_ratios": [3, 1]})
+    a = ax[0, 0]
+    sub = sum(per_rtc(f"sub_busy{j}") for j in range(cfg.trav_subunits)) / cfg.trav_subunits
+    for label, v in (("traversal sub-units", sub), ("list unit", per_rtc("list_busy")),
+                     ("intersection unit", per_rtc("int_busy"))):
+        a.plot(cyc, 100 * v / dc, label=label)
+    a.plot(cyc, 100 * d[:, col["mem_reads"]] / dc, label="memory port (words/cycle)",
+           color="k", ls="--")
+    a.set_ylabel("busy, % of cycles (mean over RTCs)")
+    a.set_ylim(0, 105)
+    a.legend(fontsize=8, loc="lower left")
+    a.set_title(title, fontsize=10)
+    a = ax[1, 0]
+    for k in UNITS:
+        hh = sum(d[:, col[f"rtc{r}_{k}_hits"]] for r in range(cfg.rtcs))
+        mm = sum(d[:, col[f"rtc{r}_{k}_misses"]] for r in range(cfg.rtcs))
+        rate = np.where(hh + mm > 0, 100 * hh / np.maximum(hh + mm, 1), np.nan)
+        a.plot(cyc, rate, label=f"{k} cache")
+    a.set_ylabel("hit rate, %")
+    a.set_xlabel("cycle")
+    a.set_ylim(0, 105)
+    a.legend(fontsize=8, loc="lower left")
+    a = ax[0, 1]
+    last = samples[-1]
+    words = np.array([last[col[f"chip{k}_words"]] for k in range(cfg.mem_chips)], float)
+    a.bar(range(cfg.mem_chips), 100 * words / max(1, words.sum()))
+    a.set_xlabel("SDRAM chip")
+    a.set_ylabel("share of words, %")
+    a.set_xticks(range(cfg.mem_chips))
+    a = ax[1, 1]
+    busy = np.array([last[col[f"chip{k}_busy"]] for k in range(cfg.mem_chips)], float)
+    a.bar(range(cfg.mem_chips), 100 * busy / max(1, last[0]))
+    a.set_xlabel("SDRAM chip")
+    a.set_ylabel("data bus busy, % of cycles")
+    a.set_xticks(range(cfg.mem_chips))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from saarcor.args import add_config_args
+
+    from tb.harness.lfsr import add_stall_args
+    from tb.harness.verilator import add_trace_args
+    ap = argparse.ArgumentParser(
+        prog="saarcor sim",
+        description="Render a frame through the whole SaarCOR chip (RGS, RTCs, caches, bus, "
+                    "SDRAM model) in Verilator or Amaranth's simulator, check every ray against "
+                    "the golden model, and write image.png, stats.json, rays.npz, hits.npz "
+                    "and usage.png. Exit status 1 on any mismatching ray.",
+        epilog="Example: python -m saarcor.sim --scene scenes/office.toml --res 256x192 --rtcs 4")
+    ap.add_argument("--scene", default="scenes/cornell.toml",
+                    help="scene file (TOML, scenes/*.toml); default scenes/cornell.toml")
+    ap.add_argument("--res", default="128x96", help="image WxH in pixels; default 128x96")
+    ap.add_argument("--backend", choices=("verilator", "amaranth"), default="verilator",
+                    help="simulator: verilator (compiled once per configuration, fast) or "
+                         "amaranth (Amaranth's Python simulator: tiny frames only); default "
+                         "verilator")
+    ap.add_argument("--fidelity", choices=("estimate", "sampled", "rtl"), default="rtl",
+                    help="rtl: the whole frame on the simulated chip (exact cycles); sampled: "
+                         "a band of tile rows in Verilator, extrapolated with the estimate; "
+                         "estimate: the discrete-event model alone (model/timing.py), no "
+                         "simulator. estimate and sampled cover eye rays only (as "
+                         "--eye-only) and mark their cycles and fps as estimates in "
+                         "stats.json (docs/ladder.md); default rtl")
+    ap.add_argument("--out", default="build/sim", help="output directory (default build/sim)")
+    add_trace_args(ap)
+    add_stall_args(ap, "the SDRAM model")
+    ap.add_argument("--sample-every", type=int, default=0, metavar="CYCLES",
+                    help="counter sampling interval for usage.png (default: about 200 samples "
+                         "over the frame, guessing 20 cycles a ray per RTC)")
+    ap.add_argument("--max-cycles", type=int, default=100_000_000,
+                    help="give up after this many cycles, naming what did not finish "
+                         "(default 100000000)")
+    ap.add_argument("--kd-cache", default="default",
+                    help="kd-tree cache directory (default: the model's)")
+    ap.add_argument("--eye-only", action="store_true",
+                    help="eye rays only: the slaves make no shadow or reflection rays (the "
+                         "image is then the eye hits shaded on the host, unshadowed)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar")
+    ap.add_argument("--for-scene", action="store_true",
+                    help="build the chip for what the scene needs (Config.for_scene): the "
+                         "stack as deep as its kd-tree, as many light registers as it has "
+                         "lights, no reflection hardware without mirrors, no texture unit "
+                         "without textures, memory addresses as wide as its image; the frame "
+                         "is the same, the chip smaller")
+    add_config_args(ap)
+    ap.add_argument(
+        "--narrowest-fmt", action="store_true",
+        help="instead of --fmt, the narrowest FP format (E8, M from 23 down) whose golden-model "
+             "render of the scene stays within 40 dB PSNR of a float64 render, flips fewer "
+             "than 0.1 %% of the eye rays and lets no ray through a closed mesh "
+             "(saarcor.precision.narrowest_format, on a 128-pixel-wide image of the frame's "
+             "aspect); "
+             "the choice goes to stats.json")
+    return ap
+
+
+def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: float,
+                 extra: dict | None = None) -> int:
+    """``saarcor sim --fidelity estimate|sampled``: ``stats.json`` with the estimated cycles
+    and fps (marked as estimates) and the entries of ``extra``, ``image.png``, ``rays.npz``
+    and ``hits.npz`` from the golden model's eye-ray hits (shaded as ``saarcor sim`` shades
+    the chip's)."""
+    import json
+    import sys
+    from pathlib import Path
+
+    from PIL import Image
+
+    from model.raygen import eye_rays
+    from model.render import to_srgb8, write_rays_hits
+    from model.timing import estimate_events, record_work
+    from saarcor.ladder import sampled_frame
+
+    if args.trace:
+        raise SystemExit(f"sim: --trace needs --fidelity rtl (no waveform at {args.fidelity})")
+    if not getattr(args, "eye_only", True):
+        print(f"sim: --fidelity {args.fidelity} models eye-ray frames only: the frame is "
+              "estimated as with --eye-only", file=sys.stderr)
+    if args.stall or args.mem_stall:
+        print("sim: --stall/--mem-stall are not modelled by the estimate (no back-pressure, "
+              "fixed memory latency)", file=sys.stderr)
+    rays = eye_rays(scene.camera, width, height, cfg)
+    work = record_work(prep.image, rays, cfg)
+    hits, tot = work["hits"], work["totals"]
+    est = estimate_events(cfg, work)
+    stats = {"scene": args.scene, "resolution": [width, height], "fidelity": args.fidelity,
+             "estimate": True, "eye_only": True, "rays": {"eye": len(rays)},
+             "rays_total": len(rays),
+             "trav_ops": tot["trav_ops"], "int_ops": tot["int_ops"],
+             "list_ops": tot["list_ops"], "clock_mhz": cfg.clock_mhz}
+    if args.fidelity == "estimate":
+        cycles = est["cycles"]
+        stats.update(cache_estimate=est["cache"], packets_per_rtc_estimate=est["packets_per_rtc"],
+                     method="model.timing: discrete-event model of the chip replaying the "
+                            "golden model's event log (docs/ladder.md)")
+    else:
+        s = sampled_frame(cfg, prep.image, scene.camera, width, height, rays=rays, work=work,
+                          build_root=getattr(args, "build_root", None), check=True)
+        if s.mismatches:
+            print(f"sim: {s.mismatches} rays of the bands differ from the golden model",
+                  file=sys.stderr)
+        cycles = s.cycles
+        stats.update(bands=s.bands, estimate_cycles=s.estimate_cycles,
+                     band_rays_checked=s.rays_checked, band_mismatches=s.mismatches,
+                     method="saarcor.ladder.sampled_frame: bands of tile rows in Verilator, the "
+                            "whole frame's estimate scaled by rtl/estimate on the bands")
+    perf = relative_performance(cfg, max(1, int(round(cycles))), tot["trav_ops"],
+                                tot["int_ops"])
+    stats.update({"cycles_estimated": cycles, "fps_estimated": perf["fps"],
+                  "relative_performance_estimated": perf["relative_performance"],
+                  "fps_ideal": perf["fps_ideal"], "bound": perf["bound"],
+                  "wall_seconds": round(time.perf_counter() - t0, 2),
+                  "image": "the golden model's eye-ray hits shaded on the host (ambient + "
+                           "Phong, unshadowed), as for --fidelity rtl",
+                  "config": cfg.to_dict(), **(extra or {})})
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "stats.json").write_text(json.dumps(stats, indent=1))
+    color = shade_eye_hits(scene, cfg, prep.image, rays, hits, width * height)
+    Image.fromarray(to_srgb8(color.reshape(height, width, 3))).save(out / "image.png")
+    write_rays_hits(out, rays, hits)
+    print(f"{args.scene} {width}x{height} on {cfg.rtcs} RTC(s) ({args.fidelity}): {len(rays)} "
+          f"rays, ESTIMATED {cycles:.0f} cycles = {perf['fps']:.1f} fps at "
+          f"{cfg.clock_mhz:g} MHz (an estimate, docs/ladder.md); -> {out}/")
+    return 0
+
+
+def main(argv=None) -> int:
+    from saarcor.args import config_and_res
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    cfg, w, h = config_and_res(args, "sim")
+    if not Path(args.scene).exists():
+        raise SystemExit(f"sim: scene {args.scene!r} not found (try scenes/*.toml)")
+    if args.trace and args.backend == "amaranth" and not args.trace.endswith(".vcd"):
+        raise SystemExit("sim: --backend amaranth writes VCD waveforms only: name the file *.vcd")
+    from model.render import prepare, to_srgb8, write_rays_hits
+    from model.scene import SceneError, load_scene
+
+    from tb.harness.chip import run_chip, run_chip_frame
+    from tb.harness.chip_frame import chip_counter_names
+    from tb.harness.compare import ResultError, describe
+    from tb.harness.verilator import FrameError
+    from tb.harness.tools import ToolMissing
+    t0 = time.perf_counter()
+    try:
+        scene = load_scene(args.scene)
+    except SceneError as e:
+        raise SystemExit(f"sim: {e}")
+    phases = {"scene_s": time.perf_counter() - t0}
+    extra = {}
+    if args.narrowest_fmt:
+        if args.fmt:
+            raise SystemExit("sim: give --fmt or --narrowest-fmt, not both")
+        narrow = pick_format(scene, w, h, cfg, quiet=args.quiet)
+        cfg = cfg.replace(fmt=narrow["fmt"])
+        extra["narrowest_fmt"] = {**narrow, "fmt": str(narrow["fmt"])}
+    t1 = time.perf_counter()
+    prep = prepare(scene, cfg, cache_dir=args.kd_cache)
+    phases["kdtree_s"] = time.perf_counter() - t1
+    if args.for_scene:
+        try:
+            cfg = cfg.for_scene(scene, prep.image, w, h)
+        except ValueError as e:
+            raise SystemExit(f"sim: {e}")
+    frame_scene = None if args.eye_only else scene
+    if args.fidelity != "rtl":
+        return sim_estimate(args, cfg, scene, prep, w, h, t0, extra)
+    n_rays = w * h * cfg.oversampling ** 2
+    every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 200)
+    log = sys.stderr
+    try:
+        if args.backend == "verilator":
+            r = run_chip_frame(cfg, prep.image, scene.camera, w, h, stall=args.stall,
+                               mem_stall=args.mem_stall, seed=args.seed,
+                               max_cycles=args.max_cycles, trace_file=args.trace,
+                               trace_from=args.trace_from, progress=not args.quiet, log=log,
+                               sample_every=every, scene=frame_scene)
+        else:
+            if not args.quiet:
+                print(f"sim: Amaranth's simulator, {n_rays} rays (a few hundred cycles/s "
+                      "for the standard chip: use tiny frames)", file=log)
+            r = run_chip(cfg, prep.image, scene.camera, w, h, stall=args.stall,
+                         mem_stall=args.mem_stall, seed=args.seed, max_cycles=args.max_cycles,
+                         sample_every=every, vcd=args.trace, scene=frame_scene)
+    except (FrameError, ResultError, ToolMissing, ValueError) as e:
+        raise SystemExit(f"sim: {e}")
+    wall = time.perf_counter() - t0
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    stats = frame_stats(cfg, r, scene=args.scene, width=w, height=h, backend=args.backend,
+                        wall=wall)
+    stats.update(extra)
+    t2 = time.perf_counter()
+    from PIL import Image
+    if r.color is not None and not r.mismatches:
+        color = r.color                 # the chip's colour, checked against the model
+    else:
+        color = shade_eye_hits(scene, cfg, prep.image, r.eye, r.hits, w * h)
+    Image.fromarray(to_srgb8(color.reshape(h, w, 3))).save(out / "image.png")
+    write_rays_hits(out, r.frame_rays, r.frame_hits)
+    if r.samples is not None and len(r.samples):
+        write_usage_plot(cfg, r.samples, chip_counter_names(cfg), out / "usage.png",
+                         f"{Path(args.scene).stem} {w}x{h}, {cfg.rtcs} RTCs x "
+                         f"{cfg.threads} threads ({args.backend})")
+    phases.update(r.timings)
+    phases["outputs_s"] = time.perf_counter() - t2
+    stats["wall_phases"] = {k: round(v, 3) for k, v in phases.items()}
+    if r.build is not None and r.build.built:
+        stats["build"]["phases"] = json.loads((r.build.dir / "build.json").read_text())["phases"]
+    (out / "stats.json").write_text(json.dumps(stats, indent=1))
+    built = stats["build"]
+    print(f"{args.scene} {w}x{h} on {cfg.rtcs} RTC(s) ({args.backend}"
+          f"{', built in %.0f s' % built['seconds'] if built['built'] else ''}): "
+          f"{r.rays} rays, {r.cycles} cycles = {stats['fps']:.1f} fps at {cfg.clock_mhz:g} "
+          f"MHz; relative performance {100 * stats['relative_performance']:.1f} % "
+          f"({stats['bound']}-bound); cache hit rates "
+          + ", ".join(f"{k} {100 * v['hit_rate']:.1f} %" for k, v in stats["cache"].items())
+          + f"; {len(r.mismatches)} mismatching rays; simulated at "
+          f"{stats['sim_cycles_per_second']:,} cycles/s; -> {out}/")
+    if r.mismatches:
+        print(describe(r.mismatches, rays=r.frame_rays), file=log)
+        print("sim: reproduce with a waveform: the same command with --trace mismatch.fst "
+              "(and --trace-from CYCLE to skip the frame's start)", file=log)
+        return 1
+    return 0
+
+
+def pick_format(scene, w: int, h: int, cfg: Config, *, quiet: bool = False) -> dict:
+    """:func:`saarcor.precision.narrowest_format` for ``scene`` with ``cfg``'s reflection depth,
+    on a 128-pixel-wide image of the frame's aspect ratio (``w x h``) with an odd height (a
+    centred camera's diagonals, where a room's corner is an exact closest-hit tie, then miss
+    the pixel centres; a few such pixels would decide the PSNR of a tiny image); exits naming
+    the scene when not even binary32 passes."""
+    from saarcor.precision import narrowest_format
+    sw = 128
+    sh = max(1, round(sw * h / w)) | 1
+    r = narrowest_format(scene, sw, sh, reflect_depth=cfg.reflect_depth,
+                         log=None if quiet else sys.stderr)
+    if r["fmt"] is None:
+        raise SystemExit(f"sim: --narrowest-fmt: {scene.name} fails the precision rule even "
+                         f"at binary32 ({r['formats']}); run without --narrowest-fmt")
+    if not quiet:
+        print(f"sim: narrowest safe format {r['fmt']} (checked at {sw}x{sh} in "
+              f"{r['seconds']:.1f} s)", file=sys.stderr)
+    return r
+
+
+def _guess_cycles(cfg: Config, rays: int) -> int:
+    """A rough frame length for the default sampling interval: 20 cycles a ray per RTC."""
+    return 20 * rays // max(1, cfg.rtcs)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
