@@ -281,7 +281,7 @@ def test_chip_shared_fp_units_verilator(cornell):
     latency: every ray and every pixel bit-exact; the slaves take a ray every ``ii`` cycles,
     so the frame takes more cycles than with a unit per operation. (Slow: a chip build of its
     own; in CI the pool below runs the slaves at ``ii`` > 1 in the chip, and
-    ``tests/test_rgs.py`` checks each shared datapath bit for bit.)"""
+    ``tests/test_rgs_rtl.py`` checks each shared datapath bit for bit.)"""
     from rtl.rgs_slave import Slave
     from tb.harness.chip import run_chip_frame
     scene, image = cornell

@@ -108,7 +108,7 @@ def test_lanes_intersection_matches_exact():
 
     from model.intersection import _intersect_exact32, intersect, intersect32_lanes, shared_axes
 
-    from .test_model_intersection import cases
+    from .test_intersection_model import cases
 
     @numba.njit(error_model="numpy")
     def run(tris, org, k, s):

@@ -305,7 +305,7 @@ def test_secondary_geometry_float64():
     assert np.all(np.sum(off * g, axis=1)[ok] > 0)
     assert np.all(np.sum(off * d, axis=1)[ok] < 0)
     # against float64 geometry, not the RTL (the RTL's secondary rays are compared bit for
-    # bit in tests/test_rgs.py, this model with its vectorized copy above): the bounds are
+    # bit in tests/test_rgs_rtl.py, this model with its vectorized copy above): the bounds are
     # the format's rounding, a few ulps of 1 (eps = 2**-M; measured: 1.2 for |n|, 2.0 for r)
     eps = 2.0 ** -fmt.frac_bits
     assert np.all(np.abs(np.linalg.norm(n, axis=1) - 1) <= 4 * eps)

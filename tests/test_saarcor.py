@@ -189,3 +189,16 @@ def test_no_import_cycles():
     cycles = [c for c in cycles if not any(c.startswith(p + " ") or f" {p} -" in c
                                            for p in graph if (ROOT / p.replace(".", "/")).is_dir())]
     assert not cycles, cycles
+
+
+def test_test_files_follow_the_naming_rule():
+    """tests/__init__.py's rule: a unit on both sides is tested in test_<unit>_rtl.py (and
+    test_<unit>_model.py), never in a bare test_<unit>.py or a test_model_<unit>.py."""
+    both = {p.stem for p in (ROOT / "model").iterdir() if p.suffix == ".py" or p.is_dir()} & \
+           {p.stem for p in (ROOT / "rtl").iterdir() if p.suffix == ".py" or p.is_dir()}
+    both -= {"__init__", "__pycache__", "common"}
+    names = {p.stem for p in (ROOT / "tests").glob("test_*.py")}
+    bare = sorted(f"test_{u}.py" for u in both if f"test_{u}" in names)
+    swapped = sorted(n for n in names if n.startswith("test_model_") or n.startswith("test_rtl_"))
+    missing = sorted(u for u in both if f"test_{u}_rtl" not in names)
+    assert not bare and not swapped and not missing, (bare, swapped, missing)

@@ -3,8 +3,8 @@
 The values are a recorded contract, measured in the simulators, not expected values derived from
 the code: a test that makes one of these runs compares its cycle count with the file exactly
 (``assert cycles == TIMING[name], timing_changed(name, cycles)``). The unit and RTC runs are the
-ones the unit tests already make (``tests/test_{traversal,list,intersection,rtc_rtl,verilator}
-.py``); the threads sweep is checked here: one RTC of 1 and of 16 threads (4x4 packets, 2
+ones the unit tests already make (``tests/test_{traversal,list,intersection,rtc}_rtl.py``,
+``tests/test_verilator.py``); the threads sweep is checked here: one RTC of 1 and of 16 threads (4x4 packets, 2
 traversal sub-units, 20-cycle memories, the configuration of ``make bench``'s sweep, so the
 Verilator binaries are shared with it) on a Cornell 32x32 frame in Verilator.
 """

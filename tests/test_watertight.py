@@ -15,7 +15,7 @@ from model.layout import build_image
 from model.rtc import trace
 
 from .conftest import SHARED_MESHES, needs_shared_meshes
-from .test_rtc import rays_from
+from .test_rtc_model import rays_from
 
 
 def targets(mesh: trimesh.Trimesh, fmt, rng):
