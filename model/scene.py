@@ -8,7 +8,7 @@ order, each object's instances in order, each instance's faces in load order), w
 vertex or exactly zero area after rounding to float32) are dropped and counted; every other
 bad input raises :class:`SceneError` with a message naming the problem and how to fix it.
 
-Run ``python -m model.scene FILE...`` for a summary of each scene.
+``saarcor scene FILE...`` prints a summary of each scene.
 """
 from __future__ import annotations
 
@@ -56,58 +56,3 @@ def load_scene(path: str | Path) -> Scene:
         return _load_bare_mesh(path)
     raise SceneError(f"'{path}': unknown scene type '{path.suffix}'; use a .toml scene or a "
                      f"mesh file ({', '.join(MESH_SUFFIXES)})")
-
-
-def _main(argv: list[str] | None = None) -> int:
-    import argparse
-    import time
-    ap = argparse.ArgumentParser(prog="python -m model.scene", description=__doc__.split("\n")[0])
-    ap.add_argument("files", nargs="+")
-    ap.add_argument("--prepare", action="store_true",
-                    help="also build the kd-tree and the memory image (the standard Config): "
-                         "build seconds, nodes, depth, image size, peak memory of the process")
-    ap.add_argument("--no-cache", action="store_true",
-                    help="with --prepare: build the kd-tree even when it is cached")
-    args = ap.parse_args(argv)
-    for f in args.files:
-        t0 = time.perf_counter()
-        try:
-            s = load_scene(f)
-        except SceneError as e:
-            print(f"SceneError: {e}")
-            return 1
-        lo, hi = s.bounds()
-        print(f"{f}: '{s.name}' {len(s)} triangles ({s.n_scene_tris} in scene order, dropped "
-              f"{s.dropped}), {len(s.materials)} materials, {len(s.lights)} lights "
-              f"({', '.join(l.kind for l in s.lights)}), bounds {np.round(lo, 2)}..{np.round(hi, 2)}, "
-              f"loaded in {time.perf_counter() - t0:.2f} s")
-        if args.prepare:
-            _prepare_report(s, args.no_cache)
-    return 0
-
-
-def _prepare_report(s: Scene, no_cache: bool) -> None:
-    """Print what preparing ``s`` for the chip costs: kd-tree, memory image, peak memory."""
-    import resource
-    import time
-
-    from .config import Config
-    from .kdtree import build_kdtree, kdtree_stats
-    from .layout import build_image
-    cfg = Config()
-    tris = cfg.fmt.quantize(s.tris).astype(np.float32)
-    t0 = time.perf_counter()
-    tree = build_kdtree(tris, cfg, **({"cache_dir": None} if no_cache else {}))
-    t1 = time.perf_counter()
-    image = build_image(tris, tree, cfg, tri_id=s.tri_id)
-    t2 = time.perf_counter()
-    st = kdtree_stats(tree, len(tris))
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-    print(f"  kd-tree {'from the cache' if tree.from_cache else 'built'} in {t1 - t0:.1f} s: "
-          f"{st['nodes']} nodes, depth {st['depth']}, {st['mean_nonempty_leaf_size']:.2f} "
-          f"triangles per non-empty leaf; memory image {len(image.data)} words = "
-          f"{image.data.nbytes / 2**20:.1f} MB in {t2 - t1:.1f} s; peak memory {rss:.2f} GB")
-
-
-if __name__ == "__main__":
-    raise SystemExit(_main())

@@ -26,6 +26,8 @@ COMMANDS: dict[str, Command] = {
                              "the golden model"),
     "render": Command("saarcor.render", "render a scene with the golden model alone: image.png, "
                                    "stats.json, rays.npz, hits.npz", prefix=("render",)),
+    "scene": Command("saarcor.scene", "a summary of each scene file: triangles, materials, "
+                                      "lights, bounds; --prepare: kd-tree and image cost"),
     "verilog": Command("saarcor.verilog", "write the Verilog of the one-RTC top or of one unit"),
     "fpga": Command("saarcor.flows.fpga.flow", "synthesis, place and route on an ECP5-85k (YoWASP Yosys, "
                                      "nextpnr); resources and Fmax"),
