@@ -17,6 +17,7 @@ from .conftest import ROOT
 OPTION = {
     ("render",): "--reflect-depth",
     ("verilog",): "--threads",
+    ("scene",): "--prepare",
     ("fpga",): "--freq",
     ("verilator",): "--mem-stall",
     ("sweep",): "--scheduler",
@@ -202,3 +203,21 @@ def test_test_files_follow_the_naming_rule():
     swapped = sorted(n for n in names if n.startswith("test_model_") or n.startswith("test_rtl_"))
     missing = sorted(u for u in both if f"test_{u}_rtl" not in names)
     assert not bare and not swapped and not missing, (bare, swapped, missing)
+
+
+def test_rtl_is_hardware_only():
+    """rtl/ drives no tool (no subprocess, no command line, no simulator) and each of its methods
+    fits on a few screens (<= 150 lines): longer bodies are split into components."""
+    long, tools = [], []
+    for path in sorted((ROOT / "rtl").rglob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                if node.end_lineno - node.lineno + 1 > 150:
+                    long.append(f"{path.relative_to(ROOT)}:{node.lineno} {node.name}")
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import) else
+                     [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            tools += [f"{path.relative_to(ROOT)}:{node.lineno} imports {n}" for n in names
+                      if n.split(".")[0] in ("subprocess", "argparse", "amaranth.sim", "cocotb")
+                      or n.startswith("amaranth.sim") or n.startswith("amaranth.back")]
+    assert not long and not tools, (long, tools)
