@@ -101,8 +101,9 @@ class Cache(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        d = _Dims(self.geom, len(self.port.req.payload.tag), self.fast)
-        p = SimpleNamespace(**{name: cls(d) for name, cls in _PARTS[self.fast].items()})
+        utag_bits = len(self.port.req.payload.tag)
+        p = SimpleNamespace(**{name: cls(self.geom, utag_bits)
+                               for name, cls in _PARTS[self.fast].items()})
         for name, part in vars(p).items():
             m.submodules[name] = part
         # the lookup: request -> S1 -> decision (-> tag row written back)
@@ -212,9 +213,23 @@ def _holds(refs, set_, way_, valid=None):
                  for i in range(len(refs.set))]).any()
 
 
+class _Part(wiring.Component):
+    """A part of the cache, built from the cache's geometry and the unit's tag width (its
+    ports: :meth:`_ports`); ``fast``: the variant for ``Config.fast_clock``."""
+
+    fast = False
+
+    def __init__(self, geom: CacheGeometry, tag_width: int):
+        self._d = _Dims(geom, tag_width, self.fast)
+        super().__init__(self._ports(self._d))
+
+    def _ports(self, d: _Dims) -> dict:
+        raise NotImplementedError
+
+
 # --- tag array and lookup stage S1 ------------------------------------------------------------
 
-class TagLookup(wiring.Component):
+class TagLookup(_Part):
     """The tag array (a row per set: W x {valid, tag} and the round-robin way) and S1.
 
     A request is accepted while its set's row is read (transparent for the tag write of that
@@ -222,38 +237,44 @@ class TagLookup(wiring.Component):
     on" (``s1.ready``: the decision's ``go``). Latency 1, throughput 1.
     """
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"req": In(stream.Signature(MemRequest(d.g.addr_width, d.utag))),
-                          "s1": Out(stream.Signature(d.lookup())),
-                          "write": In(d.tag_write())})
+    def _ports(self, d: _Dims) -> dict:
+        return {"req": In(stream.Signature(MemRequest(d.g.addr_width, d.utag))),
+                "s1": Out(stream.Signature(d.lookup())), "write": In(d.tag_write())}
 
     def elaborate(self, platform):
         m = Module()
-        d, req, s1 = self._d, self.req, self.s1
+        d, req = self._d, self.req
         ob, sb = d.ob, d.sb
-        m.submodules.tags = tags = Memory(shape=d.row, depth=d.S, init=[])
-        twp = tags.write_port()
-        trp = tags.read_port(transparent_for=(twp,))
-        m.d.comb += [twp.addr.eq(self.write.set), twp.data.eq(self.write.row),
-                     twp.en.eq(self.write.en)]
+        trp = self._tag_array(m, Memory(shape=d.row, depth=d.S, init=[]), transparent=True)
         a = req.payload.addr
         s1_valid = Signal()
         s1_off, s1_set, s1_tag = Signal(ob), Signal(sb), Signal(d.tb)
         s1_utag = Signal(d.utag)
-        m.d.comb += [req.ready.eq(~s1_valid | s1.ready), trp.addr.eq(a[ob:ob + sb]),
+        m.d.comb += [req.ready.eq(~s1_valid | self.s1.ready), trp.addr.eq(a[ob:ob + sb]),
                      trp.en.eq(req.ready)]
         with m.If(req.ready):
             m.d.sync += [s1_valid.eq(req.valid), s1_off.eq(a[:ob]), s1_set.eq(a[ob:ob + sb]),
                          s1_tag.eq(a[ob + sb:]), s1_utag.eq(req.payload.tag)]
-        m.d.comb += [s1.valid.eq(s1_valid), s1.payload.off.eq(s1_off),
-                     s1.payload.set.eq(s1_set), s1.payload.tag.eq(s1_tag),
-                     s1.payload.utag.eq(s1_utag), s1.payload.row.eq(trp.data),
-                     s1.payload.hits.eq(_way_hits(d, trp.data, s1_tag))]
+        self._send(m, s1_valid, off=s1_off, set=s1_set, tag=s1_tag, utag=s1_utag, row=trp.data,
+                   hits=_way_hits(d, trp.data, s1_tag))
         return m
 
+    def _tag_array(self, m: Module, tags: Memory, transparent: bool):
+        """``tags`` written by ``write``; returns its read port."""
+        m.submodules.tags = tags
+        twp = tags.write_port()
+        trp = tags.read_port(transparent_for=(twp,) if transparent else ())
+        m.d.comb += [twp.addr.eq(self.write.set), twp.data.eq(self.write.row),
+                     twp.en.eq(self.write.en)]
+        return trp
 
-class FastTagLookup(wiring.Component):
+    def _send(self, m: Module, valid, **fields):
+        """S1's request onto ``s1``."""
+        m.d.comb += self.s1.valid.eq(valid)
+        m.d.comb += [getattr(self.s1.payload, k).eq(v) for k, v in fields.items()]
+
+
+class FastTagLookup(TagLookup):
     """``fast`` :class:`TagLookup`: a skid register (``req.ready`` is a register: it takes a
     request while S0 holds), stage S0 that reads the tag row, and S1, whose row is the block
     RAM's output straight into a register, a tag write the read missed forwarded. S1 also
@@ -261,21 +282,16 @@ class FastTagLookup(wiring.Component):
     (3 behind a full skid register), throughput 1.
     """
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"req": In(stream.Signature(MemRequest(d.g.addr_width, d.utag))),
-                          "s1": Out(stream.Signature(d.lookup())),
-                          "write": In(d.tag_write()),
-                          "base": In(d.maw)})
+    fast = True
+
+    def _ports(self, d: _Dims) -> dict:
+        return {**super()._ports(d), "base": In(d.maw)}
 
     def elaborate(self, platform):
         m = Module()
-        d = self._d
-        m.submodules.tags = tags = BlockRAM(shape=d.row, depth=d.S)
-        twp = tags.write_port()
-        trp = tags.read_port()              # not transparent: writes are forwarded below
-        m.d.comb += [twp.addr.eq(self.write.set), twp.data.eq(self.write.row),
-                     twp.en.eq(self.write.en)]
+        d, w = self._d, self.write
+        # not transparent: writes are forwarded below
+        trp = self._tag_array(m, BlockRAM(shape=d.row, depth=d.S), transparent=False)
         # the tag write of the cycle before, registered (``wq``): S0's and S1's requests take
         # each write a cycle after it, so the deciding stage's ``go`` (the write enable)
         # reaches these registers, not their rows. A read in the cycle of a write misses it,
@@ -285,7 +301,7 @@ class FastTagLookup(wiring.Component):
         # S1's output), never by a request that waits
         wq = SimpleNamespace(en=Signal(name="tw_q_en"), set=Signal(d.sb, name="tw_q_set"),
                              row=Signal(d.row, name="tw_q_row"))
-        m.d.sync += [wq.en.eq(twp.en), wq.set.eq(twp.addr), wq.row.eq(twp.data)]
+        m.d.sync += [wq.en.eq(w.en), wq.set.eq(w.set), wq.row.eq(w.row)]
         s1_valid = Signal()
         s1_move = Signal()                  # S0 -> S1 this cycle
         m.d.comb += s1_move.eq(~s1_valid | (s1_valid & self.s1.ready))
@@ -324,7 +340,7 @@ class FastTagLookup(wiring.Component):
         """S1: the row as read, or the tag write to the set taken as it came from S0, or the
         last cycle's write (still in ``wq``, chosen at its output); the ways it hits, one
         compare per row it may have (newest write first), then a choice."""
-        d, s1 = self._d, self.s1
+        d = self._d
         ob, sb = d.ob, d.sb
         s1_off, s1_set, s1_tag = Signal(ob), Signal(sb), Signal(d.tb)
         s1_utag = Signal(d.utag)
@@ -347,15 +363,13 @@ class FastTagLookup(wiring.Component):
         m.d.comb += row.eq(Mux(w_s1, wq.row, Mux(s1_fwd, s1_fwd_row, s1_raw)))
         hits = Mux(w_s1, _way_hits(d, wq.row, s1_tag),
                    Mux(s1_fwd, _way_hits(d, s1_fwd_row, s1_tag), _way_hits(d, s1_raw, s1_tag)))
-        m.d.comb += [s1.valid.eq(s1_valid), s1.payload.off.eq(s1_off),
-                     s1.payload.set.eq(s1_set), s1.payload.tag.eq(s1_tag),
-                     s1.payload.utag.eq(s1_utag), s1.payload.row.eq(row),
-                     s1.payload.hits.eq(hits), s1.payload.mem.eq(self.base + s1_mem)]
+        self._send(m, s1_valid, off=s1_off, set=s1_set, tag=s1_tag, utag=s1_utag, row=row,
+                   hits=hits, mem=self.base + s1_mem)
 
 
 # --- the decision: hit, or allocate the miss --------------------------------------------------
 
-class Decision(wiring.Component):
+class Decision(_Part):
     """The lookup's verdict on S1's request: a hit, or a miss that allocates its line (the
     round-robin way of its set, written into the tag row). ``verdict.go``: the request leaves
     the lookup this cycle, into the response queue: a hit at once, a miss once an MSHR is free
@@ -363,14 +377,11 @@ class Decision(wiring.Component):
     Counts the hits and misses. Combinational (the verdict in S1's cycle).
     """
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"s1": In(stream.Signature(d.lookup())),
-                          "write": Out(d.tag_write()),
-                          "verdict": Out(d.verdict()),
-                          "queue": In(d.slot_refs(d.Q)), "q_full": In(1),
-                          "fills": In(d.slot_refs(d.O)), "any_free": In(1),
-                          "hits": Out(COUNTER_BITS), "misses": Out(COUNTER_BITS)})
+    def _ports(self, d: _Dims) -> dict:
+        return {"s1": In(stream.Signature(d.lookup())), "write": Out(d.tag_write()),
+                "verdict": Out(d.verdict()), "queue": In(d.slot_refs(d.Q)), "q_full": In(1),
+                "fills": In(d.slot_refs(d.O)), "any_free": In(1),
+                "hits": Out(COUNTER_BITS), "misses": Out(COUNTER_BITS)}
 
     def elaborate(self, platform):
         m = Module()
@@ -436,6 +447,8 @@ class FastDecision(Decision):
     count a cycle later. Latency 1 (2 behind B), throughput 1.
     """
 
+    fast = True
+
     def _stage(self, m: Module, go, new_row) -> SimpleNamespace:
         """S2: S1's compare verdict in a register, so S2 decides (and the stages before it
         advance) from registers only. S2 has a skid entry B: S1 hands its request on while B
@@ -446,7 +459,7 @@ class FastDecision(Decision):
         write leaves them (both formed without ``go``) and a bit saying whether the write was
         to its set. S0 and S1 take the write a cycle later, from a register (a write meets B
         only as B moves on: S2 writes only when it goes)."""
-        d, s1, twp = self._d, self.s1, self.write
+        d, s1, w = self._d, self.s1, self.write
         p = s1.payload
         W = d.W
         s2_valid = Signal()
@@ -470,7 +483,7 @@ class FastDecision(Decision):
             m.d.sync += [s2_row_w.eq(new_row),
                          s2_hits_w.eq(Mux(b_valid, _way_hits(d, new_row, b_tag),
                                           _way_hits(d, new_row, p.tag))),
-                         s2_wsel.eq(twp.en & Mux(b_valid, twp.set == b_set, twp.set == p.set))]
+                         s2_wsel.eq(w.en & Mux(b_valid, w.set == b_set, w.set == p.set))]
             with m.If(b_valid):
                 m.d.sync += [s2_valid.eq(1), s2_off.eq(b_off), s2_set.eq(b_set),
                              s2_tag.eq(b_tag), s2_utag.eq(b_utag), s2_row_n.eq(b_row),
@@ -526,7 +539,7 @@ class FastDecision(Decision):
 
 # --- MSHRs ------------------------------------------------------------------------------------
 
-class MshrFile(wiring.Component):
+class MshrFile(_Part):
     """The miss status holding registers: per MSHR the slot its line fills (``fills``) and the
     line. The lowest free MSHR is written with the deciding request's fields every cycle
     (``spare``); a miss (``alloc.go & ~alloc.hit``) makes it valid and hands it to the issue
@@ -534,11 +547,9 @@ class MshrFile(wiring.Component):
     this cycle's ``done``. ``any_free``: an MSHR is free for a miss this cycle.
     """
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"alloc": In(d.verdict()), "done": In(d.O),
-                          "fills": Out(d.slot_refs(d.O)), "kept": Out(d.O),
-                          "spare": Out(d.O), "any_free": Out(1), "issue": Out(d.issue())})
+    def _ports(self, d: _Dims) -> dict:
+        return {"alloc": In(d.verdict()), "done": In(d.O), "fills": Out(d.slot_refs(d.O)),
+                "kept": Out(d.O), "spare": Out(d.O), "any_free": Out(1), "issue": Out(d.issue())}
 
     def elaborate(self, platform):
         m = Module()
@@ -589,6 +600,8 @@ class FastMshrFile(MshrFile):
     """``fast`` :class:`MshrFile`: an MSHR keeps its line's first memory word address (formed
     in S0 -> S1 -> S2), and the lowest free MSHR is kept in a register."""
 
+    fast = True
+
     _line_name = "addr"
 
     def _line(self, a):
@@ -609,21 +622,14 @@ class FastMshrFile(MshrFile):
 
 # --- issue: the line's words, one request per cycle -------------------------------------------
 
-class Issue(wiring.Component):
+class Issue(_Part):
     """The allocated MSHRs in a FIFO; the head's line is requested word by word, a word per
     cycle (tag ``{word, mshr}``). Latency 1 (a miss's first word request is valid in the
     cycle after its allocation), throughput one word per cycle."""
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"mshrs": In(d.issue()),
-                          "req": Out(stream.Signature(MemRequest(d.maw, d.mshr_bits +
-                                                                 d.word_bits))),
-                          **self._extra_ports(d)})
-
-    @staticmethod
-    def _extra_ports(d):
-        return {"base": In(d.maw)}
+    def _ports(self, d: _Dims) -> dict:
+        return {"mshrs": In(d.issue()), "base": In(d.maw),
+                "req": Out(stream.Signature(MemRequest(d.maw, d.mshr_bits + d.word_bits)))}
 
     def elaborate(self, platform):
         m = Module()
@@ -655,9 +661,10 @@ class FastIssue(Issue):
     registers (``issue_delay``), and the word address adds the word to the MSHR's line
     address. Latency 2, throughput one word per cycle."""
 
-    @staticmethod
-    def _extra_ports(d):
-        return {}
+    fast = True
+
+    def _ports(self, d: _Dims) -> dict:
+        return {k: v for k, v in super()._ports(d).items() if k != "base"}
 
     def _entry(self, m: Module):
         return registered(m, "issue_w", en_q=self.mshrs.en, data_q=self.mshrs.mshr).values()
@@ -669,17 +676,15 @@ class FastIssue(Issue):
 # --- fill: each word goes into the data array as it arrives; the last one completes the line
 # (only then may a request read it: the queue's wait bits) -----------------------------------
 
-class Fill(wiring.Component):
+class Fill(_Part):
     """The memory's responses (always accepted, any order): each word into the data array at
     its MSHR's slot (``write``); per MSHR the words received; ``done``: the MSHRs whose line
     this cycle's word completes. Latency 0 (the word is written in its cycle)."""
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"resp": In(stream.Signature(MemResponse(WORD_BITS, d.mshr_bits +
-                                                                  d.word_bits))),
-                          "fills": In(d.slot_refs(d.O)), "spare": In(d.O),
-                          "write": Out(d.fill_write()), "done": Out(d.O)})
+    def _ports(self, d: _Dims) -> dict:
+        return {"resp": In(stream.Signature(MemResponse(WORD_BITS, d.mshr_bits + d.word_bits))),
+                "fills": In(d.slot_refs(d.O)), "spare": In(d.O), "write": Out(d.fill_write()),
+                "done": Out(d.O)}
 
     def elaborate(self, platform):
         m = Module()
@@ -727,6 +732,8 @@ class FastFill(Fill):
     bus; ``fill_delay``), its slot picked as it is registered, and the completion decided as
     it is registered. Latency 1."""
 
+    fast = True
+
     def _response(self, m: Module):
         """(loaded only with a response: the caches' copies of the bus's shared response stay
         apart, each beside its own fill logic)"""
@@ -768,15 +775,14 @@ class FastFill(Fill):
 
 # --- the data array ---------------------------------------------------------------------------
 
-class DataArray(wiring.Component):
+class DataArray(_Part):
     """One memory per word of a line, holding the bits of that word the cache keeps (a line
     is the concatenation of the words' kept bits, item after item), so a fill needs no line
     buffer per MSHR. ``write``: a word (its slot and index in the line); ``read``: a line
     (synchronous: the data in the cycle after ``en``)."""
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"write": In(d.fill_write()), "read": In(d.data_read())})
+    def _ports(self, d: _Dims) -> dict:
+        return {"write": In(d.fill_write()), "read": In(d.data_read())}
 
     def elaborate(self, platform):
         m = Module()
@@ -798,17 +804,16 @@ class DataArray(wiring.Component):
 
 # --- response queue (in request order) --------------------------------------------------------
 
-class ResponseQueue(wiring.Component):
+class ResponseQueue(_Part):
     """The requests in order: every verdict with ``go`` takes the entry at the tail (the
     deciding request's fields are written into it every cycle, only the used bit waits for
     ``go``); ``head``: the oldest request once its line is present (no fill in flight to its
     slot), popped by the transfer. ``refs``: the used entries' slots; ``full``."""
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"push": In(d.verdict()), "fills": In(d.slot_refs(d.O)),
-                          "kept": In(d.O), "refs": Out(d.slot_refs(d.Q)), "full": Out(1),
-                          "head": Out(stream.Signature(d.head()))})
+    def _ports(self, d: _Dims) -> dict:
+        return {"push": In(d.verdict()), "fills": In(d.slot_refs(d.O)), "kept": In(d.O),
+                "refs": Out(d.slot_refs(d.Q)), "full": Out(1),
+                "head": Out(stream.Signature(d.head()))}
 
     def elaborate(self, platform):
         m = Module()
@@ -868,6 +873,8 @@ class FastResponseQueue(ResponseQueue):
     """``fast`` :class:`ResponseQueue`: ``full``, each entry's "line still being filled" and
     the head's slot are registers, formed a cycle ahead."""
 
+    fast = True
+
     def _full(self, m: Module, used, used_next):
         """Kept in a register, from the used bits after this cycle."""
         full = Signal(name="q_full")
@@ -912,15 +919,13 @@ class FastResponseQueue(ResponseQueue):
 
 # --- output: head of the queue once its line is present ---------------------------------------
 
-class Output(wiring.Component):
+class Output(_Part):
     """The head's line read from the data array as it is popped (``o``: the block RAM's
     output), its item selected into ``resp``. Latency 1, throughput 1."""
 
-    def __init__(self, d: _Dims):
-        self._d = d
-        super().__init__({"head": In(stream.Signature(d.head())),
-                          "read": Out(d.data_read()),
-                          "resp": Out(stream.Signature(MemResponse(d.g.item_bits, d.utag)))})
+    def _ports(self, d: _Dims) -> dict:
+        return {"head": In(stream.Signature(d.head())), "read": Out(d.data_read()),
+                "resp": Out(stream.Signature(MemResponse(d.g.item_bits, d.utag)))}
 
     def elaborate(self, platform):
         m = Module()
@@ -952,6 +957,8 @@ class FastOutput(Output):
     """``fast`` :class:`Output`: ``o2``, the line in a register before ``resp`` (the block
     RAM's output feeds only registers); the data array is read whenever ``o`` can take a line.
     Latency 2, throughput 1."""
+
+    fast = True
 
     def _final(self, m: Module, o_valid, o_off, o_utag):
         d = self._d
