@@ -28,7 +28,7 @@ tag = ``{word index, mshr}``), ``base`` (word address of item 0), counters ``hit
 (``fast``: a cycle after the lookup), and ``lookup_valid``/``lookup_hit`` (one pulse per
 classified request, for testbenches).
 
-Parts (components; with ``fast`` each stage is its ``Fast...`` variant):
+Parts (components; ``fast`` takes the ``Fast...`` variant of each stage that has one):
 
 * :class:`TagLookup`: the tag array and the lookup stage S1 (``s1``: the request, its tag row
   and the ways it hits);
