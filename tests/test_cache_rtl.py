@@ -187,6 +187,45 @@ def test_rtl_cache_fast_forwards_tag_writes():
         assert r.misses > 0 and r.hits > 0
 
 
+@pytest.mark.parametrize("fast", [False, True], ids=["default", "fast"])
+def test_response_queue_head_waits_for_its_line(fast):
+    """The response queue alone: a hit, a miss and a hit on the miss's line, pushed in three
+    cycles while the miss's fill is in flight (cycles 2 to 7, done in 7), leave in request
+    order, each with its slot; the two behind the fill only once it is done (both variants:
+    ``fast`` forms the wait bits a cycle ahead from ``kept``)."""
+    from amaranth.sim import Simulator
+    from rtl.cache import FastResponseQueue, ResponseQueue
+    q = (FastResponseQueue if fast else ResponseQueue)(geom(ways=2, sets=4, outstanding=2,
+                                                            queue=4), tag_width=3)
+    pushes = {0: dict(hit=1, hit_way=0, way=0, set=1, utag=5),
+              1: dict(hit=0, victim=1, way=1, set=2, utag=6),
+              2: dict(hit=1, hit_way=1, way=1, set=2, utag=7)}
+    pops = []
+
+    async def bench(ctx):
+        ctx.set(q.head.ready, 1)
+        ctx.set(q.fills.set[0], 2)
+        ctx.set(q.fills.way[0], 1)
+        for cycle in range(12):
+            for k, v in pushes.get(cycle, {}).items():
+                ctx.set(getattr(q.push, k), v)
+            ctx.set(q.push.go, cycle in pushes)
+            ctx.set(q.fills.valid, 2 <= cycle <= 7)         # MSHR 0 fills set 2, way 1
+            ctx.set(q.kept, 2 <= cycle <= 6)                # ... and is done in cycle 7
+            assert not ctx.get(q.full)
+            if ctx.get(q.head.valid):
+                h = ctx.get(q.head.payload)
+                pops.append((cycle, h.utag, h.slot))
+            await ctx.tick()
+
+    sim = Simulator(q)
+    sim.add_clock(1e-6)
+    sim.add_testbench(bench)
+    sim.run()
+    slot = lambda way, set_: way | set_ << 1                # noqa: E731  {way, set}
+    assert pops == [(1, 5, slot(0, 1)), (8, 6, slot(1, 2)), (9, 7, slot(1, 2))]
+
+
 def test_rtl_cache_outstanding_misses_overlap():
     """With 4 MSHRs, 8 misses to distinct lines take far less than 8 memory round trips."""
     g = geom(sets=16, outstanding=4, queue=16)
