@@ -207,7 +207,7 @@ class Chip(wiring.Component):
         from model.layout import REC_BITS
         from .cache import Cache
         from .rgs import COORD_BITS
-        from .rgs_slave import (DEPTH_BITS, Slave, SlaveResult, shade_cache_geometry,
+        from .rgs import (DEPTH_BITS, Slave, SlaveResult, shade_cache_geometry,
                                 tex_cache_geometry)
         from .rtc_streams import vec3
         self.cfg = cfg
@@ -257,7 +257,7 @@ class Chip(wiring.Component):
     def elaborate(self, platform):
         from amaranth.hdl import Mux, Signal
         from .common import OutputStage, rr_pick
-        from .rgs_slave import SlaveResult
+        from .rgs import SlaveResult
         m = Module()
         cfg, n = self.cfg, self.cfg.rtcs
         m.submodules.array = arr = self.array

@@ -83,7 +83,7 @@ def run_band(cfg: Config, image, camera, width: int, height: int, y0: int, rows:
     import sys
 
     from model.rtc import counter_totals, trace
-    from rtl.rgs_slave import SlaveResult
+    from rtl.rgs import SlaveResult
 
     from . import compare
     from .chip import ChipRun, _finish, chip_blocks, chip_build, stuck

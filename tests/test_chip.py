@@ -282,7 +282,7 @@ def test_chip_shared_fp_units_verilator(cornell):
     so the frame takes more cycles than with a unit per operation. (Slow: a chip build of its
     own; in CI the pool below runs the slaves at ``ii`` > 1 in the chip, and
     ``tests/test_rgs.py`` checks each shared datapath bit for bit.)"""
-    from rtl.rgs_slave import Slave
+    from rtl.rgs import Slave
     from tb.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4)
@@ -309,7 +309,7 @@ def test_chip_shade_pool_verilator(cornell):
     pixel bit-exact. The pool's interval is even and the texture unit's 2, so their slots
     never meet in one cycle: the texture's inputs wait in their queue."""
     from math import gcd
-    from rtl.rgs_slave import Slave
+    from rtl.rgs import Slave
     from tb.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
@@ -333,7 +333,7 @@ def test_chip_shared_slots_that_never_meet_verilator(cornell):
     waited forever (the first packets' shading never started). Cornell 16x16, every ray and
     pixel bit-exact."""
     from math import gcd
-    from rtl.rgs_slave import Slave
+    from rtl.rgs import Slave
     from tb.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=1, rgs_fp_muls=2)

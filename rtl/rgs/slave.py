@@ -79,11 +79,11 @@ from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_NF, R
                           REC_UV, REC_WORDS, SHIN_BITS)
 from model.rgs import FIX_BITS
 
-from .common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
-from .memport import WORD_BITS, MemReadPort
-from .rgs import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe,
+from ..common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
+from ..memport import WORD_BITS, MemReadPort
+from .eye import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe,
                   ShadePool, Texture, _fp_const)
-from .rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
+from ..rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
 
 __all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
            "shade_cache_geometry", "tex_cache_geometry"]

@@ -34,11 +34,11 @@ from model.fp import FPFormat
 from model.layout import SHIN_BITS
 from model.rgs import FIX_BITS, FIX_FRAC, FIX_MAX, TEX_FRAC, TEX_ONE, TEX_SCALE, UV_FRAC
 
-from .fp.common import bits_for, unpack, wire
-from .fp.conv import FPFromInt
-from .fp.schedule import Schedule, Share
-from .memport import WORD_BITS, MemReadPort
-from .rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
+from ..fp.common import bits_for, unpack, wire
+from ..fp.conv import FPFromInt
+from ..fp.schedule import Schedule, Share
+from ..memport import WORD_BITS, MemReadPort
+from ..rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
 
 __all__ = ["COORD_BITS", "PIXEL_BITS", "RaySetupIn", "EyeRequest", "EyeRay", "RaySetupPipe",
            "RaySetup", "EyeRayPipe", "EyeRays", "SecondaryPipe", "div_const",
@@ -336,7 +336,7 @@ def _ray_out(m: Module, pipe: RaySetupPipe, ray, packet, lane, last, anyhit,
     traversal's test) gets ``[+0, tmax]`` instead and is traversed like any other
     (``model.raygen.setup(box_cull=False)``: only to measure what the cull saves); a
     combinational compare and two muxes on the output registers, no cycle."""
-    from .fp.cmp import compare
+    from ..fp.cmp import compare
     keep = Signal(name="box_keep")
     m.d.comb += keep.eq(box_cull | compare(pipe.fmt, pipe.tnear, pipe.tfar).le)
     return [ray.packet.eq(packet), ray.lane.eq(lane), ray.last.eq(last),
