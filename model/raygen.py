@@ -11,7 +11,7 @@ tile's rays are one packet (partial tiles at the right/bottom edge give smaller 
 Ray setup computes the read-only per-ray data the RTC units keep: ``inv``, the shear constants
 ``k``/``s`` of the watertight test, and the interval ``[tnear, tfar]`` clipped to the scene box.
 
-The per-ray arithmetic of both is ``model/rgs.py``'s kernels (the RTL's operation order,
+The per-ray arithmetic of both is ``model/rgs/eye.py``'s kernels (the RTL's operation order,
 ``docs/rgs.md``); this module is the host side around them (camera, packets, arrays).
 """
 from __future__ import annotations
@@ -120,7 +120,7 @@ def camera_basis(position, look_at, up, fov_y: float, width: int, height: int):
 
 
 def camera_registers(camera, width: int, height: int, cfg: Config):
-    """Host side: the camera registers of the RGS slave (``rtl/rgs.py`` ``EyeRays``) for a
+    """Host side: the camera registers of the RGS slave (``rtl/rgs/eye.py`` ``EyeRays``) for a
     ``width x height`` image: ``pos``, ``corner``, ``dx``, ``dy`` (float32 format values),
     :func:`camera_basis` of the sample image (``cfg.oversampling`` times the size) quantized."""
     n = cfg.oversampling
@@ -162,13 +162,13 @@ class RaySetup:
 
 def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat, box_cull: bool = True) -> RaySetup:
     """Ray setup in the format's arithmetic: ``model.rgs.ray_setup`` on every ray (the RTL's
-    ``RaySetupPipe``; steps in ``model/rgs.py`` and ``docs/rgs.md``).
+    ``RaySetupPipe``; steps in ``model/rgs/eye.py`` and ``docs/rgs.md``).
 
     A ray whose interval clipped to the scene box is empty (``not tnear <= tfar``) starts
     inactive: it never enters traversal (the box cull). ``box_cull=False`` is the setup without
     the cull, only to measure what it saves: such a ray gets its unclipped interval
     ``[0, tmax]`` and goes through traversal like any other; the rays that meet the box keep
-    their clipped interval (the RTL: the slaves' ``box_cull`` register, ``rtl.rgs._ray_out``)."""
+    their clipped interval (the RTL: the slaves' ``box_cull`` register, ``rtl.rgs.eye._ray_out``)."""
     n = len(rays)
     inv = np.empty((n, 3), np.float32)
     s = np.empty((n, 3), np.float32)

@@ -1,7 +1,7 @@
 """Shading (the RGS slave, golden model): Phong-like with one bilinearly filtered texture.
 
 Everything that becomes a ray is the hardware's format arithmetic, in the RTL's order:
-``model/rgs.py``'s :func:`~model.rgs.secondary` makes, from a hit, the secondary rays' origin
+``model/rgs/secondary.py``'s :func:`~model.rgs.secondary` makes, from a hit, the secondary rays' origin
 ``p0 = (p + eps*g) - eps*w`` (g the unit face normal turned toward the incoming ray, w the unit
 incoming direction, ``eps = 1e-4 x`` the scene box diagonal: off the surface and back along the
 ray, so a secondary ray neither hits its own triangle nor starts on a neighbouring wall at a
@@ -12,7 +12,7 @@ casts no ray: the point is unlit). The unit face normals are computed once on th
 rounded once per component: ``model.layout.face_normals``), as the memory image's slave
 records hold them.
 
-The colour is the slave's format arithmetic too (``model/rgs.py``'s :func:`~model.rgs.hit_colour`
+The colour is the slave's format arithmetic too (``model/rgs/secondary.py``'s :func:`~model.rgs.hit_colour`
 and :func:`~model.rgs.light_colour`, each contribution then made a 24-bit fixed-point number,
 :func:`~model.rgs.to_fixed`): every eye or reflection ray carries a weight (1/oversampling² for
 an eye ray, the parent's weight times the material's reflectivity for a reflection ray) and the

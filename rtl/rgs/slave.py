@@ -77,13 +77,15 @@ from model.config import Config, ConfigError
 from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_NF, REC_NV,
                           REC_REFLECTIVE, REC_SHIN_SHIFT, REC_TEX_ADDR, REC_TEX_SIZE, REC_TEXTURED,
                           REC_UV, REC_WORDS, SHIN_BITS)
-from model.rgs import FIX_BITS
+from model.rgs.secondary import FIX_BITS
 
 from ..common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
 from ..memport import WORD_BITS, MemReadPort
-from .eye import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe,
-                  ShadePool, Texture, _fp_const)
 from ..rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
+from .common import _fp_const
+from .eye import COORD_BITS, EyeRays, EyeRequest, RaySetup
+from .secondary import LightPipe, SecondaryPipe, ShadePool
+from .texture import Texture
 
 __all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
            "shade_cache_geometry", "tex_cache_geometry"]
