@@ -22,9 +22,8 @@ import numpy as np
 
 from .config import Config
 from .fp import FPFormat
+from .raykind import RayKind
 from .rgs import eye_packets, packet_count, setup_rays
-
-EYE, SHADOW, REFLECTION, REFRACTION = 0, 1, 2, 3
 
 
 @dataclass
@@ -33,7 +32,7 @@ class Rays:
     org: np.ndarray              # (N, 3) float32 format values
     dir: np.ndarray              # (N, 3) float32 format values
     tmax: np.ndarray             # (N,) float32 (inf for eye rays)
-    kind: np.ndarray             # (N,) uint8: 0 eye, 1 shadow, 2 reflection, 3 refraction
+    kind: np.ndarray             # (N,) uint8: the ray's RayKind
     pixel: np.ndarray            # (N,) int32: y * width + x of the pixel the ray contributes to
     pk_start: np.ndarray         # (P + 1,) int64
     anyhit: np.ndarray = field(default=None)   # (N,) bool: any hit ends the ray (shadow rays)
@@ -46,7 +45,7 @@ class Rays:
     def __post_init__(self):
         n = self.org.shape[0]
         if self.anyhit is None:
-            self.anyhit = self.kind == SHADOW
+            self.anyhit = self.kind == RayKind.SHADOW
         if self.eye is None:
             self.eye = np.arange(n, dtype=np.int64)
         if self.depth is None:
@@ -62,7 +61,7 @@ class Rays:
         return self.pk_start.shape[0] - 1
 
     @staticmethod
-    def from_arrays(org, dirn, tmax=None, *, packet: int = 64, kind: int = 0,
+    def from_arrays(org, dirn, tmax=None, *, packet: int = 64, kind: int = RayKind.EYE,
                     anyhit=None) -> "Rays":
         """Rays from (N, 3) origins and directions, in packets of ``packet`` consecutive rays
         (pixel = ray index; tmax default inf; any-hit default: shadow rays)."""

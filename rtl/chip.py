@@ -30,6 +30,7 @@ from .common import COUNTER_BITS
 from .memport import WORD_BITS, MemReadPort, connect_tags
 from .rtc import COUNTERS, RTC
 from .rtc_streams import RayIn, RayResult
+from .rgs.slave import RAY_COUNTERS
 from .rtcmi import CACHES, RTCMI
 from .traversal import NODE_BITS
 
@@ -131,7 +132,7 @@ class Chip(wiring.Component):
     ``misses``, ``grants``, ``mem_reads``).
     """
 
-    SLAVE_COUNTERS = ("rays_eye", "rays_shadow", "rays_reflect", "sec_busy")
+    SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy")
 
     def __init__(self, cfg: Config):
         from model.layout import REC_BITS

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from model.config import Config
+from model.raykind import RayKind
 
 __all__ = ["band_registers", "band_rays", "run_band", "choose_bands", "SampledRun",
            "sampled_frame"]
@@ -478,7 +479,7 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
     hits, tot = work["hits"], work["totals"]
     est = estimate_events(cfg, work)
     stats = {"scene": args.scene, "resolution": [width, height], "fidelity": args.fidelity,
-             "estimate": True, "eye_only": True, "rays": {"eye": len(rays)},
+             "estimate": True, "eye_only": True, "rays": {RayKind.EYE.label: len(rays)},
              "rays_total": len(rays),
              "trav_ops": tot["trav_ops"], "int_ops": tot["int_ops"],
              "list_ops": tot["list_ops"], "clock_mhz": cfg.clock_mhz}

@@ -118,12 +118,12 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
              "per_rtc": [{"trav": x["trav_busy"] / cyc, "trav_subunits": s,
                           "list": x["list_busy"] / cyc, "int": x["int_busy"] / cyc}
                          for x, s in zip(rtc, sub)]}
-    from model.render import KIND_NAMES
-    kinds = np.bincount(run.frame_rays.kind, minlength=3)
+    from model.raykind import RayKind
+    kinds = np.bincount(run.frame_rays.kind, minlength=len(RayKind))
     slaves = c.get("slave", [])
     return {
         "scene": scene, "resolution": [width, height], "backend": backend,
-        "rays": {KIND_NAMES[k]: int(kinds[k]) for k in range(3)}, "rays_total": run.rays,
+        "rays": {k.label: int(kinds[k]) for k in RayKind.made()}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
         "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),

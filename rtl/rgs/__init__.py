@@ -20,15 +20,15 @@ from .eye import (COORD_BITS, PIXEL_BITS, EyeRay, EyeRayPipe, EyeRays, EyeReques
                   RaySetupIn, RaySetupPipe, div_const, div_const_params, sample_converter)
 from .master import RGSMaster
 from .secondary import LightPipe, SecondaryPipe, ShadePool, to_fixed
-from .slave import (DEPTH_BITS, SUB_BITS, Slave, SlaveResult, shade_cache_geometry,
-                    slave_buffers, tex_cache_geometry)
+from .slave import (DEPTH_BITS, RAY_COUNTERS, SUB_BITS, Slave, SlaveResult,
+                    shade_cache_geometry, slave_buffers, tex_cache_geometry)
 from .texture import (TEX_INDEX_BITS, TEX_SIZE_BITS, TexCoordPipe, TexFilterPipe, TexIn, TexOut,
                       Texture, tex_pos, wrap_coord)
 
 __all__ = ["COORD_BITS", "PIXEL_BITS", "EyeRay", "EyeRayPipe", "EyeRays", "EyeRequest",
            "RaySetup", "RaySetupIn", "RaySetupPipe", "div_const", "div_const_params",
            "sample_converter", "RGSMaster", "LightPipe", "SecondaryPipe", "ShadePool", "to_fixed",
-           "DEPTH_BITS", "SUB_BITS", "Slave", "SlaveResult", "shade_cache_geometry",
+           "DEPTH_BITS", "RAY_COUNTERS", "SUB_BITS", "Slave", "SlaveResult", "shade_cache_geometry",
            "slave_buffers", "tex_cache_geometry", "TEX_INDEX_BITS", "TEX_SIZE_BITS",
            "TexCoordPipe", "TexFilterPipe", "TexIn", "TexOut", "Texture", "tex_pos",
            "wrap_coord"]

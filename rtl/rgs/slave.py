@@ -77,6 +77,7 @@ from model.config import Config, ConfigError
 from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_NF, REC_NV,
                           REC_REFLECTIVE, REC_SHIN_SHIFT, REC_TEX_ADDR, REC_TEX_SIZE, REC_TEXTURED,
                           REC_UV, REC_WORDS, SHIN_BITS)
+from model.raykind import RayKind
 from model.rgs.secondary import FIX_BITS
 
 from ..common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
@@ -87,11 +88,14 @@ from .eye import COORD_BITS, EyeRays, EyeRequest, RaySetup, RaySetupIn
 from .secondary import LightPipe, SecondaryPipe, ShadePool
 from .texture import Texture
 
-__all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
+__all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "RAY_COUNTERS", "slave_buffers",
            "shade_cache_geometry", "tex_cache_geometry"]
 
 DEPTH_BITS = 4          # reflection depth of a ray (0: eye ray)
 SUB_BITS = 4            # 0: eye or reflection ray, 1 + l: shadow ray toward light l
+# the slave's counters of rays into the RTC, by kind (no refraction: RayKind)
+RAY_COUNTERS = {RayKind.EYE: "rays_eye", RayKind.SHADOW: "rays_shadow",
+                RayKind.REFLECTION: "rays_reflect"}
 
 
 def slave_buffers(cfg: Config) -> int:
@@ -214,8 +218,9 @@ class Sender(wiring.Component):
     ray with packet = the slot, any-hit and tmax by the slot's kind); the buffer memory's read
     port ``rd_addr``, ``rd_en``, ``rd_data`` (:func:`RayEntry`, one cycle after the read);
     ``sub`` (In: the sending slot's kind, 0 reflection rays, 1 + l shadow rays of light l:
-    tmax 1 toward a point light, +inf otherwise), ``light_point``; ``busy``, ``done`` (the
-    last ray goes this cycle), ``buf`` and ``slot`` (the packet being sent).
+    tmax 1 toward a point light, +inf otherwise), ``light_point``; ``kind`` (the rays'
+    :class:`~model.raykind.RayKind`), ``busy``, ``done`` (the last ray goes this cycle),
+    ``buf`` and ``slot`` (the packet being sent).
     Latency: the first ray 2 cycles after ``start``; throughput one ray per cycle (the next
     lane is read while a ray goes)."""
 
@@ -228,7 +233,8 @@ class Sender(wiring.Component):
             "o": Out(stream.Signature(RaySetupIn(cfg))),
             "rd_addr": Out(range(buffers * P)), "rd_en": Out(1), "rd_data": In(RayEntry(cfg)),
             "sub": In(SUB_BITS), "light_point": In(max(1, cfg.rgs_lights)),
-            "busy": Out(1), "done": Out(1), "buf": Out(bb), "slot": Out(range(slots)),
+            "kind": Out(RayKind), "busy": Out(1), "done": Out(1), "buf": Out(bb),
+            "slot": Out(range(slots)),
         })
 
     def elaborate(self, platform):
@@ -264,6 +270,7 @@ class Sender(wiring.Component):
             o.payload.tmax.eq(Mux(point, _fp_const(cfg.fmt, "one"),
                                   _fp_const(cfg.fmt, "+inf"))),
             o.payload.anyhit.eq(is_shadow),
+            self.kind.eq(Mux(is_shadow, RayKind.SHADOW, RayKind.REFLECTION)),
             self.done.eq(xfer & last_lane),
         ]
         with m.If(self.done):
@@ -288,7 +295,8 @@ class Slave(wiring.Component):
     ``model.shading.frame_colour_registers`` — and ``colour`` (1: the frame is shaded; 0: no
     ambient records, and only packets that spawn rays take the shading path, as for a frame
     of bare eye rays). ``idle``: nothing in flight. Counters: ``rays_eye``, ``rays_shadow``,
-    ``rays_reflect`` (rays into the RTC by kind), ``sec_busy`` (cycles the light loop held a
+    ``rays_reflect`` (rays into the RTC by kind: :data:`RAY_COUNTERS`), ``sec_busy`` (cycles
+    the light loop held a
     hit).
     """
 
@@ -345,8 +353,8 @@ class Slave(wiring.Component):
             "light_col": In(v3).array(max(1, L)), "amb": In(w), "bg": In(v3), "w_eye": In(w),
             "eye_miss": In(data.ArrayLayout(FIX_BITS, 3)), "colour": In(1),
             "idle": Out(1),
-            "rays_eye": Out(COUNTER_BITS), "rays_shadow": Out(COUNTER_BITS),
-            "rays_reflect": Out(COUNTER_BITS), "sec_busy": Out(COUNTER_BITS),
+            **{name: Out(COUNTER_BITS) for name in RAY_COUNTERS.values()},
+            "sec_busy": Out(COUNTER_BITS),
         })
 
     # -- pieces both slaves are built from -------------------------------------------------------
@@ -423,6 +431,15 @@ class Slave(wiring.Component):
             m.d.sync += [b.valid.eq(res.valid), b.res.eq(res.payload)]
         return b
 
+    def _count_rays(self, m: Module, en: Value, kind, kinds: tuple = ()):
+        """``en``: a ray of ``kind`` goes into the RTC; its counter (:data:`RAY_COUNTERS`)
+        counts it. ``kind``: a :class:`~model.raykind.RayKind`, or a signal of that shape
+        holding one of ``kinds``."""
+        for k in kinds or (kind,):
+            counter = getattr(self, RAY_COUNTERS[k])
+            with m.If(en & (kind == k) if kinds else en):
+                m.d.sync += counter.eq(counter + 1)
+
     def _host_out(self, m: Module, other: SyncFIFO | None = None) -> SyncFIFO:
         """The host records: a 4-entry queue (the caller writes it) and the registered
         ``out`` stream; with ``other`` (a second queue of records) the two take turns."""
@@ -458,8 +475,7 @@ class Slave(wiring.Component):
         m.d.comb += [self.rays.valid.eq(eye.o.valid),
                      self.rays.payload.eq(eye.o.payload.ray.as_value()),
                      eye.o.ready.eq(self.rays.ready)]
-        with m.If(eye.o.valid & eye.o.ready):
-            m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
+        self._count_rays(m, eye.o.valid & eye.o.ready, RayKind.EYE)
         b = self._result_stage(m)
         outq = self._host_out(m)
         bslot = b.res.packet[:sb]
@@ -615,11 +631,7 @@ class Slave(wiring.Component):
         w = store.w[1]
         m.d.comb += [w.addr.eq(snd.slot * P + snd.o.payload.lane), w.data.eq(rd.data),
                      w.en.eq(xfer)]
-        with m.If(xfer):
-            with m.If(snd.o.payload.anyhit):
-                m.d.sync += self.rays_shadow.eq(self.rays_shadow + 1)
-            with m.Else():
-                m.d.sync += self.rays_reflect.eq(self.rays_reflect + 1)
+        self._count_rays(m, xfer, snd.kind, (RayKind.SHADOW, RayKind.REFLECTION))
         return SimpleNamespace(go=go, buf=rb)
 
     def _rtc_input(self, m: Module, eye: EyeRays, setup: RaySetup, store: TwoWriteMemory):
@@ -638,8 +650,7 @@ class Slave(wiring.Component):
                           self.w_eye, self.eye_miss.as_value())),
             w.en.eq(eye.o.valid & eye.o.ready),
         ]
-        with m.If(eye.o.valid & eye.o.ready):
-            m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
+        self._count_rays(m, eye.o.valid & eye.o.ready, RayKind.EYE)
 
     def _results(self, m: Module, slot, store: TwoWriteMemory) -> SimpleNamespace:
         """Every result: the ray store read with it (stage B, :meth:`_result_stage`), its host
