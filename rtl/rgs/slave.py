@@ -23,6 +23,10 @@ Data paths::
           └── builders ◄── LightPipe ◄── light loop ◄── SecondaryPipe ◄── shading cache (hits)
                               └─► ambient records ─► host records
 
+The RTC arbiter is :class:`RTCInput` and the sender :class:`Sender` (stream components); the
+other pieces share state (the slot table, the pending buffers and their credits) and are
+:class:`Slave`'s helpers, one per box above, composed by ``Slave.elaborate``.
+
 * **Ray store**: per RTC packet slot (``2 * threads`` slots; the slot is the packet id the RTC
   sees) and lane, the ray's origin, direction and lane in its eye packet; per slot the eye
   packet (tile), the depth and the kind (``sub``: 0 eye or reflection, 1 + l shadow ray of
