@@ -3,7 +3,7 @@
 numba's on-disk cache keys a compiled function on its own file only, but our kernels inline
 functions from other modules (``fp``, ``traversal``, ``intersection``...): an edit there would
 leave a stale kernel in the cache. So the cache directory is keyed on a hash of every source
-file of this package (set before numba reads its configuration).
+file of this package and its subpackages (set before numba reads its configuration).
 """
 import hashlib
 import os
@@ -12,8 +12,9 @@ from pathlib import Path
 
 def _numba_cache_dir() -> str:
     h = hashlib.sha256()
-    for p in sorted(Path(__file__).parent.glob("*.py")):
-        h.update(p.name.encode())
+    root = Path(__file__).parent
+    for p in sorted(root.rglob("*.py")):
+        h.update(p.relative_to(root).as_posix().encode())
         h.update(p.read_bytes())
     base = Path(os.environ.get("SAARCOR_CACHE", Path.home() / ".cache" / "saarcor"))
     return str(base / "numba" / h.hexdigest()[:16])

@@ -200,7 +200,7 @@ class Config:
     @property
     def min_rgs_buffers(self) -> int:
         """The fewest pending buffers a slave can hold without deadlock: ``2 (rgs_lights + 1)
-        + 2`` (``rtl/rgs_slave.py``)."""
+        + 2`` (``rtl/rgs/slave.py``)."""
         return 2 * (self.rgs_lights + 1) + 2
 
     @property

@@ -11,7 +11,7 @@ tile's rays are one packet (partial tiles at the right/bottom edge give smaller 
 Ray setup computes the read-only per-ray data the RTC units keep: ``inv``, the shear constants
 ``k``/``s`` of the watertight test, and the interval ``[tnear, tfar]`` clipped to the scene box.
 
-The per-ray arithmetic of both is ``model/rgs.py``'s kernels (the RTL's operation order,
+The per-ray arithmetic of both is ``model/rgs/eye.py``'s kernels (the RTL's operation order,
 ``docs/rgs.md``); this module is the host side around them (camera, packets, arrays).
 """
 from __future__ import annotations
@@ -22,9 +22,8 @@ import numpy as np
 
 from .config import Config
 from .fp import FPFormat
+from .raykind import RayKind
 from .rgs import eye_packets, packet_count, setup_rays
-
-EYE, SHADOW, REFLECTION, REFRACTION = 0, 1, 2, 3
 
 
 @dataclass
@@ -33,7 +32,7 @@ class Rays:
     org: np.ndarray              # (N, 3) float32 format values
     dir: np.ndarray              # (N, 3) float32 format values
     tmax: np.ndarray             # (N,) float32 (inf for eye rays)
-    kind: np.ndarray             # (N,) uint8: 0 eye, 1 shadow, 2 reflection, 3 refraction
+    kind: np.ndarray             # (N,) uint8: the ray's RayKind
     pixel: np.ndarray            # (N,) int32: y * width + x of the pixel the ray contributes to
     pk_start: np.ndarray         # (P + 1,) int64
     anyhit: np.ndarray = field(default=None)   # (N,) bool: any hit ends the ray (shadow rays)
@@ -46,7 +45,7 @@ class Rays:
     def __post_init__(self):
         n = self.org.shape[0]
         if self.anyhit is None:
-            self.anyhit = self.kind == SHADOW
+            self.anyhit = self.kind == RayKind.SHADOW
         if self.eye is None:
             self.eye = np.arange(n, dtype=np.int64)
         if self.depth is None:
@@ -62,7 +61,7 @@ class Rays:
         return self.pk_start.shape[0] - 1
 
     @staticmethod
-    def from_arrays(org, dirn, tmax=None, *, packet: int = 64, kind: int = 0,
+    def from_arrays(org, dirn, tmax=None, *, packet: int = 64, kind: int = RayKind.EYE,
                     anyhit=None) -> "Rays":
         """Rays from (N, 3) origins and directions, in packets of ``packet`` consecutive rays
         (pixel = ray index; tmax default inf; any-hit default: shadow rays)."""
@@ -120,7 +119,7 @@ def camera_basis(position, look_at, up, fov_y: float, width: int, height: int):
 
 
 def camera_registers(camera, width: int, height: int, cfg: Config):
-    """Host side: the camera registers of the RGS slave (``rtl/rgs.py`` ``EyeRays``) for a
+    """Host side: the camera registers of the RGS slave (``rtl/rgs/eye.py`` ``EyeRays``) for a
     ``width x height`` image: ``pos``, ``corner``, ``dx``, ``dy`` (float32 format values),
     :func:`camera_basis` of the sample image (``cfg.oversampling`` times the size) quantized."""
     n = cfg.oversampling
@@ -162,13 +161,13 @@ class RaySetup:
 
 def setup(rays: Rays, bounds: np.ndarray, fmt: FPFormat, box_cull: bool = True) -> RaySetup:
     """Ray setup in the format's arithmetic: ``model.rgs.ray_setup`` on every ray (the RTL's
-    ``RaySetupPipe``; steps in ``model/rgs.py`` and ``docs/rgs.md``).
+    ``RaySetupPipe``; steps in ``model/rgs/eye.py`` and ``docs/rgs.md``).
 
     A ray whose interval clipped to the scene box is empty (``not tnear <= tfar``) starts
     inactive: it never enters traversal (the box cull). ``box_cull=False`` is the setup without
     the cull, only to measure what it saves: such a ray gets its unclipped interval
     ``[0, tmax]`` and goes through traversal like any other; the rays that meet the box keep
-    their clipped interval (the RTL: the slaves' ``box_cull`` register, ``rtl.rgs._ray_out``)."""
+    their clipped interval (the RTL: the slaves' ``box_cull`` register, ``rtl.rgs.eye._ray_out``)."""
     n = len(rays)
     inv = np.empty((n, 3), np.float32)
     s = np.empty((n, 3), np.float32)

@@ -17,12 +17,12 @@ import numpy as np
 from .config import Config
 from .kdtree import build_kdtree, kdtree_stats
 from .layout import MemoryImage, build_image
-from .raygen import EYE, Rays, eye_rays, live_packets, select_packets, setup
+from .raygen import Rays, eye_rays, live_packets, select_packets, setup
+from .raykind import RayKind
 from .rgs import CHUNK, FIX_FRAC
 from .rtc import COUNTERS, Hits, counter_totals, trace
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
-KIND_NAMES = {0: "eye", 1: "shadow", 2: "reflection", 3: "refraction"}
 CHUNK_PACKETS = 4096
 
 
@@ -130,7 +130,7 @@ def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> Re
     acc = np.zeros((width * height, 3), np.int64)     # fixed-point colour sums (FIX_FRAC)
 
     def run(rays: Rays):
-        if bar is not None and len(rays) and rays.kind[0] != EYE:
+        if bar is not None and len(rays) and rays.kind[0] != RayKind.EYE:
             bar.total += len(rays)          # secondary rays are known only once they are made
             bar.refresh()
         traced = rays
@@ -195,21 +195,21 @@ def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> Re
           for f in ("tri", "t", "u", "v")))
     by_kind: dict = {}
     for r, c in all_ctrs:
-        name = KIND_NAMES[int(r.kind[0])] if len(r) else "eye"
+        name = RayKind(int(r.kind[0])).label if len(r) else RayKind.EYE.label
         tot = counter_totals(c)
         tot_k = by_kind.setdefault(name, {k: 0 for k in COUNTERS})
         for k in COUNTERS:
             tot_k[k] = max(tot_k[k], tot[k]) if k == "max_stack" else tot_k[k] + tot[k]
     totals = {k: (max(v[k] for v in by_kind.values()) if k == "max_stack"
                   else sum(v[k] for v in by_kind.values())) if by_kind else 0 for k in COUNTERS}
-    counts = np.bincount(rays_all.kind, minlength=len(KIND_NAMES))
+    counts = np.bincount(rays_all.kind, minlength=len(RayKind))
     stats = {
         "scene": scene.name,
         "resolution": [width, height],
         "config": cfg.to_dict(),
         "triangles": int(len(scene.tris)),
         "triangles_dropped": dict(scene.dropped),
-        "rays": {KIND_NAMES[k]: int(c) for k, c in enumerate(counts) if c},
+        "rays": {RayKind(k).label: int(c) for k, c in enumerate(counts) if c},
         "rays_total": int(len(rays_all)),
         "packets": int(sum(r.n_packets for r in all_rays)),
         "packets_skipped": skipped[0],

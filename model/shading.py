@@ -1,7 +1,7 @@
 """Shading (the RGS slave, golden model): Phong-like with one bilinearly filtered texture.
 
 Everything that becomes a ray is the hardware's format arithmetic, in the RTL's order:
-``model/rgs.py``'s :func:`~model.rgs.secondary` makes, from a hit, the secondary rays' origin
+``model/rgs/secondary.py``'s :func:`~model.rgs.secondary` makes, from a hit, the secondary rays' origin
 ``p0 = (p + eps*g) - eps*w`` (g the unit face normal turned toward the incoming ray, w the unit
 incoming direction, ``eps = 1e-4 x`` the scene box diagonal: off the surface and back along the
 ray, so a secondary ray neither hits its own triangle nor starts on a neighbouring wall at a
@@ -12,7 +12,7 @@ casts no ray: the point is unlit). The unit face normals are computed once on th
 rounded once per component: ``model.layout.face_normals``), as the memory image's slave
 records hold them.
 
-The colour is the slave's format arithmetic too (``model/rgs.py``'s :func:`~model.rgs.hit_colour`
+The colour is the slave's format arithmetic too (``model/rgs/secondary.py``'s :func:`~model.rgs.hit_colour`
 and :func:`~model.rgs.light_colour`, each contribution then made a 24-bit fixed-point number,
 :func:`~model.rgs.to_fixed`): every eye or reflection ray carries a weight (1/oversampling² for
 an eye ray, the parent's weight times the material's reflectivity for a reflection ray) and the
@@ -34,7 +34,8 @@ import numpy as np
 
 from .fp import FPFormat
 from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
-from .raygen import REFLECTION, SHADOW, Rays
+from .raygen import Rays
+from .raykind import RayKind
 from .rgs import secondary_rays, shade_batch, shadow_rays, texture_kd
 
 AMBIENT = np.float32(0.08)
@@ -248,7 +249,7 @@ class Shader:
         tmax = np.full(len(d), 1.0 if point else np.inf, np.float32)
         if not cull_behind:
             facing = np.ones(len(d), bool)
-        return _packetize(src, sel, facing, surf.p0, d, tmax, SHADOW, light=light_index)
+        return _packetize(src, sel, facing, surf.p0, d, tmax, RayKind.SHADOW, light=light_index)
 
     def shaded_shadow_rays(self, src: Rays, sel, sh: Shaded, light_index: int
                            ) -> tuple[Rays, np.ndarray]:
@@ -258,7 +259,7 @@ class Shader:
         point = self.scene.lights[light_index].kind == "point"
         tmax = np.full(len(sel), 1.0 if point else np.inf, np.float32)
         return _packetize(src, sel, sh.cast[light_index], sh.p0, sh.shadow_dir[light_index],
-                          tmax, SHADOW, light=light_index)
+                          tmax, RayKind.SHADOW, light=light_index)
 
     def reflection_rays(self, src: Rays, sel, surf, cull_matte: bool = True
                         ) -> tuple[Rays, np.ndarray]:
@@ -266,7 +267,7 @@ class Shader:
         :class:`Surface` or :class:`Shaded` (its ``mat``, ``p0`` and ``r``)."""
         want = self.reflect[surf.mat] > 0 if cull_matte else np.ones(len(surf.r), bool)
         return _packetize(src, sel, want, surf.p0, surf.r,
-                          np.full(len(surf.r), np.inf, np.float32), REFLECTION)
+                          np.full(len(surf.r), np.inf, np.float32), RayKind.REFLECTION)
 
     def phong(self, d, ns, albedo, mat, light, lit, p):
         """Direct light from one light (zero where unlit/shadowed), in the precision of the
@@ -297,7 +298,7 @@ def _packetize(src: Rays, sel: np.ndarray, want: np.ndarray, org, d, tmax, kind,
     counts = np.bincount(src_packet, minlength=src.n_packets)
     pk_start = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
     parent = sel[keep]
-    depth = src.depth[parent] + (1 if kind == REFLECTION else 0)
+    depth = src.depth[parent] + (1 if kind == RayKind.REFLECTION else 0)
     rays = Rays(org[keep].astype(np.float32), d[keep].astype(np.float32), tmax[keep],
                 np.full(len(keep), kind, np.uint8), src.pixel[parent], pk_start,
                 eye=src.eye[parent], depth=depth.astype(np.uint8),

@@ -4,7 +4,7 @@
 ``cfg.rtcs`` × (:class:`~rtl.rtc.RTC` + :class:`~rtl.rtcmi.RTCMI`), the 3 × ``rtcs`` caches on
 one :class:`~rtl.bus.RoundRobinBus` (requester ``3 * r + c``: cache c = trav, list, int of RTC
 r) to a single 64-bit memory read port ``mem`` (the memory controller's: in simulation
-:class:`~rtl.memory.SDRAMMemory`, ``mem_chips`` SDRAM chips with XOR address hashing at the
+:class:`~tb.harness.memory.SDRAMMemory`, ``mem_chips`` SDRAM chips with XOR address hashing at the
 ``mem_clock_ratio`` clock ratio; on an FPGA the board's controller).
 
 Ports: ``rays[r]`` / ``results[r]`` (the RTCs' ``RayIn`` / ``RayResult`` streams), ``mem``,
@@ -23,13 +23,14 @@ from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
 from model.config import Config
-from model.rgs import FIX_BITS
+from model.rgs.secondary import FIX_BITS
 
 from .bus import RoundRobinBus
 from .common import COUNTER_BITS
 from .memport import WORD_BITS, MemReadPort, connect_tags
 from .rtc import COUNTERS, RTC
 from .rtc_streams import RayIn, RayResult
+from .rgs.slave import RAY_COUNTERS
 from .rtcmi import CACHES, RTCMI
 from .traversal import NODE_BITS
 
@@ -98,78 +99,8 @@ class RTCArray(wiring.Component):
         return m
 
 
-class RGSMaster(wiring.Component):
-    """The RGS master: hands out the frame's packets (tiles, row-major, packet id = tile
-    index) to whichever slave has room — dynamic load balancing.
-
-    Each slave has a request queue of ``depth`` entries (``req[s]`` is its write side): in a
-    cycle where some queues have room, the first of them at or after a round-robin pointer
-    gets the next tile. ``start`` (one cycle) begins a frame of ``tiles_x`` × ``tiles_y``
-    tiles; ``dispatched`` is high once every tile was handed out (and before the first start);
-    ``queued`` while a queue holds a tile no slave has taken yet.
-    Throughput: one packet a cycle. Counter: ``packets[s]`` (packets each slave got).
-    """
-
-    def __init__(self, cfg: Config, slaves: int, *, depth: int = 1):
-        from .rgs import COORD_BITS, EyeRequest
-        self.cfg, self.slaves, self.depth = cfg, slaves, depth
-        super().__init__({
-            "start": In(1), "tiles_x": In(COORD_BITS), "tiles_y": In(COORD_BITS),
-            "req": Out(stream.Signature(EyeRequest(cfg))).array(slaves),
-            "dispatched": Out(1), "queued": Out(1),
-            "packets": Out(COUNTER_BITS).array(slaves),
-        })
-
-    def elaborate(self, platform):
-        from amaranth.hdl import Mux, Signal
-        from amaranth.lib.fifo import SyncFIFO
-        from .common import rr_pick
-        from .rgs import EyeRequest
-        m = Module()
-        n = self.slaves
-        lay = EyeRequest(self.cfg)
-        tx, ty = Signal.like(self.tiles_x), Signal.like(self.tiles_y)
-        packet = Signal(32)
-        active = Signal()
-        m.d.comb += self.dispatched.eq(~active)
-        room = Signal(n)
-        fifos = []
-        for s in range(n):
-            f = SyncFIFO(width=lay.size, depth=self.depth)
-            m.submodules[f"queue{s}"] = f
-            fifos.append(f)
-            m.d.comb += [room[s].eq(f.w_rdy), self.req[s].valid.eq(f.r_rdy),
-                         self.req[s].payload.eq(f.r_data), f.r_en.eq(self.req[s].ready)]
-        m.d.comb += self.queued.eq(Cat(*(f.r_rdy for f in fifos)).any())
-        p2 = 1 << max(0, (n - 1).bit_length())
-        ptr = Signal(range(p2))
-        req_bits = Signal(p2)
-        m.d.comb += req_bits.eq(Mux(active, room, 0))
-        any_room, pick = rr_pick(m, req_bits, ptr, "rgs_master")
-        give = Signal()
-        m.d.comb += give.eq(active & any_room)
-        entry = Signal(lay)
-        m.d.comb += [entry.tile_x.eq(tx), entry.tile_y.eq(ty), entry.packet.eq(packet)]
-        for s, f in enumerate(fifos):
-            m.d.comb += [f.w_data.eq(entry), f.w_en.eq(give & (pick == s))]
-            with m.If(give & (pick == s)):
-                m.d.sync += self.packets[s].eq(self.packets[s] + 1)
-        with m.If(give):
-            end_x = tx == self.tiles_x - 1
-            m.d.sync += [tx.eq(Mux(end_x, 0, tx + 1)), packet.eq(packet + 1),
-                         ptr.eq(Mux(pick == n - 1, 0, pick + 1))]
-            with m.If(end_x):
-                m.d.sync += ty.eq(ty + 1)
-                with m.If(ty == self.tiles_y - 1):
-                    m.d.sync += active.eq(0)
-        with m.If(self.start):
-            m.d.sync += [active.eq((self.tiles_x != 0) & (self.tiles_y != 0)), tx.eq(0),
-                         ty.eq(0), packet.eq(0)]
-        return m
-
-
 class Chip(wiring.Component):
-    """The SaarCOR chip: RGS master, one RGS slave per RTC (``rtl/rgs_slave.py``: eye rays,
+    """The SaarCOR chip: RGS master, one RGS slave per RTC (``rtl/rgs/``: eye rays,
     results, secondary rays, colour) with its shading cache and texel cache,
     :class:`RTCArray` (the RTCs, their RTC-MIs, the bus: requesters ``3 r + c`` the RTC
     caches, ``3 rtcs + s`` slave s's shading cache, ``4 rtcs + s`` its texel cache), one
@@ -201,14 +132,13 @@ class Chip(wiring.Component):
     ``misses``, ``grants``, ``mem_reads``).
     """
 
-    SLAVE_COUNTERS = ("rays_eye", "rays_shadow", "rays_reflect", "sec_busy")
+    SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy")
 
     def __init__(self, cfg: Config):
         from model.layout import REC_BITS
         from .cache import Cache
-        from .rgs import COORD_BITS
-        from .rgs_slave import (DEPTH_BITS, Slave, SlaveResult, shade_cache_geometry,
-                                tex_cache_geometry)
+        from .rgs import (COORD_BITS, DEPTH_BITS, RGSMaster, Slave, SlaveResult,
+                          shade_cache_geometry, tex_cache_geometry)
         from .rtc_streams import vec3
         self.cfg = cfg
         n = cfg.rtcs
@@ -257,7 +187,7 @@ class Chip(wiring.Component):
     def elaborate(self, platform):
         from amaranth.hdl import Mux, Signal
         from .common import OutputStage, rr_pick
-        from .rgs_slave import SlaveResult
+        from .rgs import SlaveResult
         m = Module()
         cfg, n = self.cfg, self.cfg.rtcs
         m.submodules.array = arr = self.array

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from model.config import Config
+from model.raykind import RayKind
 
 __all__ = ["band_registers", "band_rays", "run_band", "choose_bands", "SampledRun",
            "sampled_frame"]
@@ -83,7 +84,7 @@ def run_band(cfg: Config, image, camera, width: int, height: int, y0: int, rows:
     import sys
 
     from model.rtc import counter_totals, trace
-    from rtl.rgs_slave import SlaveResult
+    from rtl.rgs import SlaveResult
 
     from tb.harness import compare
     from tb.harness.chip import ChipRun, _finish, chip_blocks, chip_build, stuck

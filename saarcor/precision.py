@@ -36,7 +36,8 @@ from model.config import Config
 from model.fp import FPFormat
 from model.kdtree import build_kdtree
 from model.layout import build_image
-from model.raygen import EYE, Rays, setup
+from model.raygen import Rays, setup
+from model.raykind import RayKind
 from model.reference import Reference, crossings64, render64
 from model.render import prepare, render, to_srgb8
 from model.rtc import trace
@@ -269,7 +270,7 @@ def study_scene(scene, formats, width: int, height: int, repeat: int = 3,
             log(f"  {scene.name} {fmt}: {e}")
             continue
         res = render(scene, cfg, width, height, prepared=prep)
-        eye = np.nonzero(res.rays.kind == EYE)[0]
+        eye = np.nonzero(res.rays.kind == RayKind.EYE)[0]
         er = Rays(res.rays.org[eye], res.rays.dir[eye], res.rays.tmax[eye], res.rays.kind[eye],
                   res.rays.pixel[eye], np.unique(np.r_[np.arange(0, len(eye), 64), len(eye)])
                   .astype(np.int64))

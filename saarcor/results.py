@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from model.config import Config
+from model.raykind import RayKind
 
 from saarcor import sweep as sw
 
@@ -289,7 +290,7 @@ def _asks_secondary(r) -> bool:
 
 
 def _secondary_rays(r) -> float:
-    return sum(_num(r, f"rays.{k}") or 0 for k in ("shadow", "reflection", "refraction"))
+    return sum(_num(r, f"rays.{k.label}") or 0 for k in RayKind if k != RayKind.EYE)
 
 
 def rays_text(rows, short: bool = False) -> str:

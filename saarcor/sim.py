@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config
+from model.raykind import RayKind
 
 __all__ = ["relative_performance", "frame_stats", "shade_eye_hits", "write_usage_plot",
            "main"]
@@ -118,12 +119,12 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
              "per_rtc": [{"trav": x["trav_busy"] / cyc, "trav_subunits": s,
                           "list": x["list_busy"] / cyc, "int": x["int_busy"] / cyc}
                          for x, s in zip(rtc, sub)]}
-    from model.render import KIND_NAMES
-    kinds = np.bincount(run.frame_rays.kind, minlength=3)
+    from model.raykind import RayKind
+    kinds = np.bincount(run.frame_rays.kind, minlength=len(RayKind))
     slaves = c.get("slave", [])
     return {
         "scene": scene, "resolution": [width, height], "backend": backend,
-        "rays": {KIND_NAMES[k]: int(kinds[k]) for k in range(3)}, "rays_total": run.rays,
+        "rays": {k.label: int(kinds[k]) for k in RayKind.made()}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
         "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
@@ -296,7 +297,7 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
     hits, tot = work["hits"], work["totals"]
     est = estimate_events(cfg, work)
     stats = {"scene": args.scene, "resolution": [width, height], "fidelity": args.fidelity,
-             "estimate": True, "eye_only": True, "rays": {"eye": len(rays)},
+             "estimate": True, "eye_only": True, "rays": {RayKind.EYE.label: len(rays)},
              "rays_total": len(rays),
              "trav_ops": tot["trav_ops"], "int_ops": tot["int_ops"],
              "list_ops": tot["list_ops"], "clock_mhz": cfg.clock_mhz}

@@ -18,7 +18,8 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config
-from model.raygen import SHADOW, Rays, eye_rays, live_packets, select_packets, setup
+from model.raygen import Rays, eye_rays, live_packets, select_packets, setup
+from model.raykind import RayKind
 from model.render import Skip, prepare, render
 from model.scene import load_scene
 
@@ -69,12 +70,12 @@ def measure(scene_path: str, width: int, height: int, cfg: Config, rtl: bool = F
         small_prep = prepare(scene, tiny)
         small = render(scene, tiny, 32, 24, prepared=small_prep)
         sh = small.rays
-        sel = np.flatnonzero(sh.kind == SHADOW)
+        sel = np.flatnonzero(sh.kind == RayKind.SHADOW)
         # shadow rays of the small frame, re-packetized in 16s, with and without any-hit
         cyc = {}
         for anyhit in (True, False):
             r = Rays.from_arrays(sh.org[sel], sh.dir[sel], tmax=sh.tmax[sel], packet=16,
-                                 kind=SHADOW, anyhit=np.full(len(sel), anyhit))
+                                 kind=RayKind.SHADOW, anyhit=np.full(len(sel), anyhit))
             run = vl.run_frame(small_prep.image, r, tiny, mem_latency=4,
                                progress=False)
             if run.mismatches or run.counter_mismatches():

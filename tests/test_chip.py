@@ -9,7 +9,8 @@ import pytest
 from model.cache import CacheModel
 from model.config import Config
 from model.events import EV_LEAF, EV_NODE, EV_TRI
-from model.raygen import REFLECTION, SHADOW, eye_rays
+from model.raygen import eye_rays
+from model.raykind import RayKind
 from model.layout import REC_WORDS
 from model.render import prepare
 from model.rtc import trace
@@ -34,14 +35,14 @@ def check_frame(r, cfg, image, rays):
     """Every ray bit-exact (and, where the chip makes colour, every pixel's colour); every ray
     in and out once; the RTCs' counters add up to the model's; the caches' and the memory's counters agree with each other. ``rays``: the eye
     rays (the frame's other rays are ``r.frame_rays``, the model's)."""
-    from model.raygen import EYE, REFLECTION, SHADOW
+    from rtl.rgs import RAY_COUNTERS
     c = r.counters
     every = r.frame_rays
     assert r.mismatches == []
     assert c["rays_in"] == c["results_out"] == len(every) == r.rays
     assert sum(c["packets"]) == rays.n_packets
     assert sum(x["packets_done"] for x in c["rtc"]) == every.n_packets
-    for kind, name in ((EYE, "rays_eye"), (SHADOW, "rays_shadow"), (REFLECTION, "rays_reflect")):
+    for kind, name in RAY_COUNTERS.items():
         assert sum(x[name] for x in c["slave"]) == int((every.kind == kind).sum()), name
     for rtc_name, model_name in COMPARED.items():
         assert sum(x[rtc_name] for x in c["rtc"]) == r.model[model_name], rtc_name
@@ -161,7 +162,7 @@ def textured_hits(r, scene) -> int:
     kept = np.full(scene.n_scene_tris, -1, np.int64)
     kept[scene.tri_id] = np.arange(len(scene.tri_id))
     textured = np.array([m.texture is not None for m in scene.materials], bool)
-    on = (rays.kind != SHADOW) & (tri >= 0)
+    on = (rays.kind != RayKind.SHADOW) & (tri >= 0)
     return int(textured[scene.material[kept[tri[on]]]].sum())
 
 
@@ -184,8 +185,9 @@ def test_chip_secondary_rays_verilator(cornell):
     tex = sum(h["tex"] + mi["tex"] for h, mi in zip(r.counters["hits"], r.counters["misses"]))
     assert tex == 4 * textured_hits(r, scene) > 0                # the checkered floor
     rays = r.frame_rays
-    assert (rays.kind == REFLECTION).any()
-    assert ((rays.kind == SHADOW) & (rays.depth == 1)).any()     # shadow rays at reflection hits
+    assert (rays.kind == RayKind.REFLECTION).any()
+    # shadow rays at reflection hits
+    assert ((rays.kind == RayKind.SHADOW) & (rays.depth == 1)).any()
 
 
 def test_chip_reflections_of_reflections_verilator(kd_cache):
@@ -201,7 +203,7 @@ def test_chip_reflections_of_reflections_verilator(kd_cache):
                        progress=False, max_cycles=1_000_000)
     check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
     rays = r.frame_rays
-    assert (rays.depth == 2).any() and (rays.kind == REFLECTION).sum() > 10
+    assert (rays.depth == 2).any() and (rays.kind == RayKind.REFLECTION).sum() > 10
 
 
 def test_a_stuck_frame_names_its_packets_and_rtcs():
@@ -282,7 +284,7 @@ def test_chip_shared_fp_units_verilator(cornell):
     so the frame takes more cycles than with a unit per operation. (Slow: a chip build of its
     own; in CI the pool below runs the slaves at ``ii`` > 1 in the chip, and
     ``tests/test_rgs_rtl.py`` checks each shared datapath bit for bit.)"""
-    from rtl.rgs_slave import Slave
+    from rtl.rgs import Slave
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4)
@@ -293,7 +295,7 @@ def test_chip_shared_fp_units_verilator(cornell):
                        scene=scene, progress=False, max_cycles=2_000_000)
     check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
     assert r.color is not None and r.color.max() > 0
-    assert (r.frame_rays.kind == REFLECTION).any()
+    assert (r.frame_rays.kind == RayKind.REFLECTION).any()
     full = run_chip_frame(cfg.replace(rgs_fp_adders=0, rgs_fp_muls=0), image, scene.camera, 16,
                           16, stall=0.25, mem_stall=0.5, seed=5, scene=scene, progress=False,
                           max_cycles=2_000_000)
@@ -309,7 +311,7 @@ def test_chip_shade_pool_verilator(cornell):
     pixel bit-exact. The pool's interval is even and the texture unit's 2, so their slots
     never meet in one cycle: the texture's inputs wait in their queue."""
     from math import gcd
-    from rtl.rgs_slave import Slave
+    from rtl.rgs import Slave
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
@@ -322,7 +324,8 @@ def test_chip_shade_pool_verilator(cornell):
                        scene=scene, progress=False, max_cycles=2_000_000)
     check_frame(r, cfg, image, eye_rays(scene.camera, 16, 16, cfg))
     assert r.color is not None and r.color.max() > 0
-    assert (r.frame_rays.kind == REFLECTION).any() and (r.frame_rays.kind == SHADOW).any()
+    kinds = r.frame_rays.kind
+    assert (kinds == RayKind.REFLECTION).any() and (kinds == RayKind.SHADOW).any()
 
 
 @pytest.mark.slow
@@ -333,7 +336,7 @@ def test_chip_shared_slots_that_never_meet_verilator(cornell):
     waited forever (the first packets' shading never started). Cornell 16x16, every ray and
     pixel bit-exact."""
     from math import gcd
-    from rtl.rgs_slave import Slave
+    from rtl.rgs import Slave
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, rgs_fp_adders=1, rgs_fp_muls=2)

@@ -268,7 +268,7 @@ def test_chip_on_sdram_has_the_amaranth_cycles(cornell_chip, tmp_path):
 def stuck_t_lsb(verilog: str) -> str:
     """Break the chip's result output (in module ``chip``, the ``results`` port): bit 0 of
     every result's t stuck at 0."""
-    from rtl.rgs_slave import SlaveResult
+    from rtl.rgs import SlaveResult
     lay = SlaveResult(CHIP)
     hi, lo = lay.size - 1, lay["t"].offset
     start = verilog.index("\nmodule chip(")

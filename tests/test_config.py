@@ -88,7 +88,7 @@ def test_slave_buffers_fill_the_threads():
     """The slave's pending buffers: by default enough for ``threads / (lights + 1)`` eye
     packets with their reservations (``threads + rgs_lights + 1``), never fewer than the
     deadlock-free ``2 (rgs_lights + 1) + 2``; ``rgs_buffers`` sets them."""
-    from rtl.rgs_slave import slave_buffers
+    from rtl.rgs import slave_buffers
     assert slave_buffers(Config()) == 16 + 4 + 1
     assert slave_buffers(Config(threads=2)) == 2 * (4 + 1) + 2 == Config().min_rgs_buffers
     assert slave_buffers(Config(rgs_lights=1, threads=4)) == 6

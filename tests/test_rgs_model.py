@@ -1,4 +1,4 @@
-"""The RGS slave's golden model (``model/rgs.py``) against two independent recomputations.
+"""The RGS slave's golden model (``model/rgs/``) against two independent recomputations.
 
 * NumPy-vectorized: the per-operation arrays ``FPFormat.add/mul/div/min/max`` (a different code
   path from the scalar kernels), written here the way ``model/raygen.py`` computed rays before

@@ -1,5 +1,5 @@
-"""RGS slave RTL (``rtl/rgs.py``): ``EyeRays`` and ``RaySetup`` bit for bit against the golden
-model (``model.raygen.eye_rays`` + ``setup``, i.e. ``model/rgs.py``), with random request
+"""RGS slave RTL (``rtl/rgs/``): ``EyeRays`` and ``RaySetup`` bit for bit against the golden
+model (``model.raygen.eye_rays`` + ``setup``, i.e. ``model/rgs/``), with random request
 bubbles and output back-pressure; exact latency and one-ray-per-cycle throughput; the sample
 conversion over its whole range; the pixel index's constant division; the secondary-ray
 datapaths (``SecondaryPipe``, ``LightPipe``) against ``model.rgs.secondary_rays`` /

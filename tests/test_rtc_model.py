@@ -7,7 +7,8 @@ from model.fp import FPFormat
 from model.kdtree import build_kdtree
 from model.layout import build_image
 from model.oracle import Embree, compare
-from model.raygen import SHADOW, Rays, eye_rays
+from model.raygen import Rays, eye_rays
+from model.raykind import RayKind
 from model.render import prepare, render
 from model.rtc import C, trace
 from model.scene import load_scene
@@ -41,7 +42,7 @@ def check_against_embree(scene, cfg, res, kd_cache):
     by_id = np.zeros((scene.n_scene_tris, 3, 3), np.float32)
     by_id[scene.tri_id] = prep.tris
     emb = Embree(prep.tris, scene.tri_id).intersect(r.org, r.dir, r.tmax)
-    rep = compare((h.tri, h.t), emb, r.org, r.dir, by_id, closest=r.kind != SHADOW)
+    rep = compare((h.tri, h.t), emb, r.org, r.dir, by_id, closest=r.kind != RayKind.SHADOW)
     assert rep["hit_agreement"] >= 0.9999, rep
     assert rep["disagreements"] == rep["disagreements_explained"], rep
     assert not rep["t_errors"], rep

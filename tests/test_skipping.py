@@ -131,7 +131,7 @@ def test_narrow_addresses_shrink_the_cache_tags():
     """Each line's tag loses the address bits the chip no longer has: 32 - addr_bits bits a
     line of tag memory, on every cache of the RTC-MI and the slaves."""
     from rtl.cache import Cache
-    from rtl.rgs_slave import shade_cache_geometry
+    from rtl.rgs import shade_cache_geometry
     from rtl.rtcmi import rtcmi_geometries
     from saarcor.bench.resources import resources
     for a in (32, 18):
@@ -151,7 +151,7 @@ def test_eye_only_slave_has_no_secondary_ray_units():
     mul, 12 min/max: docs/rgs.md), the secondary datapath (43 mul, 30 add, 2 sqrt, 2 div),
     the light datapath (LightPipe: 59 mul, 16 add, 2 sqrt, 2 div), the texture unit
     (12 mul, 6 add, 3 int -> FP), and its ray store and pending buffers."""
-    from rtl.rgs_slave import Slave
+    from rtl.rgs import Slave
     from saarcor.bench.resources import resources
     full = resources(lambda: Slave(TINY))
     eye = resources(lambda: Slave(TINY.replace(rgs_lights=0, reflect_depth=0)))

@@ -216,7 +216,7 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     ``box_cull``: the slaves' box cull on or off (:func:`frame_registers`)."""
     import sys
 
-    from rtl.rgs_slave import SlaveResult
+    from rtl.rgs import SlaveResult
 
     from tb.harness.verilator import FrameError, _field, _trace_kind, run_binary, write_blocks
     log = sys.stderr if log is None else log
@@ -354,7 +354,7 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
     secondary rays; ``box_cull`` as there."""
     from amaranth.sim import Simulator
 
-    from rtl.rgs_slave import SlaveResult
+    from rtl.rgs import SlaveResult
     regs = frame_registers(cfg, image, camera, width, height, scene, box_cull)
     rays = eye_rays(camera, width, height, cfg)
     top = ChipFrame(cfg, mem_words=len(image.data), verilog_memories=False,

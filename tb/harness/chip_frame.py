@@ -146,7 +146,7 @@ class ChipFrame(wiring.Component):
                                   chip_queue=cfg.mem_chip_queue, load=True, store=store)
         self.consts = chip_consts(cfg)
         self.names = chip_counter_names(cfg)
-        from rtl.rgs_slave import SlaveResult
+        from rtl.rgs import SlaveResult
         super().__init__(frame_signature(cfg, len(self.names), SlaveResult(cfg)))
         values = {} if preload is None else preload["consts"]
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True,

@@ -166,7 +166,7 @@ def describe(mismatches: list, counters: dict | None = None, first: int = 10,
              rays=None) -> str:
     """The first ``first`` result mismatches (and any counter mismatch) as text; with
     ``rays`` (:class:`model.raygen.Rays`) each ray's pixel, kind and packet too."""
-    from model.render import KIND_NAMES
+    from model.raykind import RayKind
     lines = [f"{len(mismatches)} result mismatches"]
     for r, f, a, b in mismatches[:first]:
         if f == "colour":            # a pixel's colour sum: 3 x 24-bit channels, red lowest
@@ -177,7 +177,7 @@ def describe(mismatches: list, counters: dict | None = None, first: int = 10,
         where = ""
         if rays is not None:
             pk = int(np.searchsorted(rays.pk_start, r, side="right") - 1)
-            where = (f" (pixel {int(rays.pixel[r])}, {KIND_NAMES[int(rays.kind[r])]}, "
+            where = (f" (pixel {int(rays.pixel[r])}, {RayKind(int(rays.kind[r])).label}, "
                      f"packet {pk} lane {r - int(rays.pk_start[pk])})")
         lines.append(f"  ray {r}{where}: {f} RTL {a:#x}, model {b:#x}")
     if counters:

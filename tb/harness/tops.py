@@ -164,9 +164,9 @@ TOPS: dict[str, tuple[Callable, str]] = {
     "intersect_pipe": (_pipe, "intersection datapath (rtl/intersection.py IntersectPipe)"),
     "intersection": (_unit(".intersection", "IntersectionUnit"),
                      "intersection unit (rtl/intersection.py)"),
-    "ray_setup": (_unit(".rgs", "RaySetup"), "ray setup, stream in/out (rtl/rgs.py RaySetup)"),
+    "ray_setup": (_unit(".rgs", "RaySetup"), "ray setup, stream in/out (rtl/rgs/eye.py RaySetup)"),
     "rgs_eye": (_unit(".rgs", "EyeRays"),
-                "RGS slave eye rays + ray setup, packet requests in (rtl/rgs.py EyeRays)"),
+                "RGS slave eye rays + ray setup, packet requests in (rtl/rgs/eye.py EyeRays)"),
     "rtc_core": (_unit(".rtc", "RTC"), "the RTC, three memory ports (rtl/rtc.py)"),
     "rtc": (lambda cfg, latency: RTCTop(cfg), "one RTC + RTC-MI (3 caches) + bus, one memory port"),
     "chip": (_unit(".chip", "Chip"), "the chip: RGS + cfg.rtcs RTCs with RTC-MIs + bus, one "

@@ -1,4 +1,4 @@
-"""RGS slave testbenches: ``EyeRays`` and ``RaySetup`` (``rtl/rgs.py``) against the golden model.
+"""RGS slave testbenches: ``EyeRays`` and ``RaySetup`` (``rtl/rgs/eye.py``) against the golden model.
 
 Every ray out of the RTL is compared bit for bit, as the packed ``RayIn`` word that
 ``tb.units.traversal.ray_payloads`` builds from ``model.raygen.eye_rays`` + ``setup`` (the same

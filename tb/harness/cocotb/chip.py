@@ -42,7 +42,7 @@ def run_chip(cfg, image, camera, width: int, height: int, sim: str, run_dir, *,
     SDRAM model's, from ``run_chip``'s memory LFSR; ``chip``: request back-pressure), and
     ``chip``'s responses come 1 to ``max_delay`` cycles after their requests. The caller
     checks ``mismatches`` (empty when the Verilog agrees with the model) and the counters."""
-    from rtl.rgs_slave import SlaveResult
+    from rtl.rgs import SlaveResult
     from tb.harness.chip import _finish, frame_registers, golden_frame
     from tb.harness.compare import record_fields
     from tb.harness.chip_sdram import write_image

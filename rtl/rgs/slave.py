@@ -23,6 +23,10 @@ Data paths::
           └── builders ◄── LightPipe ◄── light loop ◄── SecondaryPipe ◄── shading cache (hits)
                               └─► ambient records ─► host records
 
+The RTC arbiter is :class:`RTCInput` and the sender :class:`Sender` (stream components); the
+other pieces share state (the slot table, the pending buffers and their credits) and are
+:class:`Slave`'s helpers, one per box above, composed by ``Slave.elaborate``.
+
 * **Ray store**: per RTC packet slot (``2 * threads`` slots; the slot is the packet id the RTC
   sees) and lane, the ray's origin, direction and lane in its eye packet; per slot the eye
   packet (tile), the depth and the kind (``sub``: 0 eye or reflection, 1 + l shadow ray of
@@ -77,19 +81,25 @@ from model.config import Config, ConfigError
 from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_NF, REC_NV,
                           REC_REFLECTIVE, REC_SHIN_SHIFT, REC_TEX_ADDR, REC_TEX_SIZE, REC_TEXTURED,
                           REC_UV, REC_WORDS, SHIN_BITS)
-from model.rgs import FIX_BITS
+from model.raykind import RayKind
+from model.rgs.secondary import FIX_BITS
 
-from .common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
-from .memport import WORD_BITS, MemReadPort
-from .rgs import (COORD_BITS, EyeRays, EyeRequest, LightPipe, RaySetup, SecondaryPipe,
-                  ShadePool, Texture, _fp_const)
-from .rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
+from ..common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
+from ..memport import WORD_BITS, MemReadPort
+from ..rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
+from .common import _fp_const
+from .eye import COORD_BITS, EyeRays, EyeRequest, RaySetup, RaySetupIn
+from .secondary import LightPipe, SecondaryPipe, ShadePool
+from .texture import Texture
 
-__all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "slave_buffers",
+__all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "RAY_COUNTERS", "slave_buffers",
            "shade_cache_geometry", "tex_cache_geometry"]
 
 DEPTH_BITS = 4          # reflection depth of a ray (0: eye ray)
 SUB_BITS = 4            # 0: eye or reflection ray, 1 + l: shadow ray toward light l
+# the slave's counters of rays into the RTC, by kind (no refraction: RayKind)
+RAY_COUNTERS = {RayKind.EYE: "rays_eye", RayKind.SHADOW: "rays_shadow",
+                RayKind.REFLECTION: "rays_reflect"}
 
 
 def slave_buffers(cfg: Config) -> int:
@@ -154,6 +164,124 @@ def SlaveResult(cfg: Config) -> data.StructLayout:
                               "col": data.ArrayLayout(FIX_BITS, 3), "shade": 1})
 
 
+def RayEntry(cfg: Config) -> data.StructLayout:
+    """A ray as the ray store and the pending buffers hold it: origin, direction, its lane in
+    its eye packet, its weight (eye and reflection rays) and its contribution if it misses."""
+    return data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lane_bits(cfg),
+                              "wt": cfg.fmt.width, "col": data.ArrayLayout(FIX_BITS, 3)})
+
+
+class _Record:
+    """A shading record (``REC_BITS``, as the shading cache returns it): ``field(i)``, its
+    32-bit word i; ``word(i)``, that word as a format value (memory holds binary32);
+    ``vec(i, n)``, n such words from word i."""
+
+    def __init__(self, fmt, bits: Value):
+        self.fmt, self.bits = fmt, Value.cast(bits)
+
+    def field(self, i: int) -> Value:
+        return self.bits[32 * i:32 * i + 32]
+
+    def word(self, i: int) -> Value:
+        return from_binary32(self.fmt, self.field(i))
+
+    def vec(self, i: int, n: int) -> Value:
+        return Cat(*(self.word(i + k) for k in range(n)))
+
+
+class RTCInput(wiring.Component):
+    """The slave's RTC input: eye rays (``eye``) or set-up secondary rays (``sec``) to the RTC
+    (``o``, all three In/Out streams of ``RayIn``), a whole packet at a time: a packet that
+    started holds the input until its ``last`` ray; between packets a waiting secondary ray
+    goes first. Combinational (no latency), one ray per cycle."""
+
+    def __init__(self, cfg: Config):
+        ray = stream.Signature(RayIn(cfg))
+        super().__init__({"eye": In(ray), "sec": In(ray), "o": Out(ray)})
+
+    def elaborate(self, platform):
+        m = Module()
+        lock = Signal(2)                     # 0 none, 1 eye, 2 secondary
+        use_sec = Mux(lock == 0, self.sec.valid, lock == 2)
+        m.d.comb += [
+            self.o.valid.eq(Mux(use_sec, self.sec.valid, self.eye.valid)),
+            self.o.payload.eq(Mux(use_sec, self.sec.payload.as_value(),
+                                  self.eye.payload.as_value())),
+            self.sec.ready.eq(use_sec & self.o.ready),
+            self.eye.ready.eq(~use_sec & self.o.ready)]
+        with m.If(self.o.valid & self.o.ready):
+            m.d.sync += lock.eq(Mux(self.o.payload.last, 0, Mux(use_sec, 2, 1)))
+        return m
+
+
+class Sender(wiring.Component):
+    """The slave's sender: a ready pending buffer's rays, in lane order, into ray setup.
+
+    Ports: ``start`` (In stream: ``buf``, the RTC packet ``slot`` it goes to, ``count`` rays;
+    taken while the sender is idle), ``o`` (Out stream :func:`~rtl.rgs.eye.RaySetupIn`: each
+    ray with packet = the slot, any-hit and tmax by the slot's kind); the buffer memory's read
+    port ``rd_addr``, ``rd_en``, ``rd_data`` (:func:`RayEntry`, one cycle after the read);
+    ``sub`` (In: the sending slot's kind, 0 reflection rays, 1 + l shadow rays of light l:
+    tmax 1 toward a point light, +inf otherwise), ``light_point``; ``kind`` (the rays'
+    :class:`~model.raykind.RayKind`), ``busy``, ``done`` (the last ray goes this cycle),
+    ``buf`` and ``slot`` (the packet being sent).
+    Latency: the first ray 2 cycles after ``start``; throughput one ray per cycle (the next
+    lane is read while a ray goes)."""
+
+    def __init__(self, cfg: Config, buffers: int, slots: int):
+        self.cfg = cfg
+        P, bb = cfg.packet_size, max(1, ceil_log2(buffers))
+        start = data.StructLayout({"buf": bb, "slot": range(slots), "count": range(P + 1)})
+        super().__init__({
+            "start": In(stream.Signature(start)),
+            "o": Out(stream.Signature(RaySetupIn(cfg))),
+            "rd_addr": Out(range(buffers * P)), "rd_en": Out(1), "rd_data": In(RayEntry(cfg)),
+            "sub": In(SUB_BITS), "light_point": In(max(1, cfg.rgs_lights)),
+            "kind": Out(RayKind), "busy": Out(1), "done": Out(1), "buf": Out(bb),
+            "slot": Out(range(slots)),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, P, L = self.cfg, self.cfg.packet_size, self.cfg.rgs_lights
+        busy, st, o = self.busy, self.start, self.o
+        count = Signal(range(P + 1))
+        nxt = Signal(range(P + 1))           # lanes read so far
+        rd_valid = Signal()
+        rd_lane = Signal(lane_bits(cfg))
+        m.d.comb += st.ready.eq(~busy)
+        with m.If(st.valid & st.ready):
+            m.d.sync += [busy.eq(1), self.buf.eq(st.payload.buf), self.slot.eq(st.payload.slot),
+                         count.eq(st.payload.count), nxt.eq(0), rd_valid.eq(0)]
+        xfer = o.valid & o.ready
+        load = busy & (nxt < count) & (~rd_valid | xfer)
+        m.d.comb += [self.rd_addr.eq(self.buf * P + nxt), self.rd_en.eq(load)]
+        with m.If(load):
+            m.d.sync += [nxt.eq(nxt + 1), rd_lane.eq(nxt)]
+        with m.If(xfer & ~load):
+            m.d.sync += rd_valid.eq(0)
+        with m.Elif(load):
+            m.d.sync += rd_valid.eq(1)
+        e = self.rd_data
+        light_idx = (self.sub - 1)[:max(1, ceil_log2(max(2, L)))]
+        is_shadow = self.sub != 0
+        point = Mux(is_shadow, self.light_point.bit_select(light_idx, 1), 0)
+        last_lane = rd_lane == count - 1
+        m.d.comb += [
+            o.valid.eq(busy & rd_valid),
+            o.payload.packet.eq(self.slot), o.payload.lane.eq(rd_lane),
+            o.payload.last.eq(last_lane), o.payload.org.eq(e.org), o.payload.dir.eq(e.dir),
+            o.payload.tmax.eq(Mux(point, _fp_const(cfg.fmt, "one"),
+                                  _fp_const(cfg.fmt, "+inf"))),
+            o.payload.anyhit.eq(is_shadow),
+            self.kind.eq(Mux(is_shadow, RayKind.SHADOW, RayKind.REFLECTION)),
+            self.done.eq(xfer & last_lane),
+        ]
+        with m.If(self.done):
+            m.d.sync += busy.eq(0)
+        return m
+
+
 class Slave(wiring.Component):
     """One RGS slave (see the module docstring).
 
@@ -171,7 +299,8 @@ class Slave(wiring.Component):
     ``model.shading.frame_colour_registers`` — and ``colour`` (1: the frame is shaded; 0: no
     ambient records, and only packets that spawn rays take the shading path, as for a frame
     of bare eye rays). ``idle``: nothing in flight. Counters: ``rays_eye``, ``rays_shadow``,
-    ``rays_reflect`` (rays into the RTC by kind), ``sec_busy`` (cycles the light loop held a
+    ``rays_reflect`` (rays into the RTC by kind: :data:`RAY_COUNTERS`), ``sec_busy`` (cycles
+    the light loop held a
     hit).
     """
 
@@ -228,8 +357,8 @@ class Slave(wiring.Component):
             "light_col": In(v3).array(max(1, L)), "amb": In(w), "bg": In(v3), "w_eye": In(w),
             "eye_miss": In(data.ArrayLayout(FIX_BITS, 3)), "colour": In(1),
             "idle": Out(1),
-            "rays_eye": Out(COUNTER_BITS), "rays_shadow": Out(COUNTER_BITS),
-            "rays_reflect": Out(COUNTER_BITS), "sec_busy": Out(COUNTER_BITS),
+            **{name: Out(COUNTER_BITS) for name in RAY_COUNTERS.values()},
+            "sec_busy": Out(COUNTER_BITS),
         })
 
     # -- pieces both slaves are built from -------------------------------------------------------
@@ -306,6 +435,15 @@ class Slave(wiring.Component):
             m.d.sync += [b.valid.eq(res.valid), b.res.eq(res.payload)]
         return b
 
+    def _count_rays(self, m: Module, en: Value, kind, kinds: tuple = ()):
+        """``en``: a ray of ``kind`` goes into the RTC; its counter (:data:`RAY_COUNTERS`)
+        counts it. ``kind``: a :class:`~model.raykind.RayKind`, or a signal of that shape
+        holding one of ``kinds``."""
+        for k in kinds or (kind,):
+            counter = getattr(self, RAY_COUNTERS[k])
+            with m.If(en & (kind == k) if kinds else en):
+                m.d.sync += counter.eq(counter + 1)
+
     def _host_out(self, m: Module, other: SyncFIFO | None = None) -> SyncFIFO:
         """The host records: a 4-entry queue (the caller writes it) and the registered
         ``out`` stream; with ``other`` (a second queue of records) the two take turns."""
@@ -341,8 +479,7 @@ class Slave(wiring.Component):
         m.d.comb += [self.rays.valid.eq(eye.o.valid),
                      self.rays.payload.eq(eye.o.payload.ray.as_value()),
                      eye.o.ready.eq(self.rays.ready)]
-        with m.If(eye.o.valid & eye.o.ready):
-            m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
+        self._count_rays(m, eye.o.valid & eye.o.ready, RayKind.EYE)
         b = self._result_stage(m)
         outq = self._host_out(m)
         bslot = b.res.packet[:sb]
@@ -358,293 +495,329 @@ class Slave(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        cfg, fmt = self.cfg, self.cfg.fmt
-        if not cfg.secondary_rays:
+        if not self.cfg.secondary_rays:
             return self.elaborate_eye_only(m)
-        P, L, NS, NB = cfg.packet_size, cfg.rgs_lights, self.slots, self.buffers
-        lb, sb, bb = lane_bits(cfg), ceil_log2(NS), max(1, ceil_log2(NB))
-        w = fmt.width
+        L = self.cfg.rgs_lights
         eye = self._eye(m)
+        setup = self._datapaths(m)
+        # K: the pending buffers a packet that may spawn rays reserves (one per light in use,
+        # one for its reflections)
+        K = Signal(range(L + 2))
+        m.d.comb += K.eq(self.n_lights + 1)
+        slot = self._slot_table(m)
+        pb = self._pending(m)
+        m.submodules.store = store = TwoWriteMemory(RayEntry(self.cfg), self.slots *
+                                                    self.cfg.packet_size, self._block)
+        m.submodules.sender = snd = Sender(self.cfg, self.buffers, self.slots)
+        self._admit(m, eye, slot, pb, K, snd.busy)
+        start = self._send(m, snd, setup, slot, pb, K, store)
+        self._rtc_input(m, eye, setup, store)
+        res = self._results(m, slot, store)
+        fed = self._shade_feed(m, res)
+        loop = self._light_loop(m, fed, res)
+        bld = self._builders(m, pb, loop, K)
+        self._ambient(m, res, loop)
+        m.d.sync += pb.ready.eq((pb.ready | bld.committed) &
+                                ~Mux(start.go, 1 << start.buf, 0))
+        m.d.sync += pb.free.eq((pb.free & ~bld.taken) | Mux(snd.done, 1 << snd.buf, 0))
+        m.d.comb += pb.back.eq(bld.unused + snd.done)
+        m.d.sync += pb.credits.eq(pb.credits + pb.back - pb.take)
+        # -- idle: results in the shading path (context queue, SecondaryPipe, light loop,
+        # LightPipe) counted
+        NS, shd = self.slots, self.shd
+        shading = Signal(range(NS * self.cfg.packet_size + 1))
+        m.d.sync += shading.eq(shading + (res.adv & res.need_ctx) -
+                               (shd.o_valid & loop.ot.tlast))
+        m.d.comb += self.idle.eq((slot.free == (1 << NS) - 1) & (pb.credits == self.buffers) &
+                                 ~res.valid & ~res.outq.r_rdy & ~self.out.valid & ~snd.busy &
+                                 (shading == 0) & (loop.amb_cnt == 0))
+        return m
+
+    # -- the whole slave's pieces, in the order elaborate builds them -------------------------
+    @property
+    def _block(self) -> int:
+        """The live-value block of the ray store and the pending buffers (two write ports each:
+        two banks and a live-value table, so that both map to block RAM,
+        ``rtl.common.TwoWriteMemory``): the largest power of two that divides the packet size,
+        so a block lies within one packet, and a buffer holds shadow or reflection rays, a
+        slot an eye or a secondary packet."""
+        P = self.cfg.packet_size
+        return P & -P
+
+    def _spawns(self, depth: Value) -> Value:
+        """May a packet (eye or reflection) of this depth spawn rays?"""
+        return (self.n_lights != 0) | (depth < self.reflect_depth)
+
+    def _datapaths(self, m: Module) -> RaySetup:
+        """Ray setup and the shading datapaths (alone or on their pool) as submodules."""
         m.submodules.setup = setup = self.setup
-        sec, shd = self.sec, self.shd
         if self.pool is None:
-            m.submodules.sec, m.submodules.shd = sec, shd
+            m.submodules.sec, m.submodules.shd = self.sec, self.shd
         else:
             m.submodules.shading = self.pool
         m.d.comb += [setup.box_lo.eq(self.box_lo), setup.box_hi.eq(self.box_hi),
                      setup.box_cull.eq(self.box_cull)]
-        K = Signal(range(L + 2))
-        m.d.comb += K.eq(self.n_lights + 1)
+        return setup
 
-        def spawns(depth):               # may a packet (eye or reflection) of this depth spawn?
-            return (self.n_lights != 0) | (depth < self.reflect_depth)
-
-        # -- RTC packet slots and their table -------------------------------------------------------
+    def _slot_table(self, m: Module) -> SimpleNamespace:
+        """The RTC packet slots (:meth:`_slots`) with per slot the packet's reflection
+        ``depth`` and kind ``sub`` (0 eye or reflection rays, 1 + l shadow rays of light l)."""
         slot = self._slots(m)
-        any_slot, new_slot, t_packet = slot.any, slot.new, slot.packet
-        t_depth = _regs(NS, DEPTH_BITS, "slot_depth")
-        t_sub = _regs(NS, SUB_BITS, "slot_sub")
+        slot.depth = _regs(self.slots, DEPTH_BITS, "slot_depth")
+        slot.sub = _regs(self.slots, SUB_BITS, "slot_sub")
+        return slot
 
-        # -- pending buffers: free, ready (with their packet's metadata), credits --------------------
-        buf_free = Signal(NB, init=(1 << NB) - 1)
-        buf_ready = Signal(NB)
-        b_count = _regs(NB, range(P + 1), "buf_count")
-        b_sub = _regs(NB, SUB_BITS, "buf_sub")
-        b_depth = _regs(NB, DEPTH_BITS, "buf_depth")
-        b_packet = _regs(NB, PACKET_ID_BITS, "buf_packet")
-        credits = Signal(range(NB + 1), init=NB)
-        f3 = data.ArrayLayout(FIX_BITS, 3)
-        # a ray: origin, direction, lane in its eye packet, weight (eye and reflection rays),
-        # its contribution if it misses
-        entry = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb, "wt": w,
-                                   "col": f3})
-        # (two write ports each: two banks and a live-value table, so that both map to block
-        # RAM, rtl.common.TwoWriteMemory; its blocks (the largest power of two that divides P)
-        # lie within one packet, and a buffer holds shadow or reflection rays, a slot an eye or
-        # a secondary packet)
-        blk = P & -P
-        m.submodules.pend = pend = TwoWriteMemory(entry, NB * P, blk)
-        pend_w_sh, pend_w_rf = pend.w        # shadow, reflection rays (LightPipe output)
-        pend_r = pend.r
+    def _pending(self, m: Module) -> SimpleNamespace:
+        """The pending buffers: ``free`` and ``ready`` (masks), per buffer its packet's
+        ``count`` (rays), ``sub``, ``depth`` and eye ``packet``; ``credits`` (buffers not
+        reserved; ``take`` and ``back``, this cycle's reservations and returns) and ``mem``,
+        the rays (:func:`RayEntry`; write ports ``w[0]`` shadow, ``w[1]`` reflection rays,
+        from LightPipe; read port ``r``, the sender's)."""
+        NB, P, L = self.buffers, self.cfg.packet_size, self.cfg.rgs_lights
+        pb = SimpleNamespace(
+            free=Signal(NB, init=(1 << NB) - 1, name="buf_free"),
+            ready=Signal(NB, name="buf_ready"),
+            count=_regs(NB, range(P + 1), "buf_count"), sub=_regs(NB, SUB_BITS, "buf_sub"),
+            depth=_regs(NB, DEPTH_BITS, "buf_depth"),
+            packet=_regs(NB, PACKET_ID_BITS, "buf_packet"),
+            credits=Signal(range(NB + 1), init=NB, name="credits"),
+            take=Signal(range(L + 2), name="credit_take"),
+            back=Signal(range(NB + 1), name="credit_back"))
+        m.submodules.pend = pb.mem = TwoWriteMemory(RayEntry(self.cfg), NB * P, self._block)
+        return pb
 
-        # -- ray store ------------------------------------------------------------------------------
-        m.submodules.store = store = TwoWriteMemory(entry, NS * P, blk)
-        store_w_eye, store_w_sec = store.w
-        store_r = store.r
-
-        # -- admission of eye packets ---------------------------------------------------------------
-        sender_busy = Signal()
-        eye_spawns = spawns(0)
-        can_admit = (any_slot & (~eye_spawns | (credits >= K)) & (buf_ready == 0) &
+    def _admit(self, m: Module, eye: EyeRays, slot, pb, K: Value, sender_busy: Value):
+        """Admission of eye packets: a tile takes the lowest free RTC slot and, if its hits may
+        spawn rays, reserves K pending buffers; only while no secondary packet waits (no
+        ready buffer, the sender idle)."""
+        eye_spawns = self._spawns(0)
+        can_admit = (slot.any & (~eye_spawns | (pb.credits >= K)) & (pb.ready == 0) &
                      ~sender_busy)
-        admit = self._admission(m, eye, new_slot, can_admit)
-        credit_take = Signal(range(L + 2))     # reserved this cycle
-        credit_back = Signal(range(NB + 1))    # returned this cycle
+        admit = self._admission(m, eye, slot.new, can_admit)
         with m.If(admit):
-            m.d.comb += [slot.take.eq(1), credit_take.eq(Mux(eye_spawns, K, 0))]
-            m.d.sync += [t_packet[new_slot].eq(self.req.payload.packet),
-                         t_depth[new_slot].eq(0), t_sub[new_slot].eq(0)]
+            m.d.comb += [slot.take.eq(1), pb.take.eq(Mux(eye_spawns, K, 0))]
+            m.d.sync += [slot.packet[slot.new].eq(self.req.payload.packet),
+                         slot.depth[slot.new].eq(0), slot.sub[slot.new].eq(0)]
 
-        # -- sender: a ready buffer's rays into RaySetup ----------------------------------------------
-        # a ready reflection packet that may spawn waits for its reservation; the others (shadow
-        # packets, reflections that spawn nothing) may start: the lowest ready buffer that can
-        # start goes, so a waiting reflection packet never blocks the shadow packets whose
-        # buffers give the credits back
+    def _send(self, m: Module, snd: "Sender", setup: RaySetup, slot, pb, K: Value,
+              store: TwoWriteMemory) -> SimpleNamespace:
+        """The :class:`Sender` started on a ready buffer, into ray setup, each ray also into
+        the ray store. A ready reflection packet that may spawn waits for its reservation;
+        the others (shadow packets, reflections that spawn nothing) may start: the lowest
+        ready buffer that can start goes, so a waiting reflection packet never blocks the
+        shadow packets whose buffers give the credits back. Returns ``go`` (a packet starts)
+        and ``buf`` (its buffer)."""
+        NB, P = self.buffers, self.cfg.packet_size
         startable = Signal(NB)
         m.d.comb += startable.eq(Cat(*(
-            buf_ready[i] & ~((b_sub[i] == 0) & spawns(b_depth[i]) & (credits < K))
+            pb.ready[i] & ~((pb.sub[i] == 0) & self._spawns(pb.depth[i]) & (pb.credits < K))
             for i in range(NB))))
         any_ready, rb = lowest(m, startable, "ready")
-        s_buf = Signal(bb)
-        s_slot = Signal(range(NS))
-        s_count = Signal(range(P + 1))
-        s_next = Signal(range(P + 1))        # lanes read so far
-        rd_valid = Signal()
-        rd_lane = Signal(lb)
-        spawning = (b_sub[rb] == 0) & spawns(b_depth[rb])   # a reflection packet that may spawn
-        start_send = Signal()
-        m.d.comb += start_send.eq(~sender_busy & any_ready & any_slot)
-        with m.If(start_send):
+        # a reflection packet that may spawn
+        spawning = (pb.sub[rb] == 0) & self._spawns(pb.depth[rb])
+        go = Signal(name="start_send")
+        m.d.comb += [snd.start.valid.eq(any_ready & slot.any), snd.start.payload.buf.eq(rb),
+                     snd.start.payload.slot.eq(slot.new),
+                     snd.start.payload.count.eq(pb.count[rb]),
+                     go.eq(snd.start.valid & snd.start.ready)]
+        with m.If(go):
             m.d.comb += slot.take.eq(1)
             with m.If(spawning):
-                m.d.comb += credit_take.eq(K)
-            m.d.sync += [sender_busy.eq(1), s_buf.eq(rb), s_slot.eq(new_slot),
-                         s_count.eq(b_count[rb]), s_next.eq(0), rd_valid.eq(0),
-                         t_packet[new_slot].eq(b_packet[rb]), t_depth[new_slot].eq(b_depth[rb]),
-                         t_sub[new_slot].eq(b_sub[rb])]
-        sp = setup.i
-        xfer = sp.valid & sp.ready
-        more = s_next < s_count
-        load = sender_busy & more & (~rd_valid | xfer)
-        m.d.comb += [pend_r.addr.eq(s_buf * P + s_next), pend_r.en.eq(load)]
-        with m.If(load):
-            m.d.sync += [s_next.eq(s_next + 1), rd_lane.eq(s_next)]
-        with m.If(xfer & ~load):
-            m.d.sync += rd_valid.eq(0)
-        with m.Elif(load):
-            m.d.sync += rd_valid.eq(1)
-        e = pend_r.data
-        cur_sub = t_sub[s_slot]
-        light_idx = (cur_sub - 1)[:max(1, ceil_log2(max(2, L)))]
-        is_shadow = cur_sub != 0
-        point = Mux(is_shadow, self.light_point.bit_select(light_idx, 1), 0)
-        last_lane = rd_lane == s_count - 1
-        m.d.comb += [
-            sp.valid.eq(sender_busy & rd_valid),
-            sp.payload.packet.eq(s_slot), sp.payload.lane.eq(rd_lane),
-            sp.payload.last.eq(last_lane), sp.payload.org.eq(e.org), sp.payload.dir.eq(e.dir),
-            sp.payload.tmax.eq(Mux(point, _fp_const(fmt, "one"), _fp_const(fmt, "+inf"))),
-            sp.payload.anyhit.eq(is_shadow),
-            store_w_sec.addr.eq(s_slot * P + rd_lane), store_w_sec.data.eq(e),
-            store_w_sec.en.eq(xfer),
-        ]
-        sent_done = Signal()
-        m.d.comb += sent_done.eq(xfer & last_lane)
-        with m.If(sent_done):
-            m.d.sync += sender_busy.eq(0)
-        with m.If(xfer):
-            with m.If(is_shadow):
-                m.d.sync += self.rays_shadow.eq(self.rays_shadow + 1)
-            with m.Else():
-                m.d.sync += self.rays_reflect.eq(self.rays_reflect + 1)
+                m.d.comb += pb.take.eq(K)
+            m.d.sync += [slot.packet[slot.new].eq(pb.packet[rb]),
+                         slot.depth[slot.new].eq(pb.depth[rb]),
+                         slot.sub[slot.new].eq(pb.sub[rb])]
+        rd = pb.mem.r
+        m.d.comb += [rd.addr.eq(snd.rd_addr), rd.en.eq(snd.rd_en), snd.rd_data.eq(rd.data),
+                     snd.sub.eq(slot.sub[snd.slot]), snd.light_point.eq(self.light_point)]
+        wiring.connect(m, snd.o, setup.i)
+        xfer = snd.o.valid & snd.o.ready
+        w = store.w[1]
+        m.d.comb += [w.addr.eq(snd.slot * P + snd.o.payload.lane), w.data.eq(rd.data),
+                     w.en.eq(xfer)]
+        self._count_rays(m, xfer, snd.kind, (RayKind.SHADOW, RayKind.REFLECTION))
+        return SimpleNamespace(go=go, buf=rb)
 
-        # -- RTC input: eye rays or set-up secondary rays, a whole packet at a time --------------------
-        lock = Signal(2)                     # 0 none, 1 eye, 2 secondary
-        use_sec = Mux(lock == 0, setup.o.valid, lock == 2)
-        src_valid = Mux(use_sec, setup.o.valid, eye.o.valid)
-        src_ray = Mux(use_sec, setup.o.payload.as_value(), eye.o.payload.ray.as_value())
-        m.d.comb += [self.rays.valid.eq(src_valid), self.rays.payload.eq(src_ray),
-                     setup.o.ready.eq(use_sec & self.rays.ready),
-                     eye.o.ready.eq(~use_sec & self.rays.ready)]
-        go = self.rays.valid & self.rays.ready
-        with m.If(go):
-            m.d.sync += lock.eq(Mux(self.rays.payload.last, 0, Mux(use_sec, 2, 1)))
-        eo = eye.o.payload
+    def _rtc_input(self, m: Module, eye: EyeRays, setup: RaySetup, store: TwoWriteMemory):
+        """:class:`RTCInput`: eye rays or set-up secondary rays to the RTC; each eye ray into
+        the ray store (origin, direction, lane, weight and its contribution if it misses)."""
+        m.submodules.rtc_in = rin = RTCInput(self.cfg)
+        wiring.connect(m, setup.o, rin.sec)
+        m.d.comb += [rin.eye.valid.eq(eye.o.valid), rin.eye.payload.eq(eye.o.payload.ray),
+                     eye.o.ready.eq(rin.eye.ready)]
+        wiring.connect(m, rin.o, wiring.flipped(self.rays))
+        eo, w = eye.o.payload, store.w[0]
         m.d.comb += [
-            store_w_eye.addr.eq(eo.ray.packet[:sb] * P + eo.ray.lane),
-            store_w_eye.data.eq(Cat(self.pos.as_value(), eo.dir.as_value(), eo.ray.lane,
-                                    self.w_eye, self.eye_miss.as_value())),
-            store_w_eye.en.eq(eye.o.valid & eye.o.ready),
+            w.addr.eq(eo.ray.packet[:ceil_log2(self.slots)] * self.cfg.packet_size +
+                      eo.ray.lane),
+            w.data.eq(Cat(self.pos.as_value(), eo.dir.as_value(), eo.ray.lane,
+                          self.w_eye, self.eye_miss.as_value())),
+            w.en.eq(eye.o.valid & eye.o.ready),
         ]
-        with m.If(eye.o.valid & eye.o.ready):
-            m.d.sync += self.rays_eye.eq(self.rays_eye + 1)
+        self._count_rays(m, eye.o.valid & eye.o.ready, RayKind.EYE)
 
-        # -- results: store lookup (stage B), host record, contexts of spawning packets ------------
+    def _results(self, m: Module, slot, store: TwoWriteMemory) -> SimpleNamespace:
+        """Every result: the ray store read with it (stage B, :meth:`_result_stage`), its host
+        record (:meth:`_host_out`, taking turns with the ambient records), and for a result of
+        an eye or reflection ray its shading context (the ``ctx`` queue) and, for a hit, its
+        shading record's request; the slot is released with its packet's last result."""
+        cfg, w, P = self.cfg, self.cfg.fmt.width, self.cfg.packet_size
+        sb = ceil_log2(self.slots)
         res = self.results
         b = self._result_stage(m)
-        b_valid, b_res, b_adv = b.valid, b.res, b.adv
-        m.d.comb += [store_r.addr.eq(res.payload.packet[:sb] * P + res.payload.lane),
-                     store_r.en.eq(res.ready)]
-        bslot = b_res.packet[:sb]
-        sub, depth = t_sub[bslot], t_depth[bslot]
-        hit = b_res.tri != (1 << TRI_ID_BITS) - 1
-        shade_pkt = (sub == 0) & (spawns(depth) | self.colour)   # eye and reflection rays
-        spawn_pkt = shade_pkt & spawns(depth)
+        m.d.comb += [store.r.addr.eq(res.payload.packet[:sb] * P + res.payload.lane),
+                     store.r.en.eq(res.ready)]
+        bslot = b.res.packet[:sb]
+        sub, depth = slot.sub[bslot], slot.depth[bslot]
+        hit = b.res.tri != (1 << TRI_ID_BITS) - 1
+        shade_pkt = (sub == 0) & (self._spawns(depth) | self.colour)   # eye and reflection rays
+        spawn_pkt = shade_pkt & self._spawns(depth)
         want_rec = shade_pkt & hit
-        stored = data.View(entry, store_r.data)
-        ctx_lay = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg), "lane": lb, "hit": 1,
-                                     "last": 1, "packet": PACKET_ID_BITS, "depth": DEPTH_BITS,
-                                     "t": w, "u": w, "v": w, "wt": w, "spawn": 1})
-        m.submodules.ctx = ctxq = SyncFIFO(width=ctx_lay.size, depth=4 + cfg.cache_queue)
+        stored = data.View(RayEntry(cfg), store.r.data)
+        b.ctx_lay = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg),
+                                       "lane": lane_bits(cfg), "hit": 1, "last": 1,
+                                       "packet": PACKET_ID_BITS, "depth": DEPTH_BITS, "t": w,
+                                       "u": w, "v": w, "wt": w, "spawn": 1})
+        m.submodules.ctx = b.ctxq = ctxq = SyncFIFO(width=b.ctx_lay.size,
+                                                    depth=4 + cfg.cache_queue)
         # ambient records: as many as LightPipe can hold in flight, reserved at the light loop
-        amb_depth = 1 << ceil_log2(self.shd.in_flight + 7)
-        m.submodules.ambq = ambq = SyncFIFO(width=SlaveResult(cfg).size, depth=amb_depth)
-        outq = self._host_out(m, ambq)
+        b.amb_depth = 1 << ceil_log2(self.shd.in_flight + 7)
+        m.submodules.ambq = b.ambq = SyncFIFO(width=SlaveResult(cfg).size, depth=b.amb_depth)
+        b.outq = outq = self._host_out(m, b.ambq)
         rq = self.shade.req
-        need_ctx = b_valid & shade_pkt
+        b.need_ctx = b.valid & shade_pkt
         ok = (outq.w_rdy & (~shade_pkt | (ctxq.w_rdy & (~want_rec | rq.ready))))
-        m.d.comb += b_adv.eq(b_valid & ok)
+        m.d.comb += b.adv.eq(b.valid & ok)
         rec = Signal(SlaveResult(cfg))
-        m.d.comb += [rec.packet.eq(t_packet[bslot]), rec.lane.eq(stored.lane),
-                     rec.depth.eq(depth), rec.sub.eq(sub), rec.tri.eq(b_res.tri),
-                     rec.t.eq(b_res.t), rec.u.eq(b_res.u), rec.v.eq(b_res.v),
+        m.d.comb += [rec.packet.eq(slot.packet[bslot]), rec.lane.eq(stored.lane),
+                     rec.depth.eq(depth), rec.sub.eq(sub), rec.tri.eq(b.res.tri),
+                     rec.t.eq(b.res.t), rec.u.eq(b.res.u), rec.v.eq(b.res.v),
                      rec.col.eq(Mux(hit, 0, stored.col.as_value()))]
-        ctx = Signal(ctx_lay)
+        ctx = Signal(b.ctx_lay)
         m.d.comb += [ctx.org.eq(stored.org), ctx.dir.eq(stored.dir), ctx.lane.eq(stored.lane),
-                     ctx.hit.eq(hit), ctx.last.eq(b_res.last), ctx.packet.eq(t_packet[bslot]),
-                     ctx.depth.eq(depth), ctx.t.eq(b_res.t), ctx.u.eq(b_res.u),
-                     ctx.v.eq(b_res.v), ctx.wt.eq(stored.wt), ctx.spawn.eq(spawn_pkt)]
-        m.d.comb += [outq.w_data.eq(rec), outq.w_en.eq(b_adv),
-                     ctxq.w_data.eq(ctx), ctxq.w_en.eq(b_adv & need_ctx),
-                     rq.valid.eq(b_valid & want_rec & outq.w_rdy & ctxq.w_rdy),
-                     rq.payload.addr.eq(b_res.tri), rq.payload.tag.eq(0)]
-        m.d.comb += [slot.rel.eq(bslot), slot.release.eq(b_adv & b_res.last)]
+                     ctx.hit.eq(hit), ctx.last.eq(b.res.last),
+                     ctx.packet.eq(slot.packet[bslot]), ctx.depth.eq(depth), ctx.t.eq(b.res.t),
+                     ctx.u.eq(b.res.u), ctx.v.eq(b.res.v), ctx.wt.eq(stored.wt),
+                     ctx.spawn.eq(spawn_pkt)]
+        m.d.comb += [outq.w_data.eq(rec), outq.w_en.eq(b.adv),
+                     ctxq.w_data.eq(ctx), ctxq.w_en.eq(b.adv & b.need_ctx),
+                     rq.valid.eq(b.valid & want_rec & outq.w_rdy & ctxq.w_rdy),
+                     rq.payload.addr.eq(b.res.tri), rq.payload.tag.eq(0)]
+        m.d.comb += [slot.rel.eq(bslot), slot.release.eq(b.adv & b.res.last)]
+        return b
 
-        # -- SecondaryPipe: a context (with its record, for a hit) per enabled cycle -----------------
-        head = data.View(ctx_lay, ctxq.r_data)
+    def _shade_feed(self, m: Module, res) -> SimpleNamespace:
+        """SecondaryPipe's input: the head context (with its shading record, for a hit), one
+        per enabled cycle in the pipe's slot; beside it (in order, at most the pipe's
+        ``in_flight``) the hit's colour inputs in the ``matq`` queue: the record's material
+        constants, the ray's weight, the packet's reservation, and kd through the texture unit
+        where there is one (:meth:`_texture_feed`). Returns what the light loop reads:
+        ``out`` (:meth:`_sec_out`), ``mat`` (the queue's head), ``kd``, ``ok`` (kd is there),
+        ``matq``."""
+        cfg, fmt, w, sec = self.cfg, self.cfg.fmt, self.cfg.fmt.width, self.sec
+        ctxq = res.ctxq
+        head = data.View(res.ctx_lay, ctxq.r_data)
         resp = self.shade.resp
         feed_ok = ctxq.r_rdy & (~head.hit | resp.valid)
         sec_en = Signal()                  # SecondaryPipe may take a hit (its output has room)
-        sec_out = self._sec_out(m, sec, sec_en)
+        f = SimpleNamespace(out=self._sec_out(m, sec, sec_en))
         feed = Signal()
         m.d.comb += [ctxq.r_en.eq(feed), resp.ready.eq(feed & head.hit)]
-        rdata = resp.payload.data
-        field = lambda i: rdata[32 * i:32 * i + 32]                     # noqa: E731
-        word = lambda i: from_binary32(fmt, field(i))                     # noqa: E731
-        vec = lambda i, n: Cat(*(word(i + k) for k in range(n)))          # noqa: E731
-        flags = field(REC_FLAGS)
-        kd_rec = vec(REC_KD, 3)
-        # the hit's colour inputs, beside SecondaryPipe (in order, at most its `in_flight` in
-        # flight): the record's material constants, the ray's weight, the packet's reservation;
-        # kd through the texture unit where there is one
+        rec = _Record(fmt, resp.payload.data)
+        flags = rec.field(REC_FLAGS)
         tex = self.tex
         mat_lay = data.StructLayout({**({} if tex else {"kd": vec3(cfg)}), "ks": vec3(cfg),
                                      "kr": w, "shin": SHIN_BITS, "wt": w, "spawn": 1})
-        m.submodules.matq = matq = SyncFIFO(width=mat_lay.size, depth=sec.in_flight + 1)
+        m.submodules.matq = f.matq = matq = SyncFIFO(width=mat_lay.size,
+                                                     depth=sec.in_flight + 1)
         if tex is not None:
-            m.submodules.tex = tex
-            wiring.connect(m, tex.mem, wiring.flipped(self.texel))
-            ti = Signal(tex.i.payload.shape())
-            go = feed_ok & sec_en & sec.i_slot            # SecondaryPipe takes the hit now
-            if gcd(sec.ii, tex.coord.ii) > 1:
-                # the pipes' slots (each with its own phase) may never meet in one cycle: a
-                # queue as deep as the hits SecondaryPipe holds takes the texture's inputs
-                m.submodules.texq = texq = SyncFIFO(width=len(ti.as_value()),
-                                                    depth=sec.in_flight + 1)
-                m.d.comb += [texq.w_en.eq(feed), texq.w_data.eq(ti),
-                             feed.eq(go & texq.w_rdy),
-                             tex.i.valid.eq(texq.r_rdy), tex.i.payload.eq(texq.r_data),
-                             texq.r_en.eq(tex.i.ready)]
-            else:           # coprime intervals (or none): both slots meet every lcm cycles
-                m.d.comb += [tex.i.valid.eq(go), tex.i.payload.eq(ti),
-                             feed.eq(go & tex.i.ready)]
-            m.d.comb += [
-                ti.u.eq(head.u), ti.v.eq(head.v),
-                ti.uv.eq(vec(REC_UV, 6)),
-                ti.addr.eq(field(REC_TEX_ADDR)), ti.tw.eq(field(REC_TEX_SIZE)[:16]),
-                ti.th.eq(field(REC_TEX_SIZE)[16:]),
-                ti.on.eq(head.hit & ((flags & REC_TEXTURED) != 0) & self.colour),
-                ti.kd.eq(kd_rec)]
-            mat_kd, mat_ok = tex.o.payload.kd, tex.o.valid
+            f.kd, f.ok = self._texture_feed(m, head, rec, feed, feed_ok & sec_en & sec.i_slot)
         else:
             m.d.comb += feed.eq(feed_ok & sec_en & sec.i_slot)
-            mat_ok = 1
+            f.ok = 1
         mat_in = Signal(mat_lay)
-        m.d.comb += [mat_in.ks.eq(vec(REC_KS, 3)), mat_in.kr.eq(word(REC_KR)),
+        m.d.comb += [mat_in.ks.eq(rec.vec(REC_KS, 3)), mat_in.kr.eq(rec.word(REC_KR)),
                      mat_in.shin.eq(flags[REC_SHIN_SHIFT:REC_SHIN_SHIFT + SHIN_BITS]),
                      mat_in.wt.eq(head.wt), mat_in.spawn.eq(head.spawn),
                      matq.w_data.eq(mat_in), matq.w_en.eq(feed)]
-        mat = data.View(mat_lay, matq.r_data)
+        f.mat = data.View(mat_lay, matq.r_data)
         if tex is None:
-            m.d.comb += mat_in.kd.eq(kd_rec)
-            mat_kd = mat.kd
+            m.d.comb += mat_in.kd.eq(rec.vec(REC_KD, 3))
+            f.kd = f.mat.kd
         st = data.View(self.sec_tag, sec.tag)
         m.d.comb += [sec.i_valid.eq(feed), sec.org.eq(head.org), sec.dir.eq(head.dir),
                      sec.t.eq(head.t), sec.u.eq(head.u), sec.v.eq(head.v), sec.eps.eq(self.eps),
-                     sec.nf.eq(vec(REC_NF, 3)),
-                     sec.nv.eq(vec(REC_NV, 9)),
+                     sec.nf.eq(rec.vec(REC_NF, 3)),
+                     sec.nv.eq(rec.vec(REC_NV, 9)),
                      st.lane.eq(head.lane), st.hit.eq(head.hit), st.last.eq(head.last),
                      st.refl.eq((flags & REC_REFLECTIVE) != 0), st.packet.eq(head.packet),
                      st.depth.eq(head.depth)]
+        return f
 
-        # -- light loop: each SecondaryPipe output to LightPipe once per light (once if no hit) -----
-        so = data.View(self.sec_tag, sec_out.tag)
+    def _texture_feed(self, m: Module, head, rec: "_Record", feed: Signal, go: Value) -> tuple:
+        """The texture unit beside SecondaryPipe: it takes the hit in the cycle SecondaryPipe
+        does (``go``: the pipe takes it now; sets ``feed``), or, where the two pipes' slots
+        (each with its own phase) may never meet in one cycle, through a queue as deep as the
+        hits SecondaryPipe holds. Returns (kd, kd is there) at the unit's output."""
+        tex, sec = self.tex, self.sec
+        m.submodules.tex = tex
+        wiring.connect(m, tex.mem, wiring.flipped(self.texel))
+        ti = Signal(tex.i.payload.shape())
+        if gcd(sec.ii, tex.coord.ii) > 1:
+            m.submodules.texq = texq = SyncFIFO(width=len(ti.as_value()),
+                                                depth=sec.in_flight + 1)
+            m.d.comb += [texq.w_en.eq(feed), texq.w_data.eq(ti),
+                         feed.eq(go & texq.w_rdy),
+                         tex.i.valid.eq(texq.r_rdy), tex.i.payload.eq(texq.r_data),
+                         texq.r_en.eq(tex.i.ready)]
+        else:           # coprime intervals (or none): both slots meet every lcm cycles
+            m.d.comb += [tex.i.valid.eq(go), tex.i.payload.eq(ti),
+                         feed.eq(go & tex.i.ready)]
+        size = rec.field(REC_TEX_SIZE)
+        m.d.comb += [
+            ti.u.eq(head.u), ti.v.eq(head.v),
+            ti.uv.eq(rec.vec(REC_UV, 6)),
+            ti.addr.eq(rec.field(REC_TEX_ADDR)), ti.tw.eq(size[:16]), ti.th.eq(size[16:]),
+            ti.on.eq(head.hit & ((rec.field(REC_FLAGS) & REC_TEXTURED) != 0) & self.colour),
+            ti.kd.eq(rec.vec(REC_KD, 3))]
+        return tex.o.payload.kd, tex.o.valid
+
+    def _light_loop(self, m: Module, f, res) -> SimpleNamespace:
+        """The light loop: each SecondaryPipe output to LightPipe once per light in use (once
+        if no hit, or no light), in LightPipe's slots; a hit's first token reserves its
+        ambient record (``amb_cnt``, at most the ambient queue's depth); after a packet's last
+        token no new token until that token leaves LightPipe (``commit_wait``, which the
+        builders clear). Returns ``ot`` (LightPipe's output tag), ``commit_wait``,
+        ``amb_cnt``."""
+        L, shd, out, mat = self.cfg.rgs_lights, self.shd, f.out, f.mat
+        so = data.View(self.sec_tag, out.tag)
         li = Signal(range(max(2, L)))
-        commit_wait = Signal()              # a packet's last token is in LightPipe
+        lp = SimpleNamespace(commit_wait=Signal(name="commit_wait"),  # a packet's last token
+                             amb_cnt=Signal(range(res.amb_depth + 1), name="amb_cnt"),  # in
+                             ot=data.View(self.shd_tag, shd.o_tag))                      # shd
         tokens_last = Mux(so.hit & (self.n_lights != 0), li == self.n_lights - 1, 1)
         amb_tok = so.hit & (li == 0) & self.colour   # the token makes the hit's ambient record
-        amb_cnt = Signal(range(amb_depth + 1))   # ambient records reserved (in flight, queued)
-        loop_go = (sec_out.valid & mat_ok & ~commit_wait & (~amb_tok | (amb_cnt < amb_depth)) &
-                   shd.i_slot)
+        loop_go = (out.valid & f.ok & ~lp.commit_wait &
+                   (~amb_tok | (lp.amb_cnt < res.amb_depth)) & shd.i_slot)
         take = loop_go & tokens_last
-        m.d.comb += [sec_out.take.eq(take), matq.r_en.eq(take)]
-        if tex is not None:
-            m.d.comb += tex.o.ready.eq(take)
+        m.d.comb += [out.take.eq(take), f.matq.r_en.eq(take)]
+        if self.tex is not None:
+            m.d.comb += self.tex.o.ready.eq(take)
         with m.If(loop_go):
             m.d.sync += li.eq(Mux(tokens_last, 0, li + 1))
             m.d.sync += self.sec_busy.eq(self.sec_busy + 1)
         with m.If(take & so.last):
-            m.d.sync += commit_wait.eq(1)
+            m.d.sync += lp.commit_wait.eq(1)
         tt = data.View(self.shd_tag, shd.tag)
 
         def per_light(regs):                # light li's register (a complete read mux)
             return Array([x.as_value() for x in regs] + [regs[0].as_value()] *
                          ((1 << ceil_log2(max(2, L))) - L))[li] if L else 0
-        m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(sec_out.p0),
-                     shd.g.eq(sec_out.g),
+        m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(out.p0),
+                     shd.g.eq(out.g),
                      shd.light.eq(per_light(self.lights)),
                      shd.point.eq(self.light_point.bit_select(li, 1) if L else 0),
-                     shd.n.eq(sec_out.n), shd.r.eq(sec_out.r), shd.kd.eq(mat_kd), shd.ks.eq(mat.ks),
+                     shd.n.eq(out.n), shd.r.eq(out.r), shd.kd.eq(f.kd), shd.ks.eq(mat.ks),
                      shd.kr.eq(mat.kr), shd.shin.eq(mat.shin), shd.wt.eq(mat.wt),
                      shd.lc.eq(per_light(self.light_col)), shd.amb.eq(self.amb),
                      shd.bg.eq(self.bg),
@@ -653,13 +826,24 @@ class Slave(wiring.Component):
                      tt.refl.eq(so.refl), tt.first.eq(li == 0), tt.tlast.eq(tokens_last),
                      tt.last.eq(take & so.last), tt.spawn.eq(mat.spawn),
                      tt.packet.eq(so.packet), tt.depth.eq(so.depth)]
+        ambq = res.ambq
+        m.d.sync += lp.amb_cnt.eq(lp.amb_cnt + (loop_go & amb_tok) - (ambq.r_rdy & ambq.r_en))
+        return lp
 
-        # -- builders: L shadow packets and the reflection packet of the current source packet -----
+    def _builders(self, m: Module, pb, lp, K: Value) -> SimpleNamespace:
+        """The builders: the L shadow packets and the reflection packet of the current source
+        packet, written from LightPipe's output into pending buffers (up to two new buffers a
+        cycle for builders without one); at the source packet's commit (its last token left
+        LightPipe) each built packet's buffer becomes ready with its metadata, and the
+        reservations it did not use return. Returns ``taken`` (buffers allocated),
+        ``committed`` (buffers made ready), ``unused`` (credits returned) this cycle."""
+        L, P, NB = self.cfg.rgs_lights, self.cfg.packet_size, self.buffers
+        shd, ot = self.shd, lp.ot
+        w = self.cfg.fmt.width
         nbld = L + 1
         has = Signal(nbld)
-        bbuf = _regs(nbld, bb, "bld_buf")
+        bbuf = _regs(nbld, max(1, ceil_log2(NB)), "bld_buf")
         bcnt = _regs(nbld, range(P + 1), "bld_count")
-        ot = data.View(self.shd_tag, shd.o_tag)
         # reflection write (LightPipe output, first token of a hit on a reflective surface)
         rf_w = shd.o_valid & ot.first & ot.rhit & ot.refl & (ot.depth < self.reflect_depth)
         # shadow write (LightPipe output)
@@ -667,30 +851,26 @@ class Slave(wiring.Component):
         sh_b = ot.light               # the light's builder (as wide as the light index: the
                                       # register arrays' read muxes stay complete)
         # buffers for builders without one: up to two new ones a cycle
-        a1, f1 = lowest(m, buf_free, "alloc1")
-        a2, f2 = lowest(m, buf_free & ~(1 << f1), "alloc2")
+        a1, f1 = lowest(m, pb.free, "alloc1")
+        a2, f2 = lowest(m, pb.free & ~(1 << f1), "alloc2")
         need_rf = rf_w & ~has[L]
         need_sh = sh_w & ~has.bit_select(sh_b, 1)
         rf_buf = Mux(has[L], bbuf[L], f1)
         sh_buf = Mux(has.bit_select(sh_b, 1), bbuf[sh_b], Mux(need_rf, f2, f1))
-        taken = Signal(NB)
-        m.d.comb += taken.eq(Mux(need_rf, 1 << f1, 0) |
-                             Mux(need_sh, Mux(need_rf, 1 << f2, 1 << f1), 0))
+        bld = SimpleNamespace(taken=Signal(NB, name="taken"),
+                              committed=Signal(NB, name="committed"),
+                              unused=Signal(range(nbld + 1), name="unused"))
+        m.d.comb += bld.taken.eq(Mux(need_rf, 1 << f1, 0) |
+                                 Mux(need_sh, Mux(need_rf, 1 << f2, 1 << f1), 0))
+        w_sh, w_rf = pb.mem.w
         m.d.comb += [
-            pend_w_rf.addr.eq(rf_buf * P + bcnt[L]), pend_w_rf.en.eq(rf_w),
-            pend_w_rf.data.eq(Cat(shd.o_p0.as_value(), shd.o_r.as_value(), ot.lane, shd.wr,
-                                  shd.rmiss.as_value())),
-            pend_w_sh.addr.eq(sh_buf * P + bcnt[sh_b]), pend_w_sh.en.eq(sh_w),
-            pend_w_sh.data.eq(Cat(shd.o_p0.as_value(), shd.dir.as_value(), ot.lane,
-                                  Const(0, w), shd.col.as_value())),
+            w_rf.addr.eq(rf_buf * P + bcnt[L]), w_rf.en.eq(rf_w),
+            w_rf.data.eq(Cat(shd.o_p0.as_value(), shd.o_r.as_value(), ot.lane, shd.wr,
+                             shd.rmiss.as_value())),
+            w_sh.addr.eq(sh_buf * P + bcnt[sh_b]), w_sh.en.eq(sh_w),
+            w_sh.data.eq(Cat(shd.o_p0.as_value(), shd.dir.as_value(), ot.lane,
+                             Const(0, w), shd.col.as_value())),
         ]
-        # ambient record (LightPipe output, a hit's first token)
-        amb_rec = Signal(SlaveResult(cfg))
-        amb_w = shd.o_valid & ot.first & ot.rhit & self.colour
-        m.d.comb += [amb_rec.packet.eq(ot.packet), amb_rec.lane.eq(ot.lane),
-                     amb_rec.depth.eq(ot.depth), amb_rec.col.eq(shd.amb_col),
-                     amb_rec.shade.eq(1), ambq.w_data.eq(amb_rec), ambq.w_en.eq(amb_w)]
-        m.d.sync += amb_cnt.eq(amb_cnt + (loop_go & amb_tok) - (ambq.r_rdy & ambq.r_en))
         # commit: the source packet's last token left LightPipe
         commit = shd.o_valid & ot.last
         new_has = Signal(nbld)
@@ -703,39 +883,36 @@ class Slave(wiring.Component):
             m.d.sync += bcnt[sh_b].eq(bcnt[sh_b] + 1)
             with m.If(~has.bit_select(sh_b, 1)):
                 m.d.sync += bbuf[sh_b].eq(Mux(need_rf, f2, f1))
-        committed = Signal(NB)
-        unused = Signal(range(nbld + 1))
+
         def fresh(i):                # the buffer builder i is given this cycle
             return f1 if i == L else Mux(need_rf, f2, f1)
         with m.If(commit):
             m.d.sync += has.eq(0)
             for i in range(nbld):
                 cnt = bcnt[i] + Mux(sh_w & (sh_b == i), 1, 0) + (rf_w if i == L else 0)
-                buf = Mux(has[i], bbuf[i], fresh(i))
+                b = Mux(has[i], bbuf[i], fresh(i))
                 m.d.sync += bcnt[i].eq(0)
                 with m.If(new_has[i]):
-                    m.d.sync += [b_count[buf].eq(cnt),
-                                 b_sub[buf].eq(0 if i == L else i + 1),
-                                 b_depth[buf].eq(ot.depth + (1 if i == L else 0)),
-                                 b_packet[buf].eq(ot.packet)]
-            m.d.comb += unused.eq(Mux(ot.spawn, K - sum(new_has[i] for i in range(nbld)), 0))
-            m.d.comb += committed.eq(Cat(*(
+                    m.d.sync += [pb.count[b].eq(cnt),
+                                 pb.sub[b].eq(0 if i == L else i + 1),
+                                 pb.depth[b].eq(ot.depth + (1 if i == L else 0)),
+                                 pb.packet[b].eq(ot.packet)]
+            m.d.comb += bld.unused.eq(Mux(ot.spawn, K - sum(new_has[i] for i in range(nbld)),
+                                          0))
+            m.d.comb += bld.committed.eq(Cat(*(
                 sum((new_has[i] & (Mux(has[i], bbuf[i], fresh(i)) == b)) for i in range(nbld))
                 != 0 for b in range(NB))))
-            m.d.sync += commit_wait.eq(0)
+            m.d.sync += lp.commit_wait.eq(0)
         with m.Else():
             m.d.sync += has.eq(new_has)
-        m.d.sync += buf_ready.eq((buf_ready | committed) &
-                                 ~Mux(start_send, 1 << rb, 0))
-        m.d.sync += buf_free.eq((buf_free & ~taken) | Mux(sent_done, 1 << s_buf, 0))
-        m.d.comb += credit_back.eq(unused + sent_done)
-        m.d.sync += credits.eq(credits + credit_back - credit_take)
+        return bld
 
-        # -- idle ------------------------------------------------------------------------------------
-        # results in the shading path (context queue, SecondaryPipe, light loop, LightPipe)
-        shading = Signal(range(NS * P + 1))
-        m.d.sync += shading.eq(shading + (b_adv & need_ctx) - (shd.o_valid & ot.tlast))
-        m.d.comb += self.idle.eq((slot.free == (1 << NS) - 1) & (credits == NB) & ~b_valid &
-                                 ~outq.r_rdy & ~self.out.valid & ~sender_busy &
-                                 (shading == 0) & (amb_cnt == 0))
-        return m
+    def _ambient(self, m: Module, res, lp):
+        """A hit's ambient record (LightPipe's output, the hit's first token) into the
+        ambient queue, which :meth:`_host_out` empties in turn with the ray records."""
+        shd, ot = self.shd, lp.ot
+        amb_rec = Signal(SlaveResult(self.cfg))
+        amb_w = shd.o_valid & ot.first & ot.rhit & self.colour
+        m.d.comb += [amb_rec.packet.eq(ot.packet), amb_rec.lane.eq(ot.lane),
+                     amb_rec.depth.eq(ot.depth), amb_rec.col.eq(shd.amb_col),
+                     amb_rec.shade.eq(1), res.ambq.w_data.eq(amb_rec), res.ambq.w_en.eq(amb_w)]
