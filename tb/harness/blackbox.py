@@ -144,12 +144,13 @@ def export_units(units, jobs: int = 1):
     """Export each ``(module, unit, stand_ins)`` of ``units`` to Verilog once and tell its
     stand-ins (the :class:`Blackbox` objects) the module's ports; yields ``(module, Verilog
     text, seconds)`` as each is done. ``jobs`` > 1: that many forked processes export the
-    units side by side (Amaranth's export is single-threaded Python)."""
+    units side by side (Amaranth's export is single-threaded Python); inside a daemonic process
+    (a Dask or multiprocessing worker, which may not have children) they are exported in turn."""
+    import multiprocessing
     global _UNITS
     _UNITS = list(units)
     try:
-        if jobs > 1 and len(_UNITS) > 1:
-            import multiprocessing
+        if jobs > 1 and len(_UNITS) > 1 and not multiprocessing.current_process().daemon:
             pool = multiprocessing.get_context("fork").Pool(min(jobs, len(_UNITS)))
             with pool:
                 done = list(pool.imap_unordered(_export_one, range(len(_UNITS))))
