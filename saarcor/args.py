@@ -78,7 +78,10 @@ def parse_formats(text: str) -> list[FPFormat]:
     """A comma list of formats, ``E8M23,E8M16``."""
     try:
         return [parse_fmt(f) for f in str(text).split(",")]
-    except (ConfigError, ValueError) as e:
+    except ConfigError:
+        raise ConfigError(f"--formats {text!r}: write each format as E<exp>M<frac>, "
+                          "comma-separated, e.g. E8M23,E8M16") from None
+    except ValueError as e:
         raise ConfigError(f"--formats {text!r}: {e}") from None
 
 

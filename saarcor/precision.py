@@ -404,8 +404,8 @@ def main(argv=None) -> dict:
                          "message), the watertight ones in the leak test too")
     add_formats_arg(ap, DEFAULT_FORMATS)
     add_res_arg(ap, "256x191",
-                why="RES_BENCH with an odd height: pixel centres off a centred camera's "
-                    "diagonals (where a room corner is an exact closest-hit tie)")
+                why="RES_BENCH with an odd height, which keeps pixel centres off a centred "
+                    "camera's diagonals, where a room corner is an exact closest-hit tie")
     ap.add_argument("--reflect-depth", type=int, default=3,
                     help="reflection bounces (default 3)")
     ap.add_argument("--repeat", type=int, default=3,

@@ -160,8 +160,9 @@ def main(argv=None) -> dict:
     ap.add_argument("--build-copies", type=int, default=10,
                     help="copies of the mesh in the kd-tree build benchmark (>= 1M triangles)")
     ap.add_argument("--all-rays-scene", default=str(ROOT / "scenes" / "office.toml"),
-                    help="scene of the whole-render benchmark with every ray (shadows, "
-                         "reflections); 'none' skips it")
+                    metavar="PATH", help="scene of the whole-render benchmark with every ray "
+                                         "(shadows, reflections; default scenes/office.toml); "
+                                         "'none' skips it")
     args = ap.parse_args(argv)
     res = res_from_args(args, "saarcor bench model")
     mesh = args.scene
