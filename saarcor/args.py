@@ -10,8 +10,11 @@ One spelling per concept, in every command:
 * ``--backend verilator|amaranth``: the simulator (the cocotb bench's are icarus|verilator).
 * ``--mem-latency N``: memory latency in cycles (the Config field); ``--fp-latency N``: the
   pipeline latency of an ``fp_*`` top.
-* ``--trace FILE``: a waveform; ``--fmt EeMm``: one FP format (``E8M23``), ``--formats`` a
-  comma list of them; ``--out DIR``: the output directory.
+* ``--trace FILE``: a waveform (an address stream is ``--addr-trace``).
+* ``--fmt EeMm``: one FP format (``E8M23``); ``--formats`` a comma list of them.
+* ``--out DIR``: the output directory; a single file is named by what it holds (``--json
+  FILE``, ``--table FILE``); ``--keep DIR`` keeps a tool's intermediate files; ``--kd-cache
+  DIR`` the kd-tree cache, ``--build-dir DIR`` the Verilator binaries.
 
 Several values: a path option repeats (paths may hold commas), a list of short tokens is one
 comma list (``--formats E8M23,E8M16``, ``--thread-counts 1,2,4``).
@@ -46,7 +49,8 @@ RES_BENCH = "256x192"
 """Benchmarks and golden-model images."""
 RES_PAPER = "1024x768"
 """The paper's operating point (its frame rates are for 1024x768)."""
-_RES_NAMES = {RES_QUICK: "RES_QUICK, quick checks", RES_BENCH: "RES_BENCH, benchmarks and golden-model images",
+_RES_NAMES = {RES_QUICK: "RES_QUICK, quick checks",
+              RES_BENCH: "RES_BENCH, benchmarks and golden-model images",
               RES_PAPER: "RES_PAPER, the paper's operating point"}
 
 SCENE = "scenes/cornell.toml"

@@ -73,7 +73,7 @@ BENCHES: dict[str, Command] = {
                                             "second runs"),
 }
 
-BENCH_HELP = "benchmarks, written to build/bench/: " + ", ".join(BENCHES)
+BENCH_HELP = "benchmarks (most write JSON to build/bench/): " + ", ".join(BENCHES)
 
 
 def _parser(prog: str, description: str, commands: dict[str, str]) -> argparse.ArgumentParser:

@@ -131,8 +131,9 @@ def test_forwards_arguments_and_exit_status(capsys):
 
 def test_render_writes_an_image(tmp_path, capsys):
     status, out, err = call(["render", "--scene", str(ROOT / "scenes" / "cornell.toml"),
-                             "--res", "8x6", "--tile-w", "4", "--tile-h", "4", "--reflect-depth", "0",
-                             "--out", str(tmp_path), "--no-cache", "--quiet"], capsys)
+                             "--res", "8x6", "--tile-w", "4", "--tile-h", "4",
+                             "--reflect-depth", "0", "--out", str(tmp_path), "--no-cache",
+                             "--quiet"], capsys)
     assert status == 0, err
     assert Image.open(tmp_path / "image.png").size == (8, 6)
     stats = json.loads((tmp_path / "stats.json").read_text())
