@@ -4,6 +4,7 @@ PY    := $(VENV)/bin/python
 STAMP := $(VENV)/.setup-done
 # the `saarcor` command line (pyproject's [project.scripts]; `saarcor --help`)
 SAARCOR := $(VENV)/bin/saarcor
+# the commands' defaults (saarcor/args.py: SCENE, RES_QUICK for quick checks)
 SCENE ?= scenes/cornell.toml
 RES   ?= 128x96
 OUT   ?= build/sim
@@ -47,7 +48,7 @@ CHIP_SMALL  ?= --rtcs 2 --threads 2 --tile-w 4 --tile-h 4 --trav-subunits 2 --tr
 	       --list-cache-kb 1 --int-cache-kb 9 --mem-latency 8
 bench: setup
 	mkdir -p build/bench
-	$(SAARCOR) bench model --out build/bench $(if $(BENCH_MESH),--mesh $(BENCH_MESH))
+	$(SAARCOR) bench model --out build/bench $(if $(BENCH_MESH),--scene $(BENCH_MESH))
 	$(SAARCOR) bench memory --scene $(BENCH_SCENE) --out build/bench
 	$(SAARCOR) bench threads --out build/bench
 	$(SAARCOR) bench threads --scene scenes/office.toml --res 128x96 --tile-w 8 --tile-h 8 \
@@ -64,8 +65,8 @@ bench: setup
 	    --rgs-fp-adders 3 --rgs-fp-muls 4 --rgs-fp-pool 1 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench chip --res 64x48 --seeds 16 --out build/bench $(EYE_ONLY_FLAG)
 	$(SAARCOR) bench resources --yosys --json build/bench/resources.json
-	$(SAARCOR) bench skipping --scene scenes/office.toml --res 128x96 --rtl --second-run
-	$(SAARCOR) bench skipping --scene scenes/cornell.toml --res 128x96 --rtl
+	$(SAARCOR) bench skipping --scene scenes/office.toml --res 128x96 --rtl-cycles --second-run
+	$(SAARCOR) bench skipping --scene scenes/cornell.toml --res 128x96 --rtl-cycles
 	$(SAARCOR) bench skipping --scene scenes/game.toml --res 128x96 --elab
 	$(SAARCOR) bench ladder --out build/bench
 	$(SAARCOR) bench simspeed --fresh --profile --quiet --out build/bench
@@ -78,7 +79,7 @@ clean:
 ##   (image.png, stats.json, rays.npz, hits.npz; `saarcor render --help` for every option)
 RENDER_OUT ?= build/render
 render: setup
-	$(SAARCOR) render $(SCENE) --res $(RES) --out $(RENDER_OUT)
+	$(SAARCOR) render --scene $(SCENE) --res $(RES) --out $(RENDER_OUT)
 
 ## make verilog TOP=rtc CONFIG="--threads 4 --trav-cache-kb 4": build/verilog/$(TOP).v
 ##   (TOP: any of `saarcor verilog --list`; CONFIG: any Config field as --option)
@@ -109,7 +110,7 @@ fpga: setup
 SPEC       ?= scenes/sweeps/rtcs.toml
 SWEEP_ARGS ?=
 sweep: setup
-	$(PY) -m saarcor.sweep $(SPEC) $(SWEEP_ARGS)
+	$(SAARCOR) sweep $(SPEC) $(SWEEP_ARGS)
 
 .PHONY: sweep
 

@@ -8,7 +8,7 @@ order, each object's instances in order, each instance's faces in load order), w
 vertex or exactly zero area after rounding to float32) are dropped and counted; every other
 bad input raises :class:`SceneError` with a message naming the problem and how to fix it.
 
-``saarcor scene FILE...`` prints a summary of each scene.
+``saarcor scene --scene PATH`` prints a summary of each scene.
 """
 from __future__ import annotations
 

@@ -14,54 +14,68 @@ from dataclasses import dataclass
 
 @dataclass(frozen=True)
 class Command:
-    """A command: ``module.func(prefix + argv)`` runs it; ``help`` is its line in the listing."""
+    """A command: ``module.func(argv)`` runs it; ``help`` is its line in the listing."""
     module: str
     help: str
     func: str = "main"
-    prefix: tuple[str, ...] = ()
 
 
 COMMANDS: dict[str, Command] = {
-    "sim": Command("saarcor.sim", "render a scene on the simulated chip (RTL) and check it against "
-                             "the golden model"),
+    "sim": Command("saarcor.sim", "render a scene on the simulated chip (RTL) and check it "
+                                  "against the golden model"),
     "render": Command("saarcor.render", "render a scene with the golden model alone: image.png, "
-                                   "stats.json, rays.npz, hits.npz", prefix=("render",)),
+                                        "stats.json, rays.npz, hits.npz"),
     "scene": Command("saarcor.scene", "a summary of each scene file: triangles, materials, "
                                       "lights, bounds; --prepare: kd-tree and image cost"),
     "verilog": Command("saarcor.verilog", "write the Verilog of the one-RTC top or of one unit"),
-    "fpga": Command("saarcor.flows.fpga.flow", "synthesis, place and route on an ECP5-85k (YoWASP Yosys, "
-                                     "nextpnr); resources and Fmax"),
-    "verilator": Command("saarcor.verilator", "trace a frame through one RTC in Verilator, every ray "
-                                         "compared with the golden model"),
-    "sweep": Command("saarcor.sweep", "a design-space sweep (configurations x scenes x resolutions) "
-                                 "on Dask, cached per point, into one results table"),
+    "fpga": Command("saarcor.flows.fpga.flow", "synthesis, place and route on an ECP5-85k "
+                                               "(YoWASP Yosys, nextpnr); resources and Fmax"),
+    "synth": Command("saarcor.flows.synth", "Yosys synthesis of the FP units (generic and "
+                                            "ECP5): no latches, a table of resources"),
+    "formal": Command("saarcor.flows.formal.bus", "formal checks of the round-robin bus "
+                                                  "(SMT-BMC): BMC, k-induction, cover"),
+    "verilator": Command("saarcor.verilator", "trace a frame through one RTC in Verilator, "
+                                              "every ray compared with the golden model"),
+    "sweep": Command("saarcor.sweep", "a design-space sweep (configurations x scenes x "
+                                      "resolutions) on Dask, cached per point, into one results "
+                                      "table"),
     "results": Command("saarcor.results", "docs/results.md: the paper's Section 5 tables beside "
-                                     "ours, from sweeps, with plots"),
+                                          "ours, from sweeps, with plots"),
 }
 """Top-level commands; ``bench`` (below) is a group of its own."""
 
 BENCHES: dict[str, Command] = {
     "chip": Command("saarcor.bench.chip", "a frame on the whole chip in Verilator: cycles, fps, "
-                                     "relative performance"),
+                                          "relative performance"),
     "memory": Command("saarcor.bench.memory", "cache hit rates per unit and SDRAM bandwidth"),
-    "threads": Command("saarcor.bench.threads", "RTC cycles against threads per RTC (the paper's "
-                                           "speed-up)"),
-    "model": Command("saarcor.bench.model", "golden-model rays per second (trace kernel and whole "
-                                    "render) next to Embree, kd-tree build time"),
+    "threads": Command("saarcor.bench.threads", "RTC cycles against threads per RTC (the "
+                                                "paper's speed-up)"),
+    "model": Command("saarcor.bench.model", "golden-model rays per second (trace kernel and "
+                                            "whole render) next to Embree, kd-tree build time"),
     "ladder": Command("saarcor.ladder", "the simulation ladder: golden model, cycle estimate, "
-                                   "sampled RTL, Verilator, Amaranth: run time against fps error"),
+                                        "sampled RTL, Verilator, Amaranth: run time against fps "
+                                        "error"),
     "stress": Command("saarcor.stress", "numerical stress cases of the golden model against the "
-                                   "exact oracle"),
-    "resources": Command("saarcor.bench.resources", "the chip's FP units by kind, flip-flop and memory "
-                                         "bits, from its netlist"),
-    "simspeed": Command("saarcor.bench.simspeed", "a chip frame's wall time step by step (build, "
-                                             "simulation, golden model, outputs) and the "
-                                             "simulation's cost by unit"),
-    "skipping": Command("saarcor.skipping", "what skipping work a scene doesn't need saves: run-time "
-                                       "skips, the chip built for the scene, second runs"),
+                                        "exact oracle"),
+    "precision": Command("saarcor.precision", "image and ray error, FP-unit cost and run time "
+                                              "against the FP format"),
+    "fp-cost": Command("saarcor.bench.fp_cost", "Yosys ECP5 resources of the FP units per "
+                                                "format, cached"),
+    "resources": Command("saarcor.bench.resources", "the chip's FP units by kind, flip-flop and "
+                                                    "memory bits, from its netlist"),
+    "simspeed": Command("saarcor.bench.simspeed", "a chip frame's wall time step by step "
+                                                  "(build, simulation, golden model, outputs) "
+                                                  "and the simulation's cost by unit"),
+    "fp-speed": Command("saarcor.bench.fp_speed", "Amaranth simulation speed of the FP unit "
+                                                  "testbenches"),
+    "cocotb": Command("saarcor.bench.cocotb_speed", "speed of the cocotb benches on each "
+                                                    "simulator (Icarus, Verilator)"),
+    "skipping": Command("saarcor.skipping", "what skipping work a scene doesn't need saves: "
+                                            "run-time skips, the chip built for the scene, "
+                                            "second runs"),
 }
 
-BENCH_HELP = "benchmarks, written to build/bench/: " + ", ".join(BENCHES)
+BENCH_HELP = "benchmarks (most write JSON to build/bench/): " + ", ".join(BENCHES)
 
 
 def _parser(prog: str, description: str, commands: dict[str, str]) -> argparse.ArgumentParser:
@@ -83,8 +97,8 @@ def top_parser() -> argparse.ArgumentParser:
 
 
 def bench_parser() -> argparse.ArgumentParser:
-    return _parser("saarcor bench", "Benchmarks and sweeps; each writes JSON to its --out "
-                                    "directory (build/bench by default).",
+    return _parser("saarcor bench", "Benchmarks; most write JSON to their --out directory "
+                                    "(build/bench by default).",
                    {name: c.help for name, c in BENCHES.items()})
 
 
@@ -118,7 +132,7 @@ def run(name: str, cmd: Command, argv: list[str]) -> int:
                              f"the checkout to a version that has it")
         raise SystemExit(f"{name}: needs the Python package {e.name!r}, which is not installed; "
                          f"run `make setup`")
-    status = getattr(module, cmd.func)([*cmd.prefix, *argv])
+    status = getattr(module, cmd.func)(argv)
     return status if isinstance(status, int) else 0      # some mains return their results
 
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from model.config import Config
-from model.raykind import RayKind
+from saarcor.args import RES_BENCH, RES_QUICK, parse_res
 
 __all__ = ["band_registers", "band_rays", "run_band", "choose_bands", "SampledRun",
            "sampled_frame"]
@@ -304,17 +304,16 @@ def _parse_points(spec: str) -> list:
     pts = []
     for item in spec.split(","):
         name, scene, res = item.split(":")
-        w, h = (int(x) for x in res.lower().split("x"))
-        pts.append((name, scene, w, h))
+        pts.append((name, scene, *parse_res(res)))
     return pts
 
 
+_SCENES = ("cornell", "office", "conference", "terrain")
 DEFAULT_POINTS = ",".join(
-    [f"{c}:scenes/{s}.toml:128x96" for c in ("1x1", "1x4", "1x16", "2x8-1KB")
-     for s in ("cornell", "office", "conference", "terrain")] +
-    [f"standard:scenes/{s}.toml:256x192" for s in ("cornell", "office", "conference",
-                                                  "terrain")] +
-    [f"4x4:scenes/{s}.toml:128x96" for s in ("cornell", "office", "conference", "terrain")])
+    [f"{c}:scenes/{s}.toml:{RES_QUICK}" for c in ("1x1", "1x4", "1x16", "2x8-1KB")
+     for s in _SCENES] +
+    [f"standard:scenes/{s}.toml:{RES_BENCH}" for s in _SCENES] +
+    [f"4x4:scenes/{s}.toml:{RES_QUICK}" for s in _SCENES])
 
 
 def plot_ladder(rows: list, path) -> None:
@@ -386,6 +385,8 @@ def main(argv=None) -> int:
     import os
     import sys
     from pathlib import Path
+
+    from saarcor.args import add_out_arg
     ap = argparse.ArgumentParser(
         prog="saarcor bench ladder",
         description="The simulation ladder: golden model (ideal cycles), the discrete-event "
@@ -396,15 +397,17 @@ def main(argv=None) -> int:
     ap.add_argument("--points", default=DEFAULT_POINTS,
                     help="config:scene:WxH items, comma-separated; configs: "
                          + ", ".join(LADDER_CONFIGS) + " (default: all five small ones on "
-                         "the four shipped scenes at 128x96 and the standard chip at 256x192)")
+                         f"the four shipped scenes at {RES_QUICK} (RES_QUICK) and the standard "
+                         f"chip at {RES_BENCH} (RES_BENCH))")
     ap.add_argument("--fraction", type=float, default=0.1,
                     help="share of the frame's tile rows the sampled RTL simulates (0.1)")
     ap.add_argument("--bands", type=int, default=1, help="bands of the sampled RTL (1)")
-    ap.add_argument("--amaranth", default="1x4:scenes/cornell.toml:8x4",
-                    help="points also run in Amaranth's simulator (same syntax; '' for none)")
-    ap.add_argument("--build-root", default=None,
+    ap.add_argument("--amaranth-points", default="1x4:scenes/cornell.toml:8x4",
+                    help="points also run in Amaranth's simulator (same syntax as --points; "
+                         "'' for none; default %(default)s: a tiny frame)")
+    ap.add_argument("--build-dir", default=None, metavar="DIR",
                     help="Verilator build cache (default build/verilator)")
-    ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
+    add_out_arg(ap)
     ap.add_argument("--replot", action="store_true",
                     help="no runs: redraw ladder.png and print the tables from OUT/ladder.json")
     args = ap.parse_args(argv)
@@ -420,13 +423,13 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     todo = [(p, False) for p in _parse_points(args.points)]
-    if args.amaranth:
-        todo += [(p, True) for p in _parse_points(args.amaranth)]
+    if args.amaranth_points:
+        todo += [(p, True) for p in _parse_points(args.amaranth_points)]
     for (name, scene, w, h), ama in todo:
         cfg = Config(**LADDER_CONFIGS[name])
         print(f"ladder: {name} {scene} {w}x{h}{' (+ Amaranth)' if ama else ''}", file=sys.stderr,
               flush=True)
-        p = ladder_point(cfg, scene, w, h, build_root=args.build_root, fraction=args.fraction,
+        p = ladder_point(cfg, scene, w, h, build_root=args.build_dir, fraction=args.fraction,
                          bands=args.bands, amaranth=ama)
         p["name"] = name
         rows.append(p)

@@ -1,7 +1,10 @@
 """Precision study: image and ray error, hardware cost and run time against the FP format.
 
-    python -m saarcor.precision [--scenes scenes/*.toml] [--meshes DIR] [--formats E8M23,...]
-                           [--res 256x191] [--out build/bench/precision.json] [--plots DIR]
+    saarcor bench precision [--scene PATH ...] [--mesh-dir DIR] [--formats E8M23,...]
+                            [--res 256x191] [--out build/bench] [--no-plots] [--replot]
+
+Writes ``OUT/precision.json`` and the plots in ``OUT/precision/`` (``--replot`` redraws them
+and prints the tables from the JSON, without running).
 
 For every scene and format (E, M) the golden model (``model.render``) renders the scene and is
 compared with a float64 render of the same algorithm, scene and camera
@@ -44,7 +47,9 @@ from model.rtc import trace
 from model.scene import load_scene
 from model.shading import Shader, surface_offset
 
-from saarcor.bench.fp_cost import fp_cost, parse_fmt
+from saarcor.args import (add_formats_arg, add_out_arg, add_res_arg, add_scene_arg,
+                          parse_formats, res_from_args)
+from saarcor.bench.fp_cost import fp_cost
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_FORMATS = ",".join([f"E8M{m}" for m in (23, 20, 18, 16, 14, 13, 12, 11, 10)]
@@ -364,10 +369,12 @@ def narrowest_format(scene, width: int, height: int, *, candidates=NARROW_CANDID
 
 
 def scene_paths(args) -> list[tuple[str, Path]]:
-    out = [(Path(p).stem, Path(p)) for p in args.scenes]
-    if args.meshes:
+    # a relative path not found here is looked up in the checkout (the default scenes)
+    out = [(Path(p).stem, Path(p) if Path(p).exists() or Path(p).is_absolute() else ROOT / p)
+           for p in args.scene]
+    if args.mesh_dir:
         for name in MESH_NAMES:
-            p = Path(args.meshes) / f"{name}.obj"
+            p = Path(args.mesh_dir) / f"{name}.obj"
             if p.exists():
                 out.append((name, p))
             else:
@@ -387,31 +394,47 @@ def jsonable(x):
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(
-        description="Precision study: image/ray error, FP-unit cost and run time per format.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    ap.add_argument("--scenes", nargs="*", default=[str(ROOT / "scenes" / f"{n}.toml") for n in
-                                                    ("conference", "cornell", "office", "terrain")],
-                    help="scene files (TOML or meshes); default: the four small shipped scenes")
-    ap.add_argument("--meshes", default=None,
-                    help="directory with the real meshes (teapot, bunny, spot, cruiser, f-16, "
-                         "dragon, nefertiti .obj); missing ones are skipped with a message")
-    ap.add_argument("--formats", default=DEFAULT_FORMATS,
-                    help="comma-separated formats E<exp>M<frac>")
-    ap.add_argument("--res", default="256x191",
-                    help="WxH; an odd height keeps pixel centres off a centred camera's "
-                         "diagonals (where a room corner is an exact closest-hit tie)")
-    ap.add_argument("--reflect-depth", type=int, default=3, help="reflection bounces")
-    ap.add_argument("--repeat", type=int, default=3, help="timing repetitions (best is kept)")
+        prog="saarcor bench precision",
+        description="Precision study: image/ray error, FP-unit cost and run time per format. "
+                    "Writes OUT/precision.json and the plots in OUT/precision/.")
+    add_scene_arg(ap, [str(Path("scenes") / f"{n}.toml") for n in
+                       ("conference", "cornell", "office", "terrain")], repeat=True)
+    ap.add_argument("--mesh-dir", metavar="DIR",
+                    help="also the real meshes in this directory (teapot, bunny, spot, cruiser, "
+                         "f-16, dragon, nefertiti .obj; missing ones are skipped with a "
+                         "message), the watertight ones in the leak test too")
+    add_formats_arg(ap, DEFAULT_FORMATS)
+    add_res_arg(ap, "256x191",
+                why="RES_BENCH with an odd height, which keeps pixel centres off a centred "
+                    "camera's diagonals, where a room corner is an exact closest-hit tie")
+    ap.add_argument("--reflect-depth", type=int, default=3,
+                    help="reflection bounces (default 3)")
+    ap.add_argument("--repeat", type=int, default=3,
+                    help="timing repetitions, the best is kept (default 3)")
     ap.add_argument("--leak-rays", type=int, default=20000,
-                    help="rays per closed mesh and format for the leak test (0: skip)")
+                    help="rays per closed mesh and format for the leak test (0: skip; "
+                         "default 20000)")
     ap.add_argument("--no-synth", action="store_true",
                     help="do not run Yosys; use cached FP-unit figures only")
-    ap.add_argument("--out", default="build/bench/precision.json", help="JSON output")
-    ap.add_argument("--plots", default="build/bench/precision",
-                    help="directory for the PNG plots ('' to skip)")
+    add_out_arg(ap)
+    ap.add_argument("--no-plots", action="store_true", help="no PNG plots")
+    ap.add_argument("--replot", action="store_true",
+                    help="no runs: redraw the plots and print the tables from OUT/precision.json")
     args = ap.parse_args(argv)
-    width, height = (int(x) for x in args.res.lower().split("x"))
-    formats = [parse_fmt(f) for f in args.formats.split(",")]
+    out = Path(args.out) / "precision.json"
+    plots = Path(args.out) / "precision"
+    if args.replot:
+        from saarcor.precision_plot import plot, tables
+        result = json.loads(out.read_text())
+        for p in plot(result, plots):
+            print(f"precision: wrote {p}")
+        print(tables(result))
+        return result
+    width, height = res_from_args(args, "saarcor bench precision")
+    try:
+        formats = parse_formats(args.formats)
+    except ValueError as e:
+        ap.error(str(e))
     result = {"machine": {"cpus": os.cpu_count(), "load_at_start": os.getloadavg()[0]},
               "resolution": [width, height], "formats": [str(f) for f in formats],
               "scenes": {}, "leaks": {}, "fp_units": {}}
@@ -421,7 +444,7 @@ def main(argv=None) -> dict:
         if c is not None:
             result["fp_units"][str(fmt)] = c
     if args.leak_rays:
-        for name, mesh in closed_meshes(args.meshes).items():
+        for name, mesh in closed_meshes(args.mesh_dir).items():
             result["leaks"][name] = {str(f): leaks(mesh, f, args.leak_rays) for f in formats}
             print(f"precision: leaks {name}: "
                   f"{ {k: (v['leaks'], v['grazing']) for k, v in result['leaks'][name].items()} } (leaks, grazing)", flush=True)
@@ -433,13 +456,12 @@ def main(argv=None) -> dict:
         result["scenes"][name] = row
     result["seconds"] = time.perf_counter() - t_start
     result["machine"]["load_at_end"] = os.getloadavg()[0]
-    out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(jsonable(result), indent=1))
     print(f"precision: wrote {out}")
-    if args.plots:
+    if not args.no_plots:
         from saarcor.precision_plot import plot
-        for p in plot(result, Path(args.plots)):
+        for p in plot(result, plots):
             print(f"precision: wrote {p}")
     return result
 

@@ -1,9 +1,8 @@
 """Plots of the precision study (``saarcor.precision``'s JSON): error against FP-unit LUTs, against
-golden-model run time, and against the fraction width M."""
+golden-model run time, and against the fraction width M (``saarcor bench precision --replot``
+redraws them from the JSON)."""
 from __future__ import annotations
 
-import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -116,13 +115,6 @@ def plot(result: dict, out_dir: Path) -> list[Path]:
     plt.close(fig)
     written.append(p)
     return written
-
-
-if __name__ == "__main__":
-    src = Path(sys.argv[1] if len(sys.argv) > 1 else "build/bench/precision.json")
-    for p in plot(json.loads(src.read_text()), Path(sys.argv[2] if len(sys.argv) > 2
-                                                     else "build/bench/precision")):
-        print(p)
 
 
 def tables(result: dict) -> str:

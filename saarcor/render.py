@@ -1,5 +1,4 @@
-"""Command line of the golden model: ``saarcor render SCENE [options]`` (or
-``python -m model render``)."""
+"""``saarcor render [--scene PATH] [options]``: a scene rendered by the golden model alone."""
 from __future__ import annotations
 
 import argparse
@@ -7,41 +6,36 @@ import sys
 from pathlib import Path
 
 from model.config import ConfigError
-from saarcor.args import parse_res
+from saarcor.args import (RES_BENCH, SCENE, add_config_args, add_out_arg, add_res_arg,
+                          add_scene_arg, config_from_args, parse_res)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    # every Config field as an option, generated from the dataclass in one place
-    from saarcor.args import add_config_args
-    p = argparse.ArgumentParser(prog="saarcor",
-                                description="SaarCOR golden model: bit-exact ray tracing of a "
-                                            "scene in the hardware's arithmetic.")
-    sub = p.add_subparsers(dest="cmd", required=True)
-    r = sub.add_parser("render", help="render a scene; writes image.png, stats.json, rays.npz, "
-                                      "hits.npz",
-                       description="Render a scene with the golden model; writes image.png, "
-                                   "stats.json, rays.npz and hits.npz to --out. The image and "
-                                   "counters depend on the configuration options --fmt, "
-                                   "--kd-*, --tile-w/--tile-h, --reflect-depth, --oversampling "
-                                   "and --shadows; the others size the chip and are only "
-                                   "recorded in stats.json.")
-    r.add_argument("scene", help="a scene file (.toml, see docs/scenes.md) or a bare mesh "
-                                 "(.obj .ply .stl .glb .off; the camera frames it, one light)")
-    r.add_argument("--res", type=parse_res, default=(256, 192), metavar="WxH",
-                   help="image resolution in pixels (default 256x192)")
-    r.add_argument("--out", type=Path, default=Path("build/render"),
-                   help="output directory (default build/render)")
-    r.add_argument("--no-cache", action="store_true",
-                   help="don't read/write the kd-tree cache (~/.cache/saarcor/kdtree, or "
-                        "$SAARCOR_CACHE/kdtree)")
-    r.add_argument("--quiet", action="store_true", help="no progress bar or summary")
-    add_config_args(r)
-    return p
+    ap = argparse.ArgumentParser(
+        prog="saarcor render",
+        description="Render a scene with the golden model; writes image.png, stats.json, "
+                    "rays.npz and hits.npz to --out. The image and counters depend on the "
+                    "configuration options --fmt, --kd-*, --tile-w/--tile-h, --reflect-depth, "
+                    "--oversampling and --shadows; the others size the chip and are only "
+                    "recorded in stats.json.")
+    add_scene_arg(ap, SCENE)
+    add_res_arg(ap, RES_BENCH)
+    add_out_arg(ap, "build/render")
+    ap.add_argument("--no-cache", action="store_true",
+                    help="don't read/write the kd-tree cache (~/.cache/saarcor/kdtree, or "
+                         "$SAARCOR_CACHE/kdtree)")
+    ap.add_argument("--quiet", action="store_true", help="no progress bar or summary")
+    add_config_args(ap)
+    return ap
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
-    from saarcor.args import config_from_args
+    ap = build_parser()
+    args = ap.parse_args(argv)
+    try:
+        res = parse_res(args.res)
+    except argparse.ArgumentTypeError as e:
+        ap.error(str(e))
 
     from model.render import prepare, render, write_outputs
     from model.scene import SceneError, load_scene
@@ -56,8 +50,8 @@ def main(argv=None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     prep = prepare(scene, cfg, cache_dir=None if args.no_cache else "default")
-    result = render(scene, cfg, *args.res, progress=not args.quiet, prepared=prep)
-    paths = write_outputs(result, args.out)
+    result = render(scene, cfg, *res, progress=not args.quiet, prepared=prep)
+    paths = write_outputs(result, Path(args.out))
     if not args.quiet:
         s = result.stats
         print(f"{s['scene']}: {s['triangles']} triangles, {s['rays_total']} rays "

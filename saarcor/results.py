@@ -12,8 +12,8 @@ their hits), every ray checked against the golden model; each table says which r
 columns hold (:func:`rays_text`, from the rows). The golden model's columns are its operation
 counts; estimates are marked as such.
 
-Run: ``saarcor results`` or ``python -m saarcor.results [--plan PLAN] [--out docs/results.md]
-[--img docs/img] [--workers 2] [--skip-threads] [--skip-scaling]`` (``make results``).
+Run: ``saarcor results [--plan PLAN] [--out docs] [--img docs/img] [--workers 2]
+[--skip-threads] [--skip-scaling]`` (``make results``): writes ``OUT/results.md``.
 """
 from __future__ import annotations
 
@@ -33,6 +33,7 @@ from model.config import Config
 from model.raykind import RayKind
 
 from saarcor import sweep as sw
+from saarcor.args import add_kd_cache_arg, parse_res
 
 ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
@@ -184,11 +185,11 @@ def run_threads(t: dict, out_dir: Path, log) -> dict:
     """The threads bench (one RTC in Verilator on ideal memories), kept as JSON."""
     from saarcor.bench.threads import sweep as threads_sweep
     cfg = Config()
-    w, h = (int(x) for x in t["res"].split("x"))
+    w, h = parse_res(t["res"])
     counts = list(t.get("counts", (1, 2, 4, 8, 16)))
     t0 = time.perf_counter()
     res = threads_sweep(t["scene"], w, h, cfg, counts, cfg.mem_latency, log=log,
-                        sim="verilator")
+                        backend="verilator")
     res["wall_seconds"] = time.perf_counter() - t0
     out_dir.mkdir(parents=True, exist_ok=True)
     (out_dir / "threads.json").write_text(json.dumps(res, indent=1))
@@ -1025,17 +1026,19 @@ def build_parser() -> argparse.ArgumentParser:
                     "from the sweeps of a plan, with matplotlib plots. Exit status 1 when a "
                     "sweep point failed or a table has cells without a value.",
         epilog="The plan names a sweep spec per table: scenes/sweeps/results/plan.toml.")
-    ap.add_argument("--plan", default=str(PLAN), help="the plan (default %(default)s)")
-    ap.add_argument("--out", default=str(ROOT / "docs" / "results.md"),
-                    help="the page to write (default docs/results.md)")
-    ap.add_argument("--img", help="directory of the plots (default: img/ beside the page)")
-    ap.add_argument("--work", default="build/results",
+    ap.add_argument("--plan", default=str(PLAN), metavar="FILE",
+                    help=f"the plan (default {PLAN.relative_to(ROOT)})")
+    ap.add_argument("--out", default=str(ROOT / "docs"), metavar="DIR",
+                    help="where the page goes: OUT/results.md (default docs)")
+    ap.add_argument("--img", metavar="DIR", help="directory of the plots (default OUT/img)")
+    ap.add_argument("--work", default="build/results", metavar="DIR",
                     help="the sweeps' tables and the threads bench (default build/results)")
-    ap.add_argument("--cache", default="build/sweep/cache",
-                    help="per-point result cache shared with `saarcor sweep`")
-    ap.add_argument("--workers", type=int, default=2, help="local Dask workers (default 2)")
-    ap.add_argument("--kd-cache", default="default", metavar="DIR",
-                    help="kd-tree cache directory (default: the model's)")
+    ap.add_argument("--cache", default="build/sweep/cache", metavar="DIR",
+                    help="per-point result cache shared with `saarcor sweep` (default "
+                         "build/sweep/cache)")
+    ap.add_argument("--workers", type=int, default=2, metavar="N",
+                    help="local Dask workers (default 2)")
+    add_kd_cache_arg(ap)
     ap.add_argument("--skip-threads", action="store_true",
                     help="no threads bench: the page shows the one kept in WORK/threads.json "
                          "by an earlier run, if any")
@@ -1052,7 +1055,7 @@ def main(argv=None) -> int:
     commit = _commit()          # before the page and its plots change the checkout
     try:
         plan = load_plan(args.plan)
-        page = Path(args.out)
+        page = Path(args.out) / "results.md"
         run = run_plan(plan, workers=args.workers, cache=Path(args.cache),
                        out_dir=Path(args.work), threads=not args.skip_threads,
                        scaling=not args.skip_scaling, kd_cache=args.kd_cache)

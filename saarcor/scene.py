@@ -1,4 +1,4 @@
-"""``saarcor scene FILE...``: a summary of each scene (triangles, materials, lights, bounds,
+"""``saarcor scene --scene PATH [--scene PATH ...]``: a summary of each scene (triangles, materials, lights, bounds,
 load time); ``--prepare`` also builds its kd-tree and memory image and reports their cost."""
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from model.config import Config
 from model.kdtree import build_kdtree, kdtree_stats
 from model.layout import build_image
 from model.scene import Scene, SceneError, load_scene
+from saarcor.args import add_scene_arg
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -15,15 +16,16 @@ def main(argv: list[str] | None = None) -> int:
     import time
     ap = argparse.ArgumentParser(prog="saarcor scene", description="A summary of each scene "
                                  "file: triangles, materials, lights, bounds, load time.")
-    ap.add_argument("files", nargs="+", metavar="FILE",
-                    help="scene files (.toml) or bare meshes (.obj .ply .stl .glb .gltf .off)")
+    add_scene_arg(ap, None, repeat=True, help="a scene to summarize")
     ap.add_argument("--prepare", action="store_true",
                     help="also build the kd-tree and the memory image (the standard Config): "
                          "build seconds, nodes, depth, image size, peak memory of the process")
     ap.add_argument("--no-cache", action="store_true",
                     help="with --prepare: build the kd-tree even when it is cached")
     args = ap.parse_args(argv)
-    for f in args.files:
+    if not args.scene:
+        ap.error("name a scene: --scene PATH (repeat for several)")
+    for f in args.scene:
         t0 = time.perf_counter()
         try:
             s = load_scene(f)

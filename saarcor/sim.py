@@ -23,8 +23,8 @@ Outputs in ``--out`` (default ``build/sim``):
 * ``usage.png``: unit usage, memory-port usage and cache hit rates over the frame, and each
   SDRAM chip's share of the words (the counters sampled every ``--sample-every`` cycles).
 
-CLI: ``python -m saarcor.sim [--scene S] [--res WxH] [--backend verilator|amaranth] [config
-options] [--out DIR]`` (``--help``).
+CLI: ``saarcor sim [--scene PATH] [--res WxH] [--backend verilator|amaranth] [config options]
+[--out DIR]`` (``--help``).
 """
 from __future__ import annotations
 
@@ -209,7 +209,8 @@ def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: P
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from saarcor.args import add_config_args
+    from saarcor.args import (RES_QUICK, SCENE, add_backend_arg, add_config_args,
+                              add_kd_cache_arg, add_out_arg, add_res_arg, add_scene_arg)
 
     from tb.harness.lfsr import add_stall_args
     from tb.harness.verilator import add_trace_args
@@ -219,14 +220,10 @@ def build_parser() -> argparse.ArgumentParser:
                     "SDRAM model) in Verilator or Amaranth's simulator, check every ray against "
                     "the golden model, and write image.png, stats.json, rays.npz, hits.npz "
                     "and usage.png. Exit status 1 on any mismatching ray.",
-        epilog="Example: python -m saarcor.sim --scene scenes/office.toml --res 256x192 --rtcs 4")
-    ap.add_argument("--scene", default="scenes/cornell.toml",
-                    help="scene file (TOML, scenes/*.toml); default scenes/cornell.toml")
-    ap.add_argument("--res", default="128x96", help="image WxH in pixels; default 128x96")
-    ap.add_argument("--backend", choices=("verilator", "amaranth"), default="verilator",
-                    help="simulator: verilator (compiled once per configuration, fast) or "
-                         "amaranth (Amaranth's Python simulator: tiny frames only); default "
-                         "verilator")
+        epilog="Example: saarcor sim --scene scenes/office.toml --res 256x192 --rtcs 4")
+    add_scene_arg(ap, SCENE)
+    add_res_arg(ap, RES_QUICK)
+    add_backend_arg(ap)
     ap.add_argument("--fidelity", choices=("estimate", "sampled", "rtl"), default="rtl",
                     help="rtl: the whole frame on the simulated chip (exact cycles); sampled: "
                          "a band of tile rows in Verilator, extrapolated with the estimate; "
@@ -234,7 +231,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "simulator. estimate and sampled cover eye rays only (as "
                          "--eye-only) and mark their cycles and fps as estimates in "
                          "stats.json (docs/ladder.md); default rtl")
-    ap.add_argument("--out", default="build/sim", help="output directory (default build/sim)")
+    add_out_arg(ap, "build/sim")
     add_trace_args(ap)
     add_stall_args(ap, "the SDRAM model")
     ap.add_argument("--sample-every", type=int, default=0, metavar="CYCLES",
@@ -243,8 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles, naming what did not finish "
                          "(default 100000000)")
-    ap.add_argument("--kd-cache", default="default",
-                    help="kd-tree cache directory (default: the model's)")
+    add_kd_cache_arg(ap)
     ap.add_argument("--eye-only", action="store_true",
                     help="eye rays only: the slaves make no shadow or reflection rays (the "
                          "image is then the eye hits shaded on the host, unshadowed)")
@@ -342,7 +338,7 @@ def main(argv=None) -> int:
     from saarcor.args import config_and_res
     ap = build_parser()
     args = ap.parse_args(argv)
-    cfg, w, h = config_and_res(args, "sim")
+    cfg, w, h = config_and_res(args, "saarcor sim")
     if not Path(args.scene).exists():
         raise SystemExit(f"sim: scene {args.scene!r} not found (try scenes/*.toml)")
     if args.trace and args.backend == "amaranth" and not args.trace.endswith(".vcd"):

@@ -4,7 +4,8 @@ never enter traversal, the chip built for the scene (``Config.for_scene``: resou
 build and run), and what a second run reuses (kd-tree cache, Verilator binaries). Writes
 ``build/bench/skipping.json``.
 
-    python -m saarcor.skipping [--scene scenes/office.toml] [--res 128x96] [--rtl] [--elab]
+    saarcor bench skipping [--scene scenes/office.toml] [--res 128x96] [--rtl-cycles] [--elab]
+                           [--second-run]
 """
 from __future__ import annotations
 
@@ -227,7 +228,7 @@ def elaboration(scene, base: Config, width: int = 16, height: int = 16, log=None
 
 
 def second_run(scene_path: str, width: int, height: int, log=None) -> dict:
-    """``python -m model render`` twice with an empty cache directory (``SAARCOR_CACHE``):
+    """``saarcor render`` twice with an empty cache directory (``SAARCOR_CACHE``):
     the first run compiles the model's numba kernels and builds the kd-tree, the second finds
     both cached."""
     import os
@@ -240,9 +241,9 @@ def second_run(scene_path: str, width: int, height: int, log=None) -> dict:
         env.pop("SAARCOR_NUMBA_CACHE_FIXED", None)
         for _ in range(2):
             t = time.perf_counter()
-            subprocess.run([sys.executable, "-m", "saarcor", "render", str(scene_path), "--res",
-                            f"{width}x{height}", "--out", out, "--quiet"], env=env, cwd=root,
-                           check=True)
+            subprocess.run([sys.executable, "-m", "saarcor", "render", "--scene", str(scene_path),
+                            "--res", f"{width}x{height}", "--out", out, "--quiet"], env=env,
+                           cwd=root, check=True)
             st = json.loads((Path(out) / "stats.json").read_text())
             runs.append({"wall_s": round(time.perf_counter() - t, 1),
                          "kdtree_from_cache": st["kdtree_from_cache"],
@@ -253,10 +254,11 @@ def second_run(scene_path: str, width: int, height: int, log=None) -> dict:
 
 
 def main(argv=None) -> int:
+    from saarcor.args import RES_QUICK, add_out_arg, add_res_arg, add_scene_arg, res_from_args
     ap = argparse.ArgumentParser(prog="saarcor bench skipping", description=__doc__.split("\n")[0])
-    ap.add_argument("--scene", default="scenes/office.toml")
-    ap.add_argument("--res", default="128x96", help="WxH (default 128x96)")
-    ap.add_argument("--rtl", action="store_true",
+    add_scene_arg(ap, "scenes/office.toml")
+    add_res_arg(ap, RES_QUICK)
+    ap.add_argument("--rtl-cycles", action="store_true",
                     help="also measure on the RTC in Verilator: shadow-ray cycles (32x24) and "
                          "eye rays with and without the box cull and empty tiles (64x48); "
                          "and on the small chip eye rays with its box cull on and off (64x48)")
@@ -264,16 +266,13 @@ def main(argv=None) -> int:
                     help="also the small chip as configured against the chip built for the "
                          "scene (Config.for_scene): resources, Verilator build and a 16x16 "
                          "frame")
-    ap.add_argument("--out", default="build/bench")
+    add_out_arg(ap)
     ap.add_argument("--second-run", action="store_true",
                     help="also render the scene twice with an empty cache directory (numba "
                          "kernels and kd-tree built, then reused)")
     args = ap.parse_args(argv)
-    try:
-        w, h = (int(x) for x in args.res.lower().split("x"))
-    except ValueError:
-        ap.error(f"--res {args.res!r}: expected WxH, e.g. 128x96")
-    res = measure(args.scene, w, h, Config(), rtl=args.rtl, elab=args.elab)
+    w, h = res_from_args(args, "saarcor bench skipping")
+    res = measure(args.scene, w, h, Config(), rtl=args.rtl_cycles, elab=args.elab)
     if args.second_run:
         res["second_run"] = second_run(args.scene, w, h)
     out = Path(args.out)

@@ -3,7 +3,7 @@
 Each case is a small scene plus a ray set built so that one numerical corner happens for
 sure (a hit at exactly a leaf's far distance, a ray through a shared edge, a zero direction
 component, ...). The expected answer is :mod:`saarcor.exact`'s integer arithmetic on the case's
-triangles, never another float tracer. ``python -m saarcor.stress`` runs the big versions and writes
+triangles, never another float tracer. ``saarcor bench stress`` runs the big versions and writes
 ``build/bench/stability.json``; ``tests/test_stress.py`` runs the small ones, on the model and
 (through Verilator) on the RTC.
 """
@@ -561,6 +561,8 @@ def bench(n_max: int, formats, meshes: dict, log=None) -> dict:
 
 
 def main(argv=None) -> int:
+    from model.config import ConfigError
+    from saarcor.args import add_formats_arg, add_out_arg, add_scene_arg, parse_formats
     ap = argparse.ArgumentParser(
         prog="saarcor bench stress",
         description="Numerical stress bench of the golden model against the exact oracle "
@@ -570,27 +572,26 @@ def main(argv=None) -> int:
                     "degenerate / coincident triangles, the t == tfar tie, translated and scaled "
                     "scenes and secondary-ray self-intersection, per FP format. Writes "
                     "OUT/stability.json (one entry per case).")
-    ap.add_argument("--out", default="build/bench", help="output directory (default build/bench)")
+    add_out_arg(ap)
     ap.add_argument("--rays", type=int, default=20000,
                     help="at most this many rays per closed mesh and format (default 20000)")
-    ap.add_argument("--formats", default=",".join(f"{e}:{m}" for e, m in FORMATS),
-                    help="FP formats as E:M, comma-separated (default 8:23,8:16,8:12)")
-    ap.add_argument("--mesh", action="append", default=[], metavar="PATH",
-                    help="an extra closed mesh file (OBJ/PLY/STL; repeatable) for the "
-                         "watertightness cases; it must be watertight")
+    add_formats_arg(ap, ",".join(f"E{e}M{m}" for e, m in FORMATS))
+    add_scene_arg(ap, None, repeat=True,
+                  help="an extra closed mesh file (OBJ/PLY/STL) for the watertightness cases; "
+                       "it must be watertight")
     args = ap.parse_args(argv)
     try:
-        formats = [tuple(int(x) for x in f.split(":")) for f in args.formats.split(",")]
-    except ValueError:
-        ap.error(f"--formats {args.formats!r}: expected E:M pairs like 8:23,8:12")
+        formats = [(f.exp_bits, f.frac_bits) for f in parse_formats(args.formats)]
+    except (ConfigError, ValueError) as e:
+        ap.error(str(e))
     if args.rays < 1:
         ap.error("--rays must be >= 1")
     meshes = closed_meshes()
-    for path in args.mesh:
+    for path in args.scene:
         import trimesh
         m = trimesh.load(path, force="mesh", process=True)
         if not m.is_watertight:
-            ap.error(f"--mesh {path}: the mesh is not watertight (closed); leaks would mean "
+            ap.error(f"--scene {path}: the mesh is not watertight (closed); leaks would mean "
                      "nothing on it")
         meshes[Path(path).stem] = m
     res = bench(args.rays, formats, meshes)

@@ -27,7 +27,7 @@ file's name), ``job_seconds`` and every scalar of the stats dict (nested names j
 dots: ``cache.trav.hit_rate``, ``memory.per_chip.0.words``); ``errors.txt``: the traceback of
 every failed point.
 
-CLI: ``python -m saarcor.sweep SPEC.toml [--out DIR] [--scheduler ADDR] [--workers N]
+CLI: ``saarcor sweep SPEC.toml [--out DIR] [--scheduler ADDR] [--workers N]
 [--max-cycles N] ...`` (``--help``).
 """
 from __future__ import annotations
@@ -54,6 +54,7 @@ from pathlib import Path
 
 from model.config import Config, ConfigError
 from model.fp import FPFormat
+from saarcor.args import add_kd_cache_arg, parse_fmt, parse_res
 
 __all__ = ["SpecError", "Point", "Spec", "load_spec", "code_hash", "point_key", "run_point",
            "build_chip", "flatten", "rows_table", "write_table", "run_sweep", "main"]
@@ -118,7 +119,7 @@ def config_of(d: dict) -> Config:
     """A :class:`Config` from a field dict whose ``fmt`` is ``"E<e>M<m>"`` or a table."""
     d = dict(d)
     if "fmt" in d:
-        d["fmt"] = parse_fmt(d["fmt"])
+        d["fmt"] = fmt_of(d["fmt"])
     return Config(**d)
 
 
@@ -129,7 +130,9 @@ def config_dict(cfg: Config) -> dict:
     return d
 
 
-def parse_fmt(v) -> FPFormat:
+def fmt_of(v) -> FPFormat:
+    """A spec's ``fmt`` value: ``"E8M16"`` (:func:`saarcor.args.parse_fmt`) or a table
+    ``{exp_bits = 8, frac_bits = 16}``."""
     if isinstance(v, FPFormat):
         return v
     if isinstance(v, dict):
@@ -137,9 +140,8 @@ def parse_fmt(v) -> FPFormat:
         if extra:
             raise ConfigError(f"fmt table: unknown keys {sorted(extra)}; use exp_bits, frac_bits")
         return FPFormat(int(v.get("exp_bits", 8)), int(v.get("frac_bits", 23)))
-    from saarcor.args import parse_fmt as parse_fmt_text
     try:
-        return parse_fmt_text(str(v))
+        return parse_fmt(str(v))
     except ConfigError:
         raise ConfigError(f"fmt {v!r}: write the format as E<exp>M<frac>, e.g. \"E8M23\", or "
                           "as a table {exp_bits = 8, frac_bits = 23}") from None
@@ -154,7 +156,7 @@ def _check_field(name: str, value, where: str):
                         f"of model/config.py Config: {', '.join(FIELDS)}")
     if name == "fmt":
         try:
-            return str(parse_fmt(value))
+            return str(fmt_of(value))
         except (ConfigError, ValueError, TypeError) as e:
             raise SpecError(f"{where}: {e}") from None
     want = type(getattr(Config(), name))
@@ -173,7 +175,6 @@ def _check_field(name: str, value, where: str):
 
 
 def parse_resolution(text, where: str) -> tuple[int, int]:
-    from saarcor.args import parse_res
     try:
         return parse_res(str(text))
     except argparse.ArgumentTypeError:
@@ -696,7 +697,7 @@ def build_parser() -> argparse.ArgumentParser:
                     "is installed) with a row per point. A second run computes only the points "
                     "not cached yet. Exit status 1 when any point failed (its row says why).",
         epilog="Spec format, clusters and the table: docs/sweep.md. "
-               "Example: python -m saarcor.sweep scenes/sweeps/rtcs.toml")
+               "Example: saarcor sweep scenes/sweeps/rtcs.toml")
     ap.add_argument("spec", help="the sweep spec (TOML), e.g. scenes/sweeps/rtcs.toml")
     ap.add_argument("--out", metavar="DIR",
                     help="where results.csv, results.parquet and errors.txt go (default "
@@ -725,8 +726,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--max-cycles", type=int, metavar="N",
                     help="chip backend: a point fails after this many cycles, naming what did "
                          "not finish (default: the spec's max_cycles, else 100000000)")
-    ap.add_argument("--kd-cache", default="default", metavar="DIR",
-                    help="kd-tree cache directory (default: the model's)")
+    add_kd_cache_arg(ap)
     ap.add_argument("--dry-run", action="store_true",
                     help="list the points and whether each is cached; run nothing")
     ap.add_argument("--quiet", action="store_true", help="no progress bar")

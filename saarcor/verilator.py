@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 
 from model.config import ConfigError
-from saarcor.args import add_config_args, config_and_res
+from saarcor.args import (SCENE, add_config_args, add_kd_cache_arg, add_res_arg, add_scene_arg,
+                          config_and_res)
 from tb.harness import compare
 from tb.harness.tools import ToolMissing
 from tb.harness.lfsr import add_stall_args
@@ -25,9 +26,10 @@ def main(argv=None) -> int:
                     "and reused.",
         epilog="Example: saarcor verilator --scene scenes/office.toml --res 64x48 --threads 16 "
                "--mem-latency 20 --json build/verilator/office.json")
-    ap.add_argument("--scene", default="scenes/cornell.toml",
-                    help="scene file (TOML, scenes/*.toml); default scenes/cornell.toml")
-    ap.add_argument("--res", default="64x48", help="image WxH in pixels (eye rays); default 64x48")
+    add_scene_arg(ap, SCENE)
+    add_res_arg(ap, "64x48", what="eye-ray image",
+                why="one RTC: a quarter of RES_QUICK's pixels, as many rays per RTC as the "
+                    "four-RTC chip's quick check")
     ap.add_argument("--idle", type=float, default=0.0,
                     help="fraction of cycles without a ray offered (0 .. 15/16, in steps of "
                          "1/16; default 0)")
@@ -35,11 +37,10 @@ def main(argv=None) -> int:
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles (default 100000000)")
     add_trace_args(ap)
-    ap.add_argument("--json", metavar="OUT.json", help="write the figures as JSON")
-    ap.add_argument("--build-dir", default=str(BUILD_ROOT),
+    ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    ap.add_argument("--build-dir", default=str(BUILD_ROOT), metavar="DIR",
                     help="where binaries are cached (default build/verilator)")
-    ap.add_argument("--kd-cache", default="default",
-                    help="kd-tree cache directory (default: the model's)")
+    add_kd_cache_arg(ap)
     ap.add_argument("--quiet", action="store_true", help="no progress bar")
     add_config_args(ap)
     args = ap.parse_args(argv)

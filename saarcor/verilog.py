@@ -10,7 +10,7 @@ from __future__ import annotations
 import argparse
 
 from model.config import ConfigError
-from saarcor.args import add_config_args, config_from_args
+from saarcor.args import add_config_args, add_out_arg, config_from_args
 from tb.harness.tops import TOPS, export
 
 
@@ -19,7 +19,7 @@ def main(argv=None) -> None:
                                  description="Write the Verilog of a unit or of the one-RTC top.")
     ap.add_argument("--top", default="rtc", help="what to export (default rtc; --list names all)")
     ap.add_argument("--list", action="store_true", help="list the tops and exit")
-    ap.add_argument("--out", default="build/verilog", help="output directory (build/verilog)")
+    add_out_arg(ap, "build/verilog")
     ap.add_argument("--name", help="Verilog module and file name (default: the top's name)")
     ap.add_argument("--fp-latency", type=int, metavar="N",
                     help="pipeline latency of an fp_* top (cycles; default the unit's own)")

@@ -39,7 +39,7 @@ echo "setup: compiling the golden model's numba kernels with an 8x8 Cornell-box 
      "(about 130 s of CPU once; later runs load them from the cache)"
 WARM="$(mktemp -d)"
 trap 'rm -rf "$WARM"' EXIT
-"$VENV/bin/saarcor" render scenes/cornell.toml --res 8x8 --out "$WARM" --quiet --no-cache
+"$VENV/bin/saarcor" render --scene scenes/cornell.toml --res 8x8 --out "$WARM" --quiet --no-cache
 # the chip's cycle estimate (model/timing.py) as well
 "$VENV/bin/saarcor" sim --fidelity estimate --res 8x8 --out "$WARM/sim" --quiet > /dev/null
 touch "$VENV/.setup-done"

@@ -271,7 +271,7 @@ def test_bench_memory_writes_hit_rates(tmp_path):
     tr = tmp_path / "trav.npy"
     np.save(tr, np.arange(100_000) % 5000)          # 5000 nodes fit the 64 KB trav cache
     res = main(["--out", str(tmp_path), "--packets", "200", "--depth", "12", "--no-bandwidth",
-                "--trace", f"trav={tr}"])
+                "--addr-trace", f"trav={tr}"])
     assert (tmp_path / "memory.json").exists()
     t = res["hit_rates"]["trav"]
     assert t["1-way"]["misses"] == 5000 and t["4-way"]["misses"] == 5000   # compulsory only

@@ -16,7 +16,7 @@ def run(*args, cwd=ROOT):
 
 def test_render_writes_image_stats_rays_hits(tmp_path):
     out = tmp_path / "out"
-    r = run("render", "scenes/cornell.toml", "--res", "24x16", "--out", str(out),
+    r = run("render", "--scene", "scenes/cornell.toml", "--res", "24x16", "--out", str(out),
             "--reflect-depth", "1")
     assert r.returncode == 0, r.stderr
     assert "trav-ops" in r.stdout
@@ -50,7 +50,8 @@ def test_render_writes_image_stats_rays_hits(tmp_path):
 def test_render_a_bare_mesh(tmp_path):
     obj = tmp_path / "tet.obj"
     obj.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    r = run("render", str(obj), "--res", "16x16", "--out", str(tmp_path / "o"), "--quiet")
+    r = run("render", "--scene", str(obj), "--res", "16x16", "--out", str(tmp_path / "o"),
+            "--quiet")
     assert r.returncode == 0, r.stderr
     hits = np.load(tmp_path / "o" / "hits.npz")
     assert set(np.unique(hits["tri"][hits["tri"] >= 0])) <= {0, 1, 2, 3}
@@ -58,20 +59,21 @@ def test_render_a_bare_mesh(tmp_path):
 
 
 def test_bad_input_gives_clear_errors(tmp_path):
-    r = run("render", str(tmp_path / "missing.toml"), "--out", str(tmp_path))
+    r = run("render", "--scene", str(tmp_path / "missing.toml"), "--out", str(tmp_path))
     assert r.returncode == 2 and "missing.toml" in r.stderr and "Traceback" not in r.stderr
-    r = run("render", "scenes/cornell.toml", "--res", "12by8")
+    r = run("render", "--scene", "scenes/cornell.toml", "--res", "12by8")
     assert r.returncode == 2 and "--res" in r.stderr
-    r = run("render", "scenes/cornell.toml", "--fmt", "E8M30", "--out", str(tmp_path))
+    r = run("render", "--scene", "scenes/cornell.toml", "--fmt", "E8M30", "--out",
+            str(tmp_path))
     assert r.returncode == 2 and "frac_bits" in r.stderr and "Traceback" not in r.stderr
-    r = run("render", "scenes/cornell.toml", "--fmt", "8:23", "--out", str(tmp_path))
+    r = run("render", "--scene", "scenes/cornell.toml", "--fmt", "8:23", "--out", str(tmp_path))
     assert r.returncode == 2 and "E<exp>M<frac>" in r.stderr and "Traceback" not in r.stderr
-    r = run("render", "scenes/cornell.toml", "--tile-w", "16", "--tile-h", "8",
+    r = run("render", "--scene", "scenes/cornell.toml", "--tile-w", "16", "--tile-h", "8",
             "--out", str(tmp_path))
     assert r.returncode == 2 and "64" in r.stderr
     bad = tmp_path / "nan.obj"
     bad.write_text("v 0 0 0\nv 1 0 nan\nv 0 1 0\nf 1 2 3\n")
-    r = run("render", str(bad), "--out", str(tmp_path))
+    r = run("render", "--scene", str(bad), "--out", str(tmp_path))
     assert r.returncode == 2 and "NaN" in r.stderr and "Traceback" not in r.stderr
 
 
@@ -90,7 +92,7 @@ def test_help_explains_every_option():
 
 
 def test_oversampling_traces_n_squared_rays_per_pixel(tmp_path):
-    r = run("render", "scenes/cornell.toml", "--res", "16x8", "--oversampling", "2",
+    r = run("render", "--scene", "scenes/cornell.toml", "--res", "16x8", "--oversampling", "2",
             "--reflect-depth", "0", "--shadows", "false", "--out", str(tmp_path), "--quiet")
     assert r.returncode == 0, r.stderr
     rays = np.load(tmp_path / "rays.npz")

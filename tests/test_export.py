@@ -18,6 +18,7 @@ from amaranth.sim import Simulator
 from model.config import Config
 from model.fp import FPFormat
 from tb.harness import tops as ex
+from saarcor.verilog import main as verilog_main
 from saarcor.flows.fpga import PinWrapper, port_bits
 from saarcor.flows.fpga.flow import parse_report, parse_stat
 from rtl.rtc import drive_header
@@ -110,25 +111,27 @@ def test_rtc_top_has_one_memory_port():
 def test_cli_errors_say_what_to_do(tmp_path, capsys):
     for argv, words in ((["--top", "nope"], "choose one of"),
                         (["--top", "fp_add", "--fmt", "E8"], "E<exp>M<frac>"),
-                        (["--top", "list", "--latency", "2"], "fp_* tops only"),
+                        (["--top", "list", "--fp-latency", "2"], "fp_* tops only"),
                         (["--top", "rtc", "--threads", "3"], "power of two")):
         with pytest.raises(SystemExit) as e:
-            ex.main(argv + ["--out", str(tmp_path)])
+            verilog_main(argv + ["--out", str(tmp_path)])
         assert words in str(e.value), (argv, e.value)
 
 
 def test_cli_writes_the_file(tmp_path):
-    ex.main(["--top", "fp_mul", "--fmt", "E5M10", "--latency", "2", "--out", str(tmp_path)])
+    verilog_main(["--top", "fp_mul", "--fmt", "E5M10", "--fp-latency", "2", "--out",
+                  str(tmp_path)])
     text = (tmp_path / "fp_mul.v").read_text()
     assert "module fp_mul(" in text and "input [15:0] a;" in text
 
 
 def test_cli_ecp5_puts_the_multipliers_in_dsp_blocks(tmp_path):
     """``--ecp5``: an FP multiplier at latency 5 as four MULT18X18D with their registers."""
-    ex.main(["--top", "fp_mul", "--latency", "5", "--ecp5", "--out", str(tmp_path)])
+    verilog_main(["--top", "fp_mul", "--fp-latency", "5", "--ecp5", "--out", str(tmp_path)])
     text = (tmp_path / "fp_mul.v").read_text()
     assert text.count("MULT18X18D ") == 4 and text.count('.REG_OUTPUT_CLK("CLK0")') == 4
-    ex.main(["--top", "fp_mul", "--latency", "5", "--out", str(tmp_path), "--name", "plain"])
+    verilog_main(["--top", "fp_mul", "--fp-latency", "5", "--out", str(tmp_path), "--name",
+                  "plain"])
     assert "MULT18X18D" not in (tmp_path / "plain.v").read_text()
 
 

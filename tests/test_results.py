@@ -114,8 +114,8 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     chip = {}
     for name in ("rtcs", "intcache", "raykinds_chip"):
         chip.update(precache(d / f"{name}.toml", cache))
-    rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page), "--work", str(work),
-                       "--cache", str(cache), "--workers", "1", "--skip-threads",
+    rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page.parent), "--work",
+                       str(work), "--cache", str(cache), "--workers", "1", "--skip-threads",
                        "--kd-cache", str(kd_cache)])
     out = capsys.readouterr().out
     assert rc == 0, out
@@ -169,8 +169,8 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
         "scene": str(CORNELL), "res": [16, 16], "mem_latency": 20,
         "runs": [{"threads": 1, "cycles": 9000, "speedup": 1.0, "wall_s": 3.0},
                  {"threads": 8, "cycles": 1500, "speedup": 6.0, "wall_s": 2.0}]}))
-    rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page), "--work", str(work),
-                       "--cache", str(cache), "--skip-threads", "--skip-scaling",
+    rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page.parent), "--work",
+                       str(work), "--cache", str(cache), "--skip-threads", "--skip-scaling",
                        "--kd-cache", str(kd_cache)])
     out = capsys.readouterr().out
     assert rc == 0 and "; 0 point(s) computed, 0 failed" in out
@@ -189,7 +189,7 @@ def test_failed_point_leaves_a_gap_and_fails(tmp_path, kd_cache, capsys):
     for name in ("rtcs", "intcache", "raykinds_chip"):
         precache(d / f"{name}.toml", cache)
     page = tmp_path / "results.md"
-    rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page), "--work",
+    rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page.parent), "--work",
                        str(tmp_path / "work"), "--cache", str(cache), "--workers", "1",
                        "--skip-threads", "--skip-scaling", "--kd-cache", str(kd_cache)])
     out = capsys.readouterr().out
@@ -202,7 +202,7 @@ def test_bad_plan(tmp_path):
     p = tmp_path / "plan.toml"
     p.write_text('[sweeps]\ntable9 = "x.toml"\n')
     with pytest.raises(SystemExit, match="unknown table 'table9'"):
-        results.main(["--plan", str(p), "--out", str(tmp_path / "r.md")])
+        results.main(["--plan", str(p), "--out", str(tmp_path)])
 
 
 def test_rays_text_and_chip_cases():

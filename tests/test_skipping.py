@@ -1,6 +1,6 @@
 """Skipping what a scene doesn't need: the box cull and empty tiles at run time
 (``model.render.Skip``), and the chip built for the scene (``Config.for_scene``: stack depth,
-light registers, no secondary-ray hardware). The measurements are ``python -m saarcor.skipping``."""
+light registers, no secondary-ray hardware). The measurements are ``saarcor bench skipping``."""
 import dataclasses
 
 import numpy as np

@@ -94,7 +94,7 @@ def test_no_leaks_through_shared_edges(fmt, exact):
     """Rays through vertices and shared edges of closed meshes: the exact oracle says every one
     enters the mesh there; the model reports a hit on every ray, and never a triangle whose
     plane the ray meets away from the entry point. (The float32 Möller–Trumbore baseline on the
-    same rounded rays leaks: counted, not asserted, in ``python -m saarcor.stress``.)"""
+    same rounded rays leaks: counted, not asserted, in ``saarcor bench stress``.)"""
     cfg = Config(fmt=fmt)
     for name, mesh in stress.closed_meshes().items():
         case = stress.watertight_case(mesh, cfg, n_max=400, exact=exact)

@@ -3,7 +3,7 @@
 The figures are those of ``make sim``'s ``stats.json`` (:func:`saarcor.sim.frame_stats`; the
 paper's relative performance is :func:`saarcor.sim.relative_performance`).
 
-Run: ``.venv/bin/python -m saarcor.bench.chip [--scene S] [--res WxH] [config options] [--out DIR]``
+Run: ``saarcor bench chip [--scene PATH] [--res WxH] [config options] [--out DIR]``
 (``--help``); writes ``DIR/chip_<scene>_<W>x<H>.json``. With ``--seeds N`` it runs the frame
 N times instead on one Verilator binary (seeds 1..N, or from ``--first-seed K`` on: a long
 bench split over machines), run i with its own LFSR seed i, result
@@ -26,7 +26,8 @@ __all__ = ["main", "stall_bench"]
 def main(argv=None) -> int:
     from model.render import prepare
     from model.scene import load_scene
-    from saarcor.args import add_config_args, config_and_res
+    from saarcor.args import (RES_BENCH, add_config_args, add_kd_cache_arg, add_out_arg,
+                              add_res_arg, add_scene_arg, config_and_res)
 
     from tb.harness.chip import run_chip_frame
     from tb.harness.lfsr import add_stall_args
@@ -38,8 +39,8 @@ def main(argv=None) -> int:
                     "shadow and reflection rays the slaves make — check every ray against the "
                     "golden model, and report cycles, fps and the paper's relative performance "
                     "(fps / fps_ideal).")
-    ap.add_argument("--scene", default="scenes/office.toml", help="scene TOML (default office)")
-    ap.add_argument("--res", default="256x192", help="image WxH (default 256x192)")
+    add_scene_arg(ap, "scenes/office.toml")
+    add_res_arg(ap, RES_BENCH)
     add_stall_args(ap, "the SDRAM model")
     ap.add_argument("--max-cycles", type=int, default=20_000_000,
                     help="give up after this many cycles, naming the packets and RTCs that did "
@@ -52,11 +53,11 @@ def main(argv=None) -> int:
                          "long bench into parts that run on different machines")
     ap.add_argument("--eye-only", action="store_true",
                     help="eye rays only (no shadow or reflection rays)")
-    ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
-    ap.add_argument("--kd-cache", default="default", help="kd-tree cache directory")
+    add_out_arg(ap)
+    add_kd_cache_arg(ap)
     add_config_args(ap)
     args = ap.parse_args(argv)
-    cfg, w, h = config_and_res(args, "saarcor.bench.chip")
+    cfg, w, h = config_and_res(args, "saarcor bench chip")
     scene = load_scene(args.scene)
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
     frame_scene = None if args.eye_only else scene

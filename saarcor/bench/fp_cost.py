@@ -3,7 +3,7 @@
 ``fp_cost(fmt)`` runs :func:`saarcor.flows.synth.synth_unit` (``synth_ecp5``, default latencies) for
 each unit and keeps the result in ``build/precision/synth/<fmt>.json``; later calls read the file.
 
-    python -m saarcor.bench.fp_cost --fmt E8M23,E8M16,E8M10 [--units add,mul,div]
+    saarcor bench fp-cost [--formats E8M23,E8M16,E8M10] [--units add,mul,div]
 """
 from __future__ import annotations
 
@@ -18,15 +18,6 @@ from model.fp import FPFormat
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = ROOT / "build" / "precision" / "synth"
 UNITS = ("add", "mul", "div", "cmp", "minmax", "conv")
-
-
-def parse_fmt(text: str) -> FPFormat:
-    """``E8M16`` -> FPFormat(8, 16)."""
-    import re
-    m = re.fullmatch(r"E(\d+)M(\d+)", text.strip())
-    if not m:
-        raise SystemExit(f"format {text!r}: write it as E<exp>M<frac>, e.g. E8M16")
-    return FPFormat(int(m[1]), int(m[2]))
 
 
 def fp_cost(fmt: FPFormat, units=UNITS, cache: Path = CACHE, run: bool = True) -> dict | None:
@@ -54,12 +45,24 @@ def fp_cost(fmt: FPFormat, units=UNITS, cache: Path = CACHE, run: bool = True) -
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fmt", default="E8M23", help="comma-separated formats E<exp>M<frac>")
-    ap.add_argument("--units", default=",".join(UNITS), help="comma-separated units")
+    from saarcor.args import add_formats_arg, parse_formats
+    ap = argparse.ArgumentParser(prog="saarcor bench fp-cost",
+                                 description=__doc__.splitlines()[0] + " Prints one JSON line "
+                                 "per format.")
+    add_formats_arg(ap, "E8M23")
+    ap.add_argument("--units", default=",".join(UNITS),
+                    help="comma-separated units (default %(default)s)")
     args = ap.parse_args(argv)
-    for f in args.fmt.split(","):
-        print(f, json.dumps(fp_cost(parse_fmt(f), tuple(args.units.split(",")))))
+    try:
+        formats = parse_formats(args.formats)
+    except ValueError as e:
+        ap.error(str(e))
+    units = tuple(args.units.split(","))
+    bad = [u for u in units if u not in UNITS]
+    if bad:
+        ap.error(f"--units: unknown unit(s) {bad}; choose from {', '.join(UNITS)}")
+    for f in formats:
+        print(f, json.dumps(fp_cost(f, units)))
 
 
 if __name__ == "__main__":

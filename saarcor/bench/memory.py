@@ -1,6 +1,7 @@
 """Memory-system bench: cache hit rates per associativity, SDRAM bandwidth per chip count.
 
-    python -m saarcor.bench.memory --out build/bench [--packets N] [--trace trav=t.npy ...]
+    saarcor bench memory [--out build/bench] [--packets N] [--addr-trace trav=t.npy ...]
+                         [--scene PATH [--res WxH]]
 
 Writes ``<out>/memory.json`` with
 
@@ -8,9 +9,10 @@ Writes ``<out>/memory.json`` with
   words read for direct-mapped, 2-way and 4-way (``model.cache.CacheModel``, which the RTL cache
   matches request for request), and the spread between the best and worst associativity (the
   paper saw < 3 % difference in performance). The access streams are per-unit item-address
-  arrays (int64 ``.npy``: node, list-entry and triangle indices in request order); without
-  ``--trace`` a synthetic kd-tree-like stream (``model.cache.synthetic_traces``) is used and the
-  JSON says so.
+  arrays (int64 ``.npy``: node, list-entry and triangle indices in request order, from
+  ``--addr-trace`` or recorded by the golden model on ``--scene``); without either a
+  synthetic kd-tree-like stream (``model.cache.synthetic_traces``) is used and the JSON says
+  so.
 * ``bandwidth``: sustained bandwidth of the SDRAM model (``tb/harness/memory.py``, simulated in
   Amaranth) for 1, 2 and 4 chips with spread, random and single-chip ("hot") access patterns,
   in bits per chip cycle and MB/s at the configured clock, against chips x 16 bit x clock / 4.
@@ -78,23 +80,26 @@ def bandwidth(cfg: Config, words_per_chip: int) -> list[dict]:
 
 
 def main(argv=None) -> dict:
-    from saarcor.args import add_config_args, config_from_args
+    from saarcor.args import (RES_BENCH, add_config_args, add_out_arg, add_res_arg,
+                              add_scene_arg, config_from_args, parse_res)
     ap = argparse.ArgumentParser(prog="saarcor bench memory",
                                  description=__doc__.split("\n")[0] + " The hit rates are "
                                  "measured for 1, 2 and 4 ways whatever --cache-ways says.")
-    ap.add_argument("--out", default="build/bench", help="output directory")
+    add_out_arg(ap)
     ap.add_argument("--packets", type=int, default=50_000,
-                    help="packets of the synthetic trace (ignored for units given by --trace)")
+                    help="packets of the synthetic trace (ignored for units given by "
+                         "--addr-trace)")
     ap.add_argument("--depth", type=int, default=20, help="levels of the synthetic kd-tree")
-    ap.add_argument("--trace", action="append", default=[], metavar="UNIT=FILE.npy",
-                    help="recorded item-address stream of a unit (trav, list or int)")
+    ap.add_argument("--addr-trace", action="append", default=[], metavar="UNIT=FILE.npy",
+                    help="recorded item-address stream of a unit (trav, list or int); repeat "
+                         "for several units")
     ap.add_argument("--words-per-chip", type=int, default=100,
                     help="words per chip in each SDRAM bandwidth run (Amaranth simulation)")
     ap.add_argument("--no-bandwidth", action="store_true", help="skip the SDRAM simulation")
-    ap.add_argument("--scene", default=None,
-                    help="record the golden model's access streams on this scene (eye rays; "
-                         "packets in order) instead of a synthetic stream")
-    ap.add_argument("--res", default="256x192", help="resolution for --scene, WxH")
+    add_scene_arg(ap, None, help="record the golden model's access streams on this scene (eye "
+                                 "rays; packets in order) instead of a synthetic stream: a "
+                                 ".toml scene or a bare mesh")
+    add_res_arg(ap, RES_BENCH, what="--scene's image")
     add_config_args(ap)
     args = ap.parse_args(argv)
     try:
@@ -109,17 +114,20 @@ def main(argv=None) -> dict:
         from model.rtc import item_trace, trace
         from model.scene import load_scene
         scene = load_scene(args.scene)
-        w, h = (int(x) for x in args.res.split("x"))
+        try:
+            w, h = parse_res(args.res)
+        except argparse.ArgumentTypeError as e:
+            ap.error(str(e))
         prep = prepare(scene, cfg)
         _, _, events = trace(prep.image, eye_rays(scene.camera, w, h, cfg), cfg, record=True)
         for unit, tr in item_trace(events).items():
             traces[unit] = tr
             source[unit] = (f"golden model, {scene.name} {w}x{h} eye rays, packets in order "
                             f"({len(tr)} requests)")
-    for spec in args.trace:
+    for spec in args.addr_trace:
         unit, _, path = spec.partition("=")
         if unit not in UNITS or not path:
-            ap.error(f"--trace {spec!r}: expected UNIT=FILE.npy with UNIT one of {UNITS}")
+            ap.error(f"--addr-trace {spec!r}: expected UNIT=FILE.npy with UNIT one of {UNITS}")
         traces[unit] = np.load(path).astype(np.int64)
         source[unit] = path
     if len(traces) < len(UNITS):

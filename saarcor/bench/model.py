@@ -1,7 +1,7 @@
 """Golden-model benchmark: trace-kernel and whole-render rays/s next to Embree, kd-tree build.
 
-    python -m saarcor.bench.model --out build/bench [--mesh PATH] [--res 1024x768] [--build-copies 10]
-                          [--all-rays-scene scenes/office.toml]
+    saarcor bench model [--out build/bench] [--scene PATH] [--res 1024x768] [--build-copies 10]
+                        [--all-rays-scene scenes/office.toml]
 
 Writes ``<out>/model.json``:
 
@@ -20,7 +20,7 @@ Writes ``<out>/model.json``:
 * ``kdtree_build``: build seconds for a >= 1M-triangle scene (``--build-copies`` copies of the
   mesh, offset in space; no cache).
 
-Default scene: ``--mesh`` (any mesh or TOML scene; the README's figures use the Stanford
+Default scene: ``--scene`` (any mesh or TOML scene; the README's figures use the Stanford
 dragon, 100 k triangles); without it, the procedural ``scenes/terrain.toml``.
 """
 from __future__ import annotations
@@ -41,6 +41,7 @@ from model.raygen import eye_rays, setup
 from model.render import prepare, render
 from model.rtc import counter_totals, trace
 from model.scene import load_scene
+from saarcor.args import RES_PAPER, add_out_arg, add_res_arg, add_scene_arg, res_from_args
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -149,19 +150,22 @@ def _print_render(name: str, r: dict) -> None:
 
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(prog="saarcor bench model", description=__doc__.split("\n")[0])
-    ap.add_argument("--out", default="build/bench", help="output directory")
-    ap.add_argument("--mesh", default=None,
-                    help="scene or mesh for the primary-ray and eye-ray render benchmarks")
-    ap.add_argument("--res", default="1024x768", help="resolution, WxH")
+    add_out_arg(ap)
+    add_scene_arg(ap, None,
+                  help="scene of the primary-ray and eye-ray render benchmarks and the kd-tree "
+                       "build: a .toml scene or a bare mesh (default scenes/terrain.toml; the "
+                       "README's figures use the Stanford dragon)")
+    add_res_arg(ap, RES_PAPER)
     ap.add_argument("--repeat", type=int, default=3, help="timed repetitions (best is kept)")
     ap.add_argument("--build-copies", type=int, default=10,
                     help="copies of the mesh in the kd-tree build benchmark (>= 1M triangles)")
     ap.add_argument("--all-rays-scene", default=str(ROOT / "scenes" / "office.toml"),
-                    help="scene of the whole-render benchmark with every ray (shadows, "
-                         "reflections); 'none' skips it")
+                    metavar="PATH", help="scene of the whole-render benchmark with every ray "
+                                         "(shadows, reflections; default scenes/office.toml); "
+                                         "'none' skips it")
     args = ap.parse_args(argv)
-    res = tuple(int(x) for x in args.res.split("x"))
-    mesh = args.mesh
+    res = res_from_args(args, "saarcor bench model")
+    mesh = args.scene
     if mesh is None:
         mesh = str(ROOT / "scenes" / "terrain.toml")
     scene = load_scene(mesh)

@@ -1,7 +1,7 @@
 """What the chip is made of, counted from its elaborated netlist: FP units by kind, flip-flop
 bits and memory bits, per part of the chip — beside the paper's figures.
 
-``python -m saarcor.bench.resources [config options] [--json FILE]`` elaborates ``rtl.chip.Chip(cfg)``
+``saarcor bench resources [config options] [--json FILE]`` elaborates ``rtl.chip.Chip(cfg)``
 (Amaranth's netlist, the one every Verilog export starts from; no synthesis), counts
 
 * every FP unit instance by kind (adder, multiplier, divider, square root, min/max, compare,

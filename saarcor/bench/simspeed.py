@@ -100,6 +100,7 @@ def _commit() -> str:
 
 
 def main(argv=None) -> int:
+    from saarcor.args import RES_QUICK, SCENE, add_out_arg, add_res_arg, add_scene_arg
     ap = argparse.ArgumentParser(
         prog="saarcor bench simspeed",
         description="Time a chip frame step by step (scene, kd-tree, build, input, simulation, "
@@ -108,16 +109,15 @@ def main(argv=None) -> int:
                     "appends to OUT/simspeed_history.jsonl.",
         epilog="Example: saarcor bench simspeed --fresh --profile  (the default frame: the "
                "standard chip on scenes/cornell.toml at 128x96, all rays)")
-    ap.add_argument("--scene", default="scenes/cornell.toml",
-                    help="scene file (default scenes/cornell.toml, make sim's)")
-    ap.add_argument("--res", default="128x96", help="image WxH (default 128x96, make sim's)")
+    add_scene_arg(ap, SCENE)
+    add_res_arg(ap, RES_QUICK)
     ap.add_argument("--fresh", action="store_true",
                     help="build the chip from nothing in a temporary build folder (times the "
                          "build; default: reuse build/verilator's binary if there is one)")
     ap.add_argument("--profile", action="store_true",
                     help="run the simulation under `perf record` and report its CPU time by "
                          "unit (needs perf; skipped, saying why, where perf cannot sample)")
-    ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
+    add_out_arg(ap)
     ap.add_argument("--quiet", action="store_true", help="no progress bars")
     args, rest = ap.parse_known_args(argv)
     out = Path(args.out)

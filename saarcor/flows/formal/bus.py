@@ -29,7 +29,7 @@ renamed, :func:`internal_signal` says so.
 Covers (``mode="cover"``; guard against vacuous proofs): each requester takes a response; each
 requester waits for exactly ``n - 1`` other grants; one label is outstanding ``max_pending`` times.
 
-Run: ``python -m saarcor.flows.formal.bus [--mode bmc|prove|cover] [--depth K] [--n N] [--policy fixed]``.
+Run: ``saarcor formal [--mode bmc|prove|cover] [--depth K] [--n N] [--policy fixed] [--keep DIR]``.
 """
 from __future__ import annotations
 
@@ -204,18 +204,23 @@ def check_bus(mode: str = "bmc", depth: int = 20, *, workdir=None, **kwargs):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description="Formal checks of the round-robin bus (SMT-BMC, "
+    ap = argparse.ArgumentParser(prog="saarcor formal",
+                                 description="Formal checks of the round-robin bus (SMT-BMC, "
                                  "yices). Exit status 1 if a property fails.")
-    ap.add_argument("--mode", choices=["bmc", "prove", "cover"], default="bmc")
+    ap.add_argument("--mode", choices=["bmc", "prove", "cover"], default="bmc",
+                    help="bmc: bounded model check; prove: k-induction; cover: the covers are "
+                         "reached (default bmc)")
     ap.add_argument("--depth", type=int, default=None,
                     help="BMC/cover steps, or k for k-induction (default 20 / 20 / 4)")
     ap.add_argument("--n", type=int, default=3, help="requesters (default 3)")
-    ap.add_argument("--tag-width", type=int, default=1)
-    ap.add_argument("--policy", choices=["round_robin", "fixed"], default="round_robin")
-    ap.add_argument("--workdir", default=None, help="keep model, log and trace here")
+    ap.add_argument("--tag-width", type=int, default=1, help="tag bits (default 1)")
+    ap.add_argument("--policy", choices=["round_robin", "fixed"], default="round_robin",
+                    help="arbitration (default round_robin; fixed priority fails 'fair')")
+    ap.add_argument("--keep", metavar="DIR", default=None,
+                    help="directory to keep the model, log and trace in")
     a = ap.parse_args(argv)
     depth = a.depth if a.depth is not None else {"bmc": 20, "prove": 4, "cover": 20}[a.mode]
-    h, r = check_bus(a.mode, depth, workdir=a.workdir, n=a.n, tag_width=a.tag_width,
+    h, r = check_bus(a.mode, depth, workdir=a.keep, n=a.n, tag_width=a.tag_width,
                      policy=a.policy)
     print(f"{a.mode} depth {depth}, n={a.n}, policy={a.policy}: "
           f"{'PASSED' if r.passed else 'FAILED'} in {r.seconds:.1f} s")

@@ -4,13 +4,13 @@ nextpnr's router2 writes, with ``--router2-heatmap PREFIX``, four CSVs per routi
 Two are read here: ``PREFIX_congestion_by_coordinate_N.csv`` (one row per tile column x, one
 value per tile row y: the sum, over the tile's wires used by more than one net, of the nets on
 each) and ``PREFIX_congestion_by_net_N.csv`` (``net,excess``: over the net's overused wires, the
-nets beyond the first). A placed design (``placed.json``, ``python -m saarcor.flows.fpga --place-only``)
+nets beyond the first). A placed design (``placed.json``, ``saarcor fpga --place-only``)
 names each cell's site in its ``NEXTPNR_BEL`` attribute (``X12/Y34/SLICEA``); cell and net names
 carry the path of the unit they came from (``dut.rtcmi.cache_int.q_wait_TRELLIS_FF_Q``).
 :func:`unit_of` maps a name to its unit, :func:`tile_units` counts each unit's cells per tile,
 :func:`attribute` splits the congestion of every tile between the units in proportion to their
 cells there, :func:`net_units` sums the nets' excess by unit, and :func:`plot` draws the two maps
-side by side (``python -m saarcor.flows.fpga --congestion LABEL``).
+side by side (``saarcor fpga --congestion LABEL``).
 """
 from __future__ import annotations
 

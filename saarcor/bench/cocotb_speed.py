@@ -1,4 +1,4 @@
-"""Speed of the cocotb benches: ``python -m tb.harness.cocotb [--unit list] [--sims icarus,verilator]``.
+"""Speed of the cocotb benches: ``saarcor bench cocotb [--unit list] [--backend icarus,verilator]``.
 
 Runs one bench on each simulator and prints a Markdown table: build time (export + compile;
 0 when the build is reused), the simulator run (start-up included), the cycles of the bench's
@@ -24,7 +24,7 @@ CHIP = TINY.replace(rtcs=1, mem_latency=8)
 
 def bench(unit: str, sim: str, run_dir: Path, public: str):
     """Run ``unit``'s bench on ``sim``: the same stimulus as the CI tests (tests/test_cocotb.py)."""
-    root = Path(__file__).resolve().parents[3]
+    root = Path(__file__).resolve().parents[2]
     if unit == "fp_mul":
         from tb.harness.cocotb.fp import run_fp
         return run_fp("mul", sim, run_dir, n=3000, seed=1, public=public)
@@ -68,14 +68,22 @@ def bench(unit: str, sim: str, run_dir: Path, public: str):
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="python -m tb.harness.cocotb", description=__doc__.split("\n")[0])
-    ap.add_argument("--unit", default="list", choices=UNITS)
-    ap.add_argument("--sims", default=",".join(SIMULATORS), help="comma-separated simulators")
+    ap = argparse.ArgumentParser(prog="saarcor bench cocotb",
+                                 description=__doc__.split("\n")[0].split(":")[0] + ": one bench "
+                                 "on each simulator, a Markdown table of build and run times.")
+    ap.add_argument("--unit", default="list", choices=UNITS, help="the bench (default list)")
+    ap.add_argument("--backend", default=",".join(SIMULATORS), metavar="SIM,...",
+                    help="simulators, comma-separated: " + ", ".join(SIMULATORS) +
+                         " (default %(default)s)")
     ap.add_argument("--public", default="ports", choices=("ports", "all"),
                     help="Verilator: make only the ports (default) or every signal public")
     args = ap.parse_args(argv)
+    sims = args.backend.split(",")
+    bad = [s for s in sims if s not in SIMULATORS]
+    if bad:
+        ap.error(f"--backend: unknown simulator(s) {bad}; choose from {', '.join(SIMULATORS)}")
     print("| unit | simulator | build s | run s | cycles | cycles/s |\n|---|---|---|---|---|---|")
-    for sim in args.sims.split(","):
+    for sim in sims:
         with tempfile.TemporaryDirectory() as d:
             r = bench(args.unit, sim, Path(d), args.public)
         v = r.values
