@@ -458,6 +458,444 @@ def _among(value: Value, states) -> Value:
     return Cat(*(Value.cast(value) == Value.cast(st) for st in states)).any()
 
 
+def stack_bits(cfg: Config) -> int:
+    """Bits of a stack pointer (an entry's index)."""
+    return max(1, ceil_log2(cfg.stack_depth))
+
+
+def packet_step_layout(cfg: Config) -> data.StructLayout:
+    """An inner-node step as the control engine dispatches it: the thread, its node word, its
+    active lanes, stack pointer and interval slot (``cur``), and the near child's side
+    (``neg``: the pass's octant bit on the node's axis)."""
+    return data.StructLayout({"thread": cfg.thread_bits, "word": node_layout(),
+                              "mask": cfg.packet_size, "sp": stack_bits(cfg), "cur": 1,
+                              "neg": 1})
+
+
+def order_layout(cfg: Config) -> data.StructLayout:
+    """An outstanding step as the decide engine needs it: the thread, the node's near and far
+    children and the stack pointer (none of them changes while the step is out)."""
+    return data.StructLayout({"thread": cfg.thread_bits, "near": NODE_BITS, "far": NODE_BITS,
+                              "sp": stack_bits(cfg)})
+
+
+def decision_layout(cfg: Config) -> data.StructLayout:
+    """A decided step: the thread's next stack pointer, node, active lanes, slot and state."""
+    return data.StructLayout({"thread": cfg.thread_bits, "sp": stack_bits(cfg),
+                              "node": NODE_BITS, "mask": cfg.packet_size, "cur": 1,
+                              "state": ThreadState})
+
+
+def push_layout(cfg: Config) -> data.StructLayout:
+    """A stack entry to write at (thread, sp): the far child and the lanes that need it."""
+    return data.StructLayout({"sp": stack_bits(cfg), "thread": cfg.thread_bits,
+                              "node": NODE_BITS, "mask": cfg.packet_size})
+
+
+class StepDispatch(wiring.Component):
+    """The control engine's steps to the sub-units. A step taken on ``i`` goes in the same
+    cycle to every sub-unit's step queue (``sub[j]``: lanes ``j R .. j R + R - 1`` of the
+    mask, the split plane in the unit's format) and, with the node's near and far children,
+    to ``order`` (the decide engine's queue of outstanding steps: never full, it holds a step
+    per thread). Room (``i.ready``): always with queues (``queue`` entries) as deep as the
+    threads; synchronous sub-units take each step together, so their queues hold the same
+    steps and the first one's room is every one's (no path across them); asynchronous ones:
+    every queue's room. Combinational: latency 0, one step per cycle."""
+
+    def __init__(self, cfg: Config, *, queue: int):
+        self.cfg, self.queue = cfg, queue
+        super().__init__({
+            "i": In(stream.Signature(packet_step_layout(cfg))),
+            "sub": Out(stream.Signature(step_layout(cfg))).array(cfg.trav_subunits),
+            "order": Out(stream.Signature(order_layout(cfg))),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        cfg, R, p = self.cfg, self.cfg.rays_per_subunit, self.i.payload
+        if self.queue >= cfg.threads:
+            room = Const(1)
+        elif cfg.trav_sync:
+            room = self.sub[0].ready
+        else:
+            room = Cat(*(s.ready for s in self.sub)).all()
+        disp = Signal()                              # push a step to every sub-unit
+        m.d.comb += [self.i.ready.eq(room), disp.eq(self.i.valid & room)]
+        o = self.order.payload
+        m.d.comb += [o.thread.eq(p.thread), o.near.eq((p.word.index + p.neg)[:NODE_BITS]),
+                     o.far.eq((p.word.index + 1 - p.neg)[:NODE_BITS]), o.sp.eq(p.sp),
+                     self.order.valid.eq(disp)]
+        for j, s in enumerate(self.sub):
+            m.d.comb += [s.payload.mask.eq(p.mask[j * R:(j + 1) * R]),
+                         s.payload.thread.eq(p.thread), s.payload.axis.eq(p.word.axis),
+                         s.payload.split.eq(from_binary32(cfg.fmt, p.word.value)),
+                         s.payload.sp.eq(p.sp), s.payload.cur.eq(p.cur), s.valid.eq(disp)]
+        return m
+
+
+class StepDecide(wiring.Component):
+    """The decide engine: the oldest outstanding step (the head of ``order``, a queue of
+    ``cfg.threads`` entries), once every sub-unit's verdict (``res[j]``) is in: both children
+    -> push the far one (``push``: the entry at the thread's sp) and go near; near only; far
+    only; none ends the pass (NEXTPASS), as ``model.traversal.decide``. ``wr``: the thread's
+    next fields, one write each; ``pushes`` counts the pushes.
+
+    Latency: ``wr`` and ``push`` in the cycle the last verdict is at the queues' heads (a
+    cycle later with ``cfg.fast_clock``: the heads and the thread's next fields go through
+    registers; no other engine touches a thread in STEP, so its stack pointer, read a cycle
+    before, is still its own). Throughput: one step per cycle."""
+
+    def __init__(self, cfg: Config):
+        self.cfg = cfg
+        super().__init__({
+            "order": In(stream.Signature(order_layout(cfg))),
+            "res": In(stream.Signature(step_result_layout(cfg))).array(cfg.trav_subunits),
+            "wr": Out(stream.Signature(decision_layout(cfg), always_ready=True)),
+            "push": Out(stream.Signature(push_layout(cfg), always_ready=True)),
+            "pushes": Out(COUNTER_BITS),
+        })
+
+    def elaborate(self, platform):
+        m = Module()
+        olay = order_layout(self.cfg)
+        m.submodules.order = order = SyncFIFO(width=olay.size, depth=self.cfg.threads)
+        m.d.comb += [order.w_data.eq(self.order.payload), order.w_en.eq(self.order.valid),
+                     self.order.ready.eq(order.w_rdy)]
+        head = olay(order.r_data)
+        dec = Signal()
+        m.d.comb += dec.eq(order.r_rdy & Cat(*(r.valid for r in self.res)).all())
+        m.d.comb += [order.r_en.eq(dec)] + [r.ready.eq(dec) for r in self.res]
+        mn = Cat(*(r.payload.near for r in self.res))
+        mf = Cat(*(r.payload.far for r in self.res))
+        n_any, f_any = mn.any(), mf.any()
+        both, d_sp = n_any & f_any, head.sp
+        new = dict(sp=Mux(both, d_sp + 1, d_sp)[:len(d_sp)],
+                   node=Mux(n_any, head.near, head.far), mask=Mux(n_any, mn, mf), cur=~n_any,
+                   state=Mux(n_any | f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
+        v = dict(v=dec, thread=head.thread, both=both, far_node=head.far, far=mf, sp=d_sp,
+                 **{f"new_{k}": x for k, x in new.items()})
+        if self.cfg.fast_clock:
+            v = registered(m, "dec", **v)
+        w, p = self.wr.payload, self.push.payload
+        m.d.comb += [self.wr.valid.eq(v["v"]), w.thread.eq(v["thread"]),
+                     *(w[k].eq(v[f"new_{k}"]) for k in new)]
+        with m.If(v["v"] & v["both"]):
+            m.d.comb += [self.push.valid.eq(1), p.sp.eq(v["sp"]), p.thread.eq(v["thread"]),
+                         p.node.eq(v["far_node"]), p.mask.eq(v["far"])]
+            m.d.sync += self.pushes.eq(self.pushes + 1)
+        return m
+
+
+WAIT_STATES = (ThreadState.HAVE_NODE, ThreadState.POP, ThreadState.NEXTPASS)
+
+
+class _ControlEngine:
+    """The control engine (default clock). IDLE: picks a thread waiting in HAVE_NODE, POP or
+    NEXTPASS (round-robin) and loads its fields into the engine's registers (``e_*``).
+    DISPATCH: an inner node's step goes to ``step`` once the sub-units have room (STEP); a
+    non-empty leaf to LEAF (a ``LeafRequest`` on ``leaf``, then WAIT_LEAF); an empty leaf or a
+    finished one to POP; NEXTPASS to PASS. POP: one stack entry per 2 cycles until one has a
+    live lane (FETCH its node; intervals in ``S[sp]``) or the stack is empty (PASS). PASS:
+    the lowest octant left starts a pass from the root (FETCH) or, none left, DONE. 2 cycles
+    per event; the thread is written (state, fields) in the cycle the engine leaves it.
+
+    Not a component: it reads the picked thread's fields from, and writes them back into, the
+    per-thread registers every engine shares (:class:`_Threads`), in the unit's module.
+    :class:`_FastControlEngine` overrides the stages that ``cfg.fast_clock`` changes."""
+
+    def __init__(self, trav: Traversal, m: Module, th: _Threads, step, leaf, st_r, pm_r):
+        cfg = trav.cfg
+        self.trav, self.m, self.th, self.cfg = trav, m, th, cfg
+        self.step, self.leaf, self.st_r, self.pm_r = step, leaf, st_r, pm_r
+        L, tb = cfg.packet_size, cfg.thread_bits
+        self.ptr, self.t = Signal(tb, name="e_ptr"), Signal(tb, name="e_t")
+        self.busy = Signal(name="ctl_busy")          # the engine works on thread e_t
+        self.pick_any, self.pick_idx, self.read = self.pick()
+        self.kind = Signal(ThreadState, name="e_kind")
+        self.word = Signal(node_layout(), name="e_word")
+        self.mask, self.sp = Signal(L, name="e_mask"), Signal(stack_bits(cfg), name="e_sp")
+        self.cur, self.neg = Signal(name="e_cur"), Signal(name="e_neg")
+        self.oct = Signal(3, name="e_oct")           # the octant a new pass starts
+        self.todo, self.term = self.thread_masks()   # octants to do, terminated lanes
+        self.oct_any, self.oct_next = lowest(m, self.todo, "pass")
+        self.st_data, self.pm_data = self.late(st_r.data, "st_q"), self.late(pm_r.data, "pm_q")
+        self.popped = self.st_data[NODE_BITS:] & ~self.term   # the entry's live lanes
+        # what the engine writes into thread e_t, set in the FSM
+        self.w_state, self.w_state_we = Signal(ThreadState, name="ctl_state"), Signal()
+        self.w_fields = {f: Signal.like(getattr(th, f)[0], name=f"ctl_{f}")
+                         for f in ("node", "mask", "sp", "cur")}
+        self.w_fields_we = Signal()
+        s, lf = step.payload, leaf.payload
+        m.d.comb += [s.thread.eq(self.t), s.word.eq(self.word), s.mask.eq(self.mask),
+                     s.sp.eq(self.sp), s.cur.eq(self.cur), s.neg.eq(self.neg),
+                     lf.thread.eq(self.t), lf.first.eq(self.word.value),
+                     lf.count.eq(self.word.index), lf.mask.eq(self.mask)]
+
+    # ---- the stages that cfg.fast_clock changes (see _FastControlEngine)
+    def pick(self):
+        """(any, index, read) of the round-robin pick among the waiting threads; ``read(arr,
+        copy)`` is the picked thread's element of a per-thread ``Array`` (or bit)."""
+        th = self.th
+        waiting = Cat(*(_among(th.state[t], WAIT_STATES) for t in range(th.T)))
+        e_any, e_idx = rr_pick(self.m, waiting, self.ptr, "step")
+        return e_any, e_idx, lambda arr, copy=0: element(arr, e_idx)
+
+    def thread_masks(self):
+        """The thread's octants to do and its terminated lanes, read where they are."""
+        return self.th.todo[self.t], self.th.term[self.t]
+
+    def late(self, value, name: str):
+        """A block RAM's output as the engine uses it: straight, a cycle after the read."""
+        return value
+
+    def goto(self, state: str) -> None:
+        self.m.next = state
+
+    def offer_step(self) -> None:
+        """In DISPATCH at an inner node: the step is offered to the sub-units."""
+        self.m.d.comb += self.step.valid.eq(1)
+
+    def pop_read(self, node, mask, live):
+        """The state that uses the popped entry (node, live lanes, any live): POP2, as read."""
+        return "POP2", node, mask, live
+
+    def write_todo(self, todo) -> None:
+        """PASS: the thread's octants left."""
+        self.m.d.sync += self.th.todo[self.t].eq(todo)
+
+    def pass_read(self) -> str:
+        """The state that uses the pass masks read in PASS: PASS2."""
+        return "PASS2"
+
+    def write_back(self) -> None:
+        """The writes of thread e_t the FSM asked for: one write per field."""
+        m, th = self.m, self.th
+        with m.If(self.w_state_we):
+            th.set_state(m, self.t, self.w_state)
+        with m.If(self.w_fields_we):
+            for f, v in self.w_fields.items():
+                th.set(m, f, self.t, v)
+
+    def count_busy(self, busy):
+        """The ``busy`` counter's enable."""
+        return busy
+
+    # ---- the state machine
+    def set_state(self, v) -> None:
+        self.m.d.comb += [self.w_state_we.eq(1), self.w_state.eq(v)]
+
+    def set_fields(self, **values) -> None:
+        self.m.d.comb += [self.w_fields_we.eq(1),
+                          *(self.w_fields[f].eq(v) for f, v in values.items())]
+
+    def load(self) -> None:
+        """IDLE with a pick: the thread's fields into the engine's registers. The node word's
+        low 48 bits are read with the pick's copy 0, the rest with copy 1 (fast_clock: two
+        copies of the registered pick, each drives half of the multiplexers)."""
+        th, read, idx = self.th, self.read, self.pick_idx
+        # the near child's side per thread (its octant's bit on its node's axis)
+        is_neg = Cat(*(th.octant[t].bit_select(data.View(node_layout(), th.word[t]).axis, 1)
+                       for t in range(th.T)))
+        word = Cat(read(th.word, 0)[:48], read(th.word, 1)[48:])
+        self.m.d.sync += [self.t.eq(idx), self.kind.eq(read(th.state, 1)),
+                          self.word.eq(word), self.mask.eq(read(th.mask, 1)),
+                          self.neg.eq(read(is_neg, 1)), self.sp.eq(read(th.sp, 1)),
+                          self.cur.eq(read(th.cur, 1)), self.ptr.eq(idx + 1)]
+
+    def fsm(self) -> None:
+        m = self.m
+        m.d.comb += self.busy.eq(1)
+        with m.FSM(name="step") as self.states:
+            with m.State("IDLE"):
+                m.d.comb += self.busy.eq(0)
+                with m.If(self.pick_any):
+                    self.load()
+                    self.goto("DISPATCH")
+            with m.State("DISPATCH"):
+                self.dispatch()
+            with m.State("LEAF"):
+                m.d.comb += self.leaf.valid.eq(1)
+                with m.If(self.leaf.ready):
+                    self.set_state(ThreadState.WAIT_LEAF)
+                    self.goto("IDLE")
+            self.pop()
+            self.next_pass()
+
+    def dispatch(self) -> None:
+        m, trav = self.m, self.trav
+        with m.If(self.kind == ThreadState.HAVE_NODE):
+            with m.If(self.word.axis != LEAF):
+                self.offer_step()
+                with m.If(self.step.ready):
+                    m.d.sync += trav.trav_steps.eq(trav.trav_steps + 1)
+                    self.set_state(ThreadState.STEP)
+                    self.goto("IDLE")
+            with m.Elif(self.word.index != 0):
+                self.goto("LEAF")
+            with m.Else():
+                self.goto("POP")
+        with m.Elif(self.kind == ThreadState.POP):
+            self.goto("POP")
+        with m.Else():
+            self.goto("PASS")
+
+    def pop(self) -> None:
+        """POP reads entry sp - 1 (none: PASS); the state ``pop_read`` names uses it."""
+        m, db = self.m, stack_bits(self.cfg)
+        with m.State("POP"):
+            with m.If(self.sp == 0):
+                self.goto("PASS")
+            with m.Else():
+                m.d.comb += self.st_r.addr.eq(Cat((self.sp - 1)[:db], self.t))
+                m.d.sync += self.sp.eq(self.sp - 1)
+                self.goto("POP2")
+        state, node, mask, live = self.pop_read(self.st_data[:NODE_BITS], self.popped,
+                                                self.popped.any())
+        with m.State(state):
+            with m.If(live):
+                self.set_fields(node=node, mask=mask, sp=self.sp, cur=1)
+                self.set_state(ThreadState.FETCH)
+                self.goto("IDLE")
+            with m.Else():
+                self.goto("POP")
+
+    def next_pass(self) -> None:
+        """PASS takes the lowest octant left and reads the pass masks; the state
+        ``pass_read`` names starts the pass from the root with that octant's lanes."""
+        m, th, trav, L = self.m, self.th, self.trav, self.cfg.packet_size
+        with m.State("PASS"):
+            with m.If(~self.oct_any):
+                self.set_state(ThreadState.DONE)
+                self.goto("IDLE")
+            with m.Else():
+                m.d.comb += self.pm_r.addr.eq(self.t)
+                m.d.sync += self.oct.eq(self.oct_next)
+                self.write_todo(self.todo & ~(Const(1, 8) << self.oct_next))
+                self.goto("PASS2")
+        with m.State(self.pass_read()):
+            m.d.sync += [th.octant[self.t].eq(self.oct), trav.passes.eq(trav.passes + 1)]
+            self.set_fields(mask=self.pm_data.word_select(self.oct, L), node=trav.root, sp=0,
+                            cur=0)
+            self.set_state(ThreadState.FETCH)
+            self.goto("IDLE")
+
+
+class _FastControlEngine(_ControlEngine):
+    """The control engine with ``cfg.fast_clock``: the same events, and a pop and a pass take
+    a cycle more each. Per stage:
+
+    * pick: made a cycle ahead into registers from the registered state flags, with and
+      without the thread being worked on (only this engine moves a thread out of the waiting
+      states); ``ctl_busy``, registered, chooses; the picked thread's fields (about 100 bits)
+      are read with two copies of the registered pick;
+    * the thread's octants to do are copied at the pick (only this engine changes them), its
+      terminated lanes in every cycle from e_t (they hold while the thread is the engine's; the
+      first use, POP3, comes three cycles after the pick);
+    * the stack entry and the pass masks: the block RAMs' outputs straight into registers
+      (POP2 -> POP3, PASS2 -> PASS3); POP3 registers the entry's live lanes, POP4 uses them;
+    * the thread's writes: from registered one-hot state flags (one per writing state, set with
+      each transition) and e_t's one-hot register, not from the FSM's state decode; the
+      fields' per-thread enables from a register set a cycle ahead (POP4 and PASS3 are
+      entered unconditionally from POP3 and PASS2); the octants left from a register in PASS3;
+    * the ``busy`` counter counts a cycle later, from a register (its 32 enables do not hang on
+      the verdict queues' handshake; the total is the same once the unit is idle)."""
+
+    def __init__(self, *args):
+        super().__init__(*args)
+        T = self.cfg.threads
+        self.flags = {k: Signal(name=f"step_in_{k.lower()}")
+                      for k in ("DISPATCH", "LEAF", "POP4", "PASS", "PASS3")}
+        # DISPATCH's "a step" (an inner node) taken at the pick from a per-thread form; PASS's
+        # "no octant left" a cycle after it (PASS comes two cycles after the pick at the
+        # earliest; e_todo holds from the pick on); the octants left, written in PASS3
+        self.is_step = Signal(name="e_step")
+        self.todo_none, self.todo_left = Signal(name="e_todo_none"), Signal(8, name="e_todo_left")
+        self.hits = Signal(T, name="ctl_fields_hit")
+
+    def pick(self):
+        self.taken = Signal(self.th.T, name="e_taken")     # e_t one-hot
+        waiting = self.th.in_states_q(*WAIT_STATES)
+        e_any, e_idx, self.pick_oh, read = rr_pick_next(self.m, waiting, self.ptr, self.busy,
+                                                        "step", taken=self.taken, copies=2)
+        return e_any, e_idx, read
+
+    def thread_masks(self):
+        todo, term = Signal(8, name="e_todo"), Signal(self.cfg.packet_size, name="e_term")
+        self.m.d.sync += term.eq(self.th.term[self.t])
+        return todo, term
+
+    def late(self, value, name: str):
+        """The block RAM's output registered (no reset), used a cycle later."""
+        q = Signal.like(value, name=name, reset_less=True)
+        self.m.d.sync += q.eq(value)
+        return q
+
+    def goto(self, state: str) -> None:
+        super().goto(state)
+        self.m.d.sync += [f.eq(int(k == state)) for k, f in self.flags.items()]
+
+    def offer_step(self) -> None:
+        pass                            # from the flags (write_back)
+
+    def load(self) -> None:
+        super().load()
+        th, read = self.th, self.read
+        is_step = Cat(*((th.state[t] == ThreadState.HAVE_NODE) &
+                        (data.View(node_layout(), th.word[t]).axis != LEAF)
+                        for t in range(th.T)))
+        self.m.d.sync += [self.todo.eq(read(th.todo, 1)), self.taken.eq(self.pick_oh),
+                          self.is_step.eq(read(is_step, 1))]
+
+    def pop_read(self, node, mask, live):
+        """POP2: the entry is read; POP3: its live lanes, registered; POP4 uses them."""
+        m = self.m
+        with m.State("POP2"):
+            self.goto("POP3")
+        regs = (Signal(NODE_BITS, name="pop_node"), Signal(len(mask), name="pop_mask"),
+                Signal(name="pop_any"))
+        with m.State("POP3"):
+            m.d.sync += [r.eq(v) for r, v in zip(regs, (node, mask, live))]
+            self.goto("POP4")
+        self.pop_any = regs[2]
+        return ("POP4", *regs)
+
+    def write_todo(self, todo) -> None:
+        self.m.d.sync += self.todo_left.eq(todo)
+
+    def pass_read(self) -> str:
+        with self.m.State("PASS2"):
+            self.goto("PASS3")
+        return "PASS3"
+
+    def write_back(self) -> None:
+        """The writes from the flags and registers only; the per-thread enables: e_t's one-hot
+        register. STEP and WAIT_LEAF are written in every cycle of DISPATCH (a step) and LEAF,
+        also while they wait for the sub-units' room or the leaf output: the same value, and
+        nothing reads a thread's STEP or WAIT_LEAF before its step or leaf request is out (the
+        engine's own next pick leaves out the thread it works on)."""
+        m, th, flags, T = self.m, self.th, self.flags, self.cfg.threads
+        m.d.comb += self.step.valid.eq(flags["DISPATCH"] & self.is_step)
+        we = ((flags["DISPATCH"] & self.is_step) | flags["LEAF"] |
+              (flags["POP4"] & self.pop_any) | (flags["PASS"] & self.todo_none) |
+              flags["PASS3"])
+        val = Mux(flags["DISPATCH"], ThreadState.STEP,
+                  Mux(flags["LEAF"], ThreadState.WAIT_LEAF,
+                      Mux(flags["PASS"], ThreadState.DONE, ThreadState.FETCH)))
+        th.set(m, "state", None, val, onehot=Mux(we, self.taken, 0))
+        we_next = (self.states.ongoing("POP3") & self.popped.any()) | \
+            self.states.ongoing("PASS2")
+        m.d.sync += self.hits.eq(Mux(we_next, Const(1, T) << self.t, 0)[:T])
+        for f, v in self.w_fields.items():
+            th.set(m, f, self.t, v, onehot=self.hits)
+        for t in range(T):
+            with m.If(flags["PASS3"] & self.taken[t]):
+                m.d.sync += th.todo[t].eq(self.todo_left)
+        m.d.sync += self.todo_none.eq(self.todo == 0)
+
+    def count_busy(self, busy):
+        return registered(self.m, "busy", inc=busy)["inc"]
+
+
 class Traversal(wiring.Component):
     """The traversal unit: ``cfg.threads`` packets in flight, ``cfg.trav_subunits`` sub-units.
 
@@ -770,308 +1208,45 @@ class Traversal(wiring.Component):
             th.set_state(m, self.release.payload, ThreadState.FREE)
 
     def _control(self, m: Module, th: _Threads, st_r, st_w, pm_r) -> None:
-        """The control engine (pick a thread, dispatch its step / leaf / pop / pass) and the
-        decide engine, which share the sub-units' step and verdict queues."""
-        cfg, fmt = self.cfg, self.cfg.fmt
-        T, L, R = cfg.threads, cfg.packet_size, cfg.rays_per_subunit
-        tb, db = cfg.thread_bits, max(1, ceil_log2(cfg.stack_depth))
-        subs = self.subunits
-        e_ptr = Signal(tb)
-        e_t = Signal(tb)
-        e_taken = Signal(T, name="e_taken")         # fast_clock: e_t one-hot
-        ctl_busy = Signal()                          # the engine works on thread e_t
-        wait_states = (ThreadState.HAVE_NODE, ThreadState.POP, ThreadState.NEXTPASS)
-        if cfg.fast_clock:          # registers beside the states (no decode before the pick)
-            waiting = th.in_states_q(*wait_states)
-        else:
-            waiting = Cat(*(_among(th.state[t], wait_states) for t in range(T)))
-        if cfg.fast_clock:
-            # the pick is made a cycle ahead into registers from the threads waiting then, with
-            # and without the one being worked on (only this engine moves a thread out of
-            # those states, so a pick made a cycle ahead is still waiting when it is used);
-            # ctl_busy, registered, chooses
-            # (the picked thread's fields, about 100 bits, read with two copies of the
-            # registered picks: each drives half of the multiplexers)
-            e_any, e_idx, e_oh, e_sel = rr_pick_next(m, waiting, e_ptr, ctl_busy, "step",
-                                                     taken=e_taken, copies=2)
-        else:
-            e_any, e_idx = rr_pick(m, waiting, e_ptr, "step")
-        e_kind = Signal(ThreadState)
-        e_word = Signal(node_layout())
-        e_mask = Signal(L)
-        e_sp = Signal(db)
-        e_cur = Signal()
-        e_oct = Signal(3)                            # the octant a new pass starts
-        # the step queue of every sub-unit gets the same steps in the same order; the threads
-        # of outstanding steps wait in `order` (at most one step per thread is outstanding),
-        # with what the decision needs of them: the node's near and far children (by the
-        # pass's octant) and the stack pointer, which do not change while the step is out
-        order_l = data.StructLayout({"thread": tb, "near": NODE_BITS, "far": NODE_BITS,
-                                     "sp": db})
-        m.submodules.order = order = SyncFIFO(width=order_l.size, depth=T)
-        disp = Signal()                              # push a step to every sub-unit
-        # the near child's side (by the pass's octant and the node's axis), taken at the pick
-        # with the node word, so the children's sums start at registers
-        neg = Signal(name="e_neg")
-        m.d.comb += [order.w_data.eq(Cat(e_t, (e_word.index + neg)[:NODE_BITS],
-                                         (e_word.index + 1 - neg)[:NODE_BITS], e_sp)),
-                     order.w_en.eq(disp)]
+        """The control engine (:class:`_ControlEngine`: pick a thread, dispatch its step /
+        leaf / pop / pass) and the decide engine (:class:`StepDecide`), joined by the
+        sub-units' step queues (fed by :class:`StepDispatch`) and verdict queues."""
+        cfg, subs = self.cfg, self.subunits
+        m.submodules.dispatch = dsp = StepDispatch(cfg, queue=self.step_queue)
+        m.submodules.decide = dcd = StepDecide(cfg)
         for j, s in enumerate(subs):
-            m.d.comb += [s.step.payload.mask.eq(e_mask[j * R:(j + 1) * R]),
-                         s.step.payload.thread.eq(e_t), s.step.payload.axis.eq(e_word.axis),
-                         s.step.payload.split.eq(from_binary32(fmt, e_word.value)),
-                         s.step.payload.sp.eq(e_sp), s.step.payload.cur.eq(e_cur),
-                         s.step.valid.eq(disp)]
-        # synchronous sub-units take each step together, so their step queues always hold the
-        # same number of steps and the first one's room is every one's (no path across them);
-        # a queue as deep as the threads always has room
-        if self.step_queue >= cfg.threads:
-            room = Const(1)
-        elif cfg.trav_sync:
-            room = subs[0].step.ready
-        else:
-            room = Cat(*(s.step.ready for s in subs)).all()
+            wiring.connect(m, dsp.sub[j], s.step)
+            wiring.connect(m, s.res, dcd.res[j])
+        wiring.connect(m, dsp.order, dcd.order)
         # synchronous sub-units start each step together; asynchronous ones start when free
         go = Cat(*(s.can_start for s in subs)).all() if cfg.trav_sync else Const(1)
         m.d.comb += [s.go.eq(go) for s in subs]
-        fast = cfg.fast_clock
-        # the thread's octants to do and terminated lanes: fast_clock copies todo at the pick
-        # (only this engine changes todo) and term in every cycle from the registered thread
-        # e_t (term does not change while the thread is this engine's, and the first use, in
-        # POP3, comes three cycles after the pick)
-        e_todo, e_term = (Signal(8, name="e_todo"), Signal(L, name="e_term")) if fast else \
-            (th.todo[e_t], th.term[e_t])
-        if fast:
-            m.d.sync += e_term.eq(th.term[e_t])
-        lo_oc_any, lo_oc = lowest(m, e_todo, "pass")
-        # the stack entry and the pass masks as read (fast_clock: the block RAMs' outputs
-        # straight into registers, used a cycle later: POP3, PASS3)
-        st_data, pm_data = st_r.data, pm_r.data
-        if fast:
-            st_data, pm_data = Signal.like(st_r.data, name="st_q", reset_less=True), \
-                Signal.like(pm_r.data, name="pm_q", reset_less=True)
-            m.d.sync += [st_data.eq(st_r.data), pm_data.eq(pm_r.data)]
-        st_mask = st_data[NODE_BITS:]
-        popped = st_mask & ~e_term
         m.submodules.leaf_out = lf = OutputStage(LeafRequest(cfg))
         wiring.connect(m, lf.o, wiring.flipped(self.leaf))
-        m.d.comb += [lf.i.payload.thread.eq(e_t), lf.i.payload.first.eq(e_word.value),
-                     lf.i.payload.count.eq(e_word.index), lf.i.payload.mask.eq(e_mask)]
+        engine = _FastControlEngine if cfg.fast_clock else _ControlEngine
+        ctl = engine(self, m, th, dsp.i, lf.i, st_r, pm_r)
+        # the decisions: the thread's next fields (one write each), the far child pushed
+        w, p = dcd.wr.payload, dcd.push.payload
+        with m.If(dcd.wr.valid):
+            for f in ("sp", "node", "mask", "cur", "state"):
+                th.set(m, f, w.thread, w[f])
+        m.d.comb += [st_w.addr.eq(Cat(p.sp, p.thread)), st_w.data.eq(Cat(p.node, p.mask)),
+                     st_w.en.eq(dcd.push.valid), self.pushes.eq(dcd.pushes)]
+        ctl.fsm()
+        ctl.write_back()
+        self._control_counters(m, ctl, dcd)
+
+    def _control_counters(self, m: Module, ctl: _ControlEngine, dcd: StepDecide) -> None:
+        """``leaf_reqs``, ``trav_ops``, ``sub_busy``, ``busy`` and ``ctl_busy``."""
+        subs = self.subunits
         with m.If(self.leaf.valid & self.leaf.ready):
             m.d.sync += self.leaf_reqs.eq(self.leaf_reqs + 1)
-        issued = sum(s.issue for s in subs)
-        m.d.sync += self.trav_ops.eq(self.trav_ops + issued)
+        m.d.sync += self.trav_ops.eq(self.trav_ops + sum(s.issue for s in subs))
         for j, s in enumerate(subs):
             with m.If(~s.idle):
                 m.d.sync += self.sub_busy[j].eq(self.sub_busy[j] + 1)
-
-        dec = self._decide(m, th, data.View(order_l, order.r_data), order, st_w)
-        m.d.comb += ctl_busy.eq(1)
-        busy = ctl_busy | dec | ~Cat(*(s.idle for s in subs)).all()
-        if fast:
-            # counted a cycle later, from a register: the counter's 32 enables do not hang on
-            # the verdict queues' handshake (the total is the same once the unit is idle)
-            busy = registered(m, "busy", inc=busy)["inc"]
+        busy = ctl.count_busy(ctl.busy | dcd.wr.valid | ~Cat(*(s.idle for s in subs)).all())
         with m.If(busy):
             m.d.sync += self.busy.eq(self.busy + 1)
-        with m.If(ctl_busy):
+        with m.If(ctl.busy):
             m.d.sync += self.ctl_busy.eq(self.ctl_busy + 1)
-
-        # what the engine writes into the thread it works on (e_t), set in the FSM below
-        c_state, c_state_we = Signal(ThreadState, name="ctl_state"), Signal()
-        c_fields = {f: Signal.like(getattr(th, f)[0], name=f"ctl_{f}")
-                    for f in ("node", "mask", "sp", "cur")}
-        c_fields_we = Signal()
-
-        def ctl_state(v):
-            m.d.comb += [c_state_we.eq(1), c_state.eq(v)]
-
-        def ctl_fields(**values):
-            m.d.comb += [c_fields_we.eq(1), *(c_fields[f].eq(v) for f, v in values.items())]
-
-        # fast_clock: the states that write the thread's state, as registered one-hot flags
-        # set with each transition, so the write's enable is formed from registers (not from
-        # the FSM's state decode)
-        flags = {k: Signal(name=f"step_in_{k.lower()}")
-                 for k in ("DISPATCH", "LEAF", "POP4", "PASS", "PASS3")}
-
-        def goto(state):
-            m.next = state
-            if fast:
-                m.d.sync += [f.eq(int(k == state)) for k, f in flags.items()]
-
-        # the near child's side per thread (its octant's bit on its node's axis)
-        is_neg = Cat(*(th.octant[t].bit_select(data.View(node_layout(), th.word[t]).axis, 1)
-                       for t in range(T)))
-        if fast:
-            # what DISPATCH and PASS decide on, in registers: "a step" (an inner node) taken at
-            # the pick from a per-thread form, "no octant left" a cycle after it (PASS comes
-            # two cycles after the pick at the earliest; e_todo holds from the pick on)
-            is_step = Cat(*((th.state[t] == ThreadState.HAVE_NODE) &
-                            (data.View(node_layout(), th.word[t]).axis != LEAF)
-                            for t in range(T)))
-            e_step, todo_none = Signal(name="e_step"), Signal(name="e_todo_none")
-            # the octants left (PASS) are written in PASS3, from a register, by the thread's
-            # one-hot and PASS3's flag (the thread is this engine's until PASS3 ends)
-            todo_q = Signal(8, name="e_todo_left")
-            for t in range(T):
-                with m.If(flags["PASS3"] & e_taken[t]):
-                    m.d.sync += th.todo[t].eq(todo_q)
-            m.d.sync += todo_none.eq(e_todo == 0)
-
-        with m.FSM(name="step") as fsm:
-            with m.State("IDLE"):
-                m.d.comb += ctl_busy.eq(0)
-                with m.If(e_any):
-                    # fast: each field read with both registered picks, then chosen (e_sel);
-                    # the node word's low 48 bits with the picks' copy 0, the rest with copy 1
-                    pick = e_sel if fast else (lambda arr, copy=0: element(arr, e_idx))
-                    word = Cat(pick(th.word, 0)[:48], pick(th.word, 1)[48:])
-                    m.d.sync += [e_t.eq(e_idx), e_kind.eq(pick(th.state, 1)),
-                                 e_word.eq(word), e_mask.eq(pick(th.mask, 1)),
-                                 neg.eq(pick(is_neg, 1)), e_sp.eq(pick(th.sp, 1)),
-                                 e_cur.eq(pick(th.cur, 1)), e_ptr.eq(e_idx + 1)]
-                    if fast:
-                        m.d.sync += [e_todo.eq(pick(th.todo, 1)), e_taken.eq(e_oh),
-                                     e_step.eq(pick(is_step, 1))]
-                    goto("DISPATCH")
-            with m.State("DISPATCH"):
-                with m.If(e_kind == ThreadState.HAVE_NODE):
-                    with m.If(e_word.axis != LEAF):
-                        with m.If(room):
-                            if not fast:
-                                m.d.comb += disp.eq(1)
-                            m.d.sync += self.trav_steps.eq(self.trav_steps + 1)
-                            ctl_state(ThreadState.STEP)
-                            goto("IDLE")
-                    with m.Elif(e_word.index != 0):
-                        goto("LEAF")
-                    with m.Else():
-                        goto("POP")
-                with m.Elif(e_kind == ThreadState.POP):
-                    goto("POP")
-                with m.Else():
-                    goto("PASS")
-            with m.State("LEAF"):
-                m.d.comb += lf.i.valid.eq(1)
-                with m.If(lf.i.ready):
-                    ctl_state(ThreadState.WAIT_LEAF)
-                    goto("IDLE")
-            with m.State("POP"):
-                with m.If(e_sp == 0):
-                    goto("PASS")
-                with m.Else():
-                    m.d.comb += st_r.addr.eq(Cat((e_sp - 1)[:db], e_t))
-                    m.d.sync += e_sp.eq(e_sp - 1)
-                    goto("POP2")
-            pop_node, pop_mask, pop_any = st_data[:NODE_BITS], popped, popped.any()
-            if fast:
-                # POP2: the entry is read; POP3: its lanes still live, registered; POP4: used
-                with m.State("POP2"):
-                    goto("POP3")
-                regs = (Signal(NODE_BITS, name="pop_node"), Signal(L, name="pop_mask"),
-                        Signal(name="pop_any"))
-                with m.State("POP3"):
-                    m.d.sync += [r.eq(v) for r, v in zip(regs, (pop_node, pop_mask, pop_any))]
-                    goto("POP4")
-                pop_node, pop_mask, pop_any = regs
-            with m.State("POP4" if fast else "POP2"):
-                with m.If(pop_any):
-                    ctl_fields(node=pop_node, mask=pop_mask, sp=e_sp, cur=1)
-                    ctl_state(ThreadState.FETCH)
-                    goto("IDLE")
-                with m.Else():
-                    goto("POP")
-            with m.State("PASS"):
-                with m.If(~lo_oc_any):
-                    ctl_state(ThreadState.DONE)
-                    goto("IDLE")
-                with m.Else():
-                    m.d.comb += pm_r.addr.eq(e_t)
-                    m.d.sync += e_oct.eq(lo_oc)
-                    todo_left = e_todo & ~(Const(1, 8) << lo_oc)
-                    if fast:
-                        m.d.sync += todo_q.eq(todo_left)
-                    else:
-                        m.d.sync += th.todo[e_t].eq(todo_left)
-                    goto("PASS2")
-            if fast:
-                with m.State("PASS2"):
-                    goto("PASS3")
-            with m.State("PASS3" if fast else "PASS2"):
-                m.d.sync += [th.octant[e_t].eq(e_oct), self.passes.eq(self.passes + 1)]
-                ctl_fields(mask=pm_data.word_select(e_oct, L), node=self.root, sp=0, cur=0)
-                ctl_state(ThreadState.FETCH)
-                goto("IDLE")
-
-        # the engine's writes of the thread it works on: one write per field
-        if fast:
-            # the writes of the FSM above (ctl_state), from the flags and registers only; the
-            # per-thread enables: e_t's one-hot register. STEP and WAIT_LEAF are written in
-            # every cycle of DISPATCH (a step) and LEAF, also while they wait for the sub-units'
-            # room or the leaf output, not only in the cycle they leave: the same value, and
-            # nothing reads a thread's STEP or WAIT_LEAF before its step or leaf request is out
-            # (the engine's own next pick leaves out the thread it works on)
-            m.d.comb += disp.eq(flags["DISPATCH"] & e_step & room)  # as in DISPATCH above
-            we = ((flags["DISPATCH"] & e_step) | flags["LEAF"] |
-                  (flags["POP4"] & pop_any) | (flags["PASS"] & todo_none) | flags["PASS3"])
-            val = Mux(flags["DISPATCH"], ThreadState.STEP,
-                      Mux(flags["LEAF"], ThreadState.WAIT_LEAF,
-                          Mux(flags["PASS"], ThreadState.DONE, ThreadState.FETCH)))
-            th.set(m, "state", None, val, onehot=Mux(we, e_taken, 0))
-        else:
-            with m.If(c_state_we):
-                th.set_state(m, e_t, c_state)
-        if fast:
-            # the fields are written in POP4 (if a lane is live) and PASS3, each entered
-            # unconditionally from the state before, where that is known: the per-thread
-            # enables come from a register set a cycle ahead (the engine keeps e_t meanwhile)
-            we_next = (fsm.ongoing("POP3") & popped.any()) | fsm.ongoing("PASS2")
-            c_hits = Signal(T, name="ctl_fields_hit")
-            m.d.sync += c_hits.eq(Mux(we_next, Const(1, T) << e_t, 0)[:T])
-            for f, v in c_fields.items():
-                th.set(m, f, e_t, v, onehot=c_hits)
-        else:
-            with m.If(c_fields_we):
-                for f, v in c_fields.items():
-                    th.set(m, f, e_t, v)
-
-    def _decide(self, m: Module, th: _Threads, head, order, st_w) -> Signal:
-        """The oldest outstanding step, once every sub-unit's verdict is in: both children ->
-        push the far one and go near; near only; far only; none ends the pass (as in
-        ``model.traversal.decide``; its children ``child + neg`` and ``child + 1 - neg`` were
-        formed at dispatch and come with the thread and its stack pointer in ``head``, the
-        ``order`` queue's head). One cycle (two with ``cfg.fast_clock``: the queue heads are
-        registered first). Returns the signal that a step is decided (in its last cycle)."""
-        subs = self.subunits
-        dt, d_sp, near_node, far_node = head.thread, head.sp, head.near, head.far
-        dec = Signal()
-        m.d.comb += dec.eq(order.r_rdy & Cat(*(s.res.valid for s in subs)).all())
-        m.d.comb += [order.r_en.eq(dec)] + [s.res.ready.eq(dec) for s in subs]
-        mn = Cat(*(s.res.payload.near for s in subs))
-        mf = Cat(*(s.res.payload.far for s in subs))
-        n_any, f_any = mn.any(), mf.any()
-        # the thread's next fields as one write each (one writer per field in _Threads):
-        # both children -> near (the far one pushed), near only, far only, none -> NEXTPASS
-        both = n_any & f_any
-        new = dict(sp=Mux(both, d_sp + 1, d_sp)[:len(d_sp)], node=Mux(n_any, near_node, far_node),
-                   mask=Mux(n_any, mn, mf), cur=~n_any,
-                   state=Mux(n_any | f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
-        if self.cfg.fast_clock:
-            # the verdict queues' heads and the thread's next fields go through registers; the
-            # thread is written a cycle later (no other engine touches a STEP thread, so its
-            # stack pointer read a cycle before is still its own)
-            vals = dict(v=dec, thread=dt, both=both, far_node=far_node, far=mf, sp=d_sp,
-                        **{f"new_{k}": v for k, v in new.items()})
-            regs = registered(m, "dec", **vals)
-            dec, dt, both, far_node, mf, d_sp = (regs[k] for k in (
-                "v", "thread", "both", "far_node", "far", "sp"))
-            new = {k: regs[f"new_{k}"] for k in new}
-        with m.If(dec):
-            with m.If(both):
-                m.d.comb += [st_w.addr.eq(Cat(d_sp, dt)), st_w.data.eq(Cat(far_node, mf)),
-                             st_w.en.eq(1)]
-                m.d.sync += self.pushes.eq(self.pushes + 1)
-            for f in ("sp", "node", "mask", "cur", "state"):
-                th.set(m, f, dt, new[f])
-        return dec
