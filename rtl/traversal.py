@@ -896,6 +896,167 @@ class _FastControlEngine(_ControlEngine):
         return registered(self.m, "busy", inc=busy)["inc"]
 
 
+class _Loader:
+    """The loader (default clock): takes the lowest free thread (LOAD) and writes ``RayIn``
+    lanes into it, one per cycle (``load_thread`` says which thread): each lane's ray data
+    and interval into its sub-unit (held while the sub-unit's datapath writes ``N``:
+    ``ld_block``), its octant into the thread's pass masks (live rays only: tnear <= tfar).
+    With the packet's last lane the pass masks go to ``pm_w`` and the thread to NEXTPASS, with
+    its packet, lanes and the passes to run (``todo``).
+
+    Not a component: it writes the per-thread registers every engine shares
+    (:class:`_Threads`), in the unit's module. :class:`_FastLoader` overrides the stages
+    ``cfg.fast_clock`` changes."""
+
+    def __init__(self, trav: Traversal, m: Module, th: _Threads, pm_w):
+        self.trav, self.m, self.th, self.cfg, self.pm_w = trav, m, th, trav.cfg, pm_w
+        self.active = Signal(name="ld_active")
+        self.thread = Signal(trav.cfg.thread_bits, name="ld_thread")
+        self.live_in = compare(trav.cfg.fmt, trav.rays.payload.tnear, trav.rays.payload.tfar).le
+
+    def build(self) -> None:
+        m, trav, L, pm_w = self.m, self.trav, self.cfg.packet_size, self.pm_w
+        self.claim()
+        valid, p, live, lane_one, oct_one = self.lane_in()
+        lane_sub, lane_loc = trav._split_lane(m, p.lane, "ld")
+        blocked = self.blocked(p, lane_sub)
+        ready = Signal()                    # the loader writes the lane this cycle if valid
+        m.d.comb += [ready.eq(self.active & ~blocked), trav.load_thread.eq(self.thread)]
+        take = valid & ready
+        self.accept(ready, take)
+        # per octant: its lanes so far (acc) and whether it has any (acc_any)
+        acc = [Signal(L, name=f"acc{o}") for o in range(8)]
+        acc_lanes, acc_any = Signal(L, name="acc_lanes"), Signal(8, name="acc_any")
+        acc_new = [Signal(L, name=f"acc_new{o}") for o in range(8)]
+        for o in range(8):
+            m.d.comb += acc_new[o].eq(acc[o] | Mux(oct_one[o] & live, lane_one, 0))
+        acc_any_new = acc_any | Mux(live, oct_one, 0)
+        for j, s in enumerate(trav.subunits):
+            m.d.comb += [s.ld_en.eq(take & (lane_sub == j)), s.ld_thread.eq(self.thread),
+                         s.ld_lane.eq(lane_loc), s.ld_org.eq(p.org), s.ld_inv.eq(p.inv),
+                         s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
+        m.d.comb += [pm_w.addr.eq(self.thread), pm_w.data.eq(Cat(*acc_new))]
+        with m.If(take):
+            m.d.sync += [acc_lanes.eq(acc_lanes | lane_one), acc_any.eq(acc_any_new)]
+            m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
+            with m.If(p.last):
+                m.d.comb += pm_w.en.eq(1)
+                m.d.sync += [self.active.eq(0), acc_lanes.eq(0), acc_any.eq(0)]
+                m.d.sync += [acc[o].eq(0) for o in range(8)]
+        self.loaded(take, p, acc_lanes | lane_one, acc_any_new)
+
+    # ---- the stages that cfg.fast_clock changes (see _FastLoader)
+    def claim(self) -> None:
+        """The lowest free thread, when the loader has none, turns LOAD."""
+        m, th = self.m, self.th
+        free_any, free_idx = lowest(m, th.in_state(ThreadState.FREE), "free")
+        with m.If(~self.active & free_any):
+            m.d.sync += [self.active.eq(1), self.thread.eq(free_idx)]
+            th.set_state(m, free_idx, ThreadState.LOAD)
+
+    def lane_in(self):
+        """(valid, payload, live, lane one-hot, octant one-hot) of the lane offered now."""
+        rays, L = self.trav.rays, self.cfg.packet_size
+        lane_one, oct_one = Signal(L, name="lane_one"), Signal(8, name="oct_one")
+        self.m.d.comb += [lane_one.eq(Const(1, L) << rays.payload.lane),
+                          oct_one.eq(Const(1, 8) << rays.payload.octant)]
+        return rays.valid, rays.payload, self.live_in, lane_one, oct_one
+
+    def blocked(self, p, lane_sub) -> Value:
+        """The lane's sub-unit writes ``N`` in this cycle."""
+        subs = self.trav.subunits
+        return Array(s.ld_block for s in subs)[lane_sub] if len(subs) > 1 else subs[0].ld_block
+
+    def accept(self, ready, take) -> None:
+        """``rays.ready``: the lane is written in this cycle."""
+        self.m.d.comb += self.trav.rays.ready.eq(ready)
+
+    def loaded(self, take, p, lanes, todo) -> None:
+        """The thread's fields: its packet with each lane; with the last lane its lanes, the
+        passes to run, no lane terminated, NEXTPASS."""
+        m, th, t = self.m, self.th, self.thread
+        with m.If(take):
+            m.d.sync += th.packet[t].eq(p.packet)
+            with m.If(p.last):
+                th.set_state(m, t, ThreadState.NEXTPASS)
+                m.d.sync += [th.lanes[t].eq(lanes), th.todo[t].eq(todo), th.term[t].eq(0)]
+
+
+class _FastLoader(_Loader):
+    """The loader with ``cfg.fast_clock``. Per stage:
+
+    * claim: the free threads from the registered flags beside the states (no decode); the
+      state write's per-thread enables: the lowest free thread, one-hot;
+    * lane in: the lane waits in an input register with its live bit, its lane and octant
+      one-hot precomputed; a packet's lanes are taken while the loader has its thread (no lane
+      of the next packet before this one's last lane is written);
+    * blocked: the input lane's sub-unit's block in the cycle after (when its write lands,
+      from the sub-unit's registers), registered a cycle ahead: the sub-units' pipelines never
+      stall, and the lane in the input register next cycle is known now;
+    * loaded: the thread's fields are written a cycle after its last lane, from registers and
+      by the thread's one-hot (the thread stays LOAD until then: no engine reads it)."""
+
+    def claim(self) -> None:
+        m, th = self.m, self.th
+        free = th.in_states_q(ThreadState.FREE)
+        free_any, free_idx = lowest(m, free, "free")
+        self.onehot = Signal(th.T, name="ld_onehot")      # ld_thread one-hot
+        with m.If(~self.active & free_any):
+            m.d.sync += [self.active.eq(1), self.thread.eq(free_idx),
+                         self.onehot.eq(lowest_onehot(free))]
+        th.set(m, "state", None, ThreadState.LOAD,
+               onehot=Mux(~self.active, lowest_onehot(free), 0))
+
+    def lane_in(self):
+        L = self.cfg.packet_size
+        self.valid, self.got_last = Signal(name="ld_in_valid"), Signal(name="ld_got_last")
+        self.p = Signal.like(self.trav.rays.payload, name="ld_in")
+        self.live = Signal(name="ld_in_live")
+        self.lane_one = Signal(L, name="ld_in_lane_one")
+        self.oct_one = Signal(8, name="ld_in_oct_one")
+        return self.valid, self.p, self.live, self.lane_one, self.oct_one
+
+    def blocked(self, p, lane_sub) -> Value:
+        m, rays, subs = self.m, self.trav.rays, self.trav.subunits
+        blocked = Signal(name="ld_blocked")
+        nxt_lane = Mux(rays.ready, rays.payload.lane, p.lane)
+        nxt_sub, _ = self.trav._split_lane(m, nxt_lane, "ld_next")
+        m.d.sync += blocked.eq(Array(s.ld_block_next2 for s in subs)[nxt_sub] if len(subs) > 1
+                               else subs[0].ld_block_next2)
+        return blocked
+
+    def accept(self, ready, take) -> None:
+        """The input register loads whenever the loader is ready, valid or not (only ``valid``
+        follows the handshake): its wide enable is the loader's own, not the input's valid,
+        which the intersection unit's ready gates."""
+        m, rays, L, p, valid = self.m, self.trav.rays, self.cfg.packet_size, self.p, self.valid
+        m.d.comb += rays.ready.eq(self.active & ~self.got_last & (~valid | ready))
+        with m.If(rays.ready):
+            m.d.sync += [p.eq(rays.payload), self.live.eq(self.live_in),
+                         self.lane_one.eq(Const(1, L) << rays.payload.lane),
+                         self.oct_one.eq(Const(1, 8) << rays.payload.octant)]
+        with m.If(rays.valid & rays.ready):
+            m.d.sync += [valid.eq(1), self.got_last.eq(rays.payload.last)]
+        with m.Elif(take):
+            m.d.sync += valid.eq(0)
+        with m.If(take & p.last):
+            m.d.sync += self.got_last.eq(0)
+
+    def loaded(self, take, p, lanes, todo) -> None:
+        m, th, L = self.m, self.th, self.cfg.packet_size
+        fin = Signal(name="ld_fin")
+        fin_oh = Signal(th.T, name="ld_fin_onehot")
+        fin_packet = Signal.like(p.packet, name="ld_fin_packet")
+        fin_lanes, fin_todo = Signal(L, name="ld_fin_lanes"), Signal(8, name="ld_fin_todo")
+        m.d.sync += [fin.eq(take & p.last), fin_oh.eq(self.onehot), fin_packet.eq(p.packet),
+                     fin_lanes.eq(lanes), fin_todo.eq(todo)]
+        th.set(m, "state", None, ThreadState.NEXTPASS, onehot=Mux(fin, fin_oh, 0))
+        for t in range(th.T):
+            with m.If(fin & fin_oh[t]):
+                m.d.sync += [th.packet[t].eq(fin_packet), th.lanes[t].eq(fin_lanes),
+                             th.todo[t].eq(fin_todo), th.term[t].eq(0)]
+
+
 class Traversal(wiring.Component):
     """The traversal unit: ``cfg.threads`` packets in flight, ``cfg.trav_subunits`` sub-units.
 
@@ -959,7 +1120,7 @@ class Traversal(wiring.Component):
         m.submodules.passmask = pmem = BlockRAM(shape=8 * self.cfg.packet_size,
                                                 depth=self.cfg.threads)
         pm_r = pmem.read_port()
-        self._loader(m, th, pmem.write_port())
+        (_FastLoader if th.fast else _Loader)(self, m, th, pmem.write_port()).build()
         self._fetcher(m, th)
         self._result_engine(m, th)
         self._done_engine(m, th)
@@ -967,115 +1128,6 @@ class Traversal(wiring.Component):
         if th.fast:
             th.finish(m)
         return m
-
-    def _loader(self, m: Module, th: _Threads, pm_w) -> None:
-        """``RayIn`` lanes into a free thread, one per cycle; each lane's octant goes into the
-        thread's pass masks (live rays only) and the passes to run into ``todo``
-        (``cfg.fast_clock``: each lane waits a cycle in an input register, and the thread's
-        fields are written a cycle after its last lane, by a one-hot from registers)."""
-        cfg, L, k, subs = self.cfg, self.cfg.packet_size, self.cfg.trav_subunits, self.subunits
-        ld_active = Signal()
-        ld_thread = Signal(cfg.thread_bits)
-        acc = [Signal(L, name=f"acc{o}") for o in range(8)]
-        acc_lanes = Signal(L)
-        # fast: the free threads from the registered flags beside the states (no decode)
-        free = th.in_states_q(ThreadState.FREE) if th.fast else th.in_state(ThreadState.FREE)
-        free_any, free_idx = lowest(m, free, "free")
-        if th.fast:
-            ld_onehot = Signal(cfg.threads, name="ld_onehot")      # ld_thread one-hot
-        with m.If(~ld_active & free_any):
-            m.d.sync += [ld_active.eq(1), ld_thread.eq(free_idx)]
-            if th.fast:
-                m.d.sync += ld_onehot.eq(lowest_onehot(free))
-            else:
-                th.set_state(m, free_idx, ThreadState.LOAD)
-        if th.fast:         # the state write's per-thread enables: the lowest free thread, one-hot
-            th.set(m, "state", None, ThreadState.LOAD,
-                   onehot=Mux(~ld_active, lowest_onehot(free), 0))
-        rays = self.rays
-        live_in = compare(cfg.fmt, rays.payload.tnear, rays.payload.tfar).le
-        if cfg.fast_clock:
-            # the lane waits in an input register with its live bit, its lane and octant
-            # one-hot precomputed; a packet's lanes are taken while the loader has its thread
-            # (no lane of the next packet before this one's last lane is written)
-            valid, got_last = Signal(name="ld_in_valid"), Signal(name="ld_got_last")
-            p = Signal.like(rays.payload, name="ld_in")
-            live, lane_one = Signal(name="ld_in_live"), Signal(L, name="ld_in_lane_one")
-            oct_one = Signal(8, name="ld_in_oct_one")
-        else:
-            valid, p, live = rays.valid, rays.payload, live_in
-            lane_one, oct_one = Signal(L), Signal(8)
-            m.d.comb += [lane_one.eq(Const(1, L) << p.lane), oct_one.eq(Const(1, 8) << p.octant)]
-        lane_sub, lane_loc = self._split_lane(m, p.lane, "ld")
-        if cfg.fast_clock:
-            # the input lane's sub-unit's block in the cycle after (when its write lands, from
-            # the sub-unit's registers), a cycle ahead: the sub-units' pipelines never stall,
-            # and the lane in the input register next cycle is known now
-            blocked = Signal(name="ld_blocked")
-            nxt_lane = Mux(rays.ready, rays.payload.lane, p.lane)
-            nxt_sub, _ = self._split_lane(m, nxt_lane, "ld_next")
-            m.d.sync += blocked.eq(Array(s.ld_block_next2 for s in subs)[nxt_sub] if k > 1
-                                   else subs[0].ld_block_next2)
-        else:
-            blocked = Array(s.ld_block for s in subs)[lane_sub] if k > 1 else subs[0].ld_block
-        ready = Signal()                    # the loader writes the lane this cycle if valid
-        m.d.comb += [ready.eq(ld_active & ~blocked), self.load_thread.eq(ld_thread)]
-        take = valid & ready
-        if cfg.fast_clock:
-            m.d.comb += rays.ready.eq(ld_active & ~got_last & (~valid | ready))
-            # the lane's registers load whenever the loader is ready, valid or not (only
-            # `valid` follows the handshake): their wide enable is the loader's own, not the
-            # input's valid, which the intersection unit's ready gates
-            with m.If(rays.ready):
-                m.d.sync += [p.eq(rays.payload), live.eq(live_in),
-                             lane_one.eq(Const(1, L) << rays.payload.lane),
-                             oct_one.eq(Const(1, 8) << rays.payload.octant)]
-            with m.If(rays.valid & rays.ready):
-                m.d.sync += [valid.eq(1), got_last.eq(rays.payload.last)]
-            with m.Elif(take):
-                m.d.sync += valid.eq(0)
-            with m.If(take & p.last):
-                m.d.sync += got_last.eq(0)
-        else:
-            m.d.comb += rays.ready.eq(ready)
-        # per octant: its lanes so far (acc) and whether it has any (acc_any)
-        acc_any = Signal(8)
-        acc_new = [Signal(L, name=f"acc_new{o}") for o in range(8)]
-        for o in range(8):
-            m.d.comb += acc_new[o].eq(acc[o] | Mux(oct_one[o] & live, lane_one, 0))
-        acc_any_new = acc_any | Mux(live, oct_one, 0)
-        for j, s in enumerate(subs):
-            m.d.comb += [s.ld_en.eq(take & (lane_sub == j)), s.ld_thread.eq(ld_thread),
-                         s.ld_lane.eq(lane_loc), s.ld_org.eq(p.org), s.ld_inv.eq(p.inv),
-                         s.ld_tnear.eq(p.tnear), s.ld_tfar.eq(p.tfar), s.ld_anyhit.eq(p.anyhit)]
-        m.d.comb += [pm_w.addr.eq(ld_thread), pm_w.data.eq(Cat(*acc_new))]
-        with m.If(take):
-            m.d.sync += [acc_lanes.eq(acc_lanes | lane_one), acc_any.eq(acc_any_new)]
-            m.d.sync += [acc[o].eq(acc_new[o]) for o in range(8)]
-            if not cfg.fast_clock:
-                m.d.sync += th.packet[ld_thread].eq(p.packet)
-            with m.If(p.last):
-                m.d.comb += pm_w.en.eq(1)
-                m.d.sync += [ld_active.eq(0), acc_lanes.eq(0), acc_any.eq(0)]
-                m.d.sync += [acc[o].eq(0) for o in range(8)]
-                if not cfg.fast_clock:
-                    th.set_state(m, ld_thread, ThreadState.NEXTPASS)
-                    m.d.sync += [th.lanes[ld_thread].eq(acc_lanes | lane_one),
-                                 th.todo[ld_thread].eq(acc_any_new), th.term[ld_thread].eq(0)]
-        if cfg.fast_clock:
-            # the thread's fields are written a cycle after its last lane, from registers and
-            # by the thread's one-hot (the thread stays LOAD until then: no engine reads it)
-            fin = Signal(name="ld_fin")
-            fin_oh = Signal(cfg.threads, name="ld_fin_onehot")
-            fin_packet = Signal.like(p.packet, name="ld_fin_packet")
-            fin_lanes, fin_todo = Signal(L, name="ld_fin_lanes"), Signal(8, name="ld_fin_todo")
-            m.d.sync += [fin.eq(take & p.last), fin_oh.eq(ld_onehot), fin_packet.eq(p.packet),
-                         fin_lanes.eq(acc_lanes | lane_one), fin_todo.eq(acc_any_new)]
-            th.set(m, "state", None, ThreadState.NEXTPASS, onehot=Mux(fin, fin_oh, 0))
-            for t in range(cfg.threads):
-                with m.If(fin & fin_oh[t]):
-                    m.d.sync += [th.packet[t].eq(fin_packet), th.lanes[t].eq(fin_lanes),
-                                 th.todo[t].eq(fin_todo), th.term[t].eq(0)]
 
     def _fetcher(self, m: Module, th: _Threads) -> None:
         """One 64-bit node read per packet visit, round-robin over threads in ``FETCH``."""
