@@ -222,9 +222,7 @@ class TravSubunit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        cfg, fmt = self.cfg, self.cfg.fmt
-        w, R, rb, tb, db = fmt.width, self.R, self.rbits, self.tbits, self.dbits
-        T = cfg.threads
+        w, T, rb, db = self.cfg.fmt.width, self.cfg.threads, self.rbits, self.dbits
         m.submodules.ray = ray = BlockRAM(shape=6 * w, depth=T << rb)
         m.submodules.anyhit = ah = BlockRAM(shape=1, depth=T << rb)
         m.submodules.nmem = nmem = BlockRAM(shape=2 * w, depth=T << rb)
@@ -233,32 +231,41 @@ class TravSubunit(wiring.Component):
         ah_r, ah_w = ah.read_port(), ah.write_port()
         n_r, n_rq, n_w = nmem.read_port(), nmem.read_port(), nmem.write_port()
         s_r, s_rq, s_w = smem.read_port(), smem.read_port(), smem.write_port()
-        m.submodules.add, m.submodules.mul = add, mul = self.add, self.mul
-        c = self.cmp_lat
-        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=c)
-        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=c)
-        m.submodules.vmin = vmin = FPMinMax(fmt, latency=c)
-        m.submodules.vmax = vmax = FPMinMax(fmt, latency=c)
+        m.submodules.add, m.submodules.mul = self.add, self.mul
+        st, d = self._issue(m)
+        dist, kd = self._distance(m, st, d, ray_r)
+        near_iv, far_iv = self._classify(m, st, dist, self._interval(m, st, kd, n_r, s_r))
+        # ---- k=K: write the far interval to S[sp] (the near one to N: _write_n)
+        sw = st[self.LAT]
+        m.d.comb += [s_w.addr.eq(Cat(sw.lane, sw.sp, sw.thread)), s_w.data.eq(far_iv),
+                     s_w.en.eq(sw.v)]
+        self._write_n(m, st, near_iv, n_w, ray_w, ah_w)
+        self._request(m, n_rq, s_rq, ah_r)
+        return m
 
-        # ---- step queue and issue stage
-        m.submodules.issue = iss = StepIssue(cfg, queue=self.queue)
+    def _issue(self, m: Module):
+        """The step queue and issue stage, and the pipeline behind it: per stage ``k`` (0: the
+        issue, ``LAT``: the write) a slot (e), a lane in it (v) and its step's tag. Returns
+        (the stages' tags, the issuing step)."""
+        m.submodules.issue = iss = StepIssue(self.cfg, queue=self.queue)
         wiring.connect(m, wiring.flipped(self.step), iss.step)
         m.d.comb += [iss.go.eq(self.go), self.can_start.eq(iss.can_start)]
-        act, has, last, lane0, d = iss.active, iss.has_lane, iss.last, iss.lane, iss.cur
-
-        # ---- the pipeline: per stage a slot (e), a lane in it (v), its step's tag
-        tag = data.StructLayout({"e": 1, "v": 1, "last": 1, "lane": rb, "thread": tb,
-                                 "sp": db, "cur": 1})
-        K = self.LAT
-        st = [Signal(tag, name=f"s{k}") for k in range(K + 1)]
-        m.d.comb += [st[0].e.eq(act), st[0].v.eq(act & has), st[0].last.eq(last),
-                     st[0].lane.eq(lane0), st[0].thread.eq(d.thread), st[0].sp.eq(d.sp),
+        act, has, d = iss.active, iss.has_lane, iss.cur
+        tag = data.StructLayout({"e": 1, "v": 1, "last": 1, "lane": self.rbits,
+                                 "thread": self.tbits, "sp": self.dbits, "cur": 1})
+        st = [Signal(tag, name=f"s{k}") for k in range(self.LAT + 1)]
+        m.d.comb += [st[0].e.eq(act), st[0].v.eq(act & has), st[0].last.eq(iss.last),
+                     st[0].lane.eq(iss.lane), st[0].thread.eq(d.thread), st[0].sp.eq(d.sp),
                      st[0].cur.eq(d.cur), self.issue.eq(act & has)]
-        for k in range(1, K + 1):
+        for k in range(1, self.LAT + 1):
             m.d.sync += st[k].eq(st[k - 1])
         m.d.comb += self.idle.eq(~act & ~iss.queued & ~Cat(*(s.e for s in st[1:])).any())
+        return st, d
 
-        # ---- k=0: ray read; k=1: register; k=2: split - org[axis]
+    def _distance(self, m: Module, st, d, ray_r):
+        """k=0: ray read; k=1: register; k=2: ``split - org[axis]`` (FPAdd); then ``*
+        inv[axis]`` (FPMul). Returns (dist, the stage ``kd`` where it is valid)."""
+        w, add, mul = self.cfg.fmt.width, self.add, self.mul
         m.d.comb += ray_r.addr.eq(Cat(st[0].lane, st[0].thread))
         axis1, split1, axis2, split2 = Signal(2), Signal(w), Signal(2), Signal(w)
         ray2 = Signal(6 * w, reset_less=True)   # a block-RAM read: no reset (rtl/fpga/outreg.py)
@@ -273,18 +280,21 @@ class TravSubunit(wiring.Component):
             nxt = Signal(w, name=f"inv_d{i}")
             m.d.sync += nxt.eq(inv_d)
             inv_d = nxt
-        # ---- k=2+La: * inv[axis]; dist at k=K-1
         m.d.comb += [mul.a.eq(add.o), mul.b.eq(inv_d), mul.i_valid.eq(add.o_valid)]
-        dist = mul.o
         kd = 2 + add.latency + mul.latency          # stage where dist is valid
-        assert kd == K - c
-        # interval read issued two stages earlier and registered, so it meets dist (the
-        # block RAM's output feeds only the slot mux and that register; no step of the same
-        # thread is in the pipeline, so reading earlier sees the same words). fast_clock:
-        # four stages earlier (three, two when the pipeline has fewer), the block RAMs'
-        # outputs through two registers (the first has no other load, so it sits beside the
-        # RAM), then the slot mux into the interval register
-        rd = max(2, min(4, kd)) if cfg.fast_clock else 2
+        assert kd == self.LAT - self.cmp_lat
+        return mul.o, kd
+
+    def _interval(self, m: Module, st, kd: int, n_r, s_r) -> Signal:
+        """The lane's current interval (``tnear | tfar << w``), registered at stage ``kd``.
+        Read two stages earlier and registered once, so it meets dist (the block RAM's output
+        feeds only the slot mux and that register; no step of the same thread is in the
+        pipeline, so reading earlier sees the same words). ``cfg.fast_clock``: four stages
+        earlier (three, two when the pipeline has fewer), the block RAMs' outputs through two
+        registers (the first has no other load, so it sits beside the RAM), then the slot mux
+        into the interval register."""
+        w = self.cfg.fmt.width
+        rd = max(2, min(4, kd)) if self.cfg.fast_clock else 2
         m.d.comb += [n_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].thread)),
                      s_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].sp, st[kd - rd].thread))]
         iv = Signal(2 * w)
@@ -295,6 +305,19 @@ class TravSubunit(wiring.Component):
             m.d.sync += [s_q.eq(s_d), n_q.eq(n_d)]
             s_d, n_d = s_q, n_q
         m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_d, n_d))
+        return iv
+
+    def _classify(self, m: Module, st, dist, iv):
+        """Stage ``kd``: ``dist < tnear``, ``dist > tfar``, ``min(tfar, dist)`` and ``max(tnear,
+        dist)`` (``cmp_lat`` cycles); at the write stage each lane's verdict joins its step's,
+        which goes to the ``res`` queue with the step's last lane. Returns the near and far
+        intervals to write."""
+        fmt, R, c = self.cfg.fmt, self.R, self.cmp_lat
+        w, kd = fmt.width, self.LAT - c
+        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=c)
+        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=c)
+        m.submodules.vmin = vmin = FPMinMax(fmt, latency=c)
+        m.submodules.vmax = vmax = FPMinMax(fmt, latency=c)
         tnear, tfar = iv[:w], iv[w:]
         m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
                      gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(st[kd].v),
@@ -305,35 +328,38 @@ class TravSubunit(wiring.Component):
             tn, tf = Signal(w, name=f"tnear_d{i}"), Signal(w, name=f"tfar_d{i}")
             m.d.sync += [tn.eq(tnear_d), tf.eq(tfar_d)]
             tnear_d, tfar_d = tn, tf
-        # ---- k=K: write near interval to N, far interval to S[sp]; collect the verdict
-        sw = st[K]
+        sw = st[self.LAT]
         near, far = Signal(R), Signal(R)            # this step's lanes so far
         near_n, far_n = Signal(R), Signal(R)
         bit = Mux(sw.v, Const(1, R) << sw.lane, 0)
         m.d.comb += [near_n.eq(near | Mux(~lt_near.o.lt, bit, 0)),
                      far_n.eq(far | Mux(~gt_far.o.lt, bit, 0))]
-        m.submodules.results = rq = SyncFIFO(width=2 * R, depth=T)
+        m.submodules.results = rq = SyncFIFO(width=2 * R, depth=self.cfg.threads)
         m.d.comb += [rq.w_data.eq(Cat(near_n, far_n)), rq.w_en.eq(sw.e & sw.last),
                      self.res.payload.eq(rq.r_data), self.res.valid.eq(rq.r_rdy),
                      rq.r_en.eq(self.res.ready)]
         with m.If(sw.e):
             m.d.sync += [near.eq(Mux(sw.last, 0, near_n)), far.eq(Mux(sw.last, 0, far_n))]
-        m.d.comb += [s_w.addr.eq(Cat(sw.lane, sw.sp, sw.thread)),
-                     s_w.data.eq(Cat(vmax.o, tfar_d)), s_w.en.eq(sw.v)]
+        return Cat(tnear_d, vmin.o), Cat(vmax.o, tfar_d)
+
+    def _write_n(self, m: Module, st, near_iv, n_w, ray_w, ah_w) -> None:
+        """The write stage's near interval to ``N``, else the loader's lane (its interval to
+        ``N``, its ray data and any-hit flag), which waits for ``ld_block``. ``cfg.fast_clock``:
+        the loader's write a cycle later, from registers beside the memories (the loader's
+        handshake, far away, ends at a register; it checked that the datapath does not write
+        N in the cycle the write lands)."""
+        K = self.LAT
+        sw = st[K]
         m.d.comb += [self.ld_block.eq(sw.v), self.ld_block_next.eq(st[K - 1].v),
                      self.ld_block_next2.eq(st[K - 2].v)]
         ld = dict(en=self.ld_en, thread=self.ld_thread, lane=self.ld_lane,
                   org=self.ld_org.as_value(), inv=self.ld_inv.as_value(),
                   tnear=self.ld_tnear, tfar=self.ld_tfar, anyhit=self.ld_anyhit)
-        if cfg.fast_clock:
-            # the loader's write a cycle later, from registers beside the memories (the
-            # loader's handshake, far away, ends at a register; it checked that the datapath
-            # does not write N in the cycle the write lands)
+        if self.cfg.fast_clock:
             ld = registered(m, "ld_q", **ld)
         ld_addr = Cat(ld["lane"], ld["thread"])
-        # N: the datapath's write wins; the loader is held off by ld_block
         with m.If(sw.v):
-            m.d.comb += [n_w.addr.eq(Cat(sw.lane, sw.thread)), n_w.data.eq(Cat(tnear_d, vmin.o)),
+            m.d.comb += [n_w.addr.eq(Cat(sw.lane, sw.thread)), n_w.data.eq(near_iv),
                          n_w.en.eq(1)]
         with m.Else():
             m.d.comb += [n_w.addr.eq(ld_addr), n_w.data.eq(Cat(ld["tnear"], ld["tfar"])),
@@ -343,14 +369,17 @@ class TravSubunit(wiring.Component):
                      ah_w.addr.eq(ld_addr), ah_w.data.eq(ld["anyhit"]),
                      ah_w.en.eq(ld["en"] & ~sw.v)]
 
-        # ---- result-side read: tfar of the current slot and anyhit, one cycle later
+    def _request(self, m: Module, n_rq, s_rq, ah_r) -> None:
+        """The result side's read: both slots' ``tfar`` and ``anyhit``, ``RQ_LAT`` cycles
+        later (the block RAMs' outputs straight into registers when more than 1)."""
+        w = self.cfg.fmt.width
         m.d.comb += [n_rq.addr.eq(Cat(self.rq_lane, self.rq_thread)),
                      s_rq.addr.eq(Cat(self.rq_lane, self.rq_sp, self.rq_thread)),
                      ah_r.addr.eq(Cat(self.rq_lane, self.rq_thread))]
         cur_d = Signal()
         m.d.sync += cur_d.eq(self.rq_cur)
         s_tfar, n_tfar, anyhit = s_rq.data[w:], n_rq.data[w:], ah_r.data
-        for i in range(self.RQ_LAT - 1):    # the block RAMs' outputs straight into registers
+        for i in range(self.RQ_LAT - 1):
             regs = (Signal(w, name=f"rq{i}_s_tfar", reset_less=True),
                     Signal(w, name=f"rq{i}_n_tfar", reset_less=True), Signal(name=f"rq{i}_ah"))
             cur_dd = Signal(name=f"rq{i}_cur")
@@ -360,7 +389,6 @@ class TravSubunit(wiring.Component):
         m.d.comb += [self.rq_tfar.eq(Mux(cur_d, s_tfar, n_tfar)), self.rq_anyhit.eq(anyhit),
                      self.rq_s_tfar.eq(s_tfar), self.rq_n_tfar.eq(n_tfar),
                      self.rq_slot.eq(cur_d)]
-        return m
 
 
 class _Threads:
