@@ -17,20 +17,20 @@ only -> ``cur = S``. A pop of entry ``i`` sets ``sp = i``, ``cur = S``: no inter
 
 Engines (each a small state machine; threads are picked round-robin among those waiting):
 
-* loader: takes ``RayIn`` packets into a free thread (``load_thread`` says which), one lane
-  per cycle;
+* loader (``_Loader``): takes ``RayIn`` packets into a free thread (``load_thread`` says
+  which), one lane per cycle;
 * fetcher: one 64-bit node read per packet visit (``node`` port, tag = thread);
-* control engine: decodes the node (2 cycles per event); at an inner node it queues the step
-  in every sub-unit (lane ``l`` -> sub-unit ``l // (lanes/k)``) and moves on to the next
-  thread; at a non-empty leaf it emits a ``LeafRequest`` and parks the thread; empty leaves
-  and finished leaves pop the stack (one entry per 2 cycles); an exhausted stack starts the
-  next octant pass or finishes the packet;
+* control engine (``_ControlEngine``): decodes the node (2 cycles per event); at an inner
+  node it queues the step in every sub-unit (``StepDispatch``: lane ``l`` -> sub-unit
+  ``l // (lanes/k)``) and moves on to the next thread; at a non-empty leaf it emits a
+  ``LeafRequest`` and parks the thread; empty leaves and finished leaves pop the stack (one
+  entry per 2 cycles); an exhausted stack starts the next octant pass or finishes the packet;
 * sub-units: one lane per cycle through ``sub -> mul -> compare, min/max``, steps of different
   threads back to back; synchronous mode (``cfg.trav_sync``): all sub-units start a step
   together; asynchronous: each starts its next step as soon as it has issued its lanes of the
   previous one (an idle group costs one cycle);
-* decide engine: when every sub-unit's verdict on the oldest outstanding step is in, combines
-  them and goes near / far / both (push) / ends the pass, in one cycle;
+* decide engine (``StepDecide``): when every sub-unit's verdict on the oldest outstanding
+  step is in, combines them and goes near / far / both (push) / ends the pass, in one cycle;
 * result engine: one ``LaneResult`` per cycle; terminates lanes with
   ``hit & (anyhit | t <= tfar)``; the leaf's ``last`` result makes the thread pop;
 * done engine: emits ``PacketDone``; the thread is free again on ``release``.
@@ -57,7 +57,7 @@ from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
 from .rtc_streams import LaneResult, LeafRequest, PacketDone, RayIn, lane_bits
 
-__all__ = ["Traversal", "TravSubunit", "StepIssue", "ThreadState"]
+__all__ = ["Traversal", "TravSubunit", "StepIssue", "StepDispatch", "StepDecide", "ThreadState"]
 
 NODE_BITS = NODE_INDEX_BITS
 
@@ -77,11 +77,16 @@ class ThreadState(enum.Enum, shape=4):
     STEP = 10         # an inner-node step is in the sub-units
 
 
+def stack_bits(cfg: Config) -> int:
+    """Bits of a stack pointer (an entry's index)."""
+    return max(1, ceil_log2(cfg.stack_depth))
+
+
 def step_layout(cfg: Config) -> data.StructLayout:
     """A step for one sub-unit: its lanes of the active mask and the node's split plane."""
     return data.StructLayout({
         "mask": cfg.rays_per_subunit, "thread": cfg.thread_bits, "axis": 2,
-        "split": cfg.fmt.width, "sp": max(1, ceil_log2(cfg.stack_depth)), "cur": 1})
+        "split": cfg.fmt.width, "sp": stack_bits(cfg), "cur": 1})
 
 
 def step_result_layout(cfg: Config) -> data.StructLayout:
@@ -197,7 +202,7 @@ class TravSubunit(wiring.Component):
         self.R = R = cfg.rays_per_subunit
         self.rbits = max(1, ceil_log2(R))
         self.tbits = cfg.thread_bits
-        self.dbits = max(1, ceil_log2(cfg.stack_depth))
+        self.dbits = stack_bits(cfg)
         self.queue = queue
         lat = cfg.fp_latencies()
         self.add = FPAdd(fmt) if lat["add"] is None else FPAdd(fmt, latency=lat["add"])
@@ -397,7 +402,7 @@ class _Threads:
 
     def __init__(self, cfg: Config, packet_bits: int):
         T, L = cfg.threads, cfg.packet_size
-        db = max(1, ceil_log2(cfg.stack_depth))
+        db = stack_bits(cfg)
         self.fast, self.tbits, self.writes = cfg.fast_clock, cfg.thread_bits, {}
         self.shadows = []                     # (states, per-thread flags): in_states_q
 
@@ -462,7 +467,9 @@ class _Threads:
         self.set(m, "state", thread, value)
 
     def finish(self, m: Module) -> None:
-        """The combined writes (``fast``)."""
+        """The combined writes (``fast``; nothing to do otherwise)."""
+        if not self.fast:
+            return
         for field, writes in self.writes.items():
             reg = getattr(self, field)
             for t in range(self.T):
@@ -484,11 +491,6 @@ class _Threads:
 def _among(value: Value, states) -> Value:
     """``value`` is one of ``states``."""
     return Cat(*(Value.cast(value) == Value.cast(st) for st in states)).any()
-
-
-def stack_bits(cfg: Config) -> int:
-    """Bits of a stack pointer (an entry's index)."""
-    return max(1, ceil_log2(cfg.stack_depth))
 
 
 def packet_step_layout(cfg: Config) -> data.StructLayout:
@@ -524,8 +526,8 @@ class StepDispatch(wiring.Component):
     """The control engine's steps to the sub-units. A step taken on ``i`` goes in the same
     cycle to every sub-unit's step queue (``sub[j]``: lanes ``j R .. j R + R - 1`` of the
     mask, the split plane in the unit's format) and, with the node's near and far children,
-    to ``order`` (the decide engine's queue of outstanding steps: never full, it holds a step
-    per thread). Room (``i.ready``): always with queues (``queue`` entries) as deep as the
+    to ``order`` (the decide engine's queue of outstanding steps, as deep as the threads: never
+    full, its ready is not read). Room (``i.ready``): always with queues (``queue`` entries) as deep as the
     threads; synchronous sub-units take each step together, so their queues hold the same
     steps and the first one's room is every one's (no path across them); asynchronous ones:
     every queue's room. Combinational: latency 0, one step per cycle."""
@@ -721,7 +723,8 @@ class _ControlEngine:
         low 48 bits are read with the pick's copy 0, the rest with copy 1 (fast_clock: two
         copies of the registered pick, each drives half of the multiplexers)."""
         th, read, idx = self.th, self.read, self.pick_idx
-        # the near child's side per thread (its octant's bit on its node's axis)
+        # the near child's side per thread (its octant's bit on its node's axis), taken at the
+        # pick with the node word, so the children's sums (StepDispatch) start at registers
         is_neg = Cat(*(th.octant[t].bit_select(data.View(node_layout(), th.word[t]).axis, 1)
                        for t in range(th.T)))
         word = Cat(read(th.word, 0)[:48], read(th.word, 1)[48:])
@@ -924,6 +927,7 @@ class _FastControlEngine(_ControlEngine):
         return registered(self.m, "busy", inc=busy)["inc"]
 
 
+
 class _Loader:
     """The loader (default clock): takes the lowest free thread (LOAD) and writes ``RayIn``
     lanes into it, one per cycle (``load_thread`` says which thread): each lane's ray data
@@ -1099,8 +1103,13 @@ class Traversal(wiring.Component):
     fetch: memory latency + 2. Throughput: the sub-units issue steps of different threads back
     to back, one lane per cycle each; the control engine takes 2 cycles per step.
 
-    ``elaborate`` builds one engine per method (loader, fetcher, result, done, control with
-    dispatch, decide); they share the per-thread registers (:class:`_Threads`).
+    ``elaborate`` builds the engines: the loader (:class:`_Loader`), the fetcher, result and
+    done engines (a method each), the control engine (:class:`_ControlEngine`) with its step
+    fan-out (:class:`StepDispatch`) and the decide engine (:class:`StepDecide`). The engines
+    that move threads are built into this module, as they share the per-thread registers
+    (:class:`_Threads`); a stage that ``cfg.fast_clock`` changes has its variant in one place
+    (:class:`_FastLoader`, :class:`_FastControlEngine`, ``_fetch_pick_fast``, ``_kill_fast``,
+    ``_done_out_fast``).
     """
 
     def __init__(self, cfg: Config, *, addr_width: int = 32):
@@ -1142,7 +1151,7 @@ class Traversal(wiring.Component):
         for j, s in enumerate(self.subunits):
             m.submodules[f"sub{j}"] = s
         th = _Threads(self.cfg, len(self.rays.payload.packet))
-        db = max(1, ceil_log2(self.cfg.stack_depth))
+        db = stack_bits(self.cfg)
         m.submodules.stack = stack = BlockRAM(shape=NODE_BITS + self.cfg.packet_size,
                                               depth=self.cfg.threads << db)
         m.submodules.passmask = pmem = BlockRAM(shape=8 * self.cfg.packet_size,
@@ -1153,40 +1162,24 @@ class Traversal(wiring.Component):
         self._result_engine(m, th)
         self._done_engine(m, th)
         self._control(m, th, stack.read_port(), stack.write_port(), pm_r)
-        if th.fast:
-            th.finish(m)
+        th.finish(m)
         return m
 
     def _fetcher(self, m: Module, th: _Threads) -> None:
-        """One 64-bit node read per packet visit, round-robin over threads in ``FETCH``."""
+        """One 64-bit node read per packet visit, round-robin over threads in ``FETCH``; the
+        word's arrival turns the thread to ``HAVE_NODE``."""
         req = self.node.req
         m.submodules.fetch_out = out = OutputStage(MemRequest(len(req.payload.addr),
                                                               len(req.payload.tag)))
         wiring.connect(m, out.o, wiring.flipped(req))
         f_ptr = Signal(self.cfg.thread_bits)
-        fetching = (th.in_states_q(ThreadState.FETCH) if self.cfg.fast_clock
-                    else th.in_state(ThreadState.FETCH))
-        if self.cfg.fast_clock:
-            # the pick is made a cycle ahead into registers, with and without the thread whose
-            # request goes out then (only this engine moves a thread out of FETCH); the
-            # handshake, registered, chooses
-            f_any, f_idx = Signal(name="fetch_any"), Signal(self.cfg.thread_bits,
-                                                            name="fetch_pick")
-            p_any, p_idx, f_oh, f_sel = rr_pick_next(m, fetching, f_ptr,
-                                                     out.i.valid & out.i.ready, "fetch")
-            m.d.comb += [f_any.eq(p_any), f_idx.eq(p_idx)]
-            # the state write's per-thread enables: the pick's one-hot form
-            th.set(m, "state", None, ThreadState.WAIT_MEM,
-                   onehot=Mux(out.i.valid & out.i.ready, f_oh, 0))
-        else:
-            f_any, f_idx = rr_pick(m, fetching, f_ptr, "fetch")
-        f_node = f_sel(th.node) if self.cfg.fast_clock else element(th.node, f_idx)
+        sent = out.i.valid & out.i.ready
+        pick = self._fetch_pick_fast if self.cfg.fast_clock else self._fetch_pick
+        f_any, f_idx, f_node = pick(m, th, f_ptr, sent)
         m.d.comb += [out.i.valid.eq(f_any), out.i.payload.tag.eq(f_idx),
                      out.i.payload.addr.eq(self.node_base + f_node)]
-        with m.If(out.i.valid & out.i.ready):
+        with m.If(sent):
             m.d.sync += f_ptr.eq(f_idx + 1)
-            if not self.cfg.fast_clock:
-                th.set_state(m, f_idx, ThreadState.WAIT_MEM)
         with m.If(req.valid & req.ready):
             m.d.sync += self.node_reads.eq(self.node_reads + 1)
         resp = self.node.resp
@@ -1195,97 +1188,123 @@ class Traversal(wiring.Component):
             m.d.sync += th.word[resp.payload.tag].eq(resp.payload.data)
             th.set_state(m, resp.payload.tag, ThreadState.HAVE_NODE)
 
+    def _fetch_pick(self, m: Module, th: _Threads, ptr, sent):
+        """(any, thread, its node) of the fetcher's round-robin pick; the thread turns
+        ``WAIT_MEM`` when its request is ``sent``."""
+        f_any, f_idx = rr_pick(m, th.in_state(ThreadState.FETCH), ptr, "fetch")
+        with m.If(sent):
+            th.set_state(m, f_idx, ThreadState.WAIT_MEM)
+        return f_any, f_idx, element(th.node, f_idx)
+
+    def _fetch_pick_fast(self, m: Module, th: _Threads, ptr, sent):
+        """:meth:`_fetch_pick` made a cycle ahead into registers, from the registered state
+        flags, with and without the thread whose request goes out then (only this engine
+        moves a thread out of FETCH); ``sent``, registered, chooses. The state write's
+        per-thread enables: the pick's one-hot form."""
+        f_any, f_idx = Signal(name="fetch_any"), Signal(self.cfg.thread_bits, name="fetch_pick")
+        p_any, p_idx, f_oh, f_sel = rr_pick_next(m, th.in_states_q(ThreadState.FETCH), ptr,
+                                                 sent, "fetch")
+        m.d.comb += [f_any.eq(p_any), f_idx.eq(p_idx)]
+        th.set(m, "state", None, ThreadState.WAIT_MEM, onehot=Mux(sent, f_oh, 0))
+        return f_any, f_idx, f_sel(th.node)
+
     def _result_engine(self, m: Module, th: _Threads) -> None:
         """One ``LaneResult`` per cycle: the lane ends if it hit and is an any-hit ray or its
         hit lies in the cell (``t <= tfar``, tfar read from its sub-unit); the leaf's ``last``
         result makes the thread pop. Applied 1 + ``RQ_LAT`` cycles after the result arrives
         (``cfg.fast_clock``: 3 + ``RQ_LAT``, the result and its thread's sp/cur registered
         before the read, each sub-unit's verdict registered after it)."""
-        cfg, fmt, k, subs = self.cfg, self.cfg.fmt, self.cfg.trav_subunits, self.subunits
+        cfg, k, subs = self.cfg, self.cfg.trav_subunits, self.subunits
         rs = self.result.payload
         m.d.comb += self.result.ready.eq(1)
-        r_v, r_thread, r_lane, r_hit, r_t, r_last = (
-            self.result.valid, rs.thread, rs.lane, rs.hit, rs.t, rs.last)
-        r_sp, r_cur = th.sp[rs.thread], th.cur[rs.thread]
+        r = dict(v=self.result.valid, thread=rs.thread, lane=rs.lane, hit=rs.hit, t=rs.t,
+                 last=rs.last, sp=th.sp[rs.thread], cur=th.cur[rs.thread])
         if cfg.fast_clock:
             # the result and its thread's stack pointer and slot flag in registers first, so
             # the sub-units' stack reads are addressed from registers here (the thread waits
             # for its leaf, so its sp and cur hold)
-            r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sp, r_cur = registered(
-                m, "rin", v=r_v, thread=r_thread, lane=r_lane, hit=r_hit, t=r_t, last=r_last,
-                sp=r_sp, cur=r_cur).values()
-        r_sub, r_loc = self._split_lane(m, r_lane, "rq")
+            r = registered(m, "rin", **r)
+        r_sub, r_loc = self._split_lane(m, r["lane"], "rq")
         for s in subs:
-            m.d.comb += [s.rq_thread.eq(r_thread), s.rq_lane.eq(r_loc),
-                         s.rq_sp.eq(r_sp), s.rq_cur.eq(r_cur)]
+            m.d.comb += [s.rq_thread.eq(r["thread"]), s.rq_lane.eq(r_loc),
+                         s.rq_sp.eq(r["sp"]), s.rq_cur.eq(r["cur"])]
         # the result waits in registers for the sub-units' read (RQ_LAT cycles)
-        r_sub1 = r_sub
+        r = dict(v=r["v"], thread=r["thread"], lane=r["lane"], hit=r["hit"], t=r["t"],
+                 last=r["last"], sub=r_sub)
+        shapes = dict(v=1, thread=cfg.thread_bits, lane=lane_bits(cfg), hit=1,
+                      t=cfg.fmt.width, last=1, sub=range(max(2, k)))
         for i in range(subs[0].RQ_LAT):
-            regs = (Signal(name=f"r{i}_v"), Signal(cfg.thread_bits, name=f"r{i}_thread"),
-                    Signal(lane_bits(cfg), name=f"r{i}_lane"), Signal(name=f"r{i}_hit"),
-                    Signal(fmt.width, name=f"r{i}_t"), Signal(name=f"r{i}_last"),
-                    Signal(range(max(2, k)), name=f"r{i}_sub"))
-            m.d.sync += [a.eq(b) for a, b in zip(regs, (r_v, r_thread, r_lane, r_hit, r_t,
-                                                         r_last, r_sub1))]
-            r_v, r_thread, r_lane, r_hit, r_t, r_last, r_sub1 = regs
-        if cfg.fast_clock:
-            # t against every sub-unit's tfar of both slots at once; each sub-unit's verdict
-            # (its lane already hit, or t <= tfar) is registered, and the result's sub-unit
-            # and hit choose among the registers (the slot and sub-unit selects leave the
-            # compare's path)
-            kills = Cat(*(s.rq_anyhit | Mux(s.rq_slot, compare(fmt, r_t, s.rq_s_tfar).le,
-                                            compare(fmt, r_t, s.rq_n_tfar).le) for s in subs))
-            r_v, kills, r_hit, r_sub1, r_thread, r_lane, r_last = registered(
-                m, "rk", v=r_v, kills=kills, hit=r_hit, sub=r_sub1, thread=r_thread,
-                lane=r_lane, last=r_last).values()
-            kill = r_hit & kills.bit_select(r_sub1, 1)
-        else:
-            anyhit = Array(s.rq_anyhit for s in subs)[r_sub1]
-            le = compare(fmt, r_t, Array(s.rq_tfar for s in subs)[r_sub1]).le
-            kill = r_hit & (anyhit | le)
-        with m.If(r_v):
+            regs = {f: Signal(shapes[f], name=f"r{i}_{f}") for f in r}
+            m.d.sync += [regs[f].eq(r[f]) for f in r]
+            r = regs
+        kill, r = (self._kill_fast if cfg.fast_clock else self._kill)(m, r)
+        with m.If(r["v"]):
             with m.If(kill):
-                m.d.sync += th.term[r_thread].eq(th.term[r_thread] |
-                                                 (Const(1, cfg.packet_size) << r_lane))
-            with m.If(r_last):
-                th.set_state(m, r_thread, ThreadState.POP)
+                m.d.sync += th.term[r["thread"]].eq(th.term[r["thread"]] |
+                                                    (Const(1, cfg.packet_size) << r["lane"]))
+            with m.If(r["last"]):
+                th.set_state(m, r["thread"], ThreadState.POP)
+
+    def _kill(self, m: Module, r: dict) -> tuple[Value, dict]:
+        """(the result ends its lane, the result): a hit, and an any-hit ray or ``t <= tfar``
+        (the result's sub-unit's read)."""
+        subs = self.subunits
+        anyhit = Array(s.rq_anyhit for s in subs)[r["sub"]]
+        le = compare(self.cfg.fmt, r["t"], Array(s.rq_tfar for s in subs)[r["sub"]]).le
+        return r["hit"] & (anyhit | le), r
+
+    def _kill_fast(self, m: Module, r: dict) -> tuple[Value, dict]:
+        """:meth:`_kill` a cycle later (with the result, registered): t against every sub-unit's
+        tfar of both slots at once; each sub-unit's verdict (its lane already hit, or t <=
+        tfar) is registered, and the result's sub-unit and hit choose among the registers (the
+        slot and sub-unit selects leave the compare's path)."""
+        fmt = self.cfg.fmt
+        kills = Cat(*(s.rq_anyhit | Mux(s.rq_slot, compare(fmt, r["t"], s.rq_s_tfar).le,
+                                        compare(fmt, r["t"], s.rq_n_tfar).le)
+                      for s in self.subunits))
+        q = registered(m, "rk", v=r["v"], kills=kills, hit=r["hit"], sub=r["sub"],
+                       thread=r["thread"], lane=r["lane"], last=r["last"])
+        return q["hit"] & q["kills"].bit_select(q["sub"], 1), q
 
     def _done_engine(self, m: Module, th: _Threads) -> None:
-        """``PacketDone`` for a thread whose passes all ended; ``release`` frees the thread.
-        ``done`` leaves from a register (the lowest thread in ``DONE``), which turns the
-        thread to ``DRAIN``. ``cfg.fast_clock``: the register holds the thread's id, which
-        stays ``DONE`` until ``done`` is taken, so the state write starts at registers, not
-        at the pick over every thread's state (the same cycles: the next pick leaves out the
-        thread just taken)."""
+        """``PacketDone`` for a thread whose passes all ended (it turns ``DRAIN``);
+        ``release`` frees the thread."""
         dn = self.done
-        if th.fast:
-            # the thread's id and its one-hot in registers: the one-hot leaves the thread just
-            # taken out of the next pick and writes its DRAIN, with no decoder on the loop
-            o_thread = Signal(self.cfg.thread_bits, name="done_thread")
-            o_oh = Signal(th.T, name="done_onehot")
-            cand = th.in_states_q(ThreadState.DONE) & ~Mux(dn.valid, o_oh, 0)
-            d_any, d_idx = lowest(m, cand, "done")
-            with m.If(~dn.valid | dn.ready):
-                m.d.sync += [dn.valid.eq(d_any), o_thread.eq(d_idx),
-                             o_oh.eq(lowest_onehot(cand))]
-            m.d.comb += [dn.payload.thread.eq(o_thread), dn.payload.packet.eq(th.packet[o_thread]),
-                         dn.payload.mask.eq(th.lanes[o_thread])]
-            th.set(m, "state", None, ThreadState.DRAIN,
-                   onehot=Mux(dn.valid & dn.ready, o_oh, 0))
-        else:
-            m.submodules.done_out = out = OutputStage(PacketDone(self.cfg))
-            wiring.connect(m, out.o, wiring.flipped(dn))
-            d_any, d_idx = lowest(m, th.in_state(ThreadState.DONE), "done")
-            m.d.comb += [out.i.valid.eq(d_any), out.i.payload.thread.eq(d_idx),
-                         out.i.payload.packet.eq(th.packet[d_idx]),
-                         out.i.payload.mask.eq(th.lanes[d_idx])]
-            with m.If(out.i.valid & out.i.ready):
-                th.set_state(m, d_idx, ThreadState.DRAIN)
+        (self._done_out_fast if th.fast else self._done_out)(m, th)
         with m.If(dn.valid & dn.ready):
             m.d.sync += self.packets_done.eq(self.packets_done + 1)
         m.d.comb += self.release.ready.eq(1)
         with m.If(self.release.valid):
             th.set_state(m, self.release.payload, ThreadState.FREE)
+
+    def _done_out(self, m: Module, th: _Threads) -> None:
+        """``done`` leaves from a register (:class:`OutputStage`): the lowest thread in
+        ``DONE``, which turns ``DRAIN`` as it goes in."""
+        m.submodules.done_out = out = OutputStage(PacketDone(self.cfg))
+        wiring.connect(m, out.o, wiring.flipped(self.done))
+        d_any, d_idx = lowest(m, th.in_state(ThreadState.DONE), "done")
+        m.d.comb += [out.i.valid.eq(d_any), out.i.payload.thread.eq(d_idx),
+                     out.i.payload.packet.eq(th.packet[d_idx]),
+                     out.i.payload.mask.eq(th.lanes[d_idx])]
+        with m.If(out.i.valid & out.i.ready):
+            th.set_state(m, d_idx, ThreadState.DRAIN)
+
+    def _done_out_fast(self, m: Module, th: _Threads) -> None:
+        """:meth:`_done_out` with the register holding the thread's id and its one-hot: the
+        thread stays ``DONE`` until ``done`` is taken, so the state write starts at registers,
+        not at the pick over every thread's state (the same cycles: the one-hot leaves the
+        thread just taken out of the next pick and writes its DRAIN, with no decoder on the
+        loop)."""
+        dn = self.done
+        o_thread = Signal(self.cfg.thread_bits, name="done_thread")
+        o_oh = Signal(th.T, name="done_onehot")
+        cand = th.in_states_q(ThreadState.DONE) & ~Mux(dn.valid, o_oh, 0)
+        d_any, d_idx = lowest(m, cand, "done")
+        with m.If(~dn.valid | dn.ready):
+            m.d.sync += [dn.valid.eq(d_any), o_thread.eq(d_idx), o_oh.eq(lowest_onehot(cand))]
+        m.d.comb += [dn.payload.thread.eq(o_thread), dn.payload.packet.eq(th.packet[o_thread]),
+                     dn.payload.mask.eq(th.lanes[o_thread])]
+        th.set(m, "state", None, ThreadState.DRAIN, onehot=Mux(dn.valid & dn.ready, o_oh, 0))
 
     def _control(self, m: Module, th: _Threads, st_r, st_w, pm_r) -> None:
         """The control engine (:class:`_ControlEngine`: pick a thread, dispatch its step /
