@@ -273,7 +273,7 @@ class TravSubunit(wiring.Component):
         w, add, mul = self.cfg.fmt.width, self.add, self.mul
         m.d.comb += ray_r.addr.eq(Cat(st[0].lane, st[0].thread))
         axis1, split1, axis2, split2 = Signal(2), Signal(w), Signal(2), Signal(w)
-        ray2 = Signal(6 * w, reset_less=True)   # a block-RAM read: no reset (rtl/fpga/outreg.py)
+        ray2 = Signal(6 * w, reset_less=True)   # a block-RAM read: no reset (saarcor/flows/fpga/outreg.py)
         m.d.sync += [axis1.eq(d.axis), split1.eq(d.split), axis2.eq(axis1), split2.eq(split1),
                      ray2.eq(ray_r.data)]
         org = [ray2[i * w:(i + 1) * w] for i in range(3)]
