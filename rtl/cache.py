@@ -738,7 +738,7 @@ class FastFill(Fill):
         """(loaded only with a response: the caches' copies of the bus's shared response stay
         apart, each beside its own fill logic)"""
         mresp = SimpleNamespace(valid=Signal(name="fill_valid"),
-                                payload=Signal.like(self.resp.payload, name="fill"))
+                                payload=Signal.like(self.resp.payload, name="fill_resp"))
         m.d.sync += mresp.valid.eq(self.resp.valid)
         with m.If(self.resp.valid):
             m.d.sync += mresp.payload.eq(self.resp.payload)

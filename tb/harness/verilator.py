@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from model.config import Config, ConfigError
-from rtl.common import ram_poison
+from rtl.common import POISON_ENV, ram_poison  # noqa: F401 (POISON_ENV: tests set it through this module)
 from tb.harness.tools import tool
 
 from tb.harness import compare
