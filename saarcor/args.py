@@ -60,6 +60,11 @@ SCENE_HELP = ("a scene: a .toml file (docs/scenes.md) or a bare mesh (.obj .ply 
               "the camera frames it, one light)")
 
 
+def summary(doc: str) -> str:
+    """A module docstring's first paragraph on one line: a command's ``--help`` description."""
+    return " ".join(doc.strip().split("\n\n")[0].split())
+
+
 def parse_res(text: str) -> tuple[int, int]:
     try:
         w, h = (int(x) for x in str(text).lower().split("x"))

@@ -254,8 +254,8 @@ def second_run(scene_path: str, width: int, height: int, log=None) -> dict:
 
 
 def main(argv=None) -> int:
-    from saarcor.args import RES_QUICK, add_out_arg, add_res_arg, add_scene_arg, res_from_args
-    ap = argparse.ArgumentParser(prog="saarcor bench skipping", description=__doc__.split("\n")[0])
+    from saarcor.args import RES_QUICK, add_out_arg, add_res_arg, add_scene_arg, res_from_args, summary
+    ap = argparse.ArgumentParser(prog="saarcor bench skipping", description=summary(__doc__))
     add_scene_arg(ap, "scenes/office.toml")
     add_res_arg(ap, RES_QUICK)
     ap.add_argument("--rtl-cycles", action="store_true",

@@ -236,7 +236,7 @@ def test_congestion_units_and_shares(tmp_path):
     the units by their cells there, the quietest iteration is chosen, and the map is drawn."""
     from saarcor.flows.fpga.congestion import attribute, read_heatmap, report, tile_units, unit_of
     from saarcor.flows.fpga.flow import main
-    assert unit_of("dut.rtcmi.cache_int.q_wait_TRELLIS_FF_Q") == "rtcmi.cache_int"
+    assert unit_of("dut.rtcmi.cache_int.queue.q_wait_TRELLIS_FF_Q") == "rtcmi.cache_int"
     assert unit_of("dut.rtc.int.pipe.add3.s2_TRELLIS_FF_Q") == "rtc.int.pipe"
     assert unit_of("dut.rtc.int.n_mask_LUT4_Z") == "rtc.int"
     assert unit_of("dut.pipe.a_sxz$619.$42_MULT18X18D_P9") == "pipe"

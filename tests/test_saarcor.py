@@ -92,6 +92,8 @@ def test_command_help_is_the_modules_help(cmd, capsys):
     assert status == 0, err
     assert OPTION[cmd] in out, out
     assert out.startswith(f"usage: saarcor {' '.join(cmd)} "), out.splitlines()[0]
+    description = " ".join(out.split("\n\n")[1].split())   # whole sentences, not a cut line
+    assert description.endswith((".", ".``")), description
     if cmd in (("render",), ("verilog",), ("bench", "threads")):   # Config options, generated
         assert "--trav-cache-kb" in out and "--fmt" in out
     offered = set(re.findall(r"(?<![\w-])--[a-z][\w-]*", out))

@@ -81,8 +81,8 @@ def table(results: list[dict], fmt: FPFormat) -> str:
 
 def main(argv=None) -> None:
     from model.config import ConfigError
-    from saarcor.args import parse_fmt
-    ap = argparse.ArgumentParser(prog="saarcor synth", description=__doc__.splitlines()[0])
+    from saarcor.args import parse_fmt, summary
+    ap = argparse.ArgumentParser(prog="saarcor synth", description=summary(__doc__))
     ap.add_argument("--fmt", default="E8M23", help="FP format E<exp>M<frac> (default E8M23)")
     ap.add_argument("--units", default=",".join(UNITS), help="comma-separated: " + ",".join(UNITS))
     ap.add_argument("--table", metavar="FILE",

@@ -6,7 +6,7 @@ value per tile row y: the sum, over the tile's wires used by more than one net, 
 each) and ``PREFIX_congestion_by_net_N.csv`` (``net,excess``: over the net's overused wires, the
 nets beyond the first). A placed design (``placed.json``, ``saarcor fpga --place-only``)
 names each cell's site in its ``NEXTPNR_BEL`` attribute (``X12/Y34/SLICEA``); cell and net names
-carry the path of the unit they came from (``dut.rtcmi.cache_int.q_wait_TRELLIS_FF_Q``).
+carry the path of the unit they came from (``dut.rtcmi.cache_int.queue.q_wait_TRELLIS_FF_Q``).
 :func:`unit_of` maps a name to its unit, :func:`tile_units` counts each unit's cells per tile,
 :func:`attribute` splits the congestion of every tile between the units in proportion to their
 cells there, :func:`net_units` sums the nets' excess by unit, and :func:`plot` draws the two maps
@@ -41,7 +41,7 @@ def _unit() -> dict:
 
 def unit_of(cell: str, depth: int = 2, split: tuple[str, ...] = SPLIT) -> str:
     """The unit of a flattened cell name: the module path below the wrapped design (``dut``)
-    cut to ``depth`` modules (``dut.rtcmi.cache_int.q_wait_TRELLIS_FF_Q`` ->
+    cut to ``depth`` modules (``dut.rtcmi.cache_int.queue.q_wait_TRELLIS_FF_Q`` ->
     ``rtcmi.cache_int``), one module deeper where that path starts with one of ``split``.
     A name's last component is a signal, and a component with ``$`` starts Yosys' own
     suffixes, so neither counts as a module. Cells outside ``dut`` (the pin wrapper, nets

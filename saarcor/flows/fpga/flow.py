@@ -31,7 +31,7 @@ from amaranth.back import verilog
 
 from model.config import Config, ConfigError
 from tb.harness.tops import TOPS, build_top
-from saarcor.args import add_config_args, add_out_arg, config_from_args
+from saarcor.args import add_config_args, add_out_arg, config_from_args, summary
 from tb.harness import tools
 from rtl.fp.dsp import ECP5
 from saarcor.flows.synth import cell_counts
@@ -530,7 +530,7 @@ def table(runs: dict) -> str:
 
 
 def main(argv=None) -> None:
-    ap = argparse.ArgumentParser(prog="saarcor fpga", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="saarcor fpga", description=summary(__doc__))
     ap.add_argument("--top", default="rtc", help=f"what to build: {', '.join(TOPS)}")
     ap.add_argument("--fp-latency", type=int, metavar="N",
                     help="pipeline latency of an fp_* top (cycles; default the unit's own)")
