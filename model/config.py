@@ -11,6 +11,9 @@ from dataclasses import dataclass, field
 from .fp import FPFormat
 
 
+CACHE_TOPOLOGIES = ("shared", "private")   # Config.cache_topology
+
+
 class ConfigError(ValueError):
     """An impossible or inconsistent configuration; the message names the parameter."""
 
@@ -89,9 +92,13 @@ class Config:
     mem_chips: int = 4             # 16-bit SDRAM chips
     mem_chip_bits: int = 16        # data bits per SDRAM chip
     mem_latency: int = 20          # chip cycles from request to first data (ideal memory/SDRAM)
-    trav_cache_kb: int = 64        # each RTC's kd-node cache (RTC-MI)
-    list_cache_kb: int = 64        # each RTC's list-entry cache
-    int_cache_kb: int = 144        # each RTC's triangle cache (144 KB = 4 096 triangles)
+    cache_topology: str = "shared"  # "shared": the paper's RTC-MI, three caches shared by all
+                                   # RTCs behind round-robin buses with labeled broadcast;
+                                   # "private": three caches per RTC
+    trav_cache_kb: int = 64        # the kd-node cache (RTC-MI; one per RTC when private)
+    list_cache_kb: int = 64        # the list-entry cache (one per RTC when private)
+    int_cache_kb: int = 144        # the triangle cache (144 KB = 4 096 triangles; one per RTC
+                                   # when private)
     cache_ways: int = 1            # 1 (direct-mapped), 2 or 4
     cache_line_words: int = 1      # 64-bit words per cache line (triangles: 5 words per item)
     cache_outstanding: int = 4     # outstanding misses per cache
@@ -156,6 +163,10 @@ class Config:
                               f"trav_subunits={self.trav_subunits}")
         if self.kd_max_depth > 62:
             raise ConfigError(f"kd_max_depth={self.kd_max_depth} must be <= 62")
+        if self.cache_topology not in CACHE_TOPOLOGIES:
+            raise ConfigError(f"cache_topology={self.cache_topology!r} must be one of "
+                              f"{', '.join(CACHE_TOPOLOGIES)} (shared: three caches for the "
+                              "chip; private: three caches per RTC)")
         if self.cache_ways not in (1, 2, 4):
             raise ConfigError(f"cache_ways={self.cache_ways} must be 1, 2 or 4")
         if not _pow2(self.threads):
@@ -283,6 +294,12 @@ class Config:
         d = dataclasses.asdict(self)
         d["fmt"] = {"exp_bits": self.fmt.exp_bits, "frac_bits": self.fmt.frac_bits}
         return d
+
+    @property
+    def rtcmis(self) -> int:
+        """RTC-MIs on the chip, each with a trav, list and int cache: one shared by every RTC
+        (``cache_topology = "shared"``), or one per RTC (``"private"``)."""
+        return 1 if self.cache_topology == "shared" else self.rtcs
 
     def hardware_dict(self) -> dict:
         """:meth:`to_dict` without :data:`HOST_FIELDS`: what the elaborated hardware depends on

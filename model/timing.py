@@ -22,7 +22,8 @@ thread at a time (numba, no per-cycle loop):
   latencies); read-out one ray a cycle, the chip's result port one ray a cycle for all RTCs;
 * caches: the RTL's hit/miss rule (``model/cache.py``: set-associative, FIFO replacement, a
   hit under a miss waits for the line), one access a cycle, hits 3 cycles, ``outstanding``
-  misses in flight, responses in request order;
+  misses in flight, responses in request order; private (three per RTC) or shared (three for
+  the chip, each behind a bus that adds a register each way and takes one access a cycle);
 * bus and memory: one grant a cycle for the whole chip (a calendar of cycles, so accesses
   booked ahead by the list and intersection units do not block earlier ones), the SDRAM
   chips of ``tb/harness/memory.py`` (XOR address hashing, a start on an SDRAM clock edge, the data
@@ -76,7 +77,8 @@ class ChipTiming:
             cfg.rtcs, cfg.threads, cfg.trav_subunits, int(cfg.trav_sync),
             cfg.int_tri_slots, cfg.list_outstanding, cfg.mem_chips, cfg.mem_clock_ratio,
             self.burst, cfg.mem_latency, cfg.cache_outstanding, cfg.rays_per_subunit,
-            STEP_LAT, INT_LAT, CACHE_HIT, EYE_LAT], np.int64)
+            STEP_LAT, INT_LAT, CACHE_HIT, EYE_LAT, int(cfg.cache_topology == "shared")],
+            np.int64)
 
 
 def chip_geometries(cfg: Config) -> dict[str, CacheGeometry]:
@@ -218,9 +220,15 @@ def _mem_word(addr, t, bus_cal, chip_cal, resp_cal, P):
 @numba.njit(cache=True)
 def _cache(ci, item, word, t, tags, fill, rr, acc_free, last_resp, mshr, n_miss, hits,
            misses, sets, ways, obits, lwords, bus_cal, chip_cal, resp_cal, P):
-    """One access to cache ``ci`` (item index ``item``, first memory word ``word``) arriving
-    at cycle t; returns the cycle its response leaves the cache (responses in order)."""
+    """One access of RTC ``ci // 3`` to its cache ``ci % 3`` (item index ``item``, first memory
+    word ``word``) leaving the unit at cycle t; returns the cycle its response leaves the cache
+    (responses in order). Shared caches (``P[16]``): the RTCs' accesses go to one cache each,
+    through the bus's request and response registers (a cycle each)."""
     u = ci % 3
+    shared = P[16]
+    if shared:
+        ci = u
+        t += 1
     outst = P[10]
     ta = max(t, acc_free[ci])
     line = item >> obits[u]
@@ -257,7 +265,7 @@ def _cache(ci, item, word, t, tags, fill, rr, acc_free, last_resp, mshr, n_miss,
         ready = done + 2
     resp = max(ready, last_resp[ci] + 1)
     last_resp[ci] = resp
-    return resp
+    return resp + shared
 
 
 @numba.njit(cache=True)

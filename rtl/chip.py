@@ -1,17 +1,20 @@
-"""The SaarCOR chip: ``cfg.rtcs`` ray tracing cores, each behind its RTC-MI, on one memory bus.
+"""The SaarCOR chip: ``cfg.rtcs`` ray tracing cores behind the RTC-MI, on one memory bus.
 
 :class:`RTCArray` is the ray-tracing half of the chip (the paper's Figure 2 without the RGS):
-``cfg.rtcs`` × (:class:`~rtl.rtc.RTC` + :class:`~rtl.rtcmi.RTCMI`), the 3 × ``rtcs`` caches on
-one :class:`~rtl.bus.RoundRobinBus` (requester ``3 * r + c``: cache c = trav, list, int of RTC
-r) to a single 64-bit memory read port ``mem`` (the memory controller's: in simulation
+``cfg.rtcs`` :class:`~rtl.rtc.RTC` s and ``cfg.rtcmis`` RTC-MIs — one
+:class:`~rtl.rtcmi.SharedRTCMI` for all RTCs (``cache_topology = "shared"``, the paper's) or an
+:class:`~rtl.rtcmi.RTCMI` per RTC (``"private"``) — whose 3 × ``rtcmis`` caches sit on one
+:class:`~rtl.bus.RoundRobinBus` (requester ``3 * k + c``: cache c = trav, list, int of RTC-MI
+k) to a single 64-bit memory read port ``mem`` (the memory controller's: in simulation
 :class:`~tb.harness.memory.SDRAMMemory`, ``mem_chips`` SDRAM chips with XOR address hashing at the
 ``mem_clock_ratio`` clock ratio; on an FPGA the board's controller).
 
 Ports: ``rays[r]`` / ``results[r]`` (the RTCs' ``RayIn`` / ``RayResult`` streams), ``mem``,
 image constants ``node_base``, ``list_base``, ``tri_base``, ``root``; counters per RTC
 (``rtc_counters[r]``: the RTC's ``COUNTERS`` and ``sub_busy`` packed, see
-:func:`counter_names`), ``hits[3 * r + c]``, ``misses[3 * r + c]``, ``grants[3 * r + c]``
-(memory words the cache read), ``mem_reads``.
+:func:`counter_names`), per cache ``hits[3 * k + c]``, ``misses[3 * k + c]``,
+``grants[3 * k + c]`` (memory words the cache read), ``waits[c]`` (shared: cycles in which an
+RTC's request waited on cache c's bus; 0 when private), ``mem_reads``.
 
 Latency and throughput are the RTCs' and caches' (a cache hit 3 cycles; one bus register
 each way, one memory request and one response per cycle for the whole chip).
@@ -31,7 +34,7 @@ from .memport import WORD_BITS, MemReadPort, connect_tags
 from .rtc import COUNTERS, RTC
 from .rtc_streams import RayIn, RayResult
 from .rgs.slave import RAY_COUNTERS
-from .rtcmi import CACHES, RTCMI
+from .rtcmi import CACHES, RTCMI, SharedRTCMI, port_tags
 from .traversal import NODE_BITS
 
 __all__ = ["RTCArray", "counter_names"]
@@ -49,11 +52,14 @@ class RTCArray(wiring.Component):
         self.cfg = cfg
         n = cfg.rtcs
         self.rtcs = [RTC(cfg) for _ in range(n)]
-        self.mis = [RTCMI(cfg, rtc) for rtc in self.rtcs]
+        self.shared = cfg.cache_topology == "shared"
+        self.mis = ([SharedRTCMI(cfg, n, port_tags(self.rtcs[0]))] if self.shared
+                    else [RTCMI(cfg, rtc) for rtc in self.rtcs])
+        k = len(self.mis)
         tag = max(len(mi.mem(c).req.payload.tag) for mi in self.mis for c in CACHES)
         tag = max(tag, *extra_tag_widths) if extra_tag_widths else tag
         self.n_extra = len(extra_tag_widths)
-        self.bus = RoundRobinBus(3 * n + self.n_extra, addr_width=cfg.addr_bits, tag_width=tag)
+        self.bus = RoundRobinBus(3 * k + self.n_extra, addr_width=cfg.addr_bits, tag_width=tag)
         self.names = counter_names(cfg)
         super().__init__({
             "rays": In(stream.Signature(RayIn(cfg))).array(n),
@@ -62,8 +68,9 @@ class RTCArray(wiring.Component):
             "node_base": In(cfg.addr_bits), "list_base": In(cfg.addr_bits),
             "tri_base": In(cfg.addr_bits), "root": In(NODE_BITS),
             "rtc_counters": Out(COUNTER_BITS * len(self.names)).array(n),
-            "hits": Out(COUNTER_BITS).array(3 * n), "misses": Out(COUNTER_BITS).array(3 * n),
-            "grants": Out(COUNTER_BITS).array(3 * n + self.n_extra),
+            "hits": Out(COUNTER_BITS).array(3 * k), "misses": Out(COUNTER_BITS).array(3 * k),
+            "grants": Out(COUNTER_BITS).array(3 * k + self.n_extra),
+            "waits": Out(COUNTER_BITS).array(3),
             "mem_reads": Out(COUNTER_BITS),
             **({"ext": In(MemReadPort(addr_width=cfg.addr_bits, data_width=WORD_BITS,
                                       tag_width=tag)).array(self.n_extra)}
@@ -75,25 +82,31 @@ class RTCArray(wiring.Component):
         m.submodules.bus = bus = self.bus
         wiring.connect(m, bus.mem, wiring.flipped(self.mem))
         m.d.comb += self.mem_reads.eq(bus.req_cycles)
-        n = self.cfg.rtcs
+        k = len(self.mis)
         for e in range(self.n_extra):
-            wiring.connect(m, bus.inputs[3 * n + e], wiring.flipped(self.ext[e]))
-            m.d.comb += self.grants[3 * n + e].eq(bus.grants[3 * n + e])
-        for r, (rtc, mi) in enumerate(zip(self.rtcs, self.mis)):
-            m.submodules[f"rtc{r}"] = rtc
-            m.submodules[f"rtcmi{r}"] = mi
-            wiring.connect(m, rtc.node_mem, mi.node)
-            wiring.connect(m, rtc.list_mem, mi.list)
-            wiring.connect(m, rtc.tri_mem, mi.tri)
-            wiring.connect(m, wiring.flipped(self.rays[r]), rtc.rays)
-            wiring.connect(m, rtc.results, wiring.flipped(self.results[r]))
-            m.d.comb += [rtc.node_base.eq(self.node_base), rtc.list_base.eq(self.list_base),
-                         rtc.root.eq(self.root), mi.tri_base.eq(self.tri_base)]
+            wiring.connect(m, bus.inputs[3 * k + e], wiring.flipped(self.ext[e]))
+            m.d.comb += self.grants[3 * k + e].eq(bus.grants[3 * k + e])
+        for j, mi in enumerate(self.mis):
+            m.submodules["rtcmi" if self.shared else f"rtcmi{j}"] = mi
+            m.d.comb += mi.tri_base.eq(self.tri_base)
             for c, name in enumerate(CACHES):
-                i = 3 * r + c
+                i = 3 * j + c
                 connect_tags(m, mi.mem(name), bus.inputs[i])
                 m.d.comb += [self.hits[i].eq(mi.hits[c]), self.misses[i].eq(mi.misses[c]),
                              self.grants[i].eq(bus.grants[i])]
+        if self.shared:
+            for c in range(3):
+                m.d.comb += self.waits[c].eq(self.mis[0].waits[c])
+        for r, rtc in enumerate(self.rtcs):
+            m.submodules[f"rtc{r}"] = rtc
+            mi, p = (self.mis[0], r) if self.shared else (self.mis[r], None)
+            for unit, server in (("node_mem", mi.node), ("list_mem", mi.list),
+                                 ("tri_mem", mi.tri)):
+                wiring.connect(m, getattr(rtc, unit), server if p is None else server[p])
+            wiring.connect(m, wiring.flipped(self.rays[r]), rtc.rays)
+            wiring.connect(m, rtc.results, wiring.flipped(self.results[r]))
+            m.d.comb += [rtc.node_base.eq(self.node_base), rtc.list_base.eq(self.list_base),
+                         rtc.root.eq(self.root)]
             values = [getattr(rtc, k) for k in COUNTERS] + list(rtc.sub_busy)
             m.d.comb += self.rtc_counters[r].eq(Cat(*values))
         return m
@@ -102,8 +115,8 @@ class RTCArray(wiring.Component):
 class Chip(wiring.Component):
     """The SaarCOR chip: RGS master, one RGS slave per RTC (``rtl/rgs/``: eye rays,
     results, secondary rays, colour) with its shading cache and texel cache,
-    :class:`RTCArray` (the RTCs, their RTC-MIs, the bus: requesters ``3 r + c`` the RTC
-    caches, ``3 rtcs + s`` slave s's shading cache, ``4 rtcs + s`` its texel cache), one
+    :class:`RTCArray` (the RTCs, the RTC-MI(s), the bus: requesters ``3 k + c`` the RTC-MI
+    caches, ``3 rtcmis + s`` slave s's shading cache, ``3 rtcmis + rtcs + s`` its texel cache), one
     memory port ``mem`` for the memory controller. With ``cfg.secondary_rays`` false (no
     light registers, reflection depth 0) the slaves are eye-ray-only
     (``Slave.elaborate_eye_only``) and there are no shading or texel caches; with
@@ -129,7 +142,7 @@ class Chip(wiring.Component):
     ``sec_busy`` (``slave_counters[s]``), its shading cache's
     ``shade_hits``/``shade_misses`` and its texel cache's ``tex_hits``/``tex_misses`` (0
     where there is none), and :class:`RTCArray`'s (``rtc_counters``, ``hits``,
-    ``misses``, ``grants``, ``mem_reads``).
+    ``misses``, ``waits``, ``grants``, ``mem_reads``).
     """
 
     SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy")
@@ -145,12 +158,12 @@ class Chip(wiring.Component):
         self.master = RGSMaster(cfg, n)
         self.slaves = [Slave(cfg) for _ in range(n)]
         # eye rays only (no secondary-ray hardware): no shading caches, no bus requesters for
-        # them; their counters (shade_hits, shade_misses, grants[3 rtcs + s]) stay 0 (as the
+        # them; their counters (shade_hits, shade_misses, grants[3 rtcmis + s]) stay 0 (as the
         # texel caches' where there are none)
         geom = shade_cache_geometry(cfg)
         self.shade_caches = ([Cache(geom, tag_width=1) for _ in range(n)]
                              if cfg.secondary_rays else [])
-        # texel caches (bus requesters 4 n + s), where the slaves have a texture unit
+        # texel caches (bus requesters 3 rtcmis + n + s), where the slaves have a texture unit
         self.tex_caches = ([Cache(tex_cache_geometry(cfg), tag_width=1) for _ in range(n)]
                            if self.slaves[0].tex is not None else [])
         self.array = RTCArray(cfg, tuple(len(c.mem.req.payload.tag)
@@ -179,9 +192,9 @@ class Chip(wiring.Component):
             "shade_hits": Out(COUNTER_BITS).array(n), "shade_misses": Out(COUNTER_BITS).array(n),
             "tex_hits": Out(COUNTER_BITS).array(n), "tex_misses": Out(COUNTER_BITS).array(n),
         }
-        for name in ("mem", "rtc_counters", "hits", "misses", "mem_reads"):
+        for name in ("mem", "rtc_counters", "hits", "misses", "waits", "mem_reads"):
             members[name] = self.array.signature.members[name]
-        members["grants"] = Out(COUNTER_BITS).array(5 * n)
+        members["grants"] = Out(COUNTER_BITS).array(3 * cfg.rtcmis + 2 * n)
         super().__init__(members)
 
     def elaborate(self, platform):
@@ -195,7 +208,7 @@ class Chip(wiring.Component):
         wiring.connect(m, arr.mem, wiring.flipped(self.mem))
         for k in ("node_base", "list_base", "tri_base", "root"):
             m.d.comb += getattr(arr, k).eq(getattr(self, k))
-        for k in ("rtc_counters", "hits", "misses", "grants"):
+        for k in ("rtc_counters", "hits", "misses", "waits", "grants"):
             for a, b in zip(getattr(self, k), getattr(arr, k)):
                 m.d.comb += a.eq(b)
         m.d.comb += [self.mem_reads.eq(arr.mem_reads), master.start.eq(self.start),

@@ -1,4 +1,9 @@
-"""The RTC memory interface (RTC-MI): the three caches in front of one RTC's memory ports.
+"""The RTC memory interface (RTC-MI): three caches in front of the RTCs' memory ports.
+
+:class:`SharedRTCMI` is the paper's (Sections 4.1.3, 4.2.2): three caches for the whole chip,
+each behind a round-robin bus (:class:`~rtl.bus.RoundRobinBus`) of every RTC's port of its kind
+that returns data by labeled broadcast (``Config.cache_topology = "shared"``). :class:`RTCMI`
+is one RTC's private three caches (``"private"``).
 
 * trav cache: 64-bit kd-node words, addressed by word (``trav_cache_kb``);
 * list cache: 64-bit words of the triangle list (two 32-bit entries each), by word
@@ -14,22 +19,25 @@ The hit/miss sequence of each cache for a given request sequence is
 addresses are ``model.rtc.rtcmi_trace``'s).
 
 Latency and throughput: the cache's (``rtl/cache.py``: a hit answers 3 cycles after the
-request, 6 with ``cfg.fast_clock``; one lookup a cycle).
+request, 6 with ``cfg.fast_clock``; one lookup a cycle); shared, one more register each way on
+the bus (a hit 5 cycles, 8 with ``fast_clock``), one request and one response a cycle per cache
+for all RTCs together.
 """
 from __future__ import annotations
 
-from amaranth.hdl import Module
+from amaranth.hdl import Cat, Module
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
 from model.cache import CacheGeometry, cache_geometry
 from model.config import Config, ConfigError
 
+from .bus import RoundRobinBus
 from .cache import Cache
 from .common import COUNTER_BITS
 from .memport import MemReadPort
 
-__all__ = ["RTCMI", "CACHES", "word_cache_geometry", "rtcmi_geometries"]
+__all__ = ["RTCMI", "SharedRTCMI", "port_tags", "CACHES", "word_cache_geometry", "rtcmi_geometries"]
 
 CACHES = ("trav", "list", "int")
 PORTS = {"trav": "node_mem", "list": "list_mem", "int": "tri_mem"}   # the RTC's port of each
@@ -108,6 +116,75 @@ class RTCMI(wiring.Component):
             wiring.connect(m, wiring.flipped(unit_side[name]), c.port)
             wiring.connect(m, c.mem, wiring.flipped(self.mem(name)))
             m.d.comb += [self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
+        m.d.comb += [self.caches["trav"].base.eq(0), self.caches["list"].base.eq(0),
+                     self.caches["int"].base.eq(self.tri_base)]
+        return m
+
+
+def port_tags(rtc) -> dict[str, int]:
+    """``{"trav", "list", "int"}``: the tag bits of an RTC's port to each cache."""
+    return {name: len(getattr(rtc, PORTS[name]).req.payload.tag) for name in CACHES}
+
+
+class SharedRTCMI(wiring.Component):
+    """The paper's RTC-MI: the three caches of the chip, shared by ``n`` RTCs whose ports'
+    tags are ``tags[c]`` bits wide (:func:`port_tags`).
+
+    Cache c (trav, list, int) sits behind a :class:`~rtl.bus.RoundRobinBus` whose requesters
+    are the RTCs' ports of its kind (RTC r is requester r): one request a cycle is granted
+    round-robin and goes to the cache labeled ``{tag, r}``; the cache's response is broadcast
+    with its label and RTC r alone takes it. Each RTC keeps its units' requests outstanding as
+    with a private cache (the tags are its own).
+
+    Ports: ``node[r]``, ``list[r]``, ``tri[r]`` (servers for RTC r's ``node_mem``, ``list_mem``,
+    ``tri_mem``), ``mem_trav``, ``mem_list``, ``mem_int`` (each cache's 64-bit word port;
+    ``mem(name)``), ``tri_base``; counters ``hits[3]``, ``misses[3]`` (per cache: every
+    request is one lookup, so the bus carried ``hits + misses`` requests), ``waits[3]``
+    (cycles in which an RTC's request on the cache's bus waited: another RTC's was granted,
+    or the cache took none).
+    """
+
+    def __init__(self, cfg: Config, n: int, tags: dict[str, int]):
+        self.cfg, self.n = cfg, n
+        self.geoms = rtcmi_geometries(cfg)
+        self.buses, self.caches = {}, {}
+        for name in CACHES:
+            g = self.geoms[name]
+            bus = RoundRobinBus(n, addr_width=g.addr_width, data_width=g.item_bits,
+                                tag_width=tags[name])
+            self.buses[name] = bus
+            self.caches[name] = Cache(g, tag_width=len(bus.mem.req.payload.tag),
+                                      fast=cfg.fast_clock)
+        members = {
+            key: In(self.buses[name].inputs[0].signature.flip()).array(self.n)
+            for key, name in (("node", "trav"), ("list", "list"), ("tri", "int"))}
+        members.update({
+            "tri_base": In(cfg.addr_bits),
+            "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
+            "waits": Out(COUNTER_BITS).array(3),
+        })
+        for name in CACHES:
+            members[f"mem_{name}"] = Out(self.caches[name].mem.signature)
+        super().__init__(members)
+
+    def mem(self, name: str):
+        return getattr(self, f"mem_{name}")
+
+    def elaborate(self, platform):
+        m = Module()
+        unit_side = {"trav": self.node, "list": self.list, "int": self.tri}
+        for i, name in enumerate(CACHES):
+            bus, c = self.buses[name], self.caches[name]
+            m.submodules[f"bus_{name}"] = bus
+            m.submodules[f"cache_{name}"] = c
+            for r in range(self.n):
+                wiring.connect(m, wiring.flipped(unit_side[name][r]), bus.inputs[r])
+            wiring.connect(m, bus.mem, c.port)
+            wiring.connect(m, c.mem, wiring.flipped(self.mem(name)))
+            m.d.comb += [self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
+            waiting = Cat(*(p.req.valid & ~p.req.ready for p in unit_side[name]))
+            with m.If(waiting.any()):
+                m.d.sync += self.waits[i].eq(self.waits[i] + 1)
         m.d.comb += [self.caches["trav"].base.eq(0), self.caches["list"].base.eq(0),
                      self.caches["int"].base.eq(self.tri_base)]
         return m

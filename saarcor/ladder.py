@@ -275,9 +275,7 @@ def ladder_point(cfg: Config, scene_path: str, width: int, height: int, *, build
     w0 = time.perf_counter()
     r = run_band(cfg, image, scene.camera, width, height, 0, height, build=b, log=log)
     c = r.counters
-    hr = {k: sum(x[k] for x in c["hits"]) /
-          max(1, sum(x[k] for x in c["hits"]) + sum(x[k] for x in c["misses"]))
-          for k in ("trav", "list", "int")}
+    hr = {k: x["hits"] / max(1, x["hits"] + x["misses"]) for k, x in c["rtcmi"].items()}
     m["rtl"] = {"cycles": r.cycles, "seconds": r.cpu_seconds,
                 "wall_seconds": time.perf_counter() - w0, "sim_seconds": r.seconds,
                 "load_seconds": r.load_seconds, "mismatches": len(r.mismatches),

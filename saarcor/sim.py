@@ -99,11 +99,19 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
     rtc = c["rtc"]
     trav, inter, lst = _sum(rtc, "trav_ops"), _sum(rtc, "int_ops"), _sum(rtc, "list_ops")
     perf = relative_performance(cfg, cyc, trav, inter)
-    def cache_stats(k):                  # one kind of cache, summed over the RTCs / slaves
+    def cache_stats(k):                  # one kind of slave cache, summed over the slaves
         hh, mm = sum(x[k] for x in c["hits"]), sum(x[k] for x in c["misses"])
         return {"hits": hh, "misses": mm, "hit_rate": hh / max(1, hh + mm),
                 "memory_words": sum(x[k] for x in c["grants"])}
-    cache = {k: cache_stats(k) for k in UNITS}
+    def rtcmi_stats(k):                  # one RTC-MI cache (shared, or the private ones summed)
+        x = c["rtcmi"][k]
+        hh, mm = x["hits"], x["misses"]
+        out = {"hits": hh, "misses": mm, "hit_rate": hh / max(1, hh + mm),
+               "memory_words": x["grants"]}
+        if cfg.cache_topology == "shared":   # its bus: requests a cycle, cycles someone waited
+            out["bus"] = {"busy": (hh + mm) / cyc, "wait": x["waits"] / cyc}
+        return out
+    cache = {k: rtcmi_stats(k) for k in UNITS}
     seconds = cyc / (cfg.clock_mhz * 1e6)
     words = c["mem_words"]
     total = max(1, sum(words))
@@ -127,7 +135,7 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "rays": {k.label: int(kinds[k]) for k in RayKind.made()}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
-        "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
+        "cache_topology": cfg.cache_topology, "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
         "memory": memory,
         "units": units,
         "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
@@ -182,8 +190,10 @@ def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: P
     a.set_title(title, fontsize=10)
     a = ax[1, 0]
     for k in UNITS:
-        hh = sum(d[:, col[f"rtc{r}_{k}_hits"]] for r in range(cfg.rtcs))
-        mm = sum(d[:, col[f"rtc{r}_{k}_misses"]] for r in range(cfg.rtcs))
+        names = ([f"rtcmi_{k}"] if cfg.cache_topology == "shared"
+                 else [f"rtc{r}_{k}" for r in range(cfg.rtcs)])
+        hh = sum(d[:, col[f"{x}_hits"]] for x in names)
+        mm = sum(d[:, col[f"{x}_misses"]] for x in names)
         rate = np.where(hh + mm > 0, 100 * hh / np.maximum(hh + mm, 1), np.nan)
         a.plot(cyc, rate, label=f"{k} cache")
     a.set_ylabel("hit rate, %")

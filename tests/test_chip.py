@@ -46,41 +46,58 @@ def check_frame(r, cfg, image, rays):
         assert sum(x[name] for x in c["slave"]) == int((every.kind == kind).sum()), name
     for rtc_name, model_name in COMPARED.items():
         assert sum(x[rtc_name] for x in c["rtc"]) == r.model[model_name], rtc_name
+    reads = {"trav": "node_reads", "list": "list_reads", "int": "int_tris"}
+    words = {"trav": 1, "list": 1, "int": 5}             # memory words a miss reads
     for x, h, mi, g in zip(c["rtc"], c["hits"], c["misses"], c["grants"]):
-        assert h["trav"] + mi["trav"] == x["node_reads"]
-        assert h["list"] + mi["list"] == x["list_reads"]
-        assert h["int"] + mi["int"] == x["int_tris"]
-        assert (g["trav"], g["list"], g["int"]) == (mi["trav"], mi["list"], 5 * mi["int"])
+        if cfg.cache_topology == "private":              # each RTC's own caches
+            for k, n in reads.items():
+                assert h[k] + mi[k] == x[n], k
+                assert g[k] == words[k] * mi[k], k
         assert g["shade"] == REC_WORDS * mi["shade"]
         assert g["tex"] == mi["tex"]                     # a texel word a miss
-    assert sum(c["mem_words"]) == c["mem_reads"] == sum(sum(g.values()) for g in c["grants"])
+    for k, n in reads.items():                           # the RTC-MI: every request one lookup
+        x = c["rtcmi"][k]
+        assert x["hits"] + x["misses"] == sum(y[n] for y in c["rtc"]), k
+        assert x["grants"] == words[k] * x["misses"], k
+    slave_words = sum(g["shade"] + g["tex"] for g in c["grants"])
+    assert sum(c["mem_words"]) == c["mem_reads"] == slave_words + sum(
+        x["grants"] for x in c["rtcmi"].values())
 
 
-@pytest.mark.parametrize("rtcs", [1, pytest.param(2, marks=pytest.mark.slow)])
-def test_chip_frame_in_amaranth_sim(rtcs, cornell):
+FRAMES_8X4 = {(1, "shared"): "chip/cornell_8x4_rtcs1", (2, "shared"): "chip/cornell_8x4_rtcs2",
+              (2, "private"): "chip/cornell_8x4_rtcs2_private"}
+
+
+@pytest.mark.parametrize("rtcs, topology", [
+    (1, "shared"), pytest.param(2, "shared", marks=pytest.mark.slow),
+    pytest.param(2, "private", marks=pytest.mark.slow)])
+def test_chip_frame_in_amaranth_sim(rtcs, topology, cornell):
     """An 8x4 Cornell frame (2 packets): eye rays made by the RGS slaves in FP hardware,
-    traced by 1 or 2 RTCs through their caches and the SDRAM model, under result
-    back-pressure; with 2 RTCs the master gives each a packet. The 2-RTC run (about 150 s of
-    Amaranth's simulator) is a slow test: its timing entry is checked on every run by
-    ``test_chip_verilator_same_cycles_as_amaranth_sim`` (the same frame in Verilator)."""
+    traced by 1 or 2 RTCs through the RTC-MI's caches (shared by the RTCs, or each RTC's own)
+    and the SDRAM model, under result back-pressure; with 2 RTCs the master gives each a
+    packet. The 2-RTC runs (about 150 s of Amaranth's simulator each) are slow tests: their
+    timing entries are checked on every run by ``test_chip_verilator_same_cycles_as_amaranth_sim``
+    (the same frames in Verilator)."""
     from tb.harness.chip import run_chip
     scene, image = cornell
-    cfg = TINY.replace(rtcs=rtcs)
+    cfg = TINY.replace(rtcs=rtcs, cache_topology=topology)
     rays = eye_rays(scene.camera, 8, 4, cfg)
     r = run_chip(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3)
     check_frame(r, cfg, image, rays)
     if rtcs == 2:
         assert r.counters["packets"] == [1, 1]
-    name = {1: "chip/cornell_8x4_rtcs1", 2: "chip/cornell_8x4_rtcs2"}[rtcs]
+    name = FRAMES_8X4[rtcs, topology]
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
 def test_cache_hits_are_the_cache_models(cornell):
     """One RTC of one thread traces packet after packet in the model's event order, so each
-    cache sees the model's request sequence: ``model.cache.CacheModel`` predicts its hits."""
+    of its private caches sees the model's request sequence: ``model.cache.CacheModel``
+    predicts its hits. (Shared caches see the RTCs' requests interleaved: their replay is
+    ``tests/test_rtcmi_rtl.py``'s.)"""
     from tb.harness.chip import run_chip
     scene, image = cornell
-    cfg = TINY.replace(threads=1)
+    cfg = TINY.replace(threads=1, cache_topology="private")
     rays = eye_rays(scene.camera, 8, 4, cfg)
     r = run_chip(cfg, image, scene.camera, 8, 4)
     check_frame(r, cfg, image, rays)
@@ -103,29 +120,47 @@ def test_cache_hits_are_the_cache_models(cornell):
 
 def test_chip_verilator_same_cycles_as_amaranth_sim(cornell):
     """The same frame, stall pattern and seed in Verilator: the same results, counters and
-    cycle count as in Amaranth's simulator (the timing contract)."""
+    cycle count as in Amaranth's simulator (the timing contract). The private topology's 2-RTC
+    frame is the slow suite's (one more Verilator build)."""
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
     rays = eye_rays(scene.camera, 8, 4, cfg)
     r = run_chip_frame(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3, progress=False)
     check_frame(r, cfg, image, rays)
-    assert r.cycles == TIMING["chip/cornell_8x4_rtcs2"], timing_changed(
-        "chip/cornell_8x4_rtcs2", r.cycles)
+    name = FRAMES_8X4[2, cfg.cache_topology]
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+    assert all(x["waits"] > 0 for x in r.counters["rtcmi"].values())   # the RTCs contend
+
+
+@pytest.mark.slow
+def test_chip_verilator_private_caches_same_cycles_as_amaranth_sim(cornell):
+    """The private topology's 8x4 frame in Verilator: the cycles of its Amaranth run."""
+    from tb.harness.chip import run_chip_frame
+    scene, image = cornell
+    cfg = TINY.replace(rtcs=2, cache_topology="private")
+    rays = eye_rays(scene.camera, 8, 4, cfg)
+    r = run_chip_frame(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3, progress=False)
+    check_frame(r, cfg, image, rays)
+    name = FRAMES_8X4[2, "private"]
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
 def test_chip_verilator_cornell_16x16(cornell):
-    """A 16x16 Cornell frame (16 packets) on 2 RTCs in Verilator with result back-pressure
-    and random memory latency (the SDRAM model holds its responses in half the cycles): every
-    ray bit-exact, the packets spread over both RTCs by the master."""
+    """A 16x16 Cornell frame (16 packets) on 4 RTCs sharing the RTC-MI's caches, in Verilator
+    with result back-pressure and random memory latency (the SDRAM model holds its responses
+    in half the cycles): every ray bit-exact, the packets spread over the RTCs by the master,
+    four requesters on each cache's bus (the timing contract's run with several waiting)."""
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
-    cfg = TINY.replace(rtcs=2)
+    cfg = TINY.replace(rtcs=4)
     rays = eye_rays(scene.camera, 16, 16, cfg)
     r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
                        progress=False)
     check_frame(r, cfg, image, rays)
-    assert min(r.counters["packets"]) >= 4
+    assert min(r.counters["packets"]) >= 2
+    assert r.cycles == TIMING["chip/cornell_16x16_rtcs4"], timing_changed(
+        "chip/cornell_16x16_rtcs4", r.cycles)
     fixed = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, seed=5,
                            progress=False)
     check_frame(fixed, cfg, image, rays)

@@ -327,10 +327,17 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
                         for r in range(cfg.rtcs)],
                 "slave": [{k: c[f"slave{r}_{k}"] for k in Chip.SLAVE_COUNTERS}
                           for r in range(cfg.rtcs)]}
-    for k in ("hits", "misses", "grants"):
-        counters[k] = [{**{cc: c[f"rtc{r}_{cc}_{k}"] for cc in CACHES},
+    shared = cfg.cache_topology == "shared"
+    for k in ("hits", "misses", "grants"):   # per RTC: its slave's caches, its own RTC-MI's
+        counters[k] = [{**({} if shared else {cc: c[f"rtc{r}_{cc}_{k}"] for cc in CACHES}),
                         "shade": c[f"slave{r}_shade_{k}"], "tex": c[f"slave{r}_tex_{k}"]}
                        for r in range(cfg.rtcs)]
+    # the RTC-MI's three caches as a whole (shared, or the private ones added up)
+    counters["rtcmi"] = {
+        cc: ({k: c[f"rtcmi_{cc}_{k}"] for k in ("hits", "misses", "grants", "waits")}
+             if shared else {**{k: sum(x[cc] for x in counters[k])
+                                for k in ("hits", "misses", "grants")}, "waits": 0})
+        for cc in CACHES}
     n_eye = len(eye)
     from model.rtc import Hits
     eye_hits = Hits(*(getattr(chip_hits, f)[:n_eye] for f in ("tri", "t", "u", "v")))

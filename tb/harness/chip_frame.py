@@ -42,12 +42,16 @@ def chip_counter_names(cfg: Config) -> list[str]:
     """Order of the 32-bit fields of ``ChipFrame.counters`` (low bits first)."""
     names = ["rays_in", "results_out", "mem_reads"]
     names += [f"packets{s}" for s in range(cfg.rtcs)]
+    shared = cfg.cache_topology == "shared"
     for r in range(cfg.rtcs):
         names += [f"rtc{r}_{k}" for k in counter_names(cfg)]
-        names += [f"rtc{r}_{c}_{k}" for c in CACHES for k in ("hits", "misses", "grants")]
+        if not shared:                      # each RTC's own caches
+            names += [f"rtc{r}_{c}_{k}" for c in CACHES for k in ("hits", "misses", "grants")]
         names += [f"slave{r}_{k}" for k in Chip.SLAVE_COUNTERS]
         names += [f"slave{r}_shade_{k}" for k in ("hits", "misses", "grants")]
         names += [f"slave{r}_tex_{k}" for k in ("hits", "misses", "grants")]
+    if shared:                              # the RTC-MI's caches, shared by the RTCs
+        names += [f"rtcmi_{c}_{k}" for c in CACHES for k in ("hits", "misses", "grants", "waits")]
     names += [f"chip{c}_{k}" for k in ("words", "busy") for c in range(cfg.mem_chips)]
     return names
 
@@ -173,16 +177,22 @@ class ChipFrame(wiring.Component):
         chip = self.chip
         values = [chip.rays_in, chip.results_out, chip.mem_reads, *chip.packets]
         names = counter_names(self.cfg)
-        for r in range(self.cfg.rtcs):
+        n, k = self.cfg.rtcs, self.cfg.rtcmis
+        shared = self.cfg.cache_topology == "shared"
+        for r in range(n):
             word = chip.rtc_counters[r]
             values += [word[32 * i:32 * i + 32] for i in range(len(names))]
-            for c in range(3):
-                values += [chip.hits[3 * r + c], chip.misses[3 * r + c], chip.grants[3 * r + c]]
+            if not shared:
+                for c in range(3):
+                    values += [chip.hits[3 * r + c], chip.misses[3 * r + c],
+                               chip.grants[3 * r + c]]
             word = chip.slave_counters[r]
             values += [word[32 * i:32 * i + 32] for i in range(len(Chip.SLAVE_COUNTERS))]
-            values += [chip.shade_hits[r], chip.shade_misses[r],
-                       chip.grants[3 * self.cfg.rtcs + r]]
-            values += [chip.tex_hits[r], chip.tex_misses[r], chip.grants[4 * self.cfg.rtcs + r]]
+            values += [chip.shade_hits[r], chip.shade_misses[r], chip.grants[3 * k + r]]
+            values += [chip.tex_hits[r], chip.tex_misses[r], chip.grants[3 * k + n + r]]
+        if shared:
+            for c in range(3):
+                values += [chip.hits[c], chip.misses[c], chip.grants[c], chip.waits[c]]
         values += list(mem.words) + list(mem.busy)
         from amaranth.hdl import Cat
         m.d.comb += [self.counters.eq(Cat(*values)), self.cycles.eq(chip.cycles),

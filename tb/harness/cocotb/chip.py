@@ -110,8 +110,9 @@ def counter_ports(cfg, top: str) -> list[str]:
     names = ["cycles", "rays_in", "results_out", "mem_reads"]
     names += [f"{k}__{s}" for k in ("packets", "rtc_counters", "slave_counters", "shade_hits",
                                     "shade_misses", "tex_hits", "tex_misses") for s in range(n)]
-    names += [f"{k}__{i}" for k in ("hits", "misses") for i in range(3 * n)]
-    names += [f"grants__{i}" for i in range(5 * n)]
+    names += [f"{k}__{i}" for k in ("hits", "misses") for i in range(3 * cfg.rtcmis)]
+    names += [f"waits__{c}" for c in range(3)]
+    names += [f"grants__{i}" for i in range(3 * cfg.rtcmis + 2 * n)]
     if top == "chip_sdram":
         names += [f"mem_{k}__{c}" for k in ("words", "busy") for c in range(cfg.mem_chips)]
     return names
@@ -122,22 +123,26 @@ def counters(cfg, ports: dict[str, int]) -> dict[str, int]:
     ``tb.harness.chip`` reads from ``ChipFrame``); the SDRAM chips' only if ``ports`` has them."""
     from rtl.chip import Chip, counter_names
     from rtl.rtcmi import CACHES
-    n, v = cfg.rtcs, ports
+    n, k3, v = cfg.rtcs, 3 * cfg.rtcmis, ports
+    shared = cfg.cache_topology == "shared"
     c = {k: v[k] for k in ("rays_in", "results_out", "mem_reads")}
     for s in range(n):
         c[f"packets{s}"] = v[f"packets__{s}"]
         c.update(_split(v[f"rtc_counters__{s}"], [f"rtc{s}_{k}" for k in counter_names(cfg)]))
         c.update(_split(v[f"slave_counters__{s}"],
                         [f"slave{s}_{k}" for k in Chip.SLAVE_COUNTERS]))
-        for ci, cache in enumerate(CACHES):
+        for ci, cache in enumerate(CACHES if not shared else ()):
             for k in ("hits", "misses", "grants"):
                 c[f"rtc{s}_{cache}_{k}"] = v[f"{k}__{3 * s + ci}"]
         c[f"slave{s}_shade_hits"] = v[f"shade_hits__{s}"]
         c[f"slave{s}_shade_misses"] = v[f"shade_misses__{s}"]
-        c[f"slave{s}_shade_grants"] = v[f"grants__{3 * n + s}"]
+        c[f"slave{s}_shade_grants"] = v[f"grants__{k3 + s}"]
         c[f"slave{s}_tex_hits"] = v[f"tex_hits__{s}"]
         c[f"slave{s}_tex_misses"] = v[f"tex_misses__{s}"]
-        c[f"slave{s}_tex_grants"] = v[f"grants__{4 * n + s}"]
+        c[f"slave{s}_tex_grants"] = v[f"grants__{k3 + n + s}"]
+    for ci, cache in enumerate(CACHES if shared else ()):
+        for k in ("hits", "misses", "grants", "waits"):
+            c[f"rtcmi_{cache}_{k}"] = v[f"{k}__{ci}"]
     for k in range(cfg.mem_chips):
         if f"mem_words__{k}" in v:
             c[f"chip{k}_words"], c[f"chip{k}_busy"] = v[f"mem_words__{k}"], v[f"mem_busy__{k}"]
