@@ -24,9 +24,12 @@ def test_bmc_round_robin_holds(n, tag_width):
     assert r.passed, h.names(r.failed)
 
 
-@pytest.mark.parametrize("n,tag_width", [(3, 1), (4, 2)])
+@pytest.mark.parametrize("n,tag_width", [(3, 1), (4, 2), (16, 1),
+                                         pytest.param(35, 1, marks=pytest.mark.slow)])
 def test_prove_round_robin_by_induction(n, tag_width):
-    """Base case (BMC to k) + k-induction: the properties hold in every reachable state."""
+    """Base case (BMC to k) + k-induction: the properties hold in every reachable state. 16:
+    each shared cache's bus on a chip of 16 RTCs; 35: that chip's memory bus (the three
+    caches' misses and 16 slaves' shading and texel caches; about a minute)."""
     h, r = check_bus("prove", 2, n=n, tag_width=tag_width)
     assert r.passed, h.names(r.failed)
     assert "Temporal induction successful" in r.log
@@ -41,6 +44,12 @@ def test_covers_reached():
 
 def test_fixed_priority_fails_fairness():
     h, r = check_bus("bmc", 20, n=3, policy="fixed")
+    assert not r.passed
+    assert h.names(r.failed) == {"fair"}
+
+
+def test_fixed_priority_fails_the_proof_with_16_requesters():
+    h, r = check_bus("prove", 2, n=16, policy="fixed")
     assert not r.passed
     assert h.names(r.failed) == {"fair"}
 
@@ -86,8 +95,9 @@ class _DropsRequest(RoundRobinBus):
 @pytest.mark.parametrize("cls,expect", [
     (_Duplicates, "one_hot"), (_Overwrites, "conserve"), (_DoubleGrant, "one_grant"),
     (_DropsRequest, "conserve")])
-def test_broken_bus_is_caught(cls, expect):
-    h, r = check_bus("bmc", 8, n=3, bus_cls=cls)
+@pytest.mark.parametrize("n", [3, 16])
+def test_broken_bus_is_caught(cls, expect, n):
+    h, r = check_bus("bmc", 8, n=n, bus_cls=cls)
     assert not r.passed
     assert expect in h.names(r.failed), h.names(r.failed)
 
