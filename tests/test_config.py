@@ -14,7 +14,8 @@ SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
     ("fp_add_latency", -1), ("fp_mul_latency", 65), ("fp_div_latency", -3),
     ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
     ("list_outstanding", 1), ("fp_sqrt_latency", 65), ("rgs_lights", 15), ("reflect_depth", 16),
-    ("shade_cache_kb", 0), ("delay_ram", 1), ("delay_ram", -2), ("rgs_buffers", 11)])
+    ("shade_cache_kb", 0), ("delay_ram", 1), ("delay_ram", -2), ("rgs_buffers", 11),
+    ("cache_topology", "per_rtc")])
 def test_bad_rtl_parameters_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         Config(**{field: value})
@@ -115,3 +116,9 @@ def test_every_config_option_has_help():
     helps = {a.dest: a.help for a in ap._actions}
     assert helps["rgs_buffers"].startswith("pending secondary packets per RGS slave")
     assert helps["rgs_buffers"].endswith("(default 0)")
+
+
+def test_cache_topology_sets_the_rtcmi_count():
+    """Shared (the paper's): one RTC-MI for the chip; private: one per RTC."""
+    assert Config().cache_topology == "shared" and Config(rtcs=4).rtcmis == 1
+    assert Config(rtcs=4, cache_topology="private").rtcmis == 4
