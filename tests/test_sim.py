@@ -44,9 +44,13 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
     ideal = max(stats["trav_ops"] / (2 * 2), stats["int_ops"] / 2)
     assert stats["relative_performance"] == ideal / stats["cycles"]
     assert stats["fps"] == cfg.clock_mhz * 1e6 / stats["cycles"]
+    assert stats["cache_topology"] == "shared"
     for k in ("trav", "list", "int"):
         c = stats["cache"][k]
         assert 0 < c["hit_rate"] < 1 and c["hits"] + c["misses"] > 0
+        # the shared cache's bus: one request a cycle, each request one lookup
+        assert c["bus"]["busy"] == (c["hits"] + c["misses"]) / stats["cycles"]
+        assert 0 < c["bus"]["busy"] < 1 and 0 <= c["bus"]["wait"] < 1
     mem = stats["memory"]
     assert mem["bytes"] == 8 * mem["words"] == 8 * sum(p["words"] for p in mem["per_chip"])
     assert [p["share"] for p in mem["per_chip"]] == [p["words"] / mem["words"]
