@@ -107,13 +107,15 @@ class CacheGeometry:
         return base + line * self.line_words
 
 
-def cache_geometry(cfg: Config, unit: str, **overrides) -> CacheGeometry:
+def cache_geometry(cfg: Config, unit: str, served: int = 1, **overrides) -> CacheGeometry:
     """Geometry of the ``unit`` ('trav', 'list' or 'int') cache from the configuration.
 
     trav: 64-bit kd-nodes, ``cache_line_words`` nodes per line. list: 32-bit entries,
     ``2 * cache_line_words`` per line. int: triangles of 5 words, ``int_item_bits`` kept
     (288 = the 9 vertex floats; 320 keeps the scene-order id too), ``cache_line_words`` triangles
-    per line. ``overrides`` replace fields (e.g. ``ways=2``, ``size_bytes=...``).
+    per line. ``served``: the RTCs the cache serves (the shared RTC-MI's: ``cfg.rtcs``), each
+    adding ``cache_outstanding`` misses in flight and ``cache_queue`` requests. ``overrides``
+    replace fields (e.g. ``ways=2``, ``size_bytes=...``).
     """
     if unit == "trav":
         g = dict(size_bytes=cfg.trav_cache_kb * 1024, line_items=cfg.cache_line_words,
@@ -126,7 +128,8 @@ def cache_geometry(cfg: Config, unit: str, **overrides) -> CacheGeometry:
                  item_bits=cfg.int_item_bits, item_span=5 * 64)
     else:
         raise ValueError(f"cache unit {unit!r}: must be one of {UNITS}")
-    g.update(ways=cfg.cache_ways, outstanding=cfg.cache_outstanding, queue=cfg.cache_queue,
+    g.update(ways=cfg.cache_ways, outstanding=served * cfg.cache_outstanding,
+             queue=served * cfg.cache_queue,
              addr_width=cfg.addr_bits, mem_addr_width=cfg.addr_bits)
     g.update(overrides)
     return CacheGeometry(**g)

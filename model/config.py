@@ -101,8 +101,10 @@ class Config:
                                    # when private)
     cache_ways: int = 1            # 1 (direct-mapped), 2 or 4
     cache_line_words: int = 1      # 64-bit words per cache line (triangles: 5 words per item)
-    cache_outstanding: int = 4     # outstanding misses per cache
-    cache_queue: int = 16          # requests in flight inside one cache (in-order response queue)
+    cache_outstanding: int = 4     # outstanding misses of a cache per RTC it serves (a shared
+                                   # RTC-MI cache: rtcs times this; a slave's cache: this)
+    cache_queue: int = 16          # requests in flight inside a cache (in-order response
+                                   # queue) per RTC it serves, as cache_outstanding
     int_item_bits: int = 288       # bits of a triangle the int-cache keeps (288: 9 floats; 320: +id)
     mem_chip_queue: int = 4        # requests queued per SDRAM chip in the memory controller
     addr_bits: int = 32            # memory word address bits of every memory port, cache tag,

@@ -71,12 +71,12 @@ class ChipTiming:
         self.ways = np.array([x.ways for x in g], np.int64)
         self.offset_bits = np.array([x.offset_bits for x in g], np.int64)
         self.line_words = np.array([x.line_words for x in g], np.int64)
-        self.outstanding = cfg.cache_outstanding
+        self.outstanding = geoms["trav"].outstanding
         self.burst = 64 // cfg.mem_chip_bits * cfg.mem_clock_ratio
         self.params = np.array([
             cfg.rtcs, cfg.threads, cfg.trav_subunits, int(cfg.trav_sync),
             cfg.int_tri_slots, cfg.list_outstanding, cfg.mem_chips, cfg.mem_clock_ratio,
-            self.burst, cfg.mem_latency, cfg.cache_outstanding, cfg.rays_per_subunit,
+            self.burst, cfg.mem_latency, self.outstanding, cfg.rays_per_subunit,
             STEP_LAT, INT_LAT, CACHE_HIT, EYE_LAT, int(cfg.cache_topology == "shared")],
             np.int64)
 
@@ -84,16 +84,18 @@ class ChipTiming:
 def chip_geometries(cfg: Config) -> dict[str, CacheGeometry]:
     """The RTC-MI's cache geometries (``rtl.rtcmi.rtcmi_geometries``, computed here without
     importing the RTL): trav and list caches of 64-bit words, the int-cache of triangles."""
+    served = cfg.rtcs // cfg.rtcmis                  # RTCs per RTC-MI cache
     def words(kb):
         size = 1 << ((kb * 1024).bit_length() - 1)
         return CacheGeometry(size_bytes=size, line_items=cfg.cache_line_words, item_bits=64,
                              item_span=64, ways=cfg.cache_ways,
-                             outstanding=cfg.cache_outstanding, queue=cfg.cache_queue)
+                             outstanding=served * cfg.cache_outstanding,
+                             queue=served * cfg.cache_queue)
     per_set = cfg.cache_ways * cfg.cache_line_words * cfg.int_item_bits
     sets = (cfg.int_cache_kb * 1024 * 8) // per_set
     sets = 1 << (sets.bit_length() - 1)
     return {"trav": words(cfg.trav_cache_kb), "list": words(cfg.list_cache_kb),
-            "int": cache_geometry(cfg, "int", size_bytes=sets * per_set // 8)}
+            "int": cache_geometry(cfg, "int", served, size_bytes=sets * per_set // 8)}
 
 
 def chip_timing(cfg: Config) -> ChipTiming:

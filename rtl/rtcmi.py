@@ -43,7 +43,7 @@ CACHES = ("trav", "list", "int")
 PORTS = {"trav": "node_mem", "list": "list_mem", "int": "tri_mem"}   # the RTC's port of each
 
 
-def word_cache_geometry(cfg: Config, kb: int) -> CacheGeometry:
+def word_cache_geometry(cfg: Config, kb: int, served: int = 1) -> CacheGeometry:
     """A cache of 64-bit memory words (item = word, item address = word address) of ``kb`` KB
     rounded down to a power of two, with the configuration's ways, line length, outstanding
     misses and queue."""
@@ -51,12 +51,13 @@ def word_cache_geometry(cfg: Config, kb: int) -> CacheGeometry:
         raise ConfigError(f"cache of {kb} KB: caches need at least 1 KB")
     size = 1 << ((kb * 1024).bit_length() - 1)
     return CacheGeometry(size_bytes=size, line_items=cfg.cache_line_words, item_bits=64,
-                         item_span=64, ways=cfg.cache_ways, outstanding=cfg.cache_outstanding,
-                         queue=cfg.cache_queue, addr_width=cfg.addr_bits,
+                         item_span=64, ways=cfg.cache_ways,
+                         outstanding=served * cfg.cache_outstanding,
+                         queue=served * cfg.cache_queue, addr_width=cfg.addr_bits,
                          mem_addr_width=cfg.addr_bits)
 
 
-def _int_geometry(cfg: Config) -> CacheGeometry:
+def _int_geometry(cfg: Config, served: int = 1) -> CacheGeometry:
     """Triangle cache of at most ``int_cache_kb`` KB with a power-of-two number of sets."""
     per_set = cfg.cache_ways * cfg.cache_line_words * cfg.int_item_bits      # bits
     sets = (cfg.int_cache_kb * 1024 * 8) // per_set
@@ -64,14 +65,17 @@ def _int_geometry(cfg: Config) -> CacheGeometry:
         raise ConfigError(f"int_cache_kb={cfg.int_cache_kb}: too small for one set of "
                           f"{cfg.cache_ways} way(s) x {cfg.cache_line_words} triangle(s)")
     sets = 1 << (sets.bit_length() - 1)
-    return cache_geometry(cfg, "int", size_bytes=sets * per_set // 8)
+    return cache_geometry(cfg, "int", served, size_bytes=sets * per_set // 8)
 
 
-def rtcmi_geometries(cfg: Config) -> dict[str, CacheGeometry]:
-    """``{"trav", "list", "int"}`` geometries of one RTC-MI's caches."""
-    return {"trav": word_cache_geometry(cfg, cfg.trav_cache_kb),
-            "list": word_cache_geometry(cfg, cfg.list_cache_kb),
-            "int": _int_geometry(cfg)}
+def rtcmi_geometries(cfg: Config, served: int = 1) -> dict[str, CacheGeometry]:
+    """``{"trav", "list", "int"}`` geometries of an RTC-MI's caches serving ``served`` RTCs
+    (one RTC's private caches: 1; the shared RTC-MI: ``cfg.rtcs``): ``cache_outstanding``
+    misses in flight and ``cache_queue`` requests in each cache per RTC served, so the shared
+    caches keep as much in flight as the private caches they replace."""
+    return {"trav": word_cache_geometry(cfg, cfg.trav_cache_kb, served),
+            "list": word_cache_geometry(cfg, cfg.list_cache_kb, served),
+            "int": _int_geometry(cfg, served)}
 
 
 class RTCMI(wiring.Component):
@@ -146,7 +150,7 @@ class SharedRTCMI(wiring.Component):
 
     def __init__(self, cfg: Config, n: int, tags: dict[str, int]):
         self.cfg, self.n = cfg, n
-        self.geoms = rtcmi_geometries(cfg)
+        self.geoms = rtcmi_geometries(cfg, n)
         self.buses, self.caches = {}, {}
         for name in CACHES:
             g = self.geoms[name]

@@ -130,7 +130,6 @@ def test_chip_verilator_same_cycles_as_amaranth_sim(cornell):
     check_frame(r, cfg, image, rays)
     name = FRAMES_8X4[2, cfg.cache_topology]
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
-    assert all(x["waits"] > 0 for x in r.counters["rtcmi"].values())   # the RTCs contend
 
 
 @pytest.mark.slow
@@ -159,6 +158,7 @@ def test_chip_verilator_cornell_16x16(cornell):
                        progress=False)
     check_frame(r, cfg, image, rays)
     assert min(r.counters["packets"]) >= 2
+    assert all(x["waits"] > 0 for x in r.counters["rtcmi"].values())   # the RTCs contend
     assert r.cycles == TIMING["chip/cornell_16x16_rtcs4"], timing_changed(
         "chip/cornell_16x16_rtcs4", r.cycles)
     fixed = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, seed=5,
