@@ -78,7 +78,33 @@ def rtcmi_geometries(cfg: Config, served: int = 1) -> dict[str, CacheGeometry]:
             "int": _int_geometry(cfg, served)}
 
 
-class RTCMI(wiring.Component):
+class _RTCMIBase(wiring.Component):
+    """What both RTC-MIs share: the three caches (``self.caches``), their memory ports
+    ``mem_trav``, ``mem_list``, ``mem_int``, ``tri_base`` and the counters ``hits[3]``,
+    ``misses[3]``; a subclass adds its unit-side ports and connects them."""
+
+    def _members(self, cfg: Config, units: dict) -> dict:
+        members = {**units, "tri_base": In(cfg.addr_bits),
+                   "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3)}
+        for name in CACHES:
+            members[f"mem_{name}"] = Out(self.caches[name].mem.signature)
+        return members
+
+    def mem(self, name: str):
+        return getattr(self, f"mem_{name}")
+
+    def _caches(self, m: Module) -> None:
+        """The caches as submodules, their memory ports, bases and counters."""
+        for i, name in enumerate(CACHES):
+            c = self.caches[name]
+            m.submodules[f"cache_{name}"] = c
+            wiring.connect(m, c.mem, wiring.flipped(self.mem(name)))
+            m.d.comb += [self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
+        m.d.comb += [self.caches["trav"].base.eq(0), self.caches["list"].base.eq(0),
+                     self.caches["int"].base.eq(self.tri_base)]
+
+
+class RTCMI(_RTCMIBase):
     """The three caches of one RTC (see the module docstring).
 
     Ports: ``node``, ``list``, ``tri`` (servers for the RTC's ``node_mem``, ``list_mem``,
@@ -99,38 +125,23 @@ class RTCMI(wiring.Component):
             g, port = self.geoms[name], getattr(rtc, PORTS[name])
             return In(MemReadPort(addr_width=g.addr_width, data_width=g.item_bits,
                                   tag_width=len(port.req.payload.tag)))
-        members = {
-            "node": server("trav"), "list": server("list"), "tri": server("int"),
-            "tri_base": In(cfg.addr_bits),
-            "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
-        }
-        for name in CACHES:
-            members[f"mem_{name}"] = Out(self.caches[name].mem.signature)
-        super().__init__(members)
-
-    def mem(self, name: str):
-        return getattr(self, f"mem_{name}")
+        super().__init__(self._members(cfg, {
+            "node": server("trav"), "list": server("list"), "tri": server("int")}))
 
     def elaborate(self, platform):
         m = Module()
+        self._caches(m)
         unit_side = {"trav": self.node, "list": self.list, "int": self.tri}
-        for i, name in enumerate(CACHES):
-            c = self.caches[name]
-            m.submodules[f"cache_{name}"] = c
-            wiring.connect(m, wiring.flipped(unit_side[name]), c.port)
-            wiring.connect(m, c.mem, wiring.flipped(self.mem(name)))
-            m.d.comb += [self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
-        m.d.comb += [self.caches["trav"].base.eq(0), self.caches["list"].base.eq(0),
-                     self.caches["int"].base.eq(self.tri_base)]
+        for name in CACHES:
+            wiring.connect(m, wiring.flipped(unit_side[name]), self.caches[name].port)
         return m
-
 
 def port_tags(rtc) -> dict[str, int]:
     """``{"trav", "list", "int"}``: the tag bits of an RTC's port to each cache."""
     return {name: len(getattr(rtc, PORTS[name]).req.payload.tag) for name in CACHES}
 
 
-class SharedRTCMI(wiring.Component):
+class SharedRTCMI(_RTCMIBase):
     """The paper's RTC-MI: the three caches of the chip, shared by ``n`` RTCs whose ports'
     tags are ``tags[c]`` bits wide (:func:`port_tags`).
 
@@ -159,36 +170,21 @@ class SharedRTCMI(wiring.Component):
             self.buses[name] = bus
             self.caches[name] = Cache(g, tag_width=len(bus.mem.req.payload.tag),
                                       fast=cfg.fast_clock)
-        members = {
-            key: In(self.buses[name].inputs[0].signature.flip()).array(self.n)
-            for key, name in (("node", "trav"), ("list", "list"), ("tri", "int"))}
-        members.update({
-            "tri_base": In(cfg.addr_bits),
-            "hits": Out(COUNTER_BITS).array(3), "misses": Out(COUNTER_BITS).array(3),
-            "waits": Out(COUNTER_BITS).array(3),
-        })
-        for name in CACHES:
-            members[f"mem_{name}"] = Out(self.caches[name].mem.signature)
-        super().__init__(members)
-
-    def mem(self, name: str):
-        return getattr(self, f"mem_{name}")
+        units = {key: In(self.buses[name].inputs[0].signature.flip()).array(self.n)
+                 for key, name in (("node", "trav"), ("list", "list"), ("tri", "int"))}
+        super().__init__({**self._members(cfg, units), "waits": Out(COUNTER_BITS).array(3)})
 
     def elaborate(self, platform):
         m = Module()
+        self._caches(m)
         unit_side = {"trav": self.node, "list": self.list, "int": self.tri}
         for i, name in enumerate(CACHES):
-            bus, c = self.buses[name], self.caches[name]
+            bus = self.buses[name]
             m.submodules[f"bus_{name}"] = bus
-            m.submodules[f"cache_{name}"] = c
             for r in range(self.n):
                 wiring.connect(m, wiring.flipped(unit_side[name][r]), bus.inputs[r])
-            wiring.connect(m, bus.mem, c.port)
-            wiring.connect(m, c.mem, wiring.flipped(self.mem(name)))
-            m.d.comb += [self.hits[i].eq(c.hits), self.misses[i].eq(c.misses)]
+            wiring.connect(m, bus.mem, self.caches[name].port)
             waiting = Cat(*(p.req.valid & ~p.req.ready for p in unit_side[name]))
             with m.If(waiting.any()):
                 m.d.sync += self.waits[i].eq(self.waits[i] + 1)
-        m.d.comb += [self.caches["trav"].base.eq(0), self.caches["list"].base.eq(0),
-                     self.caches["int"].base.eq(self.tri_base)]
         return m
