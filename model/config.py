@@ -14,6 +14,10 @@ from .fp import FPFormat
 CACHE_TOPOLOGIES = ("shared", "private")   # Config.cache_topology
 
 
+_TYPE_WORDS = {bool: "true or false (a bool)", int: "an integer", float: "a finite number",
+               str: "a string"}
+
+
 class ConfigError(ValueError):
     """An impossible or inconsistent configuration; the message names the parameter."""
 
@@ -112,11 +116,19 @@ class Config:
                                    # for_scene narrows it to the scene's memory image
 
     def __post_init__(self) -> None:
+        self._check_types()
         for name in ("rtcs", "threads", "trav_subunits", "tile_w", "tile_h", "kd_max_depth",
                      "kd_leaf_size", "kd_bins", "mem_chips", "mem_clock_ratio",
-                     "cache_outstanding", "cache_line_words"):
+                     "cache_outstanding", "cache_line_words", "mem_chip_bits",
+                     "trav_cache_kb", "list_cache_kb", "int_cache_kb"):
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name}={getattr(self, name)} must be >= 1")
+        if self.clock_mhz <= 0:
+            raise ConfigError(f"clock_mhz={self.clock_mhz} must be > 0 (the chip clock in MHz; "
+                              "the paper's 533)")
+        if self.mem_latency < 0:
+            raise ConfigError(f"mem_latency={self.mem_latency} must be >= 0 (chip cycles from a "
+                              "memory request to its first data)")
         for name in ("fp_add_latency", "fp_mul_latency", "fp_div_latency", "fp_sqrt_latency",
                      "fp_cmp_latency"):
             if not 0 <= getattr(self, name) <= 64:
@@ -158,10 +170,12 @@ class Config:
         if self.oversampling < 1:
             raise ConfigError(f"oversampling={self.oversampling} must be >= 1")
         if self.packet_size > 64:
-            raise ConfigError(f"packet of {self.tile_w}x{self.tile_h}={self.packet_size} rays: "
+            raise ConfigError(f"packet of tile_w x tile_h = {self.tile_w}x{self.tile_h} = "
+                              f"{self.packet_size} rays: "
                               "at most 64 rays per packet (the active mask is 64 bits)")
         if self.packet_size % self.trav_subunits:
-            raise ConfigError(f"packet size {self.packet_size} is not divisible by "
+            raise ConfigError(f"packet size tile_w x tile_h = {self.packet_size} is not "
+                              "divisible by "
                               f"trav_subunits={self.trav_subunits}")
         if self.kd_max_depth > 62:
             raise ConfigError(f"kd_max_depth={self.kd_max_depth} must be <= 62")
@@ -188,6 +202,37 @@ class Config:
         if self.mem_chips & (self.mem_chips - 1):
             raise ConfigError(f"mem_chips={self.mem_chips} must be a power of two (1, 2, 4, 8): "
                               "the controller hashes addresses over chips by XOR-folding")
+
+    def _check_types(self) -> None:
+        """Every field has its default's type: an int field an int (not a bool or a float), a
+        float field a finite number, a bool field a bool, a str field a str; the message names
+        the field. (A Config from Python code can hold anything; the command line parses
+        strictly, ``saarcor.args``.)"""
+        import math
+        import numbers
+        if not isinstance(self.fmt, FPFormat):
+            raise ConfigError(f"fmt={self.fmt!r} must be an FPFormat (e.g. FPFormat(8, 23))")
+        for f in dataclasses.fields(self):
+            if f.name == "fmt":
+                continue
+            v, want = getattr(self, f.name), type(f.default)
+            if want is bool:
+                ok = isinstance(v, bool)
+            elif want is int:
+                ok = isinstance(v, numbers.Integral) and not isinstance(v, bool)
+                if ok and not isinstance(v, int):
+                    object.__setattr__(self, f.name, int(v))     # numpy integers
+            elif want is float:
+                ok = isinstance(v, numbers.Real) and not isinstance(v, bool)
+                if ok and not math.isfinite(v):
+                    raise ConfigError(f"{f.name}={v} must be a finite number")
+                if ok and not isinstance(v, float):
+                    object.__setattr__(self, f.name, float(v))
+            else:
+                ok = isinstance(v, want)
+            if not ok:
+                raise ConfigError(f"{f.name}={v!r} must be {_TYPE_WORDS[want]}, not "
+                                  f"{type(v).__name__}")
 
     # --- derived sizes (the only place they are computed) -----------------------------------
     @property
