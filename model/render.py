@@ -21,6 +21,7 @@ from .raygen import Rays, eye_rays, live_packets, select_packets, setup
 from .raykind import RayKind
 from .rgs import CHUNK, FIX_FRAC
 from .rtc import COUNTERS, Hits, counter_totals, trace
+from .scene_checks import check_format
 from .shading import Shader, frame_colour_registers, shading_data, surface_offset
 
 CHUNK_PACKETS = 4096
@@ -38,7 +39,10 @@ class Prepared:
 
 def prepare(scene, cfg: Config, cache_dir="default") -> Prepared:
     """Quantize the scene, build (or load) its kd-tree and lay out its memory image, shading
-    data included (``model.shading.shading_data``: the RGS slave reads its records)."""
+    data included (``model.shading.shading_data``: the RGS slave reads its records). First
+    :func:`model.scene_checks.check_format`: a ConfigError if ``cfg.fmt`` cannot represent the
+    scene's extent."""
+    check_format(scene, cfg.fmt)
     tris = cfg.fmt.quantize(scene.tris).astype(np.float32)
     kw = {} if cache_dir == "default" else {"cache_dir": cache_dir}
     tree = build_kdtree(tris, cfg, **kw)
@@ -318,21 +322,27 @@ def to_srgb8(img: np.ndarray) -> np.ndarray:
 
 def write_rays_hits(out_dir: Path, rays: Rays, hits: Hits) -> None:
     """``rays.npz`` (origin, direction, tmax, kind, pixel, packet_start) and ``hits.npz``
-    (tri in scene order or -1, t, u, v) in ``out_dir``. Uncompressed: zlib took longer than
+    (tri in scene order or -1, t, u, v) in ``out_dir`` (a folder, or an object whose
+    ``file(name)`` gives the path to write, ``saarcor.outputs.OutputDir``). Uncompressed: zlib took longer than
     the render itself (office 1024x768: 4-5 s against 0.2-0.3 s for the 2.5x larger files)."""
-    out = Path(out_dir)
-    np.savez(out / "rays.npz", origin=rays.org, direction=rays.dir, tmax=rays.tmax,
+    path = out_dir.file if hasattr(out_dir, "file") else (lambda name: Path(out_dir) / name)
+    np.savez(path("rays.npz"), origin=rays.org, direction=rays.dir, tmax=rays.tmax,
              kind=rays.kind, pixel=rays.pixel, packet_start=rays.pk_start)
-    np.savez(out / "hits.npz", tri=hits.tri.astype(np.int32), t=hits.t, u=hits.u, v=hits.v)
+    np.savez(path("hits.npz"), tri=hits.tri.astype(np.int32), t=hits.t, u=hits.u, v=hits.v)
 
 
 def write_outputs(result: RenderResult, out_dir: Path) -> dict:
-    """image.png, stats.json, rays.npz, hits.npz in ``out_dir``; returns the paths."""
+    """image.png, stats.json, rays.npz, hits.npz in ``out_dir`` (a folder, or a
+    ``saarcor.outputs.OutputDir``, which stages them until its ``commit``); returns the final
+    paths."""
     from PIL import Image
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {name: out / name for name in ("image.png", "stats.json", "rays.npz", "hits.npz")}
-    Image.fromarray(to_srgb8(result.image)).save(paths["image.png"])
-    write_rays_hits(out, result.rays, result.hits)
-    paths["stats.json"].write_text(json.dumps(result.stats, indent=2))
-    return paths
+    if hasattr(out_dir, "file"):                 # saarcor.outputs.OutputDir: staged files
+        out, path = Path(out_dir.dir), out_dir.file
+    else:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        path = lambda name: out / name        # noqa: E731
+    Image.fromarray(to_srgb8(result.image)).save(path("image.png"))
+    write_rays_hits(out_dir if hasattr(out_dir, "file") else out, result.rays, result.hits)
+    path("stats.json").write_text(json.dumps(result.stats, indent=2))
+    return {name: out / name for name in ("image.png", "stats.json", "rays.npz", "hits.npz")}

@@ -6,7 +6,10 @@ order). The result holds world-space float32 triangles in *scene order* (TOML: o
 order, each object's instances in order, each instance's faces in load order), with
 ``tri_id`` giving each kept triangle's index in that order. Degenerate triangles (a repeated
 vertex or exactly zero area after rounding to float32) are dropped and counted; every other
-bad input raises :class:`SceneError` with a message naming the problem and how to fix it.
+bad input raises :class:`SceneError` with a message naming the problem and how to fix it. A scene
+that loads but probably does not show what was meant (a point light on a surface, a camera
+inside a closed mesh) gives a :class:`SceneWarning` (``model.scene_checks``; the rules:
+``docs/scenes.md``, "Checks on load").
 
 ``saarcor scene --scene PATH`` prints a summary of each scene.
 """
@@ -16,11 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .scene_checks import warn_scene
 from .scene_data import (DEFAULT_BACKGROUND, MESH_SUFFIXES, Camera, Light, Material, Scene,
-                         SceneError, auto_camera, finish_pieces, grey_material, load_mesh_file)
+                         SceneError, SceneWarning, auto_camera, finish_pieces, grey_material,
+                         load_mesh_file)
 from .scene_toml import load_toml
 
-__all__ = ["load_scene", "Scene", "SceneError", "Camera", "Light", "Material",
+__all__ = ["load_scene", "Scene", "SceneError", "SceneWarning", "Camera", "Light", "Material",
            "DEFAULT_BACKGROUND", "MESH_SUFFIXES"]
 
 
@@ -42,8 +47,14 @@ def _load_bare_mesh(path: Path) -> Scene:
 
 
 def load_scene(path: str | Path) -> Scene:
-    """Load a ``.toml`` scene or a bare mesh file (see the module docstring)."""
-    path = Path(path)
+    """Load a ``.toml`` scene or a bare mesh file (see the module docstring); warns
+    (:class:`SceneWarning`) about a light on a surface or a camera inside a closed mesh."""
+    scene = _load(Path(path))
+    warn_scene(scene, stacklevel=3)
+    return scene
+
+
+def _load(path: Path) -> Scene:
     if not path.exists():
         raise SceneError(f"scene file '{path}' does not exist; check the path "
                          "(shipped scenes are in scenes/, e.g. scenes/cornell.toml)")
