@@ -38,7 +38,7 @@ import re
 from model.config import Config, ConfigError, field_help
 from model.fp import FPFormat
 
-__all__ = ["RES_QUICK", "RES_BENCH", "RES_PAPER", "SCENE", "parse_res", "parse_fmt",
+__all__ = ["resolve_scene", "parse_bool", "RES_QUICK", "RES_BENCH", "RES_PAPER", "SCENE", "parse_res", "parse_fmt",
            "parse_formats", "add_config_args", "config_from_args", "config_and_res",
            "res_from_args", "add_scene_arg", "add_res_arg", "add_out_arg", "add_kd_cache_arg",
            "add_backend_arg", "add_formats_arg"]
@@ -53,11 +53,36 @@ _RES_NAMES = {RES_QUICK: "RES_QUICK, quick checks",
               RES_BENCH: "RES_BENCH, benchmarks and golden-model images",
               RES_PAPER: "RES_PAPER, the paper's operating point"}
 
+MAX_RES = (1 << 16) - 1
+"""The widest and tallest image: the RGS counts samples in 16 bits (``model.config.COORD_BITS``;
+with ``oversampling`` n, the image is at most ``MAX_RES // n`` pixels a side)."""
+
+MAX_PIXELS = 16384 * 16384
+"""The most pixels a frame may have: the host keeps every ray and hit in memory."""
+
 SCENE = "scenes/cornell.toml"
 """The default scene of the commands that render one frame for a quick look."""
 
 SCENE_HELP = ("a scene: a .toml file (docs/scenes.md) or a bare mesh (.obj .ply .stl .glb .off; "
               "the camera frames it, one light)")
+
+
+def resolve_scene(path: str, prog: str) -> str:
+    """``path`` as given when it exists; a relative path that does not exist here but does in
+    the repository (the default ``scenes/cornell.toml`` run from another folder) resolves
+    there; otherwise raises ``SceneError`` naming the path and the shipped scenes (``saarcor``
+    prints it on one line, exit status 2)."""
+    from pathlib import Path
+    p = Path(path)
+    if p.exists():
+        return str(path)
+    repo = Path(__file__).resolve().parents[1]
+    if not p.is_absolute() and (repo / p).exists():
+        return str(repo / p)
+    shipped = sorted(x.name for x in (repo / "scenes").glob("*.toml"))
+    from model.scene_data import SceneError
+    raise SceneError(f"scene {path!r} not found (shipped scenes in the repository's "
+                     f"scenes/: {', '.join(shipped)})")
 
 
 def summary(doc: str) -> str:
@@ -70,9 +95,29 @@ def parse_res(text: str) -> tuple[int, int]:
         w, h = (int(x) for x in str(text).lower().split("x"))
     except ValueError:
         raise argparse.ArgumentTypeError(f"--res {text!r}: expected WIDTHxHEIGHT, e.g. 256x192")
-    if w < 1 or h < 1 or w * h > 16384 * 16384:
+    if w < 1 or h < 1:
         raise argparse.ArgumentTypeError(f"--res {text!r}: width and height must be >= 1")
+    if w > MAX_RES or h > MAX_RES:
+        raise argparse.ArgumentTypeError(
+            f"--res {text!r}: at most {MAX_RES}x{MAX_RES} pixels (the RGS counts pixels and "
+            f"samples in 16 bits; with oversampling n, at most {MAX_RES}/n pixels a side)")
+    if w * h > MAX_PIXELS:
+        raise argparse.ArgumentTypeError(
+            f"--res {text!r}: {w * h:,} pixels; at most {MAX_PIXELS:,} (16384x16384): a ray "
+            "takes about 60 bytes on the host, so a frame beyond that needs more than 16 GB")
     return w, h
+
+
+_TRUE, _FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+def parse_bool(text: str) -> bool:
+    """A boolean option's value, strictly: true/yes/on/1 or false/no/off/0 (any case)."""
+    t = str(text).strip().lower()
+    if t in _TRUE or t in _FALSE:
+        return t in _TRUE
+    raise argparse.ArgumentTypeError(f"{text!r} is not a boolean: write true or false "
+                                     "(also yes/no, on/off, 1/0)")
 
 
 def parse_fmt(text: str) -> FPFormat:
@@ -103,8 +148,7 @@ def add_config_args(ap: argparse.ArgumentParser) -> None:
         if f.name == "fmt":
             continue
         default = getattr(Config(), f.name)
-        typ = {bool: lambda s: s.lower() in ("1", "true", "yes", "on")}.get(type(default),
-                                                                            type(default))
+        typ = {bool: parse_bool}.get(type(default), type(default))
         g.add_argument("--" + f.name.replace("_", "-"), dest=f.name, type=typ, default=None,
                        metavar=type(default).__name__.upper(),
                        help=(text[f.name] + f" (default {default})" if f.name in text

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 from dataclasses import dataclass
 
@@ -132,8 +134,69 @@ def run(name: str, cmd: Command, argv: list[str]) -> int:
                              f"the checkout to a version that has it")
         raise SystemExit(f"{name}: needs the Python package {e.name!r}, which is not installed; "
                          f"run `make setup`")
-    status = getattr(module, cmd.func)(argv)
+    if os.environ.get("SAARCOR_TRACEBACK"):
+        status = getattr(module, cmd.func)(_join_dash_values(argv))
+        return status if isinstance(status, int) else 0
+    import warnings
+    from model.config import ConfigError
+    from model.scene_data import SceneError
+    with warnings.catch_warnings():
+        warnings.showwarning = _warning_line(name)
+        old = signal.signal(signal.SIGINT, _interrupted(name))
+        try:
+            status = getattr(module, cmd.func)(_join_dash_values(argv))
+        except (ConfigError, SceneError) as e:
+            print(f"{name}: {e}", file=sys.stderr)
+            return 2
+        except OSError as e:
+            where = f" {e.filename}" if e.filename else ""
+            print(f"{name}: cannot complete:{where}: {e.strerror or e} (the outputs of earlier "
+                  f"runs are unchanged; SAARCOR_TRACEBACK=1 shows the traceback)",
+                  file=sys.stderr)
+            return 1
+        finally:
+            signal.signal(signal.SIGINT, old)
     return status if isinstance(status, int) else 0      # some mains return their results
+
+
+def _interrupted(name: str):
+    """The SIGINT (Ctrl-C) handler: one line and exit status 130, at once. Exiting from the
+    handler, not by ``KeyboardInterrupt``, also stops a run whose main thread is inside
+    compiled code (a numba compile swallows the exception and carries on). Outputs are
+    staged (``saarcor.outputs.OutputDir``, which holds off SIGINT while it renames), so the
+    previous run's files stay whole; simulator child processes get the same Ctrl-C."""
+    def handler(signum, frame):
+        print(f"\n{name}: interrupted (Ctrl-C); earlier outputs are kept whole", file=sys.stderr,
+              flush=True)
+        os._exit(130)
+    return handler
+
+
+VALUE_OPTIONS_WITH_DASH = ("--res",)
+"""Options whose value may start with a dash (``--res -5x10``), which argparse would take for
+an option: :func:`_join_dash_values` writes them ``--res=-5x10`` so the option's own check
+reports the bad value."""
+
+
+def _join_dash_values(argv: list[str]) -> list[str]:
+    out, i = [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a in VALUE_OPTIONS_WITH_DASH and i + 1 < len(argv) and argv[i + 1].startswith("-") \
+                and len(argv[i + 1]) > 1 and not argv[i + 1].startswith("--"):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
+def _warning_line(name: str):
+    """``warnings.showwarning`` printing ``name: warning: message`` on one line."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{name}: warning: {message}", file=file or sys.stderr)
+    return show
 
 
 def main(argv: list[str] | None = None) -> int:

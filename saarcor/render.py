@@ -3,11 +3,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from model.config import ConfigError
 from saarcor.args import (RES_BENCH, SCENE, add_config_args, add_out_arg, add_res_arg,
-                          add_scene_arg, config_from_args, parse_res)
+                          add_scene_arg, config_from_args, parse_res, resolve_scene)
+from saarcor.outputs import OutputDir
+
+OUTPUTS = ("image.png", "stats.json", "rays.npz", "hits.npz")
+"""What ``saarcor render`` writes in ``--out``, all together (``saarcor.outputs.OutputDir``)."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,16 +45,19 @@ def main(argv=None) -> int:
     try:
         cfg = config_from_args(args)
     except (ConfigError, ValueError) as e:
-        print(f"error: impossible configuration: {e}", file=sys.stderr)
+        print(f"saarcor render: impossible configuration: {e}", file=sys.stderr)
         return 2
+    args.scene = resolve_scene(args.scene, "saarcor render")
+    out = OutputDir(args.out, "saarcor render", owns=OUTPUTS).check()
     try:
         scene = load_scene(args.scene)
-    except SceneError as e:
-        print(f"error: {e}", file=sys.stderr)
+        prep = prepare(scene, cfg, cache_dir=None if args.no_cache else "default")
+    except (SceneError, ConfigError) as e:
+        print(f"saarcor render: {e}", file=sys.stderr)
         return 2
-    prep = prepare(scene, cfg, cache_dir=None if args.no_cache else "default")
     result = render(scene, cfg, *res, progress=not args.quiet, prepared=prep)
-    paths = write_outputs(result, Path(args.out))
+    with out:
+        paths = write_outputs(result, out)
     if not args.quiet:
         s = result.stats
         print(f"{s['scene']}: {s['triangles']} triangles, {s['rays_total']} rays "

@@ -38,12 +38,16 @@ import numpy as np
 
 from model.config import Config
 from model.raykind import RayKind
+from saarcor.args import resolve_scene
+from saarcor.outputs import OutputDir
 
 __all__ = ["relative_performance", "frame_stats", "shade_eye_hits", "write_usage_plot",
            "main"]
 
 ROOT = Path(__file__).resolve().parents[1]
 UNITS = ("trav", "list", "int")
+OUTPUTS = ("image.png", "stats.json", "rays.npz", "hits.npz", "usage.png")
+"""What ``saarcor sim`` writes in ``--out``, all together (``saarcor.outputs.OutputDir``)."""
 
 
 def shade_eye_hits(scene, cfg: Config, image, rays, hits, n_pixels: int) -> np.ndarray:
@@ -274,14 +278,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: float,
-                 extra: dict | None = None) -> int:
+                 out, extra: dict | None = None) -> int:
     """``saarcor sim --fidelity estimate|sampled``: ``stats.json`` with the estimated cycles
     and fps (marked as estimates) and the entries of ``extra``, ``image.png``, ``rays.npz``
     and ``hits.npz`` from the golden model's eye-ray hits (shaded as ``saarcor sim`` shades
     the chip's)."""
-    import json
     import sys
-    from pathlib import Path
 
     from PIL import Image
 
@@ -332,15 +334,14 @@ def sim_estimate(args, cfg: Config, scene, prep, width: int, height: int, t0: fl
                   "image": "the golden model's eye-ray hits shaded on the host (ambient + "
                            "Phong, unshadowed), as for --fidelity rtl",
                   "config": cfg.to_dict(), **(extra or {})})
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "stats.json").write_text(json.dumps(stats, indent=1))
     color = shade_eye_hits(scene, cfg, prep.image, rays, hits, width * height)
-    Image.fromarray(to_srgb8(color.reshape(height, width, 3))).save(out / "image.png")
-    write_rays_hits(out, rays, hits)
+    with out:
+        out.write_json("stats.json", stats)
+        Image.fromarray(to_srgb8(color.reshape(height, width, 3))).save(out.file("image.png"))
+        write_rays_hits(out, rays, hits)
     print(f"{args.scene} {width}x{height} on {cfg.rtcs} RTC(s) ({args.fidelity}): {len(rays)} "
           f"rays, ESTIMATED {cycles:.0f} cycles = {perf['fps']:.1f} fps at "
-          f"{cfg.clock_mhz:g} MHz (an estimate, docs/ladder.md); -> {out}/")
+          f"{cfg.clock_mhz:g} MHz (an estimate, docs/ladder.md); -> {out.dir}/")
     return 0
 
 
@@ -349,8 +350,20 @@ def main(argv=None) -> int:
     ap = build_parser()
     args = ap.parse_args(argv)
     cfg, w, h = config_and_res(args, "saarcor sim")
-    if not Path(args.scene).exists():
-        raise SystemExit(f"sim: scene {args.scene!r} not found (try scenes/*.toml)")
+    from model.scene import SceneError
+    try:
+        args.scene = resolve_scene(args.scene, "saarcor sim")
+    except SceneError as e:
+        raise SystemExit(f"saarcor sim: {e}")
+    if args.fidelity != "rtl" and args.backend != "verilator":
+        raise SystemExit(f"saarcor sim: --backend {args.backend} has no effect with --fidelity "
+                         f"{args.fidelity} (estimate runs no simulator, sampled runs "
+                         "Verilator); drop --backend or use --fidelity rtl")
+    for name in ("sample_every", "max_cycles"):
+        if getattr(args, name) < (0 if name == "sample_every" else 1):
+            raise SystemExit(f"saarcor sim: --{name.replace('_', '-')} "
+                             f"{getattr(args, name)}: must be "
+                             f"{'>= 0 (0: automatic)' if name == 'sample_every' else '>= 1'}")
     if args.trace and args.backend == "amaranth" and not args.trace.endswith(".vcd"):
         raise SystemExit("sim: --backend amaranth writes VCD waveforms only: name the file *.vcd")
     from model.render import prepare, to_srgb8, write_rays_hits
@@ -361,6 +374,7 @@ def main(argv=None) -> int:
     from tb.harness.compare import ResultError, describe
     from tb.harness.verilator import FrameError
     from tb.harness.tools import ToolMissing
+    out = OutputDir(args.out, "saarcor sim", owns=OUTPUTS).check()
     t0 = time.perf_counter()
     try:
         scene = load_scene(args.scene)
@@ -384,7 +398,7 @@ def main(argv=None) -> int:
             raise SystemExit(f"sim: {e}")
     frame_scene = None if args.eye_only else scene
     if args.fidelity != "rtl":
-        return sim_estimate(args, cfg, scene, prep, w, h, t0, extra)
+        return sim_estimate(args, cfg, scene, prep, w, h, t0, out, extra)
     n_rays = w * h * cfg.oversampling ** 2
     every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 200)
     log = sys.stderr
@@ -406,8 +420,6 @@ def main(argv=None) -> int:
         raise SystemExit(f"sim: {e}")
     wall = time.perf_counter() - t0
 
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     stats = frame_stats(cfg, r, scene=args.scene, width=w, height=h, backend=args.backend,
                         wall=wall)
     stats.update(extra)
@@ -417,18 +429,20 @@ def main(argv=None) -> int:
         color = r.color                 # the chip's colour, checked against the model
     else:
         color = shade_eye_hits(scene, cfg, prep.image, r.eye, r.hits, w * h)
-    Image.fromarray(to_srgb8(color.reshape(h, w, 3))).save(out / "image.png")
-    write_rays_hits(out, r.frame_rays, r.frame_hits)
-    if r.samples is not None and len(r.samples):
-        write_usage_plot(cfg, r.samples, chip_counter_names(cfg), out / "usage.png",
-                         f"{Path(args.scene).stem} {w}x{h}, {cfg.rtcs} RTCs x "
-                         f"{cfg.threads} threads ({args.backend})")
-    phases.update(r.timings)
-    phases["outputs_s"] = time.perf_counter() - t2
-    stats["wall_phases"] = {k: round(v, 3) for k, v in phases.items()}
-    if r.build is not None and r.build.built:
-        stats["build"]["phases"] = json.loads((r.build.dir / "build.json").read_text())["phases"]
-    (out / "stats.json").write_text(json.dumps(stats, indent=1))
+    with out:
+        Image.fromarray(to_srgb8(color.reshape(h, w, 3))).save(out.file("image.png"))
+        write_rays_hits(out, r.frame_rays, r.frame_hits)
+        if r.samples is not None and len(r.samples):
+            write_usage_plot(cfg, r.samples, chip_counter_names(cfg), out.file("usage.png"),
+                             f"{Path(args.scene).stem} {w}x{h}, {cfg.rtcs} RTCs x "
+                             f"{cfg.threads} threads ({args.backend})")
+        phases.update(r.timings)
+        phases["outputs_s"] = time.perf_counter() - t2
+        stats["wall_phases"] = {k: round(v, 3) for k, v in phases.items()}
+        if r.build is not None and r.build.built:
+            stats["build"]["phases"] = json.loads(
+                (r.build.dir / "build.json").read_text())["phases"]
+        out.write_json("stats.json", stats)
     built = stats["build"]
     print(f"{args.scene} {w}x{h} on {cfg.rtcs} RTC(s) ({args.backend}"
           f"{', built in %.0f s' % built['seconds'] if built['built'] else ''}): "
@@ -437,7 +451,7 @@ def main(argv=None) -> int:
           f"({stats['bound']}-bound); cache hit rates "
           + ", ".join(f"{k} {100 * v['hit_rate']:.1f} %" for k, v in stats["cache"].items())
           + f"; {len(r.mismatches)} mismatching rays; simulated at "
-          f"{stats['sim_cycles_per_second']:,} cycles/s; -> {out}/")
+          f"{stats['sim_cycles_per_second']:,} cycles/s; -> {out.dir}/")
     if r.mismatches:
         print(describe(r.mismatches, rays=r.frame_rays), file=log)
         print("sim: reproduce with a waveform: the same command with --trace mismatch.fst "
