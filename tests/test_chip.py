@@ -1,6 +1,7 @@
 """The whole chip (rtl/chip.py): RGS master and slaves, RTCs behind their RTC-MIs, one bus to
 the SDRAM model; every ray — eye rays, and with a scene its shadow and reflection rays made by
 the slaves — bit-exact with the golden model in both simulators."""
+import io
 from types import SimpleNamespace
 
 import numpy as np
@@ -208,9 +209,13 @@ def test_chip_secondary_rays_verilator(cornell):
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2)
+    log = io.StringIO()
     r = run_chip_frame(cfg, image, scene.camera, 4, 4, stall=0.25, seed=3, scene=scene,
-                       progress=False)
+                       progress=True, log=log)
     check_frame(r, cfg, image, eye_rays(scene.camera, 4, 4, cfg))
+    # the progress bar counts the rays (not the pixels' colour records) against all of them
+    n = len(r.frame_rays)
+    assert n > 16 and f" {n}/{n} " in log.getvalue(), log.getvalue()[-300:]
     name = "chip/cornell_4x4_scene_rtcs2"
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
     r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,

@@ -253,7 +253,8 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                      cfg, len(rays), max_cycles=max_cycles, trace_file=trace_file,
                      trace_from=trace_from, progress=progress, log=log,
                      desc="chip (Verilator)", names=names, allow_limit=True,
-                     sample_every=sample_every)
+                     sample_every=sample_every, ray_bit=_record_bit(cfg, "shade"),
+                     total=lambda: (len(golden.result()[1]) if golden.done() else None))
     took["simulation_s"] = time.perf_counter() - t1 - took.get("input_s", 0.0)
     t2 = time.perf_counter()
     golden.result()
@@ -271,6 +272,12 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
     run.build, run.samples = b, out.samples
     run.timings = {k: round(v, 3) for k, v in took.items()}
     return run
+
+
+def _record_bit(cfg: Config, name: str) -> int:
+    """The bit offset of field ``name`` in the chip's result record (``SlaveResult``)."""
+    from rtl.rgs import SlaveResult
+    return next(off for f, off, _ in compare.record_fields(SlaveResult(cfg)) if f == name)
 
 
 def chip_build(cfg: Config, mem_words: int, *, trace=False, build_root=None, log=None):

@@ -242,37 +242,22 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
         if d.exists():
             shutil.rmtree(d)           # an interrupted build
         d.mkdir(parents=True)
+        print(announce_build(root, top, cfg, cxx_opt()), file=log, flush=True)
+        expect = last_build(root, top, cfg, cxx_opt())
+        bar = _BuildBar(expect["build_s"] if expect else None, log)
         t0 = time.perf_counter()
         what = f"{cfg.rtcs} RTCs" if top == "chip" else f"{ray_slots} ray slots"
         print(f"tb.harness.verilator: exporting the {top} frame ({cfg.threads} threads, "
               f"{cfg.trav_subunits} sub-units, {cfg.tile_w}x{cfg.tile_h} packets, {mem_words} "
               f"words, {what}) -> {d}", file=log, flush=True)
-        phases = export_frame(top, cfg, mem_words, ray_slots, mem_latency, d, log)
-        t1 = time.perf_counter()
-        tflags = {False: [], "fst": ["--trace-fst"], "vcd": ["--trace"]}[trace]
-        sources = sorted(p.name for p in d.glob("*.v")) + [MEM_V.name, MAIN_CPP.name]
-        units = [p.stem for p in d.glob("*.v") if p.stem != TOP]
-        hflags = []
-        if units and hier() and not trace:    # a waveform build stays flat: every signal
-            (d / "hier.vlt").write_text("`verilator_config\n" + "".join(
-                f'hier_block -module "{u}"\n' for u in sorted(units)))
-            hflags = ["--hierarchical", "--build-jobs", str(MAKE_JOBS), "hier.vlt"]
-        cmd = [exe, *FLAGS, *hflags, *tflags, "--top-module", TOP, "-o", "Vframe", "-Mdir",
-               "obj_dir", *sources]
-        print(f"tb.harness.verilator: export {t1 - t0:.1f} s; translating with Verilator ...", file=log,
-              flush=True)
-        _run_step(cmd, d, "Verilator", d / "build.log")
-        t2 = time.perf_counter()
-        phases["verilate_s"] = round(t2 - t1, 1)
-        print(f"tb.harness.verilator: translated in {t2 - t1:.1f} s; compiling the C++ "
-              f"({_cxx_files(d / 'obj_dir')} files, make -j {MAKE_JOBS}) ...", file=log,
-              flush=True)
-        _run_step(make_cmd(), d / "obj_dir", "the C++ build", d / "build.log")
-        if not binary.exists():
-            raise RuntimeError(f"Verilator build in {d} made no binary; see {d / 'build.log'}")
-        phases["compile_s"] = round(time.perf_counter() - t2, 1)
+        try:
+            bar.step("export")
+            phases = export_frame(top, cfg, mem_words, ray_slots, mem_latency, d, log)
+            built = _translate_compile(exe, d, trace, phases, t0, log, bar)
+        finally:
+            bar.close()
         secs = time.perf_counter() - t0
-        stamp.write_text(json.dumps({"top": top, "export_s": round(t1 - t0, 1),
+        stamp.write_text(json.dumps({"top": top, "export_s": built["export_s"],
                                      "build_s": round(secs, 1), "phases": phases,
                                      "cxx_opt": cxx_opt(),
                                      "config": cfg.to_dict(), "mem_words": mem_words,
@@ -280,6 +265,122 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
                                      "trace": trace}, indent=1))
         print(f"tb.harness.verilator: built {binary} in {secs:.0f} s", file=log, flush=True)
         return FrameBuild(binary, d, True, secs, mem_words, ray_slots)
+
+
+def _translate_compile(exe, d: Path, trace, phases: dict, t0: float, log, bar) -> dict:
+    """Verilator's translation and the C++ build of the exported frame in ``d``."""
+    binary = d / "obj_dir" / "Vframe"
+    t1 = time.perf_counter()
+    tflags = {False: [], "fst": ["--trace-fst"], "vcd": ["--trace"]}[trace]
+    sources = sorted(p.name for p in d.glob("*.v")) + [MEM_V.name, MAIN_CPP.name]
+    units = [p.stem for p in d.glob("*.v") if p.stem != TOP]
+    hflags = []
+    if units and hier() and not trace:    # a waveform build stays flat: every signal
+        (d / "hier.vlt").write_text("`verilator_config\n" + "".join(
+            f'hier_block -module "{u}"\n' for u in sorted(units)))
+        hflags = ["--hierarchical", "--build-jobs", str(MAKE_JOBS), "hier.vlt"]
+    cmd = [exe, *FLAGS, *hflags, *tflags, "--top-module", TOP, "-o", "Vframe", "-Mdir",
+           "obj_dir", *sources]
+    print(f"tb.harness.verilator: export {t1 - t0:.1f} s; translating with Verilator ...", file=log,
+          flush=True)
+    bar.step("Verilator")
+    _run_step(cmd, d, "Verilator", d / "build.log")
+    t2 = time.perf_counter()
+    phases["verilate_s"] = round(t2 - t1, 1)
+    print(f"tb.harness.verilator: translated in {t2 - t1:.1f} s; compiling the C++ "
+          f"({_cxx_files(d / 'obj_dir')} files, make -j {MAKE_JOBS}) ...", file=log,
+          flush=True)
+    bar.step("C++")
+    _run_step(make_cmd(), d / "obj_dir", "the C++ build", d / "build.log")
+    if not binary.exists():
+        raise RuntimeError(f"Verilator build in {d} made no binary; see {d / 'build.log'}")
+    phases["compile_s"] = round(time.perf_counter() - t2, 1)
+    return {"export_s": round(t1 - t0, 1)}
+
+
+def _stamps(root: Path) -> list[dict]:
+    """Every finished build under ``root``: its ``build.json`` with ``mtime`` added."""
+    out = []
+    for p in Path(root).glob("*/build.json"):
+        try:
+            st = json.loads(p.read_text())
+        except (OSError, ValueError):
+            continue
+        st["mtime"] = p.stat().st_mtime
+        out.append(st)
+    return out
+
+
+def last_build(root: Path, top: str, cfg: Config, opt: str) -> dict | None:
+    """The most recent finished build of ``top`` under ``root`` with ``cfg``'s RTC count and
+    the same C++ optimisation (its ``build.json``), else the most recent of ``top`` with that
+    optimisation, or None."""
+    same = [s for s in _stamps(root) if s.get("top") == top and s.get("cxx_opt") == opt]
+    size = [s for s in same if s.get("config", {}).get("rtcs") == cfg.rtcs]
+    pool = size or same
+    return max(pool, key=lambda s: s["mtime"]) if pool else None
+
+
+def announce_build(root: Path, top: str, cfg: Config, opt: str) -> str:
+    """The line said before a new build: that no binary holds this configuration, what differs
+    from the newest build of the same top (or that the sources changed), and how long the last
+    build of the same size took here."""
+    same = [s for s in _stamps(root) if s.get("top") == top]
+    text = (f"tb.harness.verilator: no {top} binary for this configuration and these sources "
+            f"in {root}: building one")
+    if same:
+        newest = max(same, key=lambda s: s["mtime"])
+        old, new = newest.get("config", {}), cfg.to_dict()
+        hw = set(cfg.hardware_dict())
+        diff = [f"{k} {old.get(k)} -> {new[k]}" for k in new
+                if k in hw and k in old and old.get(k) != new[k]]
+        more = f" and {len(diff) - 6} more" if len(diff) > 6 else ""
+        text += (f" (differs from the newest build in {', '.join(diff[:6])}{more})" if diff else
+                 " (the newest build has this configuration: the sources or build flags "
+                 "changed since)")
+    last = last_build(root, top, cfg, opt)
+    if last is not None:
+        n = last.get("config", {}).get("rtcs")
+        size = (f"{n} RTC{'s' if n != 1 else ''}" if top == "chip" else "this top")
+        text += f"; the last build of {size} here took {last['build_s']:.0f} s"
+    else:
+        text += "; the first build of its kind here (minutes for a chip)"
+    return text
+
+
+class _BuildBar:
+    """A progress bar over a build's expected seconds (the last build of its size), naming the
+    step; shown only on a terminal, ticking once a second from a thread."""
+
+    def __init__(self, expect_s: float | None, log):
+        import threading
+        self.step_name, self.t0 = "export", time.perf_counter()
+        self.bar, self.thread, self.stop = None, None, threading.Event()
+        if not (hasattr(log, "isatty") and log.isatty()):
+            return
+        from tqdm import tqdm
+        self.bar = tqdm(total=round(expect_s) if expect_s else None, unit="s", file=log,
+                        desc="building", leave=False,
+                        bar_format="{desc}: {bar} {n:.0f}/{total_fmt} s (expected from the "
+                                   "last build)" if expect_s else "{desc}: {n:.0f} s")
+        self.thread = threading.Thread(target=self._tick, daemon=True)
+        self.thread.start()
+
+    def _tick(self) -> None:
+        while not self.stop.wait(1.0):
+            el = time.perf_counter() - self.t0
+            self.bar.set_description(f"building ({self.step_name})", refresh=False)
+            self.bar.update(min(el, self.bar.total or el) - self.bar.n)
+
+    def step(self, name: str) -> None:
+        self.step_name = name
+
+    def close(self) -> None:
+        self.stop.set()
+        if self.thread is not None:
+            self.thread.join()
+        if self.bar is not None:
+            self.bar.close()
 
 
 def ray_words(image, rays, cfg: Config, box_cull: bool = True) -> np.ndarray:
@@ -409,9 +510,13 @@ def _trace_kind(path) -> bool | str:
 def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
                trace_file=None, trace_from: int = 0, progress: bool = True, log=None,
                desc: str = "frame", names: list[str] | None = None,
-               allow_limit: bool = False, sample_every: int = 0) -> FrameOutput:
+               allow_limit: bool = False, sample_every: int = 0,
+               ray_bit: int | None = None, total=None) -> FrameOutput:
     """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
-    ``n`` results; return its parsed output (``names``: its counters). ``trace_file`` gets
+    ``n`` results; return its parsed output (``names``: its counters). ``ray_bit``: the bar
+    counts only the records whose bit ``ray_bit`` is 0 (the chip's ray results, not its pixel
+    records), and ``total()`` (when given) names the rays to expect once it is known (None
+    before: the bar then shows no total and no ETA). ``trace_file`` gets
     the waveform from run cycle ``trace_from`` on (0: the load as well). ``sample_every``:
     the counters every that many cycles (``FrameOutput.samples``). A run that hits
     ``max_cycles`` raises :class:`FrameError` (``allow_limit``: returns it, status 2, for the
@@ -428,17 +533,23 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
             cmd += ["--trace", str(Path(trace_file).resolve()), "--trace-from", str(trace_from)]
         if sample_every:
             cmd += ["--samples", str(fsmp), "--sample-every", str(sample_every)]
+        if ray_bit is not None:
+            cmd += ["--ray-bit", str(ray_bit)]
         wrapper = os.environ.get(WRAPPER_ENV, "")
         if wrapper:                       # a profiler around the binary (bench simspeed)
             import shlex
             cmd = shlex.split(wrapper) + cmd
         other = []
+        known = n if total is None else total()
         with subprocess.Popen(cmd, stderr=subprocess.PIPE, text=True) as p, \
-                tqdm(total=n, unit="ray", desc=desc, disable=not progress, file=log) as bar:
+                tqdm(total=known, unit="ray", desc=desc, disable=not progress,
+                     file=log) as bar:
             for line in p.stderr:
                 parts = line.split()
-                if len(parts) == 3 and parts[0] == "progress":
-                    bar.update(int(parts[2]) - bar.n)
+                if len(parts) == 4 and parts[0] == "progress":
+                    if known is None and (known := total()) is not None:
+                        bar.total = known          # the ETA starts from here
+                    bar.update(int(parts[3]) - bar.n)
                     bar.set_postfix(cycles=int(parts[1]), refresh=False)
                 else:
                     other.append(line.rstrip())

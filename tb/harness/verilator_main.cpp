@@ -1,7 +1,7 @@
 // C++ main for the Verilator build of tb/harness/frame.py's RTCFrame (driven by tb/harness/verilator.py).
 //
 //   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE] [--trace-from C]
-//   [--samples FILE --sample-every N]
+//   [--samples FILE --sample-every N] [--ray-bit B]
 //   (FILE: FST or VCD, as built; C: first run cycle written to it, default 0 = load included)
 // SAMPLES (little-endian): "RTCSMP1\0", u32 ctr_words, u32 0, then every N run cycles (and
 //   once at the end) a row: u64 cycle, u64 results so far, ctr_words x u32 counters.
@@ -18,7 +18,9 @@
 //   u32 ctr_words, u32 0, u64 cycles (RTC cycles since start), u64 results, u64 load cycles,
 //   f64 CPU seconds of the run loop, f64 CPU seconds of the load, then results x res_words u32,
 //   ctr_words u32 counters.
-// stderr: "progress <cycles> <results>" every --progress cycles (default 65536), errors.
+// stderr: "progress <cycles> <results> <rays>" every --progress cycles (default 65536), errors;
+//   <rays>: the results whose bit B is 0 (--ray-bit B: the chip's records of rays, not of
+//   pixels), else <results> again.
 #include <algorithm>
 #include <cstdint>
 #include <cstdio>
@@ -111,12 +113,14 @@ int main(int argc, char** argv) {
     }
     std::string in_path = argv[1], out_path = argv[2], trace_path;
     uint64_t max_cycles = 100000000ull, progress = 65536, trace_from = 0, sample_every = 0;
+    long long ray_bit = -1;
     std::string samples_path;
     for (int i = 3; i < argc; i++) {
         std::string a = argv[i];
         if (i + 1 >= argc) die("arguments", a + " needs a value");
         if (a == "--max-cycles") max_cycles = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--progress") progress = std::strtoull(argv[++i], nullptr, 10);
+        else if (a == "--ray-bit") ray_bit = std::strtoll(argv[++i], nullptr, 10);
         else if (a == "--trace") trace_path = argv[++i];
         else if (a == "--trace-from") trace_from = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--samples") samples_path = argv[++i];
@@ -248,7 +252,7 @@ int main(int argc, char** argv) {
         std::fwrite(h, 4, 2, smp);
     }
     std::vector<uint32_t> results;
-    uint64_t n_results = 0, cycles = 0, next_progress = progress;
+    uint64_t n_results = 0, n_rays = 0, cycles = 0, next_progress = progress;
     uint32_t status = 0;
     c0 = std::clock();
     while (true) {
@@ -263,6 +267,10 @@ int main(int argc, char** argv) {
         if (top->res_valid) {
             put_wide(results, top->res_data, res_words);
             n_results++;
+            if (ray_bit >= 0) {    // a ray's result, not another record (a pixel's colour)
+                const uint32_t w = results[results.size() - res_words + ray_bit / 32];
+                n_rays += ((w >> (ray_bit % 32)) & 1u) == 0;
+            }
         }
         s.dump();
         top->clk = 1;
@@ -271,8 +279,9 @@ int main(int argc, char** argv) {
         cycles++;
         if (smp && cycles % sample_every == 0) sample(cycles, n_results);
         if (cycles >= next_progress) {
-            std::fprintf(stderr, "progress %llu %llu\n", (unsigned long long)cycles,
-                         (unsigned long long)n_results);
+            std::fprintf(stderr, "progress %llu %llu %llu\n", (unsigned long long)cycles,
+                         (unsigned long long)n_results,
+                         (unsigned long long)(ray_bit >= 0 ? n_rays : n_results));
             std::fflush(stderr);
             next_progress += progress;
         }
@@ -282,8 +291,9 @@ int main(int argc, char** argv) {
         sample(cycles, n_results);
         std::fclose(smp);
     }
-    std::fprintf(stderr, "progress %llu %llu\n", (unsigned long long)cycles,
-                 (unsigned long long)n_results);
+    std::fprintf(stderr, "progress %llu %llu %llu\n", (unsigned long long)cycles,
+                 (unsigned long long)n_results,
+                 (unsigned long long)(ray_bit >= 0 ? n_rays : n_results));
     if (status == 2)
         std::fprintf(stderr,
                      "error: cycle limit: %llu results after --max-cycles %llu cycles (deadlock, "
