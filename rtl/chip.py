@@ -31,7 +31,7 @@ from model.rgs.secondary import FIX_BITS
 from .bus import RoundRobinBus
 from .common import COUNTER_BITS
 from .memport import WORD_BITS, MemReadPort, connect_tags
-from .rtc import COUNTERS, RTC
+from .rtc import COUNTERS, RTC, STALLS
 from .rtc_streams import RayIn, RayResult
 from .rgs.slave import RAY_COUNTERS
 from .rtcmi import CACHES, RTCMI, SharedRTCMI, port_tags
@@ -42,7 +42,7 @@ __all__ = ["RTCArray", "counter_names"]
 
 def counter_names(cfg: Config) -> list[str]:
     """Fields of one ``rtc_counters[r]`` word, 32 bits each, first name in the low bits."""
-    return list(COUNTERS) + [f"sub_busy{j}" for j in range(cfg.trav_subunits)]
+    return list(COUNTERS) + list(STALLS) + [f"sub_busy{j}" for j in range(cfg.trav_subunits)]
 
 
 class RTCArray(wiring.Component):
@@ -107,7 +107,8 @@ class RTCArray(wiring.Component):
             wiring.connect(m, rtc.results, wiring.flipped(self.results[r]))
             m.d.comb += [rtc.node_base.eq(self.node_base), rtc.list_base.eq(self.list_base),
                          rtc.root.eq(self.root)]
-            values = [getattr(rtc, k) for k in COUNTERS] + list(rtc.sub_busy)
+            values = ([getattr(rtc, k) for k in COUNTERS] + [getattr(rtc, k) for k in STALLS]
+                      + list(rtc.sub_busy))
             m.d.comb += self.rtc_counters[r].eq(Cat(*values))
         return m
 

@@ -14,7 +14,7 @@ thread is released for the next packet.
 """
 from __future__ import annotations
 
-from amaranth.hdl import Module
+from amaranth.hdl import Cat, Module
 from amaranth.lib import stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -26,8 +26,9 @@ from .memport import WORD_BITS, ItemReader, MemReadPort
 from .rtc_streams import RayIn, RayResult
 from .traversal import NODE_BITS, Traversal
 from .common import COUNTER_BITS
+from .stalls import REASONS, StallCounters
 
-__all__ = ["RTC", "COUNTERS", "HEADER", "drive_header", "attach_memories",
+__all__ = ["RTC", "COUNTERS", "STALLS", "STALL_UNITS", "HEADER", "drive_header", "attach_memories",
            "tri_reader"]
 
 # the memory image's header constants an RTC top takes as inputs
@@ -79,6 +80,12 @@ COUNTERS = {
 }
 
 
+STALL_UNITS = ("trav", "list", "int")
+STALLS = tuple(f"{u}_{r}" for u in STALL_UNITS for r in REASONS)
+"""Each unit's cycles by what it did (``rtl/stalls.py``): ``trav_work``, ``trav_memory``,
+``trav_blocked``, ``trav_starved``, then list's and int's."""
+
+
 class RTC(wiring.Component):
     """One ray tracing core.
 
@@ -86,8 +93,9 @@ class RTC(wiring.Component):
     read ports ``node_mem``, ``list_mem`` (64-bit words at word addresses), ``tri_mem``
     (triangle index -> its ``cfg.int_item_bits`` vertex bits; tags: the units'), memory image
     constants ``node_base``, ``list_base``, ``root`` (In, held).
-    Counters (Out, 32 bits): see ``COUNTERS``, ``sub_busy[k]`` (traversal sub-units) and
-    ``cycles`` (since reset).
+    Counters (Out, 32 bits): see ``COUNTERS``, ``STALLS`` (each unit's cycles working, waiting
+    for memory, blocked, starved), ``sub_busy[k]`` (traversal sub-units) and ``cycles``
+    (since reset).
 
     Latency and throughput are the units' (see their docstrings); up to ``cfg.threads``
     packets are in flight.
@@ -113,6 +121,7 @@ class RTC(wiring.Component):
             "cycles": Out(COUNTER_BITS),
         }
         ports.update({name: Out(COUNTER_BITS) for name in COUNTERS})
+        ports.update({name: Out(COUNTER_BITS) for name in STALLS})
         super().__init__(ports)
 
     def elaborate(self, platform):
@@ -146,6 +155,20 @@ class RTC(wiring.Component):
         units = {"trav": trav, "list": lst, "int": inter}
         for name, (unit, port) in COUNTERS.items():
             m.d.comb += getattr(self, name).eq(getattr(units[unit], port))
+        # where each unit's cycles go (rtl/stalls.py): its op counter, memory port and output
+        outs = {"trav": [trav.leaf], "list": [lst.tri], "int": [inter.result, inter.lane_out]}
+        mems = {"trav": trav.node, "list": lst.mem, "int": inter.mem}
+        ops = {"trav": trav.trav_ops, "list": lst.list_ops, "int": inter.int_ops}
+        for unit in STALL_UNITS:
+            m.submodules[f"stalls_{unit}"] = st = StallCounters()
+            mem = mems[unit]
+            m.d.comb += [st.ops.eq(ops[unit]), st.req_valid.eq(mem.req.valid),
+                         st.req_ready.eq(mem.req.ready),
+                         st.resp.eq(mem.resp.valid & mem.resp.ready),
+                         st.out_valid.eq(Cat(*(o.valid & ~o.ready for o in outs[unit])).any()),
+                         st.out_ready.eq(0)]
+            for reason in REASONS:
+                m.d.comb += getattr(self, f"{unit}_{reason}").eq(getattr(st, reason))
         for j in range(self.cfg.trav_subunits):
             m.d.comb += self.sub_busy[j].eq(trav.sub_busy[j])
         m.d.sync += self.cycles.eq(self.cycles + 1)

@@ -60,6 +60,17 @@ def check_frame(r, cfg, image, rays):
         x = c["rtcmi"][k]
         assert x["hits"] + x["misses"] == sum(y[n] for y in c["rtc"]), k
         assert x["grants"] == words[k] * x["misses"], k
+    # every unit's cycles: working, waiting for memory, blocked, starved, one each
+    # (rtl/stalls.py; the frame's last cycle is counted the cycle after, and the RTCs leave
+    # reset with the frame's first cycle)
+    from rtl.rtc import STALL_UNITS
+    from rtl.stalls import REASONS
+    for x in c["rtc"]:
+        for u in STALL_UNITS:
+            got = {rs: x[f"{u}_{rs}"] for rs in REASONS}
+            assert r.cycles - 2 <= sum(got.values()) <= r.cycles, (u, got, r.cycles)
+        assert x["trav_work"] <= x["trav_ops"] and x["int_work"] == x["int_ops"]
+        assert x["list_work"] <= x["list_ops"]
     slave_words = sum(g["shade"] + g["tex"] for g in c["grants"])
     assert sum(c["mem_words"]) == c["mem_reads"] == slave_words + sum(
         x["grants"] for x in c["rtcmi"].values())
