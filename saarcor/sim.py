@@ -131,6 +131,12 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
              "per_rtc": [{"trav": x["trav_busy"] / cyc, "trav_subunits": s,
                           "list": x["list_busy"] / cyc, "int": x["int_busy"] / cyc}
                          for x, s in zip(rtc, sub)]}
+    from rtl.rtc import STALL_UNITS
+    from rtl.stalls import REASONS
+    stalls = {u: {rs: float(np.mean([x[f"{u}_{rs}"] for x in rtc])) / cyc for rs in REASONS}
+              for u in STALL_UNITS}
+    stalls["per_rtc"] = [{u: {rs: x[f"{u}_{rs}"] / cyc for rs in REASONS}
+                          for u in STALL_UNITS} for x in rtc]
     from model.raykind import RayKind
     kinds = np.bincount(run.frame_rays.kind, minlength=len(RayKind))
     slaves = c.get("slave", [])
@@ -142,6 +148,7 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "cache_topology": cfg.cache_topology, "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
         "memory": memory,
         "units": units,
+        "stalls": stalls,
         "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
         "bus": {"words_per_cycle": c["mem_reads"] / cyc},
         "packets_per_rtc": c["packets"],
@@ -164,60 +171,155 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
     }
 
 
+UNIT_NAMES = {"trav": "traversal", "list": "list unit", "int": "intersection"}
+LIMIT_BUSY = 0.85        # a unit working this share of the cycles is the limit
+LIMIT_SDRAM = 0.70       # an SDRAM chip's data bus busy this share: memory bandwidth
+LIMIT_BUS_WAIT = 0.30    # requests waiting on an RTC-MI cache's bus this share: the bus
+
+
+def limiter(stats: dict) -> dict:
+    """The frame's measured limit from the chip's counters (``stats``: :func:`frame_stats`):
+    ``{"limit": short name, "why": a sentence with the figures}``.
+
+    The rule, in order: a unit kind working at least ``LIMIT_BUSY`` of the cycles (mean over
+    the RTCs) is the limit; else look at the unit that works most and at what it waits for
+    most: for memory, an SDRAM chip whose data bus is busy ``LIMIT_SDRAM`` or more is memory
+    bandwidth, an RTC-MI cache bus on which requests wait ``LIMIT_BUS_WAIT`` of the cycles is
+    the bus, else memory latency (misses); blocked is back-pressure from the next unit (or,
+    for intersection, the RGS slave taking results); starved is too little work in flight
+    (too few packets for the threads, or the RGS not making rays fast enough)."""
+    st, rtcs = stats["stalls"], stats["config"]["rtcs"]
+    work = {u: st[u]["work"] for u in UNIT_NAMES}
+    top = max(work, key=work.get)
+    if work[top] >= LIMIT_BUSY:
+        return {"limit": f"{top}-bound",
+                "why": f"the {UNIT_NAMES[top]} works {100 * work[top]:.0f} % of the cycles"}
+    reasons = {k: v for k, v in st[top].items() if k != "work"}
+    why = max(reasons, key=reasons.get)
+    share = f"{100 * reasons[why]:.0f} %"
+    head = (f"the busiest unit, the {UNIT_NAMES[top]}, works {100 * work[top]:.0f} % of the "
+            f"cycles and")
+    if why == "memory":
+        chips = [x["busy"] for x in stats["memory"]["per_chip"]]
+        buses = {k: v["bus"]["wait"] for k, v in stats["cache"].items() if "bus" in v}
+        if chips and max(chips) >= LIMIT_SDRAM:
+            return {"limit": "memory-bandwidth-bound",
+                    "why": f"{head} waits for memory {share}; an SDRAM chip's data bus is busy "
+                           f"{100 * max(chips):.0f} % of the cycles"}
+        if buses and max(buses.values()) >= LIMIT_BUS_WAIT:
+            k = max(buses, key=buses.get)
+            return {"limit": "bus-bound",
+                    "why": f"{head} waits for memory {share}; requests wait on the {k} "
+                           f"cache's bus {100 * buses[k]:.0f} % of the cycles"}
+        hit = stats["cache"][top]["hit_rate"]
+        return {"limit": "memory-latency-bound",
+                "why": f"{head} waits for memory {share} (its cache hits "
+                       f"{100 * hit:.1f} %; no SDRAM chip or bus near full)"}
+    if why == "blocked":
+        nxt = {"trav": "the list unit", "list": "the intersection unit",
+               "int": "the RGS slave or the traversal"}[top]
+        return {"limit": "back-pressure",
+                "why": f"{head} is blocked by {nxt} {share}"}
+    packets = sum(stats["packets_per_rtc"])
+    return {"limit": "starved",
+            "why": f"{head} has nothing to do {share}: {packets} packets for {rtcs} RTCs x "
+                   f"{stats['config']['threads']} threads (a small frame, or the RGS not "
+                   "making rays fast enough)"}
+
+
+USAGE_BINS = 120           # usage.png: the frame in this many equal slices of cycles
+USAGE_RTC_ROWS = 4         # usage.png: one row per RTC up to this many, else their mean
+REASON_COLOURS = {"work": "#2ca02c", "memory": "#ff7f0e", "blocked": "#d62728",
+                  "starved": "#bbbbbb"}
+
+
+def _rebin(samples: np.ndarray, bins: int) -> tuple[np.ndarray, np.ndarray]:
+    """Cumulative counter samples (column 0 the cycle) -> ``(mid cycles, per-bin increments)``
+    over ``bins`` equal slices of the frame (linear between samples: the sampling interval
+    does not show)."""
+    cyc = np.concatenate([[0], samples[:, 0]]).astype(float)
+    vals = np.vstack([np.zeros((1, samples.shape[1])), samples]).astype(float)
+    edges = np.linspace(0, cyc[-1], min(bins, max(2, len(cyc) - 1)) + 1)
+    at = np.stack([np.interp(edges, cyc, vals[:, j]) for j in range(vals.shape[1])], axis=1)
+    return (edges[1:] + edges[:-1]) / 2, np.diff(at, axis=0)
+
+
 def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: Path,
                      title: str) -> None:
-    """``usage.png``: per sample interval, the mean busy share of each unit kind over the
-    RTCs, the memory port's words per cycle, each cache's hit rate, and (right) each SDRAM
-    chip's share of the words read."""
+    """``usage.png``, read at a glance: the frame in :data:`USAGE_BINS` equal slices of cycles
+    (the counters sampled every ``--sample-every`` cycles, interpolated, so no sampling noise).
+
+    One row per RTC (up to :data:`USAGE_RTC_ROWS`; more RTCs: their mean), a column per unit
+    (traversal, list, intersection): its cycles stacked as working, waiting for memory,
+    blocked by the next unit and starved (``rtl/stalls.py``). The last row: the caches' hit
+    rates (a slice with fewer than 20 lookups is left out), each SDRAM chip's data-bus use and
+    its share of the words. The legends sit outside the data."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    col = {n: 2 + i for i, n in enumerate(names)}
-    cyc = samples[:, 0]
-    d = np.diff(samples, axis=0, prepend=np.zeros((1, samples.shape[1]), np.int64))
-    dc = np.maximum(d[:, 0], 1)
+    from rtl.rtc import STALL_UNITS
+    from rtl.stalls import REASONS
+    col = {n: i + 2 for i, n in enumerate(names)}      # column 0: cycle; 1: results
+    mid, d = _rebin(samples, USAGE_BINS)
+    dc = np.maximum(d[:, 0], 1e-9)
+    many = cfg.rtcs > USAGE_RTC_ROWS
+    rows = [None] if many else list(range(cfg.rtcs))
+    fig, ax = plt.subplots(len(rows) + 1, 3, figsize=(13, 2.3 * (len(rows) + 1) + 0.9),
+                           squeeze=False)
 
-    def per_rtc(key):
-        return sum(d[:, col[f"rtc{r}_{key}"]] for r in range(cfg.rtcs)) / cfg.rtcs
+    def share(r, key):
+        rs = range(cfg.rtcs) if r is None else [r]
+        return sum(d[:, col[f"rtc{q}_{key}"]] for q in rs) / len(rs) / dc
 
-    fig, ax = plt.subplots(2, 2, figsize=(11, 7), gridspec_kw={"width_ratios": [3, 1]})
-    a = ax[0, 0]
-    sub = sum(per_rtc(f"sub_busy{j}") for j in range(cfg.trav_subunits)) / cfg.trav_subunits
-    for label, v in (("traversal sub-units", sub), ("list unit", per_rtc("list_busy")),
-                     ("intersection unit", per_rtc("int_busy"))):
-        a.plot(cyc, 100 * v / dc, label=label)
-    a.plot(cyc, 100 * d[:, col["mem_reads"]] / dc, label="memory port (words/cycle)",
-           color="k", ls="--")
-    a.set_ylabel("busy, % of cycles (mean over RTCs)")
-    a.set_ylim(0, 105)
-    a.legend(fontsize=8, loc="lower left")
-    a.set_title(title, fontsize=10)
-    a = ax[1, 0]
+    for i, r in enumerate(rows):
+        for j, u in enumerate(STALL_UNITS):
+            a = ax[i, j]
+            parts = [100 * share(r, f"{u}_{rs}") for rs in REASONS]
+            a.stackplot(mid, *parts, colors=[REASON_COLOURS[x] for x in REASONS],
+                        linewidth=0)
+            a.set_ylim(0, 100)
+            a.set_title((f"RTC {r}: " if r is not None else
+                         f"mean of {cfg.rtcs} RTCs: ") + UNIT_NAMES[u], fontsize=9)
+            if j == 0:
+                a.set_ylabel("% of cycles")
+    a = ax[-1, 0]
+    shared = cfg.cache_topology == "shared"
     for k in UNITS:
-        names = ([f"rtcmi_{k}"] if cfg.cache_topology == "shared"
-                 else [f"rtc{r}_{k}" for r in range(cfg.rtcs)])
-        hh = sum(d[:, col[f"{x}_hits"]] for x in names)
-        mm = sum(d[:, col[f"{x}_misses"]] for x in names)
-        rate = np.where(hh + mm > 0, 100 * hh / np.maximum(hh + mm, 1), np.nan)
-        a.plot(cyc, rate, label=f"{k} cache")
+        srcs = [f"rtcmi_{k}"] if shared else [f"rtc{r}_{k}" for r in range(cfg.rtcs)]
+        hh = sum(d[:, col[f"{x}_hits"]] for x in srcs)
+        mm = sum(d[:, col[f"{x}_misses"]] for x in srcs)
+        rate = np.where(hh + mm >= 20, 100 * hh / np.maximum(hh + mm, 1), np.nan)
+        a.plot(mid, rate, label=f"{k} cache")
+    a.set_ylim(0, 102)
     a.set_ylabel("hit rate, %")
-    a.set_xlabel("cycle")
+    a.set_title("RTC-MI caches" + (" (shared)" if shared else " (all RTCs')"), fontsize=9)
+    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0, -0.25), ncol=3, frameon=False)
+    a = ax[-1, 1]
+    chips = [k for k in range(cfg.mem_chips) if f"chip{k}_busy" in col]
+    for k in chips:
+        a.plot(mid, 100 * d[:, col[f"chip{k}_busy"]] / dc, lw=0.8, label=f"chip {k}")
+    a.plot(mid, 100 * d[:, col["mem_reads"]] / dc, color="k", ls="--",
+           label="words/cycle x 100")
     a.set_ylim(0, 105)
-    a.legend(fontsize=8, loc="lower left")
-    a = ax[0, 1]
+    a.set_title("SDRAM: each chip's data bus busy, %", fontsize=9)
+    a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0, -0.25),
+             ncol=min(5, len(chips) + 1), frameon=False)
+    a = ax[-1, 2]
     last = samples[-1]
-    words = np.array([last[col[f"chip{k}_words"]] for k in range(cfg.mem_chips)], float)
-    a.bar(range(cfg.mem_chips), 100 * words / max(1, words.sum()))
+    words = np.array([last[col[f"chip{k}_words"]] for k in chips], float)
+    a.bar(chips, 100 * words / max(1, words.sum()))
+    a.set_title("SDRAM: each chip's share of the words, %", fontsize=9)
     a.set_xlabel("SDRAM chip")
-    a.set_ylabel("share of words, %")
-    a.set_xticks(range(cfg.mem_chips))
-    a = ax[1, 1]
-    busy = np.array([last[col[f"chip{k}_busy"]] for k in range(cfg.mem_chips)], float)
-    a.bar(range(cfg.mem_chips), 100 * busy / max(1, last[0]))
-    a.set_xlabel("SDRAM chip")
-    a.set_ylabel("data bus busy, % of cycles")
-    a.set_xticks(range(cfg.mem_chips))
-    fig.tight_layout()
+    a.set_xticks(chips)
+    for a in ax[-1, :2]:
+        a.set_xlabel("cycle")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=REASON_COLOURS[x]) for x in REASONS]
+    labels = ["working", "waiting for memory", "blocked by the next unit", "starved (no input)"]
+    h = fig.get_figheight()
+    fig.text(0.5, 1 - 0.12 / h, title, ha="center", va="top", fontsize=10)
+    fig.legend(handles, labels, loc="upper center", ncol=4, fontsize=9, frameon=False,
+               bbox_to_anchor=(0.5, 1 - 0.3 / h))
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.65 / h))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -249,8 +351,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_trace_args(ap)
     add_stall_args(ap, "the SDRAM model")
     ap.add_argument("--sample-every", type=int, default=0, metavar="CYCLES",
-                    help="counter sampling interval for usage.png (default: about 200 samples "
-                         "over the frame, guessing 20 cycles a ray per RTC)")
+                    help="counter sampling interval for usage.png (default: about 1000 "
+                         "samples over the frame, guessing 20 cycles a ray per RTC; the plot "
+                         "slices the frame into 120 equal parts whatever the interval)")
     ap.add_argument("--max-cycles", type=int, default=100_000_000,
                     help="give up after this many cycles, naming what did not finish "
                          "(default 100000000)")
@@ -400,7 +503,7 @@ def main(argv=None) -> int:
     if args.fidelity != "rtl":
         return sim_estimate(args, cfg, scene, prep, w, h, t0, out, extra)
     n_rays = w * h * cfg.oversampling ** 2
-    every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 200)
+    every = args.sample_every or max(64, _guess_cycles(cfg, n_rays) // 1000)
     log = sys.stderr
     try:
         if args.backend == "verilator":
@@ -423,6 +526,7 @@ def main(argv=None) -> int:
     stats = frame_stats(cfg, r, scene=args.scene, width=w, height=h, backend=args.backend,
                         wall=wall)
     stats.update(extra)
+    stats["limiter"] = limiter(stats)
     t2 = time.perf_counter()
     from PIL import Image
     if r.color is not None and not r.mismatches:
@@ -444,11 +548,12 @@ def main(argv=None) -> int:
                 (r.build.dir / "build.json").read_text())["phases"]
         out.write_json("stats.json", stats)
     built = stats["build"]
+    lim = stats["limiter"]
     print(f"{args.scene} {w}x{h} on {cfg.rtcs} RTC(s) ({args.backend}"
           f"{', built in %.0f s' % built['seconds'] if built['built'] else ''}): "
           f"{r.rays} rays, {r.cycles} cycles = {stats['fps']:.1f} fps at {cfg.clock_mhz:g} "
           f"MHz; relative performance {100 * stats['relative_performance']:.1f} % "
-          f"({stats['bound']}-bound); cache hit rates "
+          f"({lim['limit']}: {lim['why']}); cache hit rates "
           + ", ".join(f"{k} {100 * v['hit_rate']:.1f} %" for k, v in stats["cache"].items())
           + f"; {len(r.mismatches)} mismatching rays; simulated at "
           f"{stats['sim_cycles_per_second']:,} cycles/s; -> {out.dir}/")

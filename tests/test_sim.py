@@ -73,6 +73,40 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
     assert np.array_equal(img, to_srgb8(want.image))
     assert Image.open(out / "usage.png").size[0] > 500
     assert len(np.load(out / "rays.npz")["pixel"]) == stats["rays_total"]
+    # where the cycles went: each unit's four shares add up to the frame (one cycle short
+    # at most), and the limiter names a reason with its figure
+    for u in ("trav", "list", "int"):
+        total = sum(stats["stalls"][u].values())
+        assert 1 - 2 / stats["cycles"] <= total <= 1 + 1e-12, (u, stats["stalls"][u])
+    assert stats["limiter"]["limit"] in ("trav-bound", "list-bound", "int-bound",
+                                         "memory-bandwidth-bound", "bus-bound",
+                                         "memory-latency-bound", "back-pressure", "starved")
+    assert "%" in stats["limiter"]["why"]
+
+
+def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2, wait=0.0):
+    other = {"work": 0.1, "memory": 0.1, "blocked": 0.0, "starved": 0.8}
+    st = {u: dict(other) for u in ("trav", "list", "int")}
+    st[unit] = {"work": work, "memory": memory, "blocked": blocked, "starved": starved}
+    cache = {k: {"hit_rate": 0.9, "bus": {"busy": 0.3, "wait": wait}}
+             for k in ("trav", "list", "int")}
+    return {"stalls": st, "cache": cache, "config": {"rtcs": 4, "threads": 16},
+            "memory": {"per_chip": [{"busy": sdram}, {"busy": sdram / 2}]},
+            "packets_per_rtc": [12, 12, 12, 12]}
+
+
+@pytest.mark.parametrize("stats,limit,words", [
+    (_stats(0.9, 0.05, 0.0, 0.05), "trav-bound", "traversal works 90 %"),
+    (_stats(0.6, 0.3, 0.05, 0.05, sdram=0.8), "memory-bandwidth-bound", "busy 80 %"),
+    (_stats(0.6, 0.3, 0.05, 0.05, wait=0.5), "bus-bound", "trav cache's bus 50 %"),
+    (_stats(0.6, 0.3, 0.05, 0.05), "memory-latency-bound", "cache hits 90.0 %"),
+    (_stats(0.5, 0.1, 0.3, 0.1, unit="int"), "back-pressure", "RGS slave"),
+    (_stats(0.3, 0.1, 0.0, 0.6), "starved", "48 packets for 4 RTCs x 16 threads"),
+])
+def test_limiter_rule(stats, limit, words):
+    from saarcor.sim import limiter
+    got = limiter(stats)
+    assert got["limit"] == limit and words in got["why"], got
 
 
 def test_sim_errors_name_the_problem(tmp_path):
