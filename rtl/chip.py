@@ -21,7 +21,7 @@ each way, one memory request and one response per cycle for the whole chip).
 """
 from __future__ import annotations
 
-from amaranth.hdl import Cat, Module
+from amaranth.hdl import Cat, Module, Signal
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.wiring import In, Out
 
@@ -32,6 +32,7 @@ from .bus import RoundRobinBus
 from .common import COUNTER_BITS
 from .memport import WORD_BITS, MemReadPort, connect_tags
 from .rtc import COUNTERS, RTC, STALLS
+from .stalls import REASONS, StallCounters
 from .rtc_streams import RayIn, RayResult
 from .rgs.slave import RAY_COUNTERS
 from .rtcmi import CACHES, RTCMI, SharedRTCMI, port_tags
@@ -146,7 +147,11 @@ class Chip(wiring.Component):
     ``misses``, ``waits``, ``grants``, ``mem_reads``).
     """
 
-    SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy")
+    SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy", *REASONS)
+    """Per slave: rays into its RTC by kind, the secondary datapath's busy cycles, and its
+    cycles by what it did (``rtl/stalls.py``): work = a ray sent to the RTC or a result taken
+    from it, memory = a shading or texel read in flight, blocked = the RTC not taking a ray or
+    the chip's output not taking a result, starved = nothing to do."""
 
     def __init__(self, cfg: Config):
         from model.layout import REC_BITS
@@ -198,8 +203,23 @@ class Chip(wiring.Component):
         members["grants"] = Out(COUNTER_BITS).array(3 * cfg.rtcmis + 2 * n)
         super().__init__(members)
 
+    def _slave_stalls(self, m: Module, s: int, slave) -> StallCounters:
+        """Slave ``s``'s cycles by what it did (:data:`SLAVE_COUNTERS`)."""
+        mems = [slave.shade] + ([slave.texel] if hasattr(slave, "texel") else [])
+        m.submodules[f"stalls_slave{s}"] = st = StallCounters(ports=len(mems))
+        act = Signal(COUNTER_BITS, name=f"slave{s}_activity")
+        m.d.sync += act.eq(act + (slave.rays.valid & slave.rays.ready)
+                           + (slave.results.valid & slave.results.ready))
+        m.d.comb += [st.ops.eq(act), st.out_ready.eq(0),
+                     st.out_valid.eq((slave.rays.valid & ~slave.rays.ready)
+                                     | (slave.out.valid & ~slave.out.ready))]
+        for i, p in enumerate(mems):
+            m.d.comb += [st.req_valid[i].eq(p.req.valid), st.req_ready[i].eq(p.req.ready),
+                         st.resp[i].eq(p.resp.valid & p.resp.ready)]
+        return st
+
     def elaborate(self, platform):
-        from amaranth.hdl import Mux, Signal
+        from amaranth.hdl import Mux
         from .common import OutputStage, rr_pick
         from .rgs import SlaveResult
         m = Module()
@@ -247,8 +267,10 @@ class Chip(wiring.Component):
                 m.d.comb += a.eq(b)
             wiring.connect(m, slave.rays, arr.rays[s])
             wiring.connect(m, arr.results[s], slave.results)
+            stalls = self._slave_stalls(m, s, slave)
             m.d.comb += self.slave_counters[s].eq(
-                Cat(*(getattr(slave, k) for k in self.SLAVE_COUNTERS)))
+                Cat(*(getattr(slave, k) for k in self.SLAVE_COUNTERS[:-len(REASONS)]),
+                    *(getattr(stalls, k) for k in REASONS)))
             rays = arr.rays[s]
             counts.append(rays.valid & rays.ready)
         rays_in = Signal(range(n + 1))

@@ -162,9 +162,9 @@ class RTC(wiring.Component):
         for unit in STALL_UNITS:
             m.submodules[f"stalls_{unit}"] = st = StallCounters()
             mem = mems[unit]
-            m.d.comb += [st.ops.eq(ops[unit]), st.req_valid.eq(mem.req.valid),
-                         st.req_ready.eq(mem.req.ready),
-                         st.resp.eq(mem.resp.valid & mem.resp.ready),
+            m.d.comb += [st.ops.eq(ops[unit]), st.req_valid[0].eq(mem.req.valid),
+                         st.req_ready[0].eq(mem.req.ready),
+                         st.resp[0].eq(mem.resp.valid & mem.resp.ready),
                          st.out_valid.eq(Cat(*(o.valid & ~o.ready for o in outs[unit])).any()),
                          st.out_ready.eq(0)]
             for reason in REASONS:

@@ -18,7 +18,7 @@ cycle is counted the cycle after).
 """
 from __future__ import annotations
 
-from amaranth.hdl import Module, Signal
+from amaranth.hdl import Cat, Module, Signal
 from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 
@@ -33,27 +33,34 @@ REASONS = ("work", "memory", "blocked", "starved")
 class StallCounters(wiring.Component):
     """The four counters of one unit (see the module docstring).
 
-    Ports (In): ``ops`` (the unit's op counter), ``req_valid``, ``req_ready``, ``resp`` (a
-    response transfer of its memory port), ``out_valid``, ``out_ready`` (its output stream;
-    a unit with several outputs gives ``out_valid & ~out_ready`` of any). Out: ``work``,
-    ``memory``, ``blocked``, ``starved`` (``COUNTER_BITS`` each). ``outstanding_bits``: the
-    width of the outstanding-request count (at least the unit's most requests in flight).
+    Ports (In): ``ops`` (the unit's op counter), per memory port ``req_valid[i]``,
+    ``req_ready[i]``, ``resp[i]`` (a response transfer), ``out_valid``, ``out_ready`` (its
+    output stream; a unit with several outputs gives ``out_valid & ~out_ready`` of any). Out:
+    ``work``, ``memory``, ``blocked``, ``starved`` (``COUNTER_BITS`` each).
+    ``outstanding_bits``: the width of the outstanding-request count (at least the unit's most
+    requests in flight); ``ports``: its memory ports (0: none, never waiting for memory).
     Latency: a cycle is counted one cycle later; no effect on the unit.
     """
 
-    def __init__(self, outstanding_bits: int = 10):
-        self.outstanding_bits = outstanding_bits
+    def __init__(self, outstanding_bits: int = 10, ports: int = 1):
+        self.outstanding_bits, self.ports = outstanding_bits, ports
+        mem = ({"req_valid": In(1).array(ports), "req_ready": In(1).array(ports),
+                "resp": In(1).array(ports)} if ports else {})
         super().__init__({
-            "ops": In(COUNTER_BITS), "req_valid": In(1), "req_ready": In(1), "resp": In(1),
-            "out_valid": In(1), "out_ready": In(1),
+            "ops": In(COUNTER_BITS), **mem, "out_valid": In(1), "out_ready": In(1),
             **{r: Out(COUNTER_BITS) for r in REASONS}})
 
     def elaborate(self, platform):
         m = Module()
         outstanding = Signal(self.outstanding_bits)
-        issued = self.req_valid & self.req_ready
-        m.d.sync += outstanding.eq(outstanding + issued - self.resp)
-        waiting = (outstanding != 0) | (self.req_valid & ~self.req_ready)
+        waiting = Signal()
+        if self.ports:
+            ps = range(self.ports)
+            issued = sum(self.req_valid[i] & self.req_ready[i] for i in ps)
+            answered = sum(self.resp[i] for i in ps)
+            m.d.sync += outstanding.eq(outstanding + issued - answered)
+            offered = Cat(*(self.req_valid[i] & ~self.req_ready[i] for i in ps)).any()
+            m.d.comb += waiting.eq((outstanding != 0) | offered)
         blocked = self.out_valid & ~self.out_ready
         # the conditions of cycle t beside the op counter's change in cycle t
         waiting_q, blocked_q = Signal(), Signal()

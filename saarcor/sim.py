@@ -135,8 +135,15 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
     from rtl.stalls import REASONS
     stalls = {u: {rs: float(np.mean([x[f"{u}_{rs}"] for x in rtc])) / cyc for rs in REASONS}
               for u in STALL_UNITS}
-    stalls["per_rtc"] = [{u: {rs: x[f"{u}_{rs}"] / cyc for rs in REASONS}
-                          for u in STALL_UNITS} for x in rtc]
+    slaves_c = c.get("slave", [])
+    if slaves_c:                         # the RGS slaves (rtl/chip.py Chip.SLAVE_COUNTERS)
+        stalls["slave"] = {rs: float(np.mean([x[rs] for x in slaves_c])) / cyc
+                           for rs in REASONS}
+    stalls["per_rtc"] = [{**{u: {rs: x[f"{u}_{rs}"] / cyc for rs in REASONS}
+                             for u in STALL_UNITS},
+                          **({"slave": {rs: sl[rs] / cyc for rs in REASONS}}
+                             if slaves_c else {})}
+                         for x, sl in zip(rtc, slaves_c or [None] * len(rtc))]
     from model.raykind import RayKind
     kinds = np.bincount(run.frame_rays.kind, minlength=len(RayKind))
     slaves = c.get("slave", [])
@@ -172,6 +179,7 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
 
 
 UNIT_NAMES = {"trav": "traversal", "list": "list unit", "int": "intersection"}
+PLOT_NAMES = {**UNIT_NAMES, "slave": "RGS slave"}
 LIMIT_BUSY = 0.85        # a unit working this share of the cycles is the limit
 LIMIT_SDRAM = 0.70       # an SDRAM chip's data bus busy this share: memory bandwidth
 LIMIT_BUS_WAIT = 0.30    # requests waiting on an RTC-MI cache's bus this share: the bus
@@ -221,10 +229,14 @@ def limiter(stats: dict) -> dict:
         return {"limit": "back-pressure",
                 "why": f"{head} is blocked by {nxt} {share}"}
     packets = sum(stats["packets_per_rtc"])
+    sl = st.get("slave")
+    rgs = (f"; the RGS slaves work {100 * sl['work']:.0f} %, are blocked "
+           f"{100 * sl['blocked']:.0f} % and wait for memory {100 * sl['memory']:.0f} %"
+           if sl else "")
     return {"limit": "starved",
             "why": f"{head} has nothing to do {share}: {packets} packets for {rtcs} RTCs x "
                    f"{stats['config']['threads']} threads (a small frame, or the RGS not "
-                   "making rays fast enough)"}
+                   f"making rays fast enough){rgs}"}
 
 
 USAGE_BINS = 120           # usage.png: the frame in this many equal slices of cycles
@@ -250,7 +262,7 @@ def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: P
     (the counters sampled every ``--sample-every`` cycles, interpolated, so no sampling noise).
 
     One row per RTC (up to :data:`USAGE_RTC_ROWS`; more RTCs: their mean), a column per unit
-    (traversal, list, intersection): its cycles stacked as working, waiting for memory,
+    (traversal, list, intersection, and the RTC's RGS slave): its cycles stacked as working, waiting for memory,
     blocked by the next unit and starved (``rtl/stalls.py``). The last row: the caches' hit
     rates (a slice with fewer than 20 lookups is left out), each SDRAM chip's data-bus use and
     its share of the words. The legends sit outside the data."""
@@ -264,22 +276,25 @@ def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: P
     dc = np.maximum(d[:, 0], 1e-9)
     many = cfg.rtcs > USAGE_RTC_ROWS
     rows = [None] if many else list(range(cfg.rtcs))
-    fig, ax = plt.subplots(len(rows) + 1, 3, figsize=(13, 2.3 * (len(rows) + 1) + 0.9),
+    units = list(STALL_UNITS) + (["slave"] if "slave0_work" in col else [])
+    fig, ax = plt.subplots(len(rows) + 1, len(units),
+                           figsize=(3.4 * len(units) + 1, 2.3 * (len(rows) + 1) + 0.9),
                            squeeze=False)
 
-    def share(r, key):
+    def share(r, u, reason):
         rs = range(cfg.rtcs) if r is None else [r]
-        return sum(d[:, col[f"rtc{q}_{key}"]] for q in rs) / len(rs) / dc
+        name = "slave{q}_" + reason if u == "slave" else "rtc{q}_" + f"{u}_{reason}"
+        return sum(d[:, col[name.format(q=q)]] for q in rs) / len(rs) / dc
 
     for i, r in enumerate(rows):
-        for j, u in enumerate(STALL_UNITS):
+        for j, u in enumerate(units):
             a = ax[i, j]
-            parts = [100 * share(r, f"{u}_{rs}") for rs in REASONS]
+            parts = [100 * share(r, u, rs) for rs in REASONS]
             a.stackplot(mid, *parts, colors=[REASON_COLOURS[x] for x in REASONS],
                         linewidth=0)
             a.set_ylim(0, 100)
             a.set_title((f"RTC {r}: " if r is not None else
-                         f"mean of {cfg.rtcs} RTCs: ") + UNIT_NAMES[u], fontsize=9)
+                         f"mean of {cfg.rtcs} RTCs: ") + PLOT_NAMES[u], fontsize=9)
             if j == 0:
                 a.set_ylabel("% of cycles")
     a = ax[-1, 0]
@@ -304,6 +319,8 @@ def write_usage_plot(cfg: Config, samples: np.ndarray, names: list[str], path: P
     a.set_title("SDRAM: each chip's data bus busy, %", fontsize=9)
     a.legend(fontsize=7, loc="upper left", bbox_to_anchor=(0, -0.25),
              ncol=min(5, len(chips) + 1), frameon=False)
+    for a in ax[-1, 3:]:
+        a.axis("off")
     a = ax[-1, 2]
     last = samples[-1]
     words = np.array([last[col[f"chip{k}_words"]] for k in chips], float)

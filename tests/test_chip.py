@@ -71,6 +71,10 @@ def check_frame(r, cfg, image, rays):
             assert r.cycles - 2 <= sum(got.values()) <= r.cycles, (u, got, r.cycles)
         assert x["trav_work"] <= x["trav_ops"] and x["int_work"] == x["int_ops"]
         assert x["list_work"] <= x["list_ops"]
+    for x in c["slave"]:                                 # the RGS slaves', the same way
+        got = {rs: x[rs] for rs in REASONS}
+        assert r.cycles - 2 <= sum(got.values()) <= r.cycles, ("slave", got, r.cycles)
+        assert (x["work"] > 0) == (x["rays_eye"] > 0)     # an idle slave (no packet) never works
     slave_words = sum(g["shade"] + g["tex"] for g in c["grants"])
     assert sum(c["mem_words"]) == c["mem_reads"] == slave_words + sum(
         x["grants"] for x in c["rtcmi"].values())
