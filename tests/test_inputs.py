@@ -52,7 +52,7 @@ def _exit_line(argv, capsys) -> tuple[int, str]:
 
 
 # -- Config ----------------------------------------------------------------------------------
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=300, deadline=None, derandomize=True)
 @given(st.sampled_from(FIELDS).flatmap(
     lambda f: st.tuples(st.just(f.name), WRONG_TYPE[type(f.default)])))
 def test_config_rejects_every_wrong_type_with_config_error(case):
@@ -62,7 +62,7 @@ def test_config_rejects_every_wrong_type_with_config_error(case):
     assert name in str(e.value)
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=400, deadline=None, derandomize=True)
 @given(st.sampled_from(FIELDS).flatmap(
     lambda f: st.tuples(st.just(f.name),
                         st.integers(-10**6, 10**6) if type(f.default) is int else
@@ -107,7 +107,7 @@ def _bad_text(kind):
     return st.sampled_from(["", "ring", "SHARED "])
 
 
-@settings(max_examples=150, deadline=None,
+@settings(max_examples=150, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.sampled_from(CONFIG_COMMANDS),
        st.sampled_from(FIELDS).flatmap(lambda f: st.tuples(st.just(f.name),
@@ -120,7 +120,7 @@ def test_every_command_rejects_bad_config_text_in_one_line(capsys, command, case
     assert name.replace("_", "-") in err or name in err, err
 
 
-@settings(max_examples=60, deadline=None,
+@settings(max_examples=60, deadline=None, derandomize=True,
           suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.sampled_from(CONFIG_COMMANDS),
        st.sampled_from([f for f in FIELDS if type(f.default) in (int, float)]).flatmap(
@@ -230,21 +230,25 @@ def test_disk_full_is_one_line_and_keeps_earlier_outputs(tmp_path, capsys, monke
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
-@pytest.mark.parametrize("delay", [2.0, 6.0])
-def test_ctrl_c_exits_130_in_one_line_and_keeps_earlier_outputs(tmp_path, delay):
-    """SIGINT while tracing a frame (numba code, possibly compiling): exit 130, one line, the
-    previous run's files byte for byte."""
+def test_ctrl_c_exits_130_in_one_line_and_keeps_earlier_outputs(tmp_path):
+    """SIGINT while tracing a frame (numba code): exit 130, one line, the previous run's files
+    byte for byte. The signal goes once the progress bar shows (the handler is in place)."""
+    import os
     out = tmp_path / "o"
-    cmd = [sys.executable, "-m", "saarcor", "render", "--quiet", "--out", str(out)]
-    r = subprocess.run([*cmd, "--res", "16x12"], cwd=ROOT, capture_output=True, text=True,
-                       timeout=600)
+    cmd = [sys.executable, "-m", "saarcor", "render", "--out", str(out)]
+    r = subprocess.run([*cmd, "--res", "16x12", "--quiet"], cwd=ROOT, capture_output=True,
+                       text=True, timeout=600)
     assert r.returncode == 0, r.stderr
     before = {p.name: p.read_bytes() for p in out.iterdir()}
-    p = subprocess.Popen([*cmd, "--res", "4096x3072"], cwd=ROOT, stderr=subprocess.PIPE,
-                         text=True)
-    time.sleep(delay)
+    p = subprocess.Popen([*cmd, "--res", "4096x3072"], cwd=ROOT, stderr=subprocess.PIPE)
+    seen, t0 = b"", time.perf_counter()
+    while b"tracing" not in seen and time.perf_counter() - t0 < 300:
+        chunk = os.read(p.stderr.fileno(), 4096)
+        if not chunk:
+            break
+        seen += chunk
     p.send_signal(signal.SIGINT)
-    err = p.communicate(timeout=120)[1]
+    err = (seen + p.communicate(timeout=120)[1]).decode(errors="replace")
     if p.returncode == 0:
         pytest.skip("the frame finished before the interrupt")
     assert p.returncode == 130, err
