@@ -25,6 +25,7 @@ import numpy as np
 
 from model.config import Config
 from saarcor.args import RES_BENCH, RES_QUICK, parse_res
+from saarcor.outputs import write_atomic
 
 __all__ = ["band_registers", "band_rays", "run_band", "choose_bands", "SampledRun",
            "sampled_frame"]
@@ -438,7 +439,7 @@ def main(argv=None) -> int:
         res = {"points": rows, "summary": summary(rows),
                "load_average": [load0, os.getloadavg()[0]],
                "seconds": time.perf_counter() - t0}
-        (out / "ladder.json").write_text(json.dumps(res, indent=1))
+        write_atomic(out / "ladder.json", json.dumps(res, indent=1))
     plot_ladder(rows, out / "ladder.png")
     print(tables(rows))
     print(json.dumps(summary(rows), indent=1))

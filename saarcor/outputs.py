@@ -131,3 +131,24 @@ def _alive(pid: int) -> bool:
     except PermissionError:
         return True
     return True
+
+
+def write_atomic(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename: a
+    failed or interrupted write leaves the previous file whole (one file; several files that
+    belong together: :class:`OutputDir`)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.parent / f"{OutputDir.PARTIAL}{os.getpid()}.{path.name}"
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def check_out(path: str | Path, prog: str) -> Path:
+    """The ``--out`` folder made and proved writable before a long run (one line naming the
+    problem otherwise: :meth:`OutputDir.check`)."""
+    return OutputDir(path, prog).check().dir

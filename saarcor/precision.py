@@ -50,6 +50,7 @@ from model.shading import Shader, surface_offset
 from saarcor.args import (add_formats_arg, add_out_arg, add_res_arg, add_scene_arg,
                           parse_formats, res_from_args)
 from saarcor.bench.fp_cost import fp_cost
+from saarcor.outputs import write_atomic
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_FORMATS = ",".join([f"E8M{m}" for m in (23, 20, 18, 16, 14, 13, 12, 11, 10)]
@@ -457,7 +458,7 @@ def main(argv=None) -> dict:
     result["seconds"] = time.perf_counter() - t_start
     result["machine"]["load_at_end"] = os.getloadavg()[0]
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(jsonable(result), indent=1))
+    write_atomic(out, json.dumps(jsonable(result), indent=1))
     print(f"precision: wrote {out}")
     if not args.no_plots:
         from saarcor.precision_plot import plot

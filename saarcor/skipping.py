@@ -23,6 +23,7 @@ from model.raygen import Rays, eye_rays, live_packets, select_packets, setup
 from model.raykind import RayKind
 from model.render import Skip, prepare, render
 from model.scene import load_scene
+from saarcor.outputs import write_atomic
 
 KEYS = ("trav_ops", "int_ops", "trav_steps", "int_steps", "node_reads", "int_reads")
 
@@ -280,7 +281,7 @@ def main(argv=None) -> int:
     path = out / "skipping.json"
     old = json.loads(path.read_text()) if path.exists() else {}
     old[Path(args.scene).stem] = res
-    path.write_text(json.dumps(old, indent=1))
+    write_atomic(path, json.dumps(old, indent=1))
     print(json.dumps(res, indent=1))
     return 0
 

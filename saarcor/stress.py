@@ -27,6 +27,7 @@ from model.raygen import Rays, setup
 from model.rtc import counter_totals, trace
 
 from saarcor.exact import ExactHits, exact_closest, exact_pairs, moller_trumbore32
+from saarcor.outputs import write_atomic
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -597,7 +598,7 @@ def main(argv=None) -> int:
     res = bench(args.rays, formats, meshes)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "stability.json").write_text(json.dumps(res, indent=1, default=float))
+    write_atomic(out / "stability.json", json.dumps(res, indent=1, default=float))
     w = res["watertight"]
     print(f"watertight: {w['rays']} rays, {w['leaks']} leaks (float32 Möller–Trumbore: "
           f"{w['mt_leaks']}); {out / 'stability.json'}")

@@ -19,6 +19,7 @@ import json
 import sys
 import time
 from pathlib import Path
+from saarcor.outputs import check_out, write_atomic
 
 __all__ = ["main", "stall_bench"]
 
@@ -58,6 +59,7 @@ def main(argv=None) -> int:
     add_config_args(ap)
     args = ap.parse_args(argv)
     cfg, w, h = config_and_res(args, "saarcor bench chip")
+    check_out(args.out, "saarcor bench chip")           # before any build or frame
     scene = load_scene(args.scene)
     prep = prepare(scene, cfg, cache_dir=args.kd_cache)
     frame_scene = None if args.eye_only else scene
@@ -84,7 +86,7 @@ def main(argv=None) -> int:
                          wall=time.perf_counter() - t0)}
     Path(args.out).mkdir(parents=True, exist_ok=True)
     path = Path(args.out) / f"chip_{Path(args.scene).stem}_{w}x{h}{tag}.json"
-    path.write_text(json.dumps(out, indent=1))
+    write_atomic(path, json.dumps(out, indent=1))
     print(f"{args.scene} {w}x{h}: {r.rays} rays, {r.cycles} cycles, {len(r.mismatches)} "
           f"mismatches; fps {out['fps']:.1f} at {cfg.clock_mhz:g} MHz, ideal "
           f"{out['fps_ideal']:.1f} ({out['bound']}-bound): relative performance "
@@ -122,7 +124,7 @@ def stall_bench(cfg, image, camera, w: int, h: int, seeds: int, path: Path, *,
            "cycles_max": max(cyc, default=0), "config": cfg.to_dict(), "res": [w, h],
            "per_run": runs}
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(out, indent=1))
+    write_atomic(path, json.dumps(out, indent=1))
     print(f"{seeds} seeds ({first_seed}..{first_seed + seeds - 1}): {len(failures)} failures "
           f"(lost, duplicated, wrong or deadlocked), cycles "
           f"{out['cycles_min']}..{out['cycles_max']}; -> {path}")

@@ -28,6 +28,7 @@ import numpy as np
 
 from model.cache import UNITS, CacheModel, cache_geometry, synthetic_traces
 from model.config import Config, ConfigError
+from saarcor.outputs import write_atomic
 
 
 def hit_rates(cfg: Config, traces: dict[str, np.ndarray]) -> dict:
@@ -155,7 +156,7 @@ def main(argv=None) -> dict:
                   f"(ideal {row['ideal_MB_per_s']:.1f})")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "memory.json").write_text(json.dumps(result, indent=1, default=float))
+    write_atomic(out / "memory.json", json.dumps(result, indent=1, default=float))
     print(f"wrote {out / 'memory.json'}")
     return result
 

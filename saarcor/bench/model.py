@@ -42,6 +42,7 @@ from model.render import prepare, render
 from model.rtc import counter_totals, trace
 from model.scene import load_scene
 from saarcor.args import RES_PAPER, add_out_arg, add_res_arg, add_scene_arg, res_from_args
+from saarcor.outputs import write_atomic
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -209,7 +210,7 @@ def main(argv=None) -> dict:
     print(f"kd-tree build: {len(big)} triangles in {dt:.2f} s")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "model.json").write_text(json.dumps(result, indent=1))
+    write_atomic(out / "model.json", json.dumps(result, indent=1))
     print(f"wrote {out / 'model.json'}")
     return result
 

@@ -28,6 +28,7 @@ import sys
 import time
 from collections import Counter
 from pathlib import Path
+from saarcor.outputs import write_atomic
 
 __all__ = ["resources", "chip_resources", "yosys_resources", "main"]
 
@@ -186,7 +187,7 @@ def main(argv=None) -> int:
           f"files, {PAPER['cache_kb']} KB of caches")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(r, indent=1))
+        write_atomic(Path(args.json), json.dumps(r, indent=1))
     return 0
 
 

@@ -29,6 +29,7 @@ import tempfile
 import time
 from collections import defaultdict
 from pathlib import Path
+from saarcor.outputs import write_atomic
 
 __all__ = ["main", "perf_shares"]
 
@@ -158,7 +159,7 @@ def main(argv=None) -> int:
             (out / "simspeed_perf.txt").write_text(rep.stdout)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    (out / "simspeed.json").write_text(json.dumps(res, indent=1))
+    write_atomic(out / "simspeed.json", json.dumps(res, indent=1))
     with open(out / "simspeed_history.jsonl", "a") as f:
         f.write(json.dumps({k: res[k] for k in ("commit", "scene", "res", "cycles",
                                                 "sim_cycles_per_second", "sim_seconds",

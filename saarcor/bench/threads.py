@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 from model.config import Config, ConfigError
+from saarcor.outputs import write_atomic
 
 PAPER = {8: 7.5, 16: 12.2}
 
@@ -102,7 +103,7 @@ def main(argv=None) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     out_file = out / (args.name or "threads.json")
-    out_file.write_text(json.dumps(res, indent=1))
+    write_atomic(out_file, json.dumps(res, indent=1))
     print(f"wrote {out_file}")
     for run in res["runs"]:
         print(f"{run['threads']:>3} threads: {run['cycles']:>8} cycles  speedup "
