@@ -249,9 +249,7 @@ def test_ctrl_c_exits_130_in_one_line_and_keeps_earlier_outputs(tmp_path):
         seen += chunk
     p.send_signal(signal.SIGINT)
     err = (seen + p.communicate(timeout=120)[1]).decode(errors="replace")
-    if p.returncode == 0:
-        pytest.skip("the frame finished before the interrupt")
-    assert p.returncode == 130, err
+    assert p.returncode == 130, err          # 12.6 M rays: seconds of tracing still to go
     assert "interrupted" in err and "Traceback" not in err
     assert {q.name: q.read_bytes() for q in out.iterdir() if not q.name.startswith(".")} \
         == before
