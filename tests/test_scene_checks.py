@@ -105,13 +105,22 @@ def test_e2m1_cornell_is_a_config_error(tmp_path):
     assert "more exponent bits (E5M1" in msg
 
 
-def test_huge_obj_is_a_config_error(tmp_path):
-    p = write(tmp_path, "huge.obj", "v 0 0 0\nv 3e38 0 0\nv 0 3e38 0\nv 0 0 3e38\n"
-                                    "f 1 2 3\nf 1 3 4\n")
-    scene, _ = load_quietly(p)
+def tetra(tmp_path, size: float) -> Path:
+    """An OBJ of two faces of the tetrahedron with edges ``size`` along the axes."""
+    return write(tmp_path, f"t{size:g}.obj", f"v 0 0 0\nv {size:g} 0 0\nv 0 {size:g} 0\n"
+                                             f"v 0 0 {size:g}\nf 1 2 3\nf 1 3 4\n")
+
+
+def format_error(tmp_path, size: float) -> str:
+    """The ConfigError message of preparing :func:`tetra` of ``size`` at binary32."""
+    scene, _ = load_quietly(tetra(tmp_path, size))
     with pytest.raises(ConfigError) as e:
         prepare(scene, Config(), cache_dir=tmp_path)
-    msg = str(e.value)
+    return str(e.value)
+
+
+def test_huge_obj_is_a_config_error(tmp_path):
+    msg = format_error(tmp_path, 3e38)
     assert "E8M23" in msg and "overflow" in msg and "extent <= 6.981e+12" in msg
     assert "scale the scene down" in msg.lower()
 
@@ -121,9 +130,7 @@ def test_a_scene_near_the_formats_limit_warns(tmp_path):
     warning, not an error; below it nothing."""
     fmt = FPFormat(5, 10)
     for size, warns in ((36.0, True), (20.0, False)):
-        p = write(tmp_path, f"s{size:g}.obj", f"v 0 0 0\nv {size} 0 0\nv 0 {size} 0\n"
-                                               f"v 0 0 {size}\nf 1 2 3\nf 1 3 4\n")
-        scene, _ = load_quietly(p)
+        scene, _ = load_quietly(tetra(tmp_path, size))
         scene.camera.position[:] = [size / 4] * 3     # keep the camera inside the extent
         scene.camera.look_at[:] = [0, 0, 0]
         for lt in scene.lights:
@@ -138,12 +145,7 @@ def test_a_scene_near_the_formats_limit_warns(tmp_path):
 
 
 def test_tiny_obj_is_a_config_error(tmp_path):
-    p = write(tmp_path, "tiny.obj", "v 0 0 0\nv 1e-30 0 0\nv 0 1e-30 0\nv 0 0 1e-30\n"
-                                    "f 1 2 3\nf 1 3 4\n")
-    scene, _ = load_quietly(p)
-    with pytest.raises(ConfigError) as e:
-        prepare(scene, Config(), cache_dir=tmp_path)
-    msg = str(e.value)
+    msg = format_error(tmp_path, 1e-30)
     assert "E8M23" in msg and "triangles span 1e-30" in msg and "smallest normal" in msg
     assert "extent >= 5.821e-11" in msg and "scale the scene up" in msg.lower()
 
