@@ -123,6 +123,8 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
               "bandwidth_mb_s": 8 * c["mem_reads"] / seconds / 1e6,
               "per_chip": [{"words": int(wd), "share": wd / total, "busy": b / cyc}
                            for wd, b in zip(words, c["mem_busy"])]}
+    if getattr(run, "samples", None) is not None and len(run.samples) > 2 and c["mem_busy"]:
+        memory["saturated_share"] = sdram_saturated_share(cfg, run.samples)
     sub = [[x[f"sub_busy{j}"] / cyc for j in range(cfg.trav_subunits)] for x in rtc]
     units = {"trav": float(np.mean([x["trav_busy"] for x in rtc])) / cyc,
              "trav_subunits": float(np.mean(sub)),
@@ -185,14 +187,31 @@ LIMIT_SDRAM = 0.70       # an SDRAM chip's data bus busy this share: memory band
 LIMIT_BUS_WAIT = 0.30    # requests waiting on an RTC-MI cache's bus this share: the bus
 
 
+SATURATED = 0.80         # an SDRAM chip this busy in a slice of the frame is saturated there
+
+
+def sdram_saturated_share(cfg: Config, samples: np.ndarray) -> float:
+    """The share of the frame's cycles in which the busiest SDRAM chip's data bus was busy at
+    least :data:`SATURATED` of the time (the frame in :data:`USAGE_BINS` slices of the
+    counter samples): a frame can saturate memory in its middle and average below any
+    threshold (cold caches at its start, the last packets at its end)."""
+    from tb.harness.chip_frame import chip_counter_names
+    col = {n: i + 2 for i, n in enumerate(chip_counter_names(cfg))}
+    _, d = _rebin(samples, USAGE_BINS)
+    cyc = np.maximum(d[:, 0], 1e-9)
+    busy = np.max([d[:, col[f"chip{k}_busy"]] / cyc for k in range(cfg.mem_chips)], axis=0)
+    return float(d[busy >= SATURATED, 0].sum() / max(d[:, 0].sum(), 1e-9))
+
+
 def limiter(stats: dict) -> dict:
     """The frame's measured limit from the chip's counters (``stats``: :func:`frame_stats`):
     ``{"limit": short name, "why": a sentence with the figures}``.
 
     The rule, in order: a unit kind working at least ``LIMIT_BUSY`` of the cycles (mean over
     the RTCs) is the limit; else look at the unit that works most and at what it waits for
-    most: for memory, an SDRAM chip whose data bus is busy ``LIMIT_SDRAM`` or more is memory
-    bandwidth, an RTC-MI cache bus on which requests wait ``LIMIT_BUS_WAIT`` of the cycles is
+    most: for memory, an SDRAM chip whose data bus is busy ``LIMIT_SDRAM`` or more over the
+    frame, or :data:`SATURATED` or more in at least half of it (``memory.saturated_share``), is
+    memory bandwidth, an RTC-MI cache bus on which requests wait ``LIMIT_BUS_WAIT`` of the cycles is
     the bus, else memory latency (misses); blocked is back-pressure from the next unit (or,
     for intersection, the RGS slave taking results); starved is too little work in flight
     (too few packets for the threads, or the RGS not making rays fast enough)."""
@@ -210,10 +229,12 @@ def limiter(stats: dict) -> dict:
     if why == "memory":
         chips = [x["busy"] for x in stats["memory"]["per_chip"]]
         buses = {k: v["bus"]["wait"] for k, v in stats["cache"].items() if "bus" in v}
-        if chips and max(chips) >= LIMIT_SDRAM:
+        sat = stats["memory"].get("saturated_share", 0.0)
+        if chips and (max(chips) >= LIMIT_SDRAM or sat >= 0.5):
             return {"limit": "memory-bandwidth-bound",
-                    "why": f"{head} waits for memory {share}; an SDRAM chip's data bus is busy "
-                           f"{100 * max(chips):.0f} % of the cycles"}
+                    "why": f"{head} waits for memory {share}; the busiest SDRAM chip's data "
+                           f"bus is busy {100 * max(chips):.0f} % of the frame and at least "
+                           f"{100 * SATURATED:.0f} % in {100 * sat:.0f} % of it"}
         if buses and max(buses.values()) >= LIMIT_BUS_WAIT:
             k = max(buses, key=buses.get)
             return {"limit": "bus-bound",

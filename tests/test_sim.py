@@ -82,22 +82,27 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
                                          "memory-bandwidth-bound", "bus-bound",
                                          "memory-latency-bound", "back-pressure", "starved")
     assert "%" in stats["limiter"]["why"]
+    assert 0 <= stats["memory"]["saturated_share"] <= 1
 
 
-def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2, wait=0.0):
+def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2, wait=0.0,
+           sat=0.0):
     other = {"work": 0.1, "memory": 0.1, "blocked": 0.0, "starved": 0.8}
     st = {u: dict(other) for u in ("trav", "list", "int")}
     st[unit] = {"work": work, "memory": memory, "blocked": blocked, "starved": starved}
     cache = {k: {"hit_rate": 0.9, "bus": {"busy": 0.3, "wait": wait}}
              for k in ("trav", "list", "int")}
     return {"stalls": st, "cache": cache, "config": {"rtcs": 4, "threads": 16},
-            "memory": {"per_chip": [{"busy": sdram}, {"busy": sdram / 2}]},
+            "memory": {"per_chip": [{"busy": sdram}, {"busy": sdram / 2}],
+                       "saturated_share": sat},
             "packets_per_rtc": [12, 12, 12, 12]}
 
 
 @pytest.mark.parametrize("stats,limit,words", [
     (_stats(0.9, 0.05, 0.0, 0.05), "trav-bound", "traversal works 90 %"),
     (_stats(0.6, 0.3, 0.05, 0.05, sdram=0.8), "memory-bandwidth-bound", "busy 80 %"),
+    (_stats(0.6, 0.3, 0.05, 0.05, sdram=0.6, sat=0.62), "memory-bandwidth-bound",
+     "at least 80 % in 62 % of it"),
     (_stats(0.6, 0.3, 0.05, 0.05, wait=0.5), "bus-bound", "trav cache's bus 50 %"),
     (_stats(0.6, 0.3, 0.05, 0.05), "memory-latency-bound", "cache hits 90.0 %"),
     (_stats(0.5, 0.1, 0.3, 0.1, unit="int"), "back-pressure", "RGS slave"),
