@@ -243,7 +243,7 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
             shutil.rmtree(d)           # an interrupted build
         d.mkdir(parents=True)
         print(announce_build(root, top, cfg, cxx_opt()), file=log, flush=True)
-        expect = last_build(root, top, cfg, cxx_opt())
+        expect = last_build(root, top, cfg, cxx_opt())     # the same scan: a few small files
         bar = _BuildBar(expect["build_s"] if expect else None, log)
         t0 = time.perf_counter()
         what = f"{cfg.rtcs} RTCs" if top == "chip" else f"{ray_slots} ray slots"
@@ -311,11 +311,13 @@ def _stamps(root: Path) -> list[dict]:
     return out
 
 
-def last_build(root: Path, top: str, cfg: Config, opt: str) -> dict | None:
+def last_build(root: Path, top: str, cfg: Config, opt: str,
+               stamps: list[dict] | None = None) -> dict | None:
     """The most recent finished build of ``top`` under ``root`` with ``cfg``'s RTC count and
     the same C++ optimisation (its ``build.json``), else the most recent of ``top`` with that
     optimisation, or None."""
-    same = [s for s in _stamps(root) if s.get("top") == top and s.get("cxx_opt") == opt]
+    stamps = _stamps(root) if stamps is None else stamps
+    same = [s for s in stamps if s.get("top") == top and s.get("cxx_opt") == opt]
     size = [s for s in same if s.get("config", {}).get("rtcs") == cfg.rtcs]
     pool = size or same
     return max(pool, key=lambda s: s["mtime"]) if pool else None
@@ -325,7 +327,8 @@ def announce_build(root: Path, top: str, cfg: Config, opt: str) -> str:
     """The line said before a new build: that no binary holds this configuration, what differs
     from the newest build of the same top (or that the sources changed), and how long the last
     build of the same size took here."""
-    same = [s for s in _stamps(root) if s.get("top") == top]
+    stamps = _stamps(root)
+    same = [s for s in stamps if s.get("top") == top]
     text = (f"tb.harness.verilator: no {top} binary for this configuration and these sources "
             f"in {root}: building one")
     if same:
@@ -338,7 +341,7 @@ def announce_build(root: Path, top: str, cfg: Config, opt: str) -> str:
         text += (f" (differs from the newest build in {', '.join(diff[:6])}{more})" if diff else
                  " (the newest build has this configuration: the sources or build flags "
                  "changed since)")
-    last = last_build(root, top, cfg, opt)
+    last = last_build(root, top, cfg, opt, stamps)
     if last is not None:
         n = last.get("config", {}).get("rtcs")
         size = (f"{n} RTC{'s' if n != 1 else ''}" if top == "chip" else "this top")
