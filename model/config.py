@@ -86,6 +86,10 @@ class Config:
     # the shading datapaths (secondary rays, light and colour) share one pool of those units
     # instead of a budget each (docs/rgs.md, "One pool for the shading"); needs a budget
     rgs_fp_pool: bool = False
+    # ray results the chip hands out a cycle: one output stream each, slave s on stream
+    # s mod result_ports (round-robin among its slaves); the stand-in for the frame buffer's
+    # writes, whose one result a cycle caps 16 RTCs (docs/memory-interface.md)
+    result_ports: int = 1
     tex_cache_kb: int = 4          # each RGS slave's texel cache (64-bit words, two RGBA8
                                    # texels each); 0: no texture unit (a textured surface shows
                                    # its material's colour)
@@ -179,6 +183,9 @@ class Config:
                               f"trav_subunits={self.trav_subunits}")
         if self.kd_max_depth > 62:
             raise ConfigError(f"kd_max_depth={self.kd_max_depth} must be <= 62")
+        if not 1 <= self.result_ports <= self.rtcs:
+            raise ConfigError(f"result_ports={self.result_ports} must be in 1..rtcs={self.rtcs} "
+                              "(each output stream serves at least one RGS slave)")
         if self.cache_topology not in CACHE_TOPOLOGIES:
             raise ConfigError(f"cache_topology={self.cache_topology!r} must be one of "
                               f"{', '.join(CACHE_TOPOLOGIES)} (shared: three caches for the "

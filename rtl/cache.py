@@ -25,7 +25,8 @@ Pipeline::
 
 Ports: ``port`` (unit side, :class:`MemReadPort` of items), ``mem`` (memory side, 64-bit words,
 tag = ``{word index, mshr}``), ``base`` (word address of item 0), counters ``hits``, ``misses``
-(``fast``: a cycle after the lookup), and ``lookup_valid``/``lookup_hit`` (one pulse per
+(``fast``: a cycle after the lookup), ``stalls[i]`` (cycles lost, by the reasons of
+:data:`STALLS`), and ``lookup_valid``/``lookup_hit`` (one pulse per
 classified request, for testbenches).
 
 Parts (components; ``fast`` takes the ``Fast...`` variant of each stage that has one):
@@ -57,7 +58,16 @@ from model.cache import CacheGeometry
 from .memport import WORD_BITS, MemReadPort, MemRequest, MemResponse
 from .common import COUNTER_BITS, BlockRAM, lowest, registered, times_const
 
-__all__ = ["Cache"]
+__all__ = ["Cache", "STALLS"]
+
+STALLS = ("queue_full", "no_mshr", "victim_busy", "head_filling", "resp_blocked")
+"""Why a cache does not take a request or hand out a response, the cycles of each
+(``Cache.stalls[i]``): the lookup holds a request because the response queue is full
+(``queue_full``), because it missed and no MSHR is free (``no_mshr``), or because its victim
+slot is still referenced by a queued request or a fill (``victim_busy``); the response queue's
+oldest request waits for its line's fill, so every request behind it waits too
+(``head_filling``); a response is offered and the unit (or the bus's broadcast) does not take
+it (``resp_blocked``). A cycle may count under the lookup's reason and a response's at once."""
 
 
 class Cache(wiring.Component):
@@ -95,6 +105,7 @@ class Cache(wiring.Component):
             "base": In(g.mem_addr_width),
             "hits": Out(COUNTER_BITS),
             "misses": Out(COUNTER_BITS),
+            "stalls": Out(COUNTER_BITS).array(len(STALLS)),
             "lookup_valid": Out(1),
             "lookup_hit": Out(1),
         })
@@ -132,6 +143,11 @@ class Cache(wiring.Component):
         v = p.decision.verdict
         m.d.comb += [self.hits.eq(p.decision.hits), self.misses.eq(p.decision.misses),
                      self.lookup_valid.eq(v.go), self.lookup_hit.eq(v.hit)]
+        resp_blocked = Signal(COUNTER_BITS)
+        with m.If(self.port.resp.valid & ~self.port.resp.ready):
+            m.d.sync += resp_blocked.eq(resp_blocked + 1)
+        for i, c in enumerate([*p.decision.stalls, p.queue.head_waits, resp_blocked]):
+            m.d.comb += self.stalls[i].eq(c)
         return m
 
 
@@ -374,14 +390,16 @@ class Decision(_Part):
     round-robin way of its set, written into the tag row). ``verdict.go``: the request leaves
     the lookup this cycle, into the response queue: a hit at once, a miss once an MSHR is free
     and its victim slot is referenced neither by a queued request nor by a fill in flight.
-    Counts the hits and misses. Combinational (the verdict in S1's cycle).
+    Counts the hits, the misses and the cycles a request waits (``stalls``: queue full, no
+    free MSHR, victim busy). Combinational (the verdict in S1's cycle).
     """
 
     def _ports(self, d: _Dims) -> dict:
         return {"s1": In(stream.Signature(d.lookup())), "write": Out(d.tag_write()),
                 "verdict": Out(d.verdict()), "queue": In(d.slot_refs(d.Q)), "q_full": In(1),
                 "fills": In(d.slot_refs(d.O)), "any_free": In(1),
-                "hits": Out(COUNTER_BITS), "misses": Out(COUNTER_BITS)}
+                "hits": Out(COUNTER_BITS), "misses": Out(COUNTER_BITS),
+                "stalls": Out(COUNTER_BITS).array(3)}
 
     def elaborate(self, platform):
         m = Module()
@@ -413,11 +431,14 @@ class Decision(_Part):
             m.d.comb += new_row[W * e:].eq(victim + 1)
         m.d.comb += [self.write.set.eq(r.set), self.write.row.eq(new_row),
                      self.write.en.eq(go & ~hit)]
-        count_hit, count_miss = self._count(m, go & hit, go & ~hit)
-        with m.If(count_hit):
-            m.d.sync += self.hits.eq(self.hits + 1)
-        with m.If(count_miss):
-            m.d.sync += self.misses.eq(self.misses + 1)
+        # the cycles the request waits, by reason (STALLS[:3])
+        miss_waits = r.valid & ~self.q_full & ~hit
+        counts = self._count(m, hit=go & hit, miss=go & ~hit, queue_full=r.valid & self.q_full,
+                             no_mshr=miss_waits & ~self.any_free,
+                             victim_busy=miss_waits & self.any_free & busy)
+        for cond, ctr in zip(counts.values(), [self.hits, self.misses, *self.stalls]):
+            with m.If(cond):
+                m.d.sync += ctr.eq(ctr + 1)
         return m
 
     def _stage(self, m: Module, go, new_row) -> SimpleNamespace:
@@ -435,9 +456,9 @@ class Decision(_Part):
         """The victim slot is busy (:meth:`_slot_busy`)."""
         return self._slot_busy(r.set, victim)
 
-    def _count(self, m: Module, hit, miss):
+    def _count(self, m: Module, **conds) -> dict:
         """The counters' increments."""
-        return hit, miss
+        return conds
 
 
 class FastDecision(Decision):
@@ -532,9 +553,9 @@ class FastDecision(Decision):
         last_w = Mux(lw_go & lw_same, Const(1, W) << lw_way, 0)[:W]
         return (b | last_w).bit_select(victim, 1) if W > 1 else b | last_w
 
-    def _count(self, m: Module, hit, miss):
+    def _count(self, m: Module, **conds) -> dict:
         """The counters count a cycle later, from registers."""
-        return registered(m, "count", hit=hit, miss=miss).values()
+        return registered(m, "count", **conds)
 
 
 # --- MSHRs ------------------------------------------------------------------------------------
@@ -808,12 +829,13 @@ class ResponseQueue(_Part):
     """The requests in order: every verdict with ``go`` takes the entry at the tail (the
     deciding request's fields are written into it every cycle, only the used bit waits for
     ``go``); ``head``: the oldest request once its line is present (no fill in flight to its
-    slot), popped by the transfer. ``refs``: the used entries' slots; ``full``."""
+    slot), popped by the transfer. ``refs``: the used entries' slots; ``full``;
+    ``head_waits``: cycles the oldest request waited for its line."""
 
     def _ports(self, d: _Dims) -> dict:
         return {"push": In(d.verdict()), "fills": In(d.slot_refs(d.O)), "kept": In(d.O),
                 "refs": Out(d.slot_refs(d.Q)), "full": Out(1),
-                "head": Out(stream.Signature(d.head()))}
+                "head": Out(stream.Signature(d.head())), "head_waits": Out(COUNTER_BITS)}
 
     def elaborate(self, platform):
         m = Module()
@@ -848,6 +870,8 @@ class ResponseQueue(_Part):
         with m.If(pop):
             m.d.sync += q.head.eq(h_next)
         h_pending = self._pending(m, q)
+        with m.If(q.used.bit_select(q.head, 1) & h_pending):
+            m.d.sync += self.head_waits.eq(self.head_waits + 1)
         m.d.comb += [head.valid.eq(q.used.bit_select(q.head, 1) & ~h_pending),
                      head.payload.off.eq(Array(q.off)[q.head]),
                      head.payload.utag.eq(Array(q.utag)[q.head]),

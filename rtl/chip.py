@@ -14,7 +14,9 @@ image constants ``node_base``, ``list_base``, ``tri_base``, ``root``; counters p
 (``rtc_counters[r]``: the RTC's ``COUNTERS`` and ``sub_busy`` packed, see
 :func:`counter_names`), per cache ``hits[3 * k + c]``, ``misses[3 * k + c]``,
 ``grants[3 * k + c]`` (memory words the cache read), ``waits[c]`` (shared: cycles in which an
-RTC's request waited on cache c's bus; 0 when private), ``mem_reads``.
+RTC's request waited on cache c's bus; 0 when private), ``cache_stalls[len(STALLS) * c + i]``
+(shared: the cycles cache c lost, by the reasons of :data:`rtl.cache.STALLS`; 0 when
+private), ``mem_reads``.
 
 Latency and throughput are the RTCs' and caches' (a cache hit 3 cycles; one bus register
 each way, one memory request and one response per cycle for the whole chip).
@@ -29,6 +31,7 @@ from model.config import Config
 from model.rgs.secondary import FIX_BITS
 
 from .bus import RoundRobinBus
+from .cache import STALLS as CACHE_STALLS
 from .common import COUNTER_BITS
 from .memport import WORD_BITS, MemReadPort, connect_tags
 from .rtc import COUNTERS, RTC, STALLS
@@ -72,6 +75,7 @@ class RTCArray(wiring.Component):
             "hits": Out(COUNTER_BITS).array(3 * k), "misses": Out(COUNTER_BITS).array(3 * k),
             "grants": Out(COUNTER_BITS).array(3 * k + self.n_extra),
             "waits": Out(COUNTER_BITS).array(3),
+            "cache_stalls": Out(COUNTER_BITS).array(3 * len(CACHE_STALLS)),
             "mem_reads": Out(COUNTER_BITS),
             **({"ext": In(MemReadPort(addr_width=cfg.addr_bits, data_width=WORD_BITS,
                                       tag_width=tag)).array(self.n_extra)}
@@ -98,6 +102,8 @@ class RTCArray(wiring.Component):
         if self.shared:
             for c in range(3):
                 m.d.comb += self.waits[c].eq(self.mis[0].waits[c])
+            for a, b in zip(self.cache_stalls, self.mis[0].stalls):
+                m.d.comb += a.eq(b)
         for r, rtc in enumerate(self.rtcs):
             m.submodules[f"rtc{r}"] = rtc
             mi, p = (self.mis[0], r) if self.shared else (self.mis[r], None)
@@ -135,8 +141,10 @@ class Chip(wiring.Component):
     ``model.shading.frame_colour_registers``). ``start``
     (one cycle) renders a frame; ``busy`` is high from the cycle after ``start`` until every
     ray the frame spawned has finished and its result has left; ``done`` = not busy.
-    ``results`` (Out stream, ``SlaveResult``): every ray's id (eye packet and lane, depth,
-    sub), hit and colour contribution, and the ambient records of the hits, in any order.
+    ``results[i]`` (``cfg.result_ports`` Out streams of ``SlaveResult``): every ray's id (eye
+    packet and lane, depth, sub), hit and colour contribution, and the ambient records of the
+    hits, in any order; slave s's on stream ``s % result_ports`` (a registered round-robin
+    over its slaves: one result a cycle each).
 
     Counters: ``cycles`` (busy cycles of the last frame), ``rays_in`` (rays into the RTCs),
     ``results_out`` (ray results; the ambient records are not counted), ``packets[s]`` (eye
@@ -144,7 +152,7 @@ class Chip(wiring.Component):
     ``sec_busy`` (``slave_counters[s]``), its shading cache's
     ``shade_hits``/``shade_misses`` and its texel cache's ``tex_hits``/``tex_misses`` (0
     where there is none), and :class:`RTCArray`'s (``rtc_counters``, ``hits``,
-    ``misses``, ``waits``, ``grants``, ``mem_reads``).
+    ``misses``, ``waits``, ``cache_stalls``, ``grants``, ``mem_reads``).
     """
 
     SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy", *REASONS)
@@ -190,7 +198,7 @@ class Chip(wiring.Component):
             "light_col": In(v3).array(L), "amb": In(cfg.fmt.width), "bg": In(v3),
             "w_eye": In(cfg.fmt.width), "eye_miss": In(data.ArrayLayout(FIX_BITS, 3)),
             "colour": In(1),
-            "results": Out(stream.Signature(SlaveResult(cfg))),
+            "results": Out(stream.Signature(SlaveResult(cfg))).array(cfg.result_ports),
             "cycles": Out(COUNTER_BITS), "rays_in": Out(COUNTER_BITS),
             "results_out": Out(COUNTER_BITS),
             "packets": Out(COUNTER_BITS).array(n),
@@ -198,7 +206,8 @@ class Chip(wiring.Component):
             "shade_hits": Out(COUNTER_BITS).array(n), "shade_misses": Out(COUNTER_BITS).array(n),
             "tex_hits": Out(COUNTER_BITS).array(n), "tex_misses": Out(COUNTER_BITS).array(n),
         }
-        for name in ("mem", "rtc_counters", "hits", "misses", "waits", "mem_reads"):
+        for name in ("mem", "rtc_counters", "hits", "misses", "waits", "cache_stalls",
+                     "mem_reads"):
             members[name] = self.array.signature.members[name]
         members["grants"] = Out(COUNTER_BITS).array(3 * cfg.rtcmis + 2 * n)
         super().__init__(members)
@@ -218,10 +227,30 @@ class Chip(wiring.Component):
                          st.resp[i].eq(p.resp.valid & p.resp.ready)]
         return st
 
-    def elaborate(self, platform):
+    def _result_port(self, m: Module, i: int, res, slaves: list) -> None:
+        """Output stream ``res`` (``results[i]``): a round-robin over ``slaves`` into a
+        registered output. Latency 1, one result a cycle."""
         from amaranth.hdl import Mux
         from .common import OutputStage, rr_pick
         from .rgs import SlaveResult
+        m.submodules[f"res_out{i}" if i else "res_out"] = out = OutputStage(SlaveResult(self.cfg))
+        wiring.connect(m, out.o, wiring.flipped(res))
+        n = len(slaves)
+        p2 = 1 << max(0, (n - 1).bit_length())
+        valid = Signal(p2)
+        m.d.comb += valid.eq(Cat(*(sl.out.valid for sl in slaves)))
+        ptr = Signal(range(p2), name=f"chip_results{i}_ptr" if i else None)
+        anyv, pick = rr_pick(m, valid, ptr, f"chip_results{i}" if i else "chip_results")
+        m.d.comb += out.i.valid.eq(anyv)
+        for s, sl in enumerate(slaves):
+            sel = pick == s
+            with m.If(sel):
+                m.d.comb += out.i.payload.eq(sl.out.payload)
+            m.d.comb += sl.out.ready.eq(out.i.ready & sel)
+        with m.If(out.i.valid & out.i.ready):
+            m.d.sync += ptr.eq(Mux(pick == n - 1, 0, pick + 1))
+
+    def elaborate(self, platform):
         m = Module()
         cfg, n = self.cfg, self.cfg.rtcs
         m.submodules.array = arr = self.array
@@ -229,7 +258,7 @@ class Chip(wiring.Component):
         wiring.connect(m, arr.mem, wiring.flipped(self.mem))
         for k in ("node_base", "list_base", "tri_base", "root"):
             m.d.comb += getattr(arr, k).eq(getattr(self, k))
-        for k in ("rtc_counters", "hits", "misses", "waits", "grants"):
+        for k in ("rtc_counters", "hits", "misses", "waits", "cache_stalls", "grants"):
             for a, b in zip(getattr(self, k), getattr(arr, k)):
                 m.d.comb += a.eq(b)
         m.d.comb += [self.mem_reads.eq(arr.mem_reads), master.start.eq(self.start),
@@ -276,29 +305,19 @@ class Chip(wiring.Component):
         rays_in = Signal(range(n + 1))
         m.d.comb += rays_in.eq(sum(counts[1:], counts[0]))
 
-        # -- results: round-robin over the slaves into one registered output ---------------------
-        m.submodules.res_out = out = OutputStage(SlaveResult(cfg))
-        wiring.connect(m, out.o, wiring.flipped(self.results))
-        p2 = 1 << max(0, (n - 1).bit_length())
-        valid = Signal(p2)
-        m.d.comb += valid.eq(Cat(*(sl.out.valid for sl in self.slaves)))
-        ptr = Signal(range(p2))
-        anyv, pick = rr_pick(m, valid, ptr, "chip_results")
-        m.d.comb += out.i.valid.eq(anyv)
-        for s, sl in enumerate(self.slaves):
-            sel = pick == s
-            with m.If(sel):
-                m.d.comb += out.i.payload.eq(sl.out.payload)
-            m.d.comb += sl.out.ready.eq(out.i.ready & sel)
-        with m.If(out.i.valid & out.i.ready):
-            m.d.sync += ptr.eq(Mux(pick == n - 1, 0, pick + 1))
+        # -- results: per output stream, round-robin over its slaves into a registered output --
+        k = cfg.result_ports
+        for i, res in enumerate(self.results):
+            self._result_port(m, i, res, self.slaves[i::k])
 
         # -- frame control and counters ------------------------------------------------------------
-        res = self.results
-        out_now = res.valid & res.ready & ~res.payload.shade     # ray results (not ambient)
+        outs = [res.valid & res.ready & ~res.payload.shade for res in self.results]
+        out_now = Signal(range(k + 1))                  # ray results (not ambient) this cycle
+        m.d.comb += out_now.eq(sum(outs[1:], outs[0]))
         idle = Signal()
         m.d.comb += idle.eq(master.dispatched & ~master.queued &
-                            Cat(*(sl.idle for sl in self.slaves)).all() & ~res.valid)
+                            Cat(*(sl.idle for sl in self.slaves)).all() &
+                            ~Cat(*(res.valid for res in self.results)).any())
         m.d.comb += self.done.eq(~self.busy)
         with m.If(self.busy):
             m.d.sync += [self.cycles.eq(self.cycles + 1), self.rays_in.eq(self.rays_in + rays_in),

@@ -33,7 +33,7 @@ from model.cache import CacheGeometry, cache_geometry
 from model.config import Config, ConfigError
 
 from .bus import RoundRobinBus
-from .cache import Cache
+from .cache import STALLS, Cache
 from .common import COUNTER_BITS
 from .memport import MemReadPort
 
@@ -156,7 +156,8 @@ class SharedRTCMI(_RTCMIBase):
     ``mem(name)``), ``tri_base``; counters ``hits[3]``, ``misses[3]`` (per cache: every
     request is one lookup, so the bus carried ``hits + misses`` requests), ``waits[3]``
     (cycles in which an RTC's request on the cache's bus waited: another RTC's was granted,
-    or the cache took none).
+    or the cache took none), ``stalls[len(STALLS) * c + i]`` (cache c's
+    :data:`rtl.cache.STALLS` counters: why it took no request or gave no response).
     """
 
     def __init__(self, cfg: Config, n: int, tags: dict[str, int]):
@@ -172,7 +173,8 @@ class SharedRTCMI(_RTCMIBase):
                                       fast=cfg.fast_clock)
         units = {key: In(self.buses[name].inputs[0].signature.flip()).array(self.n)
                  for key, name in (("node", "trav"), ("list", "list"), ("tri", "int"))}
-        super().__init__({**self._members(cfg, units), "waits": Out(COUNTER_BITS).array(3)})
+        super().__init__({**self._members(cfg, units), "waits": Out(COUNTER_BITS).array(3),
+                          "stalls": Out(COUNTER_BITS).array(3 * len(STALLS))})
 
     def elaborate(self, platform):
         m = Module()
@@ -184,6 +186,8 @@ class SharedRTCMI(_RTCMIBase):
             for r in range(self.n):
                 wiring.connect(m, wiring.flipped(unit_side[name][r]), bus.inputs[r])
             wiring.connect(m, bus.mem, self.caches[name].port)
+            for j, ctr in enumerate(self.caches[name].stalls):
+                m.d.comb += self.stalls[len(STALLS) * i + j].eq(ctr)
             waiting = Cat(*(p.req.valid & ~p.req.ready for p in unit_side[name]))
             with m.If(waiting.any()):
                 m.d.sync += self.waits[i].eq(self.waits[i] + 1)

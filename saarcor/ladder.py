@@ -104,7 +104,8 @@ def run_band(cfg: Config, image, camera, width: int, height: int, y0: int, rows:
         pool.shutdown(wait=False)
     out = run_binary(b, lambda f: write_blocks(f, chip_blocks(cfg, image, regs)), cfg,
                      len(rays), max_cycles=max_cycles, progress=False, log=log,
-                     desc="chip band (Verilator)", names=names, allow_limit=True)
+                     desc="chip band (Verilator)", names=names, allow_limit=True,
+                     res_ports=cfg.result_ports)
     lay = SlaveResult(cfg)
     records = {name: _field(out.results, off, wd)
                for name, off, wd in compare.record_fields(lay)}

@@ -114,6 +114,8 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
                "memory_words": x["grants"]}
         if cfg.cache_topology == "shared":   # its bus: requests a cycle, cycles someone waited
             out["bus"] = {"busy": (hh + mm) / cyc, "wait": x["waits"] / cyc}
+            # the share of the frame the cache lost, by reason (rtl/cache.py STALLS)
+            out["stalls"] = {k: v / cyc for k, v in x["stalls"].items()}
         return out
     cache = {k: rtcmi_stats(k) for k in UNITS}
     seconds = cyc / (cfg.clock_mhz * 1e6)

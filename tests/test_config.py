@@ -15,7 +15,7 @@ SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
     ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
     ("list_outstanding", 1), ("fp_sqrt_latency", 65), ("rgs_lights", 15), ("reflect_depth", 16),
     ("shade_cache_kb", 0), ("delay_ram", 1), ("delay_ram", -2), ("rgs_buffers", 11),
-    ("cache_topology", "per_rtc")])
+    ("cache_topology", "per_rtc"), ("result_ports", 0), ("result_ports", 5)])
 def test_bad_rtl_parameters_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         Config(**{field: value})

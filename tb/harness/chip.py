@@ -23,6 +23,7 @@ from model.raygen import camera_registers, eye_rays
 from model.rgs import FIX_FRAC
 from model.rtc import counter_totals, trace
 from rtl.chip import Chip, counter_names
+from rtl.cache import STALLS as CACHE_STALLS
 from rtl.rtcmi import CACHES
 
 from tb.harness import compare
@@ -254,6 +255,7 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                      trace_from=trace_from, progress=progress, log=log,
                      desc="chip (Verilator)", names=names, allow_limit=True,
                      sample_every=sample_every, ray_bit=_record_bit(cfg, "shade"),
+                     res_ports=cfg.result_ports,
                      total=lambda: (len(golden.result()[1]) if golden.done() else None))
     took["simulation_s"] = time.perf_counter() - t1 - took.get("input_s", 0.0)
     t2 = time.perf_counter()
@@ -342,6 +344,7 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
     # the RTC-MI's three caches as a whole (shared, or the private ones added up)
     counters["rtcmi"] = {
         cc: ({k: c[f"rtcmi_{cc}_{k}"] for k in ("hits", "misses", "grants", "waits")}
+             | {"stalls": {k: c[f"rtcmi_{cc}_{k}"] for k in CACHE_STALLS}}
              if shared else {**{k: sum(x[cc] for x in counters[k])
                                 for k in ("hits", "misses", "grants")}, "waits": 0})
         for cc in CACHES}
@@ -379,6 +382,8 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
     sim.add_clock(1e-8)
     got, info, rows = [], {}, []
     names = chip_counter_names(cfg)
+    ports = cfg.result_ports
+    wd = len(top.res_data) // ports
 
     def unpack(v: int) -> list[int]:
         return [(v >> (32 * i)) & 0xFFFFFFFF for i in range(len(names))]
@@ -392,8 +397,9 @@ def run_chip(cfg: Config, image, camera, width: int, height: int, *, stall: floa
         while cycles < max_cycles:
             _, _, fin, valid, data, ctrs, cyc = await ctx.tick().sample(
                 top.finished, top.res_valid, top.res_data, top.counters, top.cycles)
-            if valid:
-                got.append(int(data))
+            for i in range(ports):          # the result streams' transfers, in port order
+                if (valid >> i) & 1:
+                    got.append((data >> (i * wd)) & ((1 << wd) - 1))
             if fin:
                 break
             cycles += 1

@@ -10,6 +10,7 @@ from amaranth.lib import wiring
 from model.config import Config
 from rtl.chip import Chip, counter_names
 from tb.harness.memory import SDRAMMemory
+from rtl.cache import STALLS as CACHE_STALLS
 from rtl.rtcmi import CACHES
 
 __all__ = ["ChipFrame", "chip_consts", "chip_counter_names", "REGISTERS"]
@@ -51,7 +52,8 @@ def chip_counter_names(cfg: Config) -> list[str]:
         names += [f"slave{r}_shade_{k}" for k in ("hits", "misses", "grants")]
         names += [f"slave{r}_tex_{k}" for k in ("hits", "misses", "grants")]
     if shared:                              # the RTC-MI's caches, shared by the RTCs
-        names += [f"rtcmi_{c}_{k}" for c in CACHES for k in ("hits", "misses", "grants", "waits")]
+        names += [f"rtcmi_{c}_{k}" for c in CACHES
+                  for k in ("hits", "misses", "grants", "waits", *CACHE_STALLS)]
     names += [f"chip{c}_{k}" for k in ("words", "busy") for c in range(cfg.mem_chips)]
     return names
 
@@ -88,9 +90,13 @@ class _ChipRun(wiring.Component):
         going = Signal()
         m.d.sync += going.eq(1)
         m.d.comb += [chip.start.eq(~going), t.finished_run.eq(going & chip.done)]
-        take = sink_to(m, chip.results, passes(t.lfsr.value, c["stall_q"]))
+        # every result stream takes in the same cycles (one back-pressure pattern)
+        ready = passes(t.lfsr.value, c["stall_q"])
+        wd = len(t.res_data) // len(chip.results)
+        for i, res in enumerate(chip.results):
+            m.d.comb += [t.res_valid[i].eq(sink_to(m, res, ready)),
+                         t.res_data[i * wd:(i + 1) * wd].eq(res.payload)]
         m.d.comb += mem.hold.eq(~passes(t.mem_lfsr.value, c["mem_stall_q"]))
-        m.d.comb += [t.res_valid.eq(take), t.res_data.eq(chip.results.payload)]
         return m
 
 
@@ -104,8 +110,8 @@ class ChipFrame(wiring.Component):
     of :func:`chip_consts` (the chip's registers, result back-pressure and its LFSR seed). No
     ray memory: the chip makes its rays (``cap_ray_slots`` = 0). After ``start`` the chip and
     the memory model leave reset and the chip renders the frame; every result transfer shows on
-    ``res_valid`` / ``res_data``; ``finished`` once the chip is done; ``cycles`` = the chip's
-    busy cycles; ``counters`` = :func:`chip_counter_names` (32 bits each, first in the low bits).
+    ``res_valid`` / ``res_data`` (``cfg.result_ports`` side by side); ``finished`` once the
+    chip is done; ``cycles`` = the chip's busy cycles; ``counters`` = :func:`chip_counter_names` (32 bits each, first in the low bits).
 
     ``preload`` (Amaranth simulation, ``verilog_memories=False``): ``{"image": words,
     "consts": {name: value}}`` as initial contents, so no load cycles are needed; the run is
@@ -151,7 +157,8 @@ class ChipFrame(wiring.Component):
         self.consts = chip_consts(cfg)
         self.names = chip_counter_names(cfg)
         from rtl.rgs import SlaveResult
-        super().__init__(frame_signature(cfg, len(self.names), SlaveResult(cfg)))
+        super().__init__(frame_signature(cfg, len(self.names), SlaveResult(cfg),
+                                         ports=cfg.result_ports))
         values = {} if preload is None else preload["consts"]
         self.const = {name: Signal(32, name=f"c_{name}", reset_less=True,
                                    init=int(values.get(name, 0))) for name in self.consts}
@@ -172,8 +179,8 @@ class ChipFrame(wiring.Component):
                      self.mem_lfsr.en.eq(run), self.mem_lfsr.seed.eq(self.const["mem_seed"])]
         m.submodules.run = ResetInserter({"sync": ~run})(_ChipRun(self))
         m.d.comb += self.hold.eq(~run)
-        with m.If(self.res_valid):
-            m.d.sync += self.results.eq(self.results + 1)
+        taken = [self.res_valid[i] for i in range(len(self.res_valid))]
+        m.d.sync += self.results.eq(self.results + sum(taken[1:], taken[0]))
         chip = self.chip
         values = [chip.rays_in, chip.results_out, chip.mem_reads, *chip.packets]
         names = counter_names(self.cfg)
@@ -193,6 +200,8 @@ class ChipFrame(wiring.Component):
         if shared:
             for c in range(3):
                 values += [chip.hits[c], chip.misses[c], chip.grants[c], chip.waits[c]]
+                values += [chip.cache_stalls[len(CACHE_STALLS) * c + i]
+                           for i in range(len(CACHE_STALLS))]
         values += list(mem.words) + list(mem.busy)
         from amaranth.hdl import Cat
         m.d.comb += [self.counters.eq(Cat(*values)), self.cycles.eq(chip.cycles),

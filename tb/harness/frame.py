@@ -75,14 +75,15 @@ def result_bits(cfg: Config, layout=None) -> int:
     return max(96, -(-size // 32) * 32)
 
 
-def frame_signature(cfg: Config, counters: int, result_layout=None) -> dict:
+def frame_signature(cfg: Config, counters: int, result_layout=None, ports: int = 1) -> dict:
     """The ports of a Verilator frame top (:class:`RTCFrame`, ``tb.harness.chip_frame.ChipFrame``):
     what ``tb/harness/verilator_main.cpp`` drives and reads; ``counters`` 32-bit counter fields;
-    ``res_data`` holds a ``result_layout`` (default ``RayResult``)."""
+    ``res_data`` holds ``ports`` results side by side (port i's at bit ``i * result_bits``,
+    a ``result_layout`` each, default ``RayResult``), ``res_valid`` bit i says port i's is one."""
     return {
         "ld_valid": In(1), "ld_sel": In(2), "ld_addr": In(32), "ld_data": In(64),
         "start": In(1),
-        "res_valid": Out(1), "res_data": Out(result_bits(cfg, result_layout)),
+        "res_valid": Out(ports), "res_data": Out(ports * result_bits(cfg, result_layout)),
         "finished": Out(1), "running": Out(1),
         "cycles": Out(COUNTER_BITS), "results": Out(COUNTER_BITS),
         "counters": Out(COUNTER_BITS * counters),

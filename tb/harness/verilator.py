@@ -514,7 +514,7 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
                trace_file=None, trace_from: int = 0, progress: bool = True, log=None,
                desc: str = "frame", names: list[str] | None = None,
                allow_limit: bool = False, sample_every: int = 0,
-               ray_bit: int | None = None, total=None) -> FrameOutput:
+               ray_bit: int | None = None, total=None, res_ports: int = 1) -> FrameOutput:
     """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
     ``n`` results; return its parsed output (``names``: its counters). ``ray_bit``: the bar
     counts only the records whose bit ``ray_bit`` is 0 (the chip's ray results, not its pixel
@@ -523,7 +523,8 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
     the waveform from run cycle ``trace_from`` on (0: the load as well). ``sample_every``:
     the counters every that many cycles (``FrameOutput.samples``). A run that hits
     ``max_cycles`` raises :class:`FrameError` (``allow_limit``: returns it, status 2, for the
-    caller to say what is stuck)."""
+    caller to say what is stuck). ``res_ports``: results side by side in ``res_data``
+    (``Config.result_ports`` of a chip frame)."""
     log = sys.stderr if log is None else log
     from tqdm import tqdm
     with tempfile.TemporaryDirectory(prefix="frame") as tmp:
@@ -538,6 +539,8 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
             cmd += ["--samples", str(fsmp), "--sample-every", str(sample_every)]
         if ray_bit is not None:
             cmd += ["--ray-bit", str(ray_bit)]
+        if res_ports != 1:
+            cmd += ["--res-ports", str(res_ports)]
         wrapper = os.environ.get(WRAPPER_ENV, "")
         if wrapper:                       # a profiler around the binary (bench simspeed)
             import shlex

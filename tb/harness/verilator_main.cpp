@@ -1,7 +1,7 @@
 // C++ main for the Verilator build of tb/harness/frame.py's RTCFrame (driven by tb/harness/verilator.py).
 //
 //   Vframe IN OUT [--max-cycles N] [--progress N] [--trace FILE] [--trace-from C]
-//   [--samples FILE --sample-every N] [--ray-bit B]
+//   [--samples FILE --sample-every N] [--ray-bit B] [--res-ports K]
 //   (FILE: FST or VCD, as built; C: first run cycle written to it, default 0 = load included)
 // SAMPLES (little-endian): "RTCSMP1\0", u32 ctr_words, u32 0, then every N run cycles (and
 //   once at the end) a row: u64 cycle, u64 results so far, ctr_words x u32 counters.
@@ -13,9 +13,11 @@
 // cycles; a design without one takes it through the load port like the other blocks.
 // Holds reset for 4 cycles, loads the other blocks (one word per cycle), pulses start, then
 // clocks until `finished` or N cycles after start (exit 2, naming the limit). Every result
-// transfer (res_valid) is recorded.
-// OUT (little-endian): "RTCOUT1\0", u32 status (0 finished, 2 cycle limit), u32 res_words,
-//   u32 ctr_words, u32 0, u64 cycles (RTC cycles since start), u64 results, u64 load cycles,
+// transfer (res_valid) is recorded; with --res-ports K (default 1) res_data holds K results side
+// by side and bit i of res_valid says the i-th is one (recorded in port order).
+// OUT (little-endian): "RTCOUT1\0", u32 status (0 finished, 2 cycle limit), u32 res_words
+//   (one result's), u32 ctr_words, u32 0, u64 cycles (RTC cycles since start), u64 results,
+//   u64 load cycles,
 //   f64 CPU seconds of the run loop, f64 CPU seconds of the load, then results x res_words u32,
 //   ctr_words u32 counters.
 // stderr: "progress <cycles> <results> <rays>" every --progress cycles (default 65536), errors;
@@ -114,6 +116,7 @@ int main(int argc, char** argv) {
     std::string in_path = argv[1], out_path = argv[2], trace_path;
     uint64_t max_cycles = 100000000ull, progress = 65536, trace_from = 0, sample_every = 0;
     long long ray_bit = -1;
+    long long res_ports = 1;
     std::string samples_path;
     for (int i = 3; i < argc; i++) {
         std::string a = argv[i];
@@ -121,6 +124,7 @@ int main(int argc, char** argv) {
         if (a == "--max-cycles") max_cycles = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--progress") progress = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--ray-bit") ray_bit = std::strtoll(argv[++i], nullptr, 10);
+        else if (a == "--res-ports") res_ports = std::strtoll(argv[++i], nullptr, 10);
         else if (a == "--trace") trace_path = argv[++i];
         else if (a == "--trace-from") trace_from = std::strtoull(argv[++i], nullptr, 10);
         else if (a == "--samples") samples_path = argv[++i];
@@ -231,7 +235,10 @@ int main(int argc, char** argv) {
     s.tick();
     top->start = 0;
 
-    const size_t res_words = sizeof(top->res_data) / sizeof(top->res_data[0]);
+    const size_t all_res_words = sizeof(top->res_data) / sizeof(top->res_data[0]);
+    if (res_ports < 1 || res_ports > 32 || all_res_words % res_ports)
+        die("--res-ports", "must divide res_data into whole 32-bit results (1..32 ports)");
+    const size_t res_words = all_res_words / res_ports;
     const size_t ctr_words = sizeof(top->counters) / sizeof(top->counters[0]);
     FILE* smp = nullptr;
     std::vector<uint32_t> row;
@@ -264,8 +271,10 @@ int main(int argc, char** argv) {
             status = 2;
             break;
         }
-        if (top->res_valid) {
-            put_wide(results, top->res_data, res_words);
+        const uint32_t res_valid = top->res_valid;
+        for (long long port = 0; port < res_ports; port++) {
+            if (!((res_valid >> port) & 1u)) continue;
+            put_wide(results, &top->res_data[port * res_words], res_words);
             n_results++;
             if (ray_bit >= 0) {    // a ray's result, not another record (a pixel's colour)
                 const uint32_t w = results[results.size() - res_words + ray_bit / 32];

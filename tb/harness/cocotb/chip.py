@@ -58,7 +58,7 @@ def run_chip(cfg, image, camera, width: int, height: int, sim: str, run_dir, *,
                          f"{dut.mem_depth} (tb.harness.chip_sdram.MEM_WORDS)")
     seeds = lfsr_seeds(seed, 3)
     lay = SlaveResult(cfg)
-    params = {"top": top, "result_bits": lay.size, "counters": counter_ports(cfg, top),
+    params = {"top": top, "result_bits": lay.size, "result_ports": cfg.result_ports, "counters": counter_ports(cfg, top),
               "consts": register_ports(dut, frame_registers(cfg, image, camera, width, height,
                                                             scene)),
               "stall_q": sixteenths(stall, "stall"), "stall_seed": seeds[1],
@@ -184,9 +184,11 @@ async def chip(dut):
     """A frame: registers, start, every result out; memory from the scene's image."""
     p, a = load()
     sdram = p["top"] == "chip_sdram"
-    results = Sink(dut, "results", hold=LFSRPattern(p["stall_q"], p["stall_seed"]))
+    # one sink per result stream, each held by a copy of the frame's one back-pressure pattern
+    sinks = [Sink(dut, f"results__{i}", hold=LFSRPattern(p["stall_q"], p["stall_seed"]))
+             for i in range(p["result_ports"])]
     frame = Frame(dut, LFSRPattern(p["mem_stall_q"], p["mem_seed"]) if sdram else None)
-    agents = [frame, results]
+    agents = [frame, *sinks]
     mem = None
     if not sdram:
         m, image = p["mem"], a["image"]
@@ -205,5 +207,6 @@ async def chip(dut):
                        quiet=p["max_cycles"])
     seconds = time.perf_counter() - t0
     counters = await read_ports(dut, p["counters"])
-    save({"results": from_ints(results.got, p["result_bits"])}, cycles=cycles,
+    got = [r for sink in sinks for r in sink.got]
+    save({"results": from_ints(got, p["result_bits"])}, cycles=cycles,
          seconds=seconds, counters=counters, served=len(mem.addrs) if mem else None)
