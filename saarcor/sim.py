@@ -162,6 +162,10 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "stalls": stalls,
         "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
         "bus": {"words_per_cycle": c["mem_reads"] / cyc},
+        # the chip's result streams (Config.result_ports): records a cycle, and the share of
+        # the streams' cycles that carried one
+        "output": {"ports": cfg.result_ports, "records_per_cycle": c["records_out"] / cyc,
+                   "busy": c["records_out"] / (cyc * cfg.result_ports)},
         "packets_per_rtc": c["packets"],
         "mismatches": len(run.mismatches),
         "sim_seconds": round(run.seconds, 3),
@@ -187,6 +191,8 @@ PLOT_NAMES = {**UNIT_NAMES, "slave": "RGS slave"}
 LIMIT_BUSY = 0.85        # a unit working this share of the cycles is the limit
 LIMIT_SDRAM = 0.70       # an SDRAM chip's data bus busy this share: memory bandwidth
 LIMIT_BUS_WAIT = 0.30    # requests waiting on an RTC-MI cache's bus this share: the bus
+LIMIT_OUTPUT = 0.75      # the result streams carrying a record this share of their cycles,
+LIMIT_OUTPUT_BLOCKED = 0.5   # with the RGS slaves blocked this share: the chip's output
 
 
 SATURATED = 0.80         # an SDRAM chip this busy in a slice of the frame is saturated there
@@ -210,7 +216,9 @@ def limiter(stats: dict) -> dict:
     ``{"limit": short name, "why": a sentence with the figures}``.
 
     The rule, in order: a unit kind working at least ``LIMIT_BUSY`` of the cycles (mean over
-    the RTCs) is the limit; else look at the unit that works most and at what it waits for
+    the RTCs) is the limit; else the chip's result streams, when they carry a record
+    ``LIMIT_OUTPUT`` of their cycles and the RGS slaves are blocked ``LIMIT_OUTPUT_BLOCKED``
+    (results wait for the output, the RTCs behind them); else look at the unit that works most and at what it waits for
     most: for memory, an SDRAM chip whose data bus is busy ``LIMIT_SDRAM`` or more over the
     frame, or :data:`SATURATED` or more in at least half of it (``memory.saturated_share``), is
     memory bandwidth, an RTC-MI cache bus on which requests wait ``LIMIT_BUS_WAIT`` of the cycles is
@@ -223,6 +231,12 @@ def limiter(stats: dict) -> dict:
     if work[top] >= LIMIT_BUSY:
         return {"limit": f"{top}-bound",
                 "why": f"the {UNIT_NAMES[top]} works {100 * work[top]:.0f} % of the cycles"}
+    out, sl = stats.get("output"), st.get("slave")
+    if out and sl and out["busy"] >= LIMIT_OUTPUT and sl["blocked"] >= LIMIT_OUTPUT_BLOCKED:
+        return {"limit": "output-bound",
+                "why": f"the chip's {out['ports']} result stream(s) carry a record "
+                       f"{100 * out['busy']:.0f} % of the cycles and the RGS slaves are "
+                       f"blocked {100 * sl['blocked']:.0f} % (raise --result-ports)"}
     reasons = {k: v for k, v in st[top].items() if k != "work"}
     why = max(reasons, key=reasons.get)
     share = f"{100 * reasons[why]:.0f} %"

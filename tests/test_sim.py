@@ -80,22 +80,25 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
         assert 1 - 2 / stats["cycles"] <= total <= 1 + 1e-12, (u, stats["stalls"][u])
     assert stats["limiter"]["limit"] in ("trav-bound", "list-bound", "int-bound",
                                          "memory-bandwidth-bound", "bus-bound",
-                                         "memory-latency-bound", "back-pressure", "starved")
+                                         "memory-latency-bound", "back-pressure", "starved",
+                                         "output-bound")
     assert "%" in stats["limiter"]["why"]
     assert 0 <= stats["memory"]["saturated_share"] <= 1
 
 
 def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2, wait=0.0,
-           sat=0.0):
+           sat=0.0, output=0.3, slave_blocked=0.2):
     other = {"work": 0.1, "memory": 0.1, "blocked": 0.0, "starved": 0.8}
     st = {u: dict(other) for u in ("trav", "list", "int")}
+    st["slave"] = {"work": 0.2, "memory": 0.0, "blocked": slave_blocked,
+                   "starved": 0.8 - slave_blocked}
     st[unit] = {"work": work, "memory": memory, "blocked": blocked, "starved": starved}
     cache = {k: {"hit_rate": 0.9, "bus": {"busy": 0.3, "wait": wait}}
              for k in ("trav", "list", "int")}
     return {"stalls": st, "cache": cache, "config": {"rtcs": 4, "threads": 16},
             "memory": {"per_chip": [{"busy": sdram}, {"busy": sdram / 2}],
                        "saturated_share": sat},
-            "packets_per_rtc": [12, 12, 12, 12]}
+            "packets_per_rtc": [12, 12, 12, 12], "output": {"ports": 1, "busy": output}}
 
 
 @pytest.mark.parametrize("stats,limit,words", [
@@ -104,6 +107,10 @@ def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2
     (_stats(0.6, 0.3, 0.05, 0.05, sdram=0.6, sat=0.62), "memory-bandwidth-bound",
      "at least 80 % in 62 % of it"),
     (_stats(0.6, 0.3, 0.05, 0.05, wait=0.5), "bus-bound", "trav cache's bus 50 %"),
+    (_stats(0.4, 0.35, 0.0, 0.25, wait=0.5, output=0.85, slave_blocked=0.9), "output-bound",
+     "record 85 % of the cycles and the RGS slaves are blocked 90 %"),
+    (_stats(0.4, 0.35, 0.0, 0.25, wait=0.5, output=0.85, slave_blocked=0.3), "bus-bound",
+     "trav cache's bus 50 %"),
     (_stats(0.6, 0.3, 0.05, 0.05), "memory-latency-bound", "cache hits 90.0 %"),
     (_stats(0.5, 0.1, 0.3, 0.1, unit="int"), "back-pressure", "RGS slave"),
     (_stats(0.3, 0.1, 0.0, 0.6), "starved", "48 packets for 4 RTCs x 16 threads"),

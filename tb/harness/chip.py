@@ -325,6 +325,8 @@ def _finish(cfg: Config, image, records: dict, cycles: int, seconds: float, c: d
                                    rays, eye.pk_start)
     chip_hits = compare.hits_of(by_ray, cfg, image)
     counters = {"cycles": cycles, "rays_in": c["rays_in"], "results_out": c["results_out"],
+                # every record on the result streams: ray results and the hits' ambient records
+                "records_out": int(len(shade)),
                 "mem_reads": c["mem_reads"],
                 "packets": [c[f"packets{s}"] for s in range(cfg.rtcs)],
                 # the SDRAM chips' counters (none when the memory is not the SDRAM model)
