@@ -25,7 +25,7 @@ Engines (each a small state machine; threads are picked round-robin among those 
   ``l // (lanes/k)``) and moves on to the next thread; at a non-empty leaf it emits a
   ``LeafRequest`` and parks the thread; empty leaves and finished leaves pop the stack (one
   entry per 2 cycles); an exhausted stack starts the next octant pass or finishes the packet;
-* sub-units: one lane per cycle through ``sub -> mul -> compare, min/max``, steps of different
+* sub-units: one lane per cycle through ``sub -> mul -> compare with min/max``, steps of different
   threads back to back; synchronous mode (``cfg.trav_sync``): all sub-units start a step
   together; asynchronous: each starts its next step as soon as it has issued its lanes of the
   previous one (an idle group costs one cycle);
@@ -52,7 +52,7 @@ from model.config import Config
 from model.layout import LEAF, NODE_INDEX_BITS, node_layout
 from .common import (COUNTER_BITS, BlockRAM, OutputStage, element, from_binary32, lowest,
                      lowest_onehot, registered, rr_pick, rr_pick_next)
-from .fp import FPAdd, FPCompare, FPMinMax, FPMul
+from .fp import FPAdd, FPMinMax, FPMul
 from .fp.cmp import compare
 from .memport import WORD_BITS, MemReadPort, MemRequest
 from .rtc_streams import LaneResult, LeafRequest, PacketDone, RayIn, lane_bits
@@ -171,8 +171,8 @@ class TravSubunit(wiring.Component):
     one per cycle (a step with no lane of this sub-unit takes one cycle), back to back with the
     next step, whatever its thread: thread, sp, cur, axis and split travel with each lane.
     Per lane: ray read (1), register (1), ``split - org[axis]`` (FPAdd), ``* inv[axis]``
-    (FPMul), interval read timed to meet ``dist``, compares and min/max (1), write of both
-    intervals: ``LAT`` cycles from issue to write. After a step's last lane the verdict
+    (FPMul), interval read timed to meet ``dist``, two compares, each with its min/max (1),
+    write of both intervals: ``LAT`` cycles from issue to write. After a step's last lane the verdict
     (``near`` = not (dist < tnear), ``far`` = not (dist > tfar) per lane) goes to ``res`` (a
     queue of ``cfg.threads`` entries: at most one step per thread is ever outstanding, so it
     never overflows). ``a`` active lanes: the verdict is valid ``a + STEP_LAT`` cycles after the
@@ -313,20 +313,19 @@ class TravSubunit(wiring.Component):
         return iv
 
     def _classify(self, m: Module, st, dist, iv):
-        """Stage ``kd``: ``dist < tnear``, ``dist > tfar``, ``min(tfar, dist)`` and ``max(tnear,
-        dist)`` (``cmp_lat`` cycles); at the write stage each lane's verdict joins its step's,
-        which goes to the ``res`` queue with the step's last lane. Returns the near and far
-        intervals to write."""
+        """Stage ``kd``: ``max(tnear, dist)`` with ``dist < tnear`` (as ``tnear > dist``) and
+        ``min(tfar, dist)`` with ``dist > tfar`` (as ``tfar < dist``): two comparators, each
+        with the min or max it selects (:class:`~rtl.fp.FPMinMax`; ``cmp_lat`` cycles), so a
+        trav-op costs an add, a multiply and two compares, the paper's 3 adds and 1 multiply
+        with a compare counted as an add. At the write stage each lane's verdict joins its
+        step's, which goes to the ``res`` queue with the step's last lane. Returns the near and
+        far intervals to write."""
         fmt, R, c = self.cfg.fmt, self.R, self.cmp_lat
         w, kd = fmt.width, self.LAT - c
-        m.submodules.lt_near = lt_near = FPCompare(fmt, latency=c)
-        m.submodules.gt_far = gt_far = FPCompare(fmt, latency=c)
         m.submodules.vmin = vmin = FPMinMax(fmt, latency=c)
         m.submodules.vmax = vmax = FPMinMax(fmt, latency=c)
         tnear, tfar = iv[:w], iv[w:]
-        m.d.comb += [lt_near.a.eq(dist), lt_near.b.eq(tnear), lt_near.i_valid.eq(st[kd].v),
-                     gt_far.a.eq(tfar), gt_far.b.eq(dist), gt_far.i_valid.eq(st[kd].v),
-                     vmin.a.eq(tfar), vmin.b.eq(dist), vmin.op.eq(0), vmin.i_valid.eq(st[kd].v),
+        m.d.comb += [vmin.a.eq(tfar), vmin.b.eq(dist), vmin.op.eq(0), vmin.i_valid.eq(st[kd].v),
                      vmax.a.eq(tnear), vmax.b.eq(dist), vmax.op.eq(1), vmax.i_valid.eq(st[kd].v)]
         tnear_d, tfar_d = tnear, tfar               # the interval, delayed to the write stage
         for i in range(c):
@@ -337,8 +336,8 @@ class TravSubunit(wiring.Component):
         near, far = Signal(R), Signal(R)            # this step's lanes so far
         near_n, far_n = Signal(R), Signal(R)
         bit = Mux(sw.v, Const(1, R) << sw.lane, 0)
-        m.d.comb += [near_n.eq(near | Mux(~lt_near.o.lt, bit, 0)),
-                     far_n.eq(far | Mux(~gt_far.o.lt, bit, 0))]
+        m.d.comb += [near_n.eq(near | Mux(~vmax.gt, bit, 0)),     # not (dist < tnear)
+                     far_n.eq(far | Mux(~vmin.lt, bit, 0))]       # not (dist > tfar)
         m.submodules.results = rq = SyncFIFO(width=2 * R, depth=self.cfg.threads)
         m.d.comb += [rq.w_data.eq(Cat(near_n, far_n)), rq.w_en.eq(sw.e & sw.last),
                      self.res.payload.eq(rq.r_data), self.res.valid.eq(rq.r_rdy),

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 
 from amaranth.hdl import Cat, Module, Mux, Value
 from amaranth.lib import data, wiring
-from amaranth.lib.wiring import In
+from amaranth.lib.wiring import In, Out
 
 from model.fp import BINARY32, FPFormat
 from .common import canonical_nan, special, unpack
@@ -82,7 +82,10 @@ class FPMinMax(_Unit):
     """``o = min(a, b)`` (``op`` = 0) or ``max(a, b)`` (``op`` = 1) by the model's rule:
     ``min = b if b < a or a is NaN else a`` (``max``: ``b > a``), so a NaN is ignored when the
     other operand is a number and of ``+0``/``-0`` the first is returned; NaN out is canonical
-    and a denormal operand comes out as signed zero.
+    and a denormal operand comes out as signed zero. Beside ``o``: ``lt`` = ``a < b`` and
+    ``gt`` = ``a > b`` (:class:`FPCompare`'s order), from the comparator the choice uses, so a
+    datapath that needs both a comparison and the min or max of the same operands spends one
+    comparator (the traversal's interval clipping).
 
     Latency: ``latency`` cycles (default 1; 0 = combinational), registers at the input,
     after-compare and output boundaries by ``regs`` or, by default, output first, then input,
@@ -94,7 +97,8 @@ class FPMinMax(_Unit):
     ORDER = (2, 0, 1)
 
     def __init__(self, fmt: FPFormat = BINARY32, latency: int = 1, regs: Sequence[int] | None = None):
-        super().__init__(fmt, latency, regs, fmt.width, {"op": In(1)})
+        super().__init__(fmt, latency, regs, fmt.width,
+                         {"op": In(1), "lt": Out(1), "gt": Out(1)})
 
     def elaborate(self, platform):
         m = Module()
@@ -102,9 +106,11 @@ class FPMinMax(_Unit):
         v = st(a=self.a, b=self.b, op=self.op)
         c = compare(self.fmt, v.a, v.b)
         v = st(take_b=Mux(v.op, c.lt, c.gt) | c.ua.nan,    # max: b > a; min: b < a
-               a=canonical(self.fmt, c.ua, v.a), b=canonical(self.fmt, c.ub, v.b))
-        v = st(o=Mux(v.take_b, v.b, v.a))
+               a=canonical(self.fmt, c.ua, v.a), b=canonical(self.fmt, c.ub, v.b),
+               lt=c.lt, gt=c.gt)
+        v = st(o=Mux(v.take_b, v.b, v.a), lt=v.lt, gt=v.gt)
         st.finish()
-        m.d.comb += [self.o.eq(v.o), self.o_valid.eq(st.valid)]
+        m.d.comb += [self.o.eq(v.o), self.lt.eq(v.lt), self.gt.eq(v.gt),
+                     self.o_valid.eq(st.valid)]
         return m
 
