@@ -141,7 +141,13 @@ def parse_formats(text: str) -> list[FPFormat]:
 
 def add_config_args(ap: argparse.ArgumentParser) -> None:
     """One option per :class:`Config` field (``--trav-cache-kb``), plus ``--fmt``."""
+    from model.config import PRESETS
     g = ap.add_argument_group("configuration (model/config.py Config; defaults are Config's)")
+    g.add_argument("--preset", choices=list(PRESETS), default=None,
+                   help="start from a named configuration, then apply the options below: "
+                        "standard (Config's defaults) or paper (the standard chip at the "
+                        "paper's cost: each RGS slave datapath on 3 adders and 4 multipliers, "
+                        "the shading on one pool of them; model/config.py PRESETS)")
     g.add_argument("--fmt", help="FP format E<exp>M<frac> (default E8M23, binary32)")
     text = field_help()
     for f in dataclasses.fields(Config):
@@ -160,7 +166,8 @@ def config_from_args(args: argparse.Namespace) -> Config:
                if f.name != "fmt" and getattr(args, f.name, None) is not None}
     if args.fmt:
         changes["fmt"] = parse_fmt(args.fmt)
-    return Config(**changes)
+    from model.config import preset
+    return preset(getattr(args, "preset", None) or "standard", **changes)
 
 
 def res_from_args(args: argparse.Namespace, prog: str) -> tuple[int, int]:

@@ -122,3 +122,23 @@ def test_cache_topology_sets_the_rtcmi_count():
     """Shared (the paper's): one RTC-MI for the chip; private: one per RTC."""
     assert Config().cache_topology == "shared" and Config(rtcs=4).rtcmis == 1
     assert Config(rtcs=4, cache_topology="private").rtcmis == 4
+
+
+def test_presets_start_from_the_defaults_and_options_override_them():
+    import argparse
+
+    from model.config import PRESETS, preset
+    from saarcor.args import add_config_args, config_from_args
+    assert preset("standard") == Config()
+    paper = preset("paper")
+    assert (paper.rgs_fp_adders, paper.rgs_fp_muls, paper.rgs_fp_pool) == (3, 4, True)
+    assert paper.replace(**{k: getattr(Config(), k) for k in PRESETS["paper"]}) == Config()
+    with pytest.raises(ConfigError, match="preset 'nope'"):
+        preset("nope")
+    ap = argparse.ArgumentParser()
+    add_config_args(ap)
+    cfg = config_from_args(ap.parse_args(["--preset", "paper", "--rgs-fp-muls", "2"]))
+    assert (cfg.rgs_fp_adders, cfg.rgs_fp_muls, cfg.rgs_fp_pool) == (3, 2, True)
+    assert config_from_args(ap.parse_args([])) == Config()
+    with pytest.raises(SystemExit):
+        ap.parse_args(["--preset", "fast"])
