@@ -172,10 +172,12 @@ def test_chip_verilator_private_caches_same_cycles_as_amaranth_sim(cornell):
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
+@pytest.mark.slow
 def test_chip_two_result_ports_verilator(cornell):
     """``result_ports=2``: each of two RGS slaves hands its results out on a stream of its own.
     Every ray bit-exact and once, and the frame takes no more cycles than on one shared
-    stream (the same frame as ``test_chip_verilator_same_cycles_as_amaranth_sim``)."""
+    stream (the same frame as ``test_chip_verilator_same_cycles_as_amaranth_sim``). (Slow: a
+    build of its own; in CI ``test_chip_shade_pool_verilator`` runs two streams.)"""
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
     cfg = TINY.replace(rtcs=2, result_ports=2)
@@ -401,12 +403,14 @@ def test_chip_shade_pool_verilator(cornell):
     modulo schedule, ``rtl.rgs.ShadePool``): Cornell 16x16 with its shadows, the mirror sphere
     and the textured floor, under back-pressure and random memory latency: every ray and every
     pixel bit-exact. The pool's interval is even and the texture unit's 2, so their slots
-    never meet in one cycle: the texture's inputs wait in their queue."""
+    never meet in one cycle: the texture's inputs wait in their queue. The chip hands its
+    results (rays and ambient records) out on two streams (``result_ports``), one a slave."""
     from math import gcd
     from rtl.rgs import Slave
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
-    cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
+    cfg = TINY.replace(rtcs=2, rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True,
+                       result_ports=2)
     slave = Slave(cfg)
     slave._MustUse__silence = True
     pool = slave.pool
