@@ -22,12 +22,11 @@ import numba
 import numpy as np
 
 from .fp import fadd, fdiv, fmul, fsub
-from .layout import PROJ_ID_BITS, PROJ_K_SHIFT
+from .layout import PROJ_K_BIT
 
 _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
-ID_MASK = np.int64((1 << PROJ_ID_BITS) - 1)
-K_SHIFT = np.int64(PROJ_K_SHIFT - 32)      # k's place in the record's id word (high half)
+_K_BIT = np.uint32(1 << PROJ_K_BIT)
 
 
 @numba.njit(cache=True, inline="always")
@@ -40,9 +39,14 @@ def pick(v0, v1, v2, k):
 
 
 @numba.njit(cache=True, inline="always")
-def split_id(word):
-    """The record's id word (word 4's high half) as (scene-order id, k)."""
-    return word & ID_MASK, (word >> K_SHIFT) & 3
+def split_k(rec):
+    """The record's axis k, from the spare exponent bits of n_u and n_v (bit 0, bit 1), which
+    are cleared in ``rec`` (9 float32 as read from memory), leaving the values."""
+    b0 = np.float32(rec[0]).view(np.uint32)
+    b1 = np.float32(rec[1]).view(np.uint32)
+    rec[0] = np.uint32(b0 & ~_K_BIT).view(np.float32)
+    rec[1] = np.uint32(b1 & ~_K_BIT).view(np.float32)
+    return np.int64((b0 & _K_BIT) != 0) | (np.int64((b1 & _K_BIT) != 0) << 1)
 
 
 @numba.njit(cache=True, inline="always")

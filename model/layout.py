@@ -7,8 +7,8 @@ documented bit by bit in ``docs/memory-format.md``::
     node_base       kd-nodes, one word each (node i at node_base + i)
     list_base       triangle list, 32-bit entries, two per word (low half first)
     tri_base        triangles, 5 words each (9 x binary32 vertices + 32-bit scene-order id;
-                    Config.int_test = "projection": 9 x binary32 of the precomputed record,
-                    30-bit id and the 2-bit axis k)
+                    Config.int_test = "projection": the precomputed record's 9 x binary32,
+                    its axis k in the two spare exponent bits of n_u and n_v, and the id)
     shade_base      shading data (own 8-word header, material ids, normals, UVs, materials,
                     texture directory, RGBA8 texels, and the RGS slave's per-triangle records:
                     face normal, vertex normals, flags)
@@ -31,8 +31,8 @@ SHADE_MAGIC = int(np.frombuffer(b"SHADING1", "<u8")[0])
 HEADER_WORDS = 8
 ALIGN = 8                     # every section starts at a multiple of 8 words
 TRI_WORDS = 5                 # 9 x binary32 (288 bits) + 32-bit id = 5 words
-PROJ_ID_BITS = 30             # projection records: the id's bits (word 4 bits 32..61) ...
-PROJ_K_SHIFT = 62             # ... and k, the dominant axis of the normal (bits 62..63)
+PROJ_K_BIT = 30               # projection records: k's bit 0 (1) is bit 30 of n_u (n_v),
+                              # the exponent's top bit, always 0 as |n_u|, |n_v| <= 1
 HDR_PROJECTION = 56           # header word 4 bit 56: the triangles are projection records
 LEAF = 3                      # node axis code of a leaf (0, 1, 2: split axis x, y, z)
 NODE_INDEX_BITS = 30          # left-child index / leaf triangle count
@@ -128,8 +128,11 @@ def projection_records(tris: np.ndarray, fmt: FPFormat) -> tuple[np.ndarray, np.
     ``p[k] + n_u p[u] + n_v p[v] = n_d``. In the projection onto (u, v),
     ``lambda = b_nu h_u + b_nv h_v + b_d`` is the hit point's weight of B and
     ``mu = c_nu h_u + c_nv h_v + c_d`` its weight of C (the watertight test's u and v).
-    A degenerate triangle (N[k] = 0, or a coefficient that does not fit ``fmt``) gets the
-    record that never hits: all zero but b_d = -1 (lambda is -1 or NaN, never >= 0), k = 0."""
+    As N[k] is the largest magnitude, |n_u| <= 1 and |n_v| <= 1 (after rounding too): the top
+    bit of their binary32 exponents is always 0, and the memory image keeps k there
+    (``PROJ_K_BIT``). A degenerate triangle (N[k] = 0, or a coefficient that does not fit
+    ``fmt``) gets the record that never hits: all zero but b_d = -1 (lambda is -1 or NaN,
+    never >= 0), k = 0."""
     t = np.asarray(tris, np.float64).reshape(-1, 3, 3)
     n = t.shape[0]
     a, b, c = t[:, 0], t[:, 1], t[:, 2]
@@ -238,8 +241,8 @@ class MemoryImage:
         return w.astype("<u8").view("<u4")[:self.n_list]
 
     def triangles(self) -> tuple[np.ndarray, np.ndarray]:
-        """(n_tris, 3, 3) float32 vertices (a projection image: each record's 9 floats) and
-        (n_tris,) uint32 scene-order ids (the whole word 4 high half)."""
+        """(n_tris, 3, 3) float32 vertices (a projection image: each record's 9 words, k's
+        bits in place) and (n_tris,) uint32 scene-order ids."""
         w = self.data[self.tri_base:self.tri_base + TRI_WORDS * self.n_tris]
         u = w.astype("<u8").view("<u4").reshape(self.n_tris, 2 * TRI_WORDS)
         return u[:, :9].copy().view("<f4").reshape(-1, 3, 3), u[:, 9].copy()
@@ -269,8 +272,6 @@ class MemoryImage:
         if getattr(self, "_id_cache", None) is None:
             w = self.data[self.tri_base + 4:self.tri_base + TRI_WORDS * self.n_tris:TRI_WORDS]
             ids = (w >> np.uint64(32)).astype(np.int64)
-            if self.projection:
-                ids &= (1 << PROJ_ID_BITS) - 1
             inv = np.full(int(ids.max()) + 1 if len(ids) else 0, -1, np.int64)
             inv[ids] = np.arange(len(ids))
             self._id_cache = (ids, inv, np.append(ids, -1).astype(np.int32))
@@ -458,9 +459,6 @@ def build_image(tris: np.ndarray, tree: "KdTree", cfg: Config, tri_id: np.ndarra
     _check("largest leaf count", int(tree.count.max()), NODE_INDEX_BITS, fix)
     _check("n_list (triangle-list entries)", n_list, LIST_INDEX_BITS, fix)
     _check("n_tris", n_tris, 32, "split the scene")
-    if cfg.int_test == "projection" and n_tris:
-        _check("largest tri_id (projection records)", int(tri_id.max()), PROJ_ID_BITS,
-               "split the scene")
     _check("depth", tree.depth, 8, "use cfg.kd_max_depth <= 255")
 
     node_base = HEADER_WORDS
@@ -487,7 +485,9 @@ def build_image(tris: np.ndarray, tree: "KdTree", cfg: Config, tri_id: np.ndarra
     if cfg.int_test == "projection":
         rec, k = projection_records(tris, fmt)
         t[:, :9] = _f32_bits(rec)
-        t[:, 9] = tri_id.astype(np.uint32) | k.astype(np.uint32) << np.uint32(PROJ_K_SHIFT - 32)
+        t[:, 0] |= (k.astype(np.uint32) & 1) << np.uint32(PROJ_K_BIT)
+        t[:, 1] |= (k.astype(np.uint32) >> 1) << np.uint32(PROJ_K_BIT)
+        t[:, 9] = tri_id.astype(np.uint32)
         data[4] |= np.uint64(1 << HDR_PROJECTION)
     else:
         t[:, :9] = _f32_bits(tris).reshape(n_tris, 9)

@@ -15,7 +15,7 @@ import numpy as np
 
 from .events import EV_DONE, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI, decode, record
 from .intersection import fetch_triangle, shared_axes, test_triangle
-from .intersection_projection import split_id
+from .intersection_projection import split_k
 from .lanes import borrow, popcount
 from .layout import HDR_PROJECTION, LEAF, TRI_WORDS
 from .list import leaf_entries
@@ -186,7 +186,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 sid = fetch_triangle(mem, tri_base, ti, tri)
                 tk = np.int64(-1)
                 if proj:
-                    sid, tk = split_id(sid)
+                    tk = split_k(tri)
                 if rec.shape[0]:
                     record(rec, rec_n, EV_TRI, pid, oc, ti, mask, sid, 0, 0)
                 c_int_ops += test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v,

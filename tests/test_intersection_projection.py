@@ -6,7 +6,7 @@ import pytest
 
 from model.config import Config, ConfigError
 from model.fp import FPFormat
-from model.intersection_projection import intersect_projection, split_id
+from model.intersection_projection import intersect_projection, split_k
 from model.layout import MemoryImage, projection_records
 
 
@@ -141,24 +141,37 @@ def test_config_rejects_a_bad_int_test():
 
 
 def test_memory_image_holds_records_k_and_id():
+    """The record's 9 words with k in the spare exponent bits of n_u, n_v; the id as ever."""
     from model.kdtree import build_kdtree
     from model.layout import build_image
     rng = np.random.default_rng(3)
     tris = rng.normal(size=(50, 3, 3)).astype(np.float32)
+    tris[7, 1] = tris[7, 0]                                       # degenerate
     cfg = Config(int_test="projection")
-    ids = rng.permutation(50).astype(np.uint32) + np.uint32((1 << 30) - 60)
+    ids = (rng.permutation(50) + 1000).astype(np.uint32)
     img = build_image(tris, build_kdtree(tris, cfg, cache_dir=None), cfg, tri_id=ids)
     back = MemoryImage.from_words(img.data)
     assert back.projection and not build_image(
         tris, build_kdtree(tris, Config(), cache_dir=None), Config()).projection
     rec, k = projection_records(tris, cfg.fmt)
-    words = back.data[back.tri_base:back.tri_base + 5 * 50].reshape(50, 5)
-    hi = (words[:, 4] >> np.uint64(32)).astype(np.int64)
-    assert np.array_equal(back.triangles()[0].reshape(50, 9).view(np.uint32),
-                          rec.view(np.uint32))
+    assert set(k.tolist()) == {0, 1, 2}
+    words = back.triangles()[0].reshape(50, 9).copy()
+    bits = words.view(np.uint32)
+    assert np.array_equal((bits[:, 0] >> 30 & 1) | (bits[:, 1] >> 30 & 1) << 1, k)
     for j in range(50):
-        assert split_id(hi[j]) == (ids[j], k[j])
+        assert split_k.py_func(words[j]) == k[j]
+    assert np.array_equal(words.view(np.uint32), rec.view(np.uint32))
     assert np.array_equal(back.scene_ids(np.arange(50)), ids)
-    with pytest.raises(Exception, match="tri_id"):
-        build_image(tris, build_kdtree(tris, cfg, cache_dir=None), cfg,
-                    tri_id=np.arange(50) + (1 << 30))
+
+
+def test_whole_model_with_projection_agrees_with_embree(kd_cache):
+    """The golden model's render (eye, shadow and reflection rays through the RTC model) with
+    the projection test against Intel Embree on the vertices."""
+    from model.scene import load_scene
+
+    from .conftest import ROOT
+    from .test_rtc_model import check_against_embree
+    cfg = Config(reflect_depth=2, int_test="projection")
+    rep, result = check_against_embree(load_scene(ROOT / "scenes" / "cornell.toml"), cfg,
+                                       (48, 36), kd_cache)
+    assert rep["both_hit"] > 1000
