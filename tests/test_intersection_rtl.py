@@ -219,3 +219,18 @@ def test_projection_pipe_thousands():
     from tb.units.intersection_projection import run_pipe as run_proj
     r = run_proj(proj_tests(3000, FMT, seed=2), FMT, seed=2, p_bubble=0.1, p_stall=0.1)
     assert r.mismatches[:5] == [] and r.outputs == r.tests == 3000
+
+
+@pytest.mark.parametrize("deep", [False, True], ids=["default", "deep"])
+def test_projection_unit_matches_model_first_leaves(kd_cache, deep):
+    """``Config.int_test = "projection"``: the unit reads projection records (k in their spare
+    exponent bits) and keeps the rays' directions; the first leaves of 4 Cornell packets,
+    every datapath output, LaneResult and final hit against the model."""
+    from tb.units.list import golden
+    from tb.units.intersection import run_unit
+    from .conftest import ROOT
+    cfg = Config(int_test="projection", **(DEEP if deep else {}))
+    g = golden(ROOT / "scenes" / "cornell.toml", 16, 16, cfg, kd_cache)
+    r = run_unit(g, max_leaves=8 if not deep else 6, seed=1, idle=0.3, stall=0.3, latency=20)
+    assert r.mismatches[:5] == []
+    assert r.int_ops > 50 and r.counters["busy"] > 0
