@@ -58,7 +58,7 @@ class IntersectPipe(wiring.Component):
     Operations (all rounded to the format, the model's order): 9 subs (vertices - origin), 9
     muls (Sx, Sy times the z of each vertex; Sz times it), 6 subs (shear), 6 muls + 3 subs (edge
     functions U, V, W), 2 adds (det), 3 muls + 2 adds (T), 1 div (1/det), 3 muls (t, u, v):
-    20 add/sub, 21 mul, 1 div. The operands are registered first (they come from block RAM).
+    22 add/sub, 21 mul, 1 div. The operands are registered first (they come from block RAM).
     Latency (binary32, default FP latencies 3/3/8): 33 cycles.
     Throughput: one test per cycle in which ``en`` is 1 (``en`` = 0 holds every stage).
     ``latencies``: optional ``{"add": n, "mul": n, "div": n}`` for the FP units.
