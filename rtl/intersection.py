@@ -171,7 +171,8 @@ class IntersectionUnit(wiring.Component):
         ``last`` marks the leaf's final triangle.
     ``mem`` (``MemReadPort`` requester, tag = slot): one read per triangle, address = the
         triangle's index, answered with its 9 binary32 vertex words (``cfg.int_item_bits``
-        bits, vertex 0's x in the low bits: an int-cache item, ``rtl/cache.py``).
+        bits, vertex 0's x in the low bits: an int-cache item, ``rtl/cache.py``); with
+        ``cfg.int_test = "projection"`` the 9 words of its projection record, k in them.
     ``lane_out`` (Out stream, ``LaneResult``): for a leaf's last triangle, one result per lane
         of the mask in lane order (``last`` on the highest lane): has-hit and best t.
     ``done`` (In stream, ``PacketDone``) / ``result`` (Out stream, ``RayResult``): read out
@@ -188,7 +189,7 @@ class IntersectionUnit(wiring.Component):
     Timing: up to ``tri_slots`` triangles are fetched ahead of the one being tested (a request
     leaves one cycle after its ``TriRequest`` was taken, one triangle a cycle); tests issue one
     lane per cycle with no gap between triangles. A test's result is stored 2 + ``IntersectPipe.latency`` cycles after its issue
-    (34 for binary32); the LaneResult leaves one cycle later. The whole pipeline stalls only while
+    (34 for binary32; ``ProjectionPipe.latency`` with ``cfg.int_test = "projection"``: 38); the LaneResult leaves one cycle later. The whole pipeline stalls only while
     ``lane_out`` is full and not taken (``cfg.fast_clock``: while a second LaneResult waits
     behind the full output, in a skid register, so the stall starts a cycle later and comes
     from a flip-flop).
