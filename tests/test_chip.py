@@ -449,3 +449,20 @@ def test_chip_frame_projection_test_in_amaranth_sim(kd_cache):
     u, v = np.asarray(wt.u, np.float64), np.asarray(wt.v, np.float64)
     assert (np.minimum(np.minimum(u, v), 1 - u - v)[differ] < 1e-6).all()
     assert differ.sum() < 8
+
+
+@pytest.mark.slow
+def test_chip_projection_secondary_rays_verilator(kd_cache):
+    """``Config.int_test = "projection"`` with shadow and reflection rays made by the slaves
+    (their ray setup sends the direction to the RTCs), an 8x8 Cornell frame on 2 RTCs in
+    Verilator: every ray and every pixel's colour bit-exact with the golden model's (slow:
+    a Verilator build of its own, about 4 minutes)."""
+    from tb.harness.chip import run_chip_frame
+    cfg = TINY.replace(rtcs=2, int_test="projection")
+    scene = load_scene(ROOT / "scenes/cornell.toml")
+    image = prepare(scene, cfg, cache_dir=kd_cache).image
+    r = run_chip_frame(cfg, image, scene.camera, 8, 8, stall=0.25, seed=3, scene=scene,
+                       progress=False)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 8, 8, cfg))
+    kinds = np.bincount(r.frame_rays.kind, minlength=3)
+    assert r.color is not None and kinds[1] > kinds[0] > 0 and kinds[2] > 0
