@@ -12,6 +12,7 @@ from .fp import FPFormat
 
 
 CACHE_TOPOLOGIES = ("shared", "private")   # Config.cache_topology
+INT_TESTS = ("watertight", "projection")   # Config.int_test
 
 
 _TYPE_WORDS = {bool: "true or false (a bool)", int: "an integer", float: "a finite number",
@@ -36,6 +37,10 @@ class Config:
     threads: int = 16              # packets in flight per RTC
     trav_subunits: int = 4         # traversal sub-units per RTC (a packet is split statically)
     trav_sync: bool = True         # sub-units run synchronously (False: asynchronously)
+    int_test: str = "watertight"   # the intersection unit's ray-triangle test: "watertight"
+                                   # (Woop, Benthin, Wald 2013, on the vertices) or
+                                   # "projection" (the paper's: Wald et al. 2001, on
+                                   # precomputed triangle records; docs/memory-format.md)
     int_tri_slots: int = 8         # triangles the intersection unit holds (fetched ahead + tested)
     list_outstanding: int = 8      # list-word reads the list unit keeps in flight
     # pipeline stages of the RTL's FP units (0: the unit's default: add 3, mul 3, divider
@@ -190,6 +195,10 @@ class Config:
             raise ConfigError(f"cache_topology={self.cache_topology!r} must be one of "
                               f"{', '.join(CACHE_TOPOLOGIES)} (shared: three caches for the "
                               "chip; private: three caches per RTC)")
+        if self.int_test not in INT_TESTS:
+            raise ConfigError(f"int_test={self.int_test!r} must be one of "
+                              f"{', '.join(INT_TESTS)} (watertight: the test on the triangle's "
+                              "vertices; projection: the paper's test on precomputed records)")
         if self.cache_ways not in (1, 2, 4):
             raise ConfigError(f"cache_ways={self.cache_ways} must be 1, 2 or 4")
         if not _pow2(self.threads):

@@ -12,6 +12,7 @@ import numpy as np
 
 from .events import EV_INT, record
 from .fp import fadd, fdiv, fmul, fsub
+from .intersection_projection import intersect_projection
 from .lanes import highest_lane, lowest_lane, popcount
 from .layout import TRI_WORDS
 
@@ -248,7 +249,7 @@ def fetch_triangle(mem, tri_base, i, out):
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, rec, rec_n, pid,
-                  n, lanes, axes):
+                  n, lanes, axes, tk=-1):
     """The intersection unit on one triangle: test every lane of ``mask`` in lane order (the
     issue stage), and keep the closest hit (best-hit update): a hit is accepted when
     ``0 < t < best``. ``lo``/``lk``/``ls`` are the packet's ray store (origin, shear axes and
@@ -258,8 +259,10 @@ def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, r
     (:func:`intersect32_lanes`); ``axes``: the shear axes the mask's lanes share
     (:func:`shared_axes`) or -1. At binary32, with shared axes, at least ``VECTOR_LANES``
     lanes in the mask and no event log, the lanes are tested together first (the same
-    results). Returns the int-ops done."""
-    if (E == 8 and M == 23 and rec.shape[0] == 0 and axes >= 0
+    results). ``tk`` >= 0 (``Config.int_test = "projection"``): ``tri`` is a projection record
+    with axis ``tk`` and ``ls`` holds the lanes' directions
+    (:func:`model.intersection_projection.intersect_projection`). Returns the int-ops done."""
+    if (tk < 0 and E == 8 and M == 23 and rec.shape[0] == 0 and axes >= 0
             and popcount(mask) >= VECTOR_LANES):
         o_t, s_t, st, ht, hu, hv = lanes
         l0 = lowest_lane(mask)
@@ -290,7 +293,10 @@ def test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v, E, M, r
         l = lowest_lane(m)
         m &= m - np.uint64(1)
         ops += 1
-        if E == 8 and M == 23:
+        if tk >= 0:
+            hit, t, u, v = intersect_projection(tri, tk, lo[l, 0], lo[l, 1], lo[l, 2], ls[l, 0],
+                                                ls[l, 1], ls[l, 2], E, M)
+        elif E == 8 and M == 23:
             hit, t, u, v = intersect32(tri, lo[l, 0], lo[l, 1], lo[l, 2], lk[l, 0], lk[l, 1],
                                        lk[l, 2], ls[l, 0], ls[l, 1], ls[l, 2])
         else:

@@ -6,7 +6,9 @@ documented bit by bit in ``docs/memory-format.md``::
     word 0..7       header (magic "SAARCOR1", section bases, counts, depth, format, scene box)
     node_base       kd-nodes, one word each (node i at node_base + i)
     list_base       triangle list, 32-bit entries, two per word (low half first)
-    tri_base        triangles, 5 words each (9 x binary32 vertices + 32-bit scene-order id)
+    tri_base        triangles, 5 words each (9 x binary32 vertices + 32-bit scene-order id;
+                    Config.int_test = "projection": the precomputed record's 9 x binary32,
+                    its axis k in the two spare exponent bits of n_u and n_v, and the id)
     shade_base      shading data (own 8-word header, material ids, normals, UVs, materials,
                     texture directory, RGBA8 texels, and the RGS slave's per-triangle records:
                     face normal, vertex normals, flags)
@@ -29,6 +31,9 @@ SHADE_MAGIC = int(np.frombuffer(b"SHADING1", "<u8")[0])
 HEADER_WORDS = 8
 ALIGN = 8                     # every section starts at a multiple of 8 words
 TRI_WORDS = 5                 # 9 x binary32 (288 bits) + 32-bit id = 5 words
+PROJ_K_BIT = 30               # projection records: k's bit 0 (1) is bit 30 of n_u (n_v),
+                              # the exponent's top bit, always 0 as |n_u|, |n_v| <= 1
+HDR_PROJECTION = 56           # header word 4 bit 56: the triangles are projection records
 LEAF = 3                      # node axis code of a leaf (0, 1, 2: split axis x, y, z)
 NODE_INDEX_BITS = 30          # left-child index / leaf triangle count
 LIST_INDEX_BITS = 32          # leaf's first list entry
@@ -113,6 +118,48 @@ def rec_material(mats: np.ndarray, fmt: FPFormat) -> dict:
                             (1 << SHIN_BITS) - 1).astype(np.int64)}
 
 
+def projection_records(tris: np.ndarray, fmt: FPFormat) -> tuple[np.ndarray, np.ndarray]:
+    """The projection test's triangle records (Wald et al. 2001): (N, 9) float32 values of
+    ``fmt`` (n_u, n_v, n_d, b_nu, b_nv, b_d, c_nu, c_nv, c_d) and (N,) uint8 k.
+
+    Computed in float64 from the vertices A, B, C, then rounded once to ``fmt``. N = (B - A) x
+    (C - A); k is the axis of N's largest magnitude (the lowest on a tie), u = (k+1) % 3,
+    v = (k+2) % 3. With N scaled so that its k component is 1, the plane is
+    ``p[k] + n_u p[u] + n_v p[v] = n_d``. In the projection onto (u, v),
+    ``lambda = b_nu h_u + b_nv h_v + b_d`` is the hit point's weight of B and
+    ``mu = c_nu h_u + c_nv h_v + c_d`` its weight of C (the watertight test's u and v).
+    As N[k] is the largest magnitude, |n_u| <= 1 and |n_v| <= 1 (after rounding too): the top
+    bit of their binary32 exponents is always 0, and the memory image keeps k there
+    (``PROJ_K_BIT``). A degenerate triangle (N[k] = 0, or a coefficient that does not fit
+    ``fmt``) gets the record that never hits: all zero but b_d = -1 (lambda is -1 or NaN,
+    never >= 0), k = 0."""
+    t = np.asarray(tris, np.float64).reshape(-1, 3, 3)
+    n = t.shape[0]
+    a, b, c = t[:, 0], t[:, 1], t[:, 2]
+    e1, e2 = b - a, c - a
+    nrm = np.cross(e1, e2)
+    k = np.argmax(np.abs(nrm), axis=1)
+    r = np.arange(n)
+    ku, kv = (k + 1) % 3, (k + 2) % 3
+    nk = nrm[r, k]
+    good = nk != 0
+    nk1 = np.where(good, nk, 1.0)
+    n_u, n_v = nrm[r, ku] / nk1, nrm[r, kv] / nk1
+    n_d = a[r, k] + n_u * a[r, ku] + n_v * a[r, kv]
+    # 2-D: H - A = lambda e1 + mu e2 in (u, v); the 2x2 determinant is N[k]
+    au, av = a[r, ku], a[r, kv]
+    e1u, e1v, e2u, e2v = e1[r, ku], e1[r, kv], e2[r, ku], e2[r, kv]
+    rec = np.stack([n_u, n_v, n_d,
+                    e2v / nk1, -e2u / nk1, (av * e2u - au * e2v) / nk1,
+                    -e1v / nk1, e1u / nk1, (au * e1v - av * e1u) / nk1], axis=1)
+    with np.errstate(over="ignore", invalid="ignore"):
+        q = fmt.quantize(rec).astype(np.float32)
+    good &= np.isfinite(q).all(axis=1)
+    q[~good] = 0
+    q[~good, 5] = -1
+    return q, np.where(good, k, 0).astype(np.uint8)
+
+
 def image_size_words(n_nodes: int, n_list: int, n_tris: int) -> int:
     """Words of an image without shading data beyond the (empty) shading header."""
     return (HEADER_WORDS + _align(n_nodes) + _align((n_list + 1) // 2) + _align(TRI_WORDS * n_tris)
@@ -144,6 +191,7 @@ class MemoryImage:
     bounds: np.ndarray     # (2, 3) float32
     depth: int
     fmt: FPFormat
+    projection: bool = False   # the triangles are projection records (Config.int_test)
 
     def words(self) -> np.ndarray:
         return self.data
@@ -176,7 +224,8 @@ class MemoryImage:
         bounds = data[5:8].astype("<u8").view("<f4").reshape(2, 3).copy()
         img = cls(data=data, node_base=lo(h[1]), list_base=hi(h[1]), tri_base=lo(h[2]),
                   shade_base=hi(h[2]), n_nodes=lo(h[3]), n_tris=hi(h[3]), n_list=lo(h[4]),
-                  root=0, bounds=bounds, depth=(h[4] >> 32) & 0xFF, fmt=FPFormat(E, M))
+                  root=0, bounds=bounds, depth=(h[4] >> 32) & 0xFF, fmt=FPFormat(E, M),
+                  projection=bool((h[4] >> HDR_PROJECTION) & 1))
         if img.shade_base + SHADE_HEADER_WORDS > data.size:
             raise LayoutError(f"memory image truncated: {data.size} words, header says the "
                               f"shading section starts at word {img.shade_base}")
@@ -192,7 +241,8 @@ class MemoryImage:
         return w.astype("<u8").view("<u4")[:self.n_list]
 
     def triangles(self) -> tuple[np.ndarray, np.ndarray]:
-        """(n_tris, 3, 3) float32 vertices and (n_tris,) uint32 scene-order ids."""
+        """(n_tris, 3, 3) float32 vertices (a projection image: each record's 9 words, k's
+        bits in place) and (n_tris,) uint32 scene-order ids."""
         w = self.data[self.tri_base:self.tri_base + TRI_WORDS * self.n_tris]
         u = w.astype("<u8").view("<u4").reshape(self.n_tris, 2 * TRI_WORDS)
         return u[:, :9].copy().view("<f4").reshape(-1, 3, 3), u[:, 9].copy()
@@ -432,13 +482,22 @@ def build_image(tris: np.ndarray, tree: "KdTree", cfg: Config, tri_id: np.ndarra
     lw = _pack_u32(tree.tri_list.astype(np.uint32))
     data[list_base:list_base + lw.size] = lw
     t = np.zeros((n_tris, 2 * TRI_WORDS), "<u4")
-    t[:, :9] = _f32_bits(tris).reshape(n_tris, 9)
-    t[:, 9] = tri_id.astype(np.uint32)
+    if cfg.int_test == "projection":
+        rec, k = projection_records(tris, fmt)
+        t[:, :9] = _f32_bits(rec)
+        t[:, 0] |= (k.astype(np.uint32) & 1) << np.uint32(PROJ_K_BIT)
+        t[:, 1] |= (k.astype(np.uint32) >> 1) << np.uint32(PROJ_K_BIT)
+        t[:, 9] = tri_id.astype(np.uint32)
+        data[4] |= np.uint64(1 << HDR_PROJECTION)
+    else:
+        t[:, :9] = _f32_bits(tris).reshape(n_tris, 9)
+        t[:, 9] = tri_id.astype(np.uint32)
     data[tri_base:tri_base + TRI_WORDS * n_tris] = t.view("<u8").ravel()
     data[shade_base:] = shade
     return MemoryImage(data=data, node_base=node_base, list_base=list_base, tri_base=tri_base,
                        shade_base=shade_base, n_nodes=n_nodes, n_list=n_list, n_tris=n_tris,
-                       root=0, bounds=bounds.copy(), depth=tree.depth, fmt=fmt)
+                       root=0, bounds=bounds.copy(), depth=tree.depth, fmt=fmt,
+                       projection=cfg.int_test == "projection")
 
 
 # ---------------------------------------------------------------------------------------------

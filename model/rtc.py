@@ -15,8 +15,9 @@ import numpy as np
 
 from .events import EV_DONE, EV_LEAF, EV_NODE, EV_RESULT, EV_TRI, decode, record
 from .intersection import fetch_triangle, shared_axes, test_triangle
+from .intersection_projection import split_k
 from .lanes import borrow, popcount
-from .layout import LEAF, TRI_WORDS
+from .layout import HDR_PROJECTION, LEAF, TRI_WORDS
 from .list import leaf_entries
 from .fp import flush_in
 from .rgs import flushed_box, setup_one
@@ -116,7 +117,10 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
     lo = borrow(org[r0:r0 + n])
     linv = borrow(inv[r0:r0 + n])
     lk = borrow(kk[r0:r0 + n])
-    ls = borrow(ss[r0:r0 + n])
+    # the image's triangles are projection records (Config.int_test): the intersection unit
+    # keeps the rays' directions instead of the shear constants
+    proj = (mem[4] >> np.uint64(HDR_PROJECTION)) & np.uint64(1) == np.uint64(1)
+    ls = borrow(dirn[r0:r0 + n]) if proj else borrow(ss[r0:r0 + n])
     # dynamic per-lane state: the traversal's interval, the intersection's best hit
     for l in range(n):
         tnear[l] = tnear0[r0 + l]
@@ -180,10 +184,13 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 ti = entries[j]
                 c_list_ops += 1
                 sid = fetch_triangle(mem, tri_base, ti, tri)
+                tk = np.int64(-1)
+                if proj:
+                    tk = split_k(tri)
                 if rec.shape[0]:
                     record(rec, rec_n, EV_TRI, pid, oc, ti, mask, sid, 0, 0)
                 c_int_ops += test_triangle(tri, sid, ti, mask, lo, lk, ls, best, b_tri, b_u, b_v,
-                                           E, M, rec, rec_n, pid, n, lanes, axes)
+                                           E, M, rec, rec_n, pid, n, lanes, axes, tk)
             # back in traversal; a shadow ray keeps testing the rest of the leaf it hits in
             # (its lane is in the leaf's mask), as the pipelined hardware does
             terminated = terminate(mask, terminated, b_tri, anyhit, r0, best, tfar)
@@ -356,6 +363,10 @@ def _kernel_args(image, rays, cfg, ray_setup, box_cull):
     sizes = np.diff(rays.pk_start)
     if sizes.size and sizes.max() > 64:
         raise ValueError(f"a packet has {sizes.max()} rays; at most 64 (the active mask width)")
+    if image.projection != (cfg.int_test == "projection"):
+        raise ValueError(f"the memory image's triangles are "
+                         f"{'projection records' if image.projection else 'vertices'} but "
+                         f"cfg.int_test={cfg.int_test!r}: build the image with the same Config")
     rs = ray_setup if ray_setup is not None else setup(rays, image.bounds, cfg.fmt, box_cull)
     hit_t = np.empty(n, np.float32)
     hit_tri = np.empty(n, np.int32)

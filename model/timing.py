@@ -52,6 +52,7 @@ __all__ = ["Estimate", "ChipTiming", "chip_timing", "work_of", "record_work", "e
 # fixed latencies of the RTL units (binary32 FP latencies: add 3, mul 3, div 8)
 STEP_LAT = 11            # traversal sub-unit: verdict a + STEP_LAT cycles after the step starts
 INT_LAT = 36             # intersection: test issue -> LaneResult out (34 store + 1 + 1)
+INT_LAT_PROJECTION = 40  # the same with Config.int_test = "projection" (its datapath: 37)
 CACHE_HIT = 3            # cache hit latency
 EYE_LAT = 30             # master + RGS slave pipeline: tile handed out -> first ray at the RTC
 
@@ -77,7 +78,8 @@ class ChipTiming:
             cfg.rtcs, cfg.threads, cfg.trav_subunits, int(cfg.trav_sync),
             cfg.int_tri_slots, cfg.list_outstanding, cfg.mem_chips, cfg.mem_clock_ratio,
             self.burst, cfg.mem_latency, self.outstanding, cfg.rays_per_subunit,
-            STEP_LAT, INT_LAT, CACHE_HIT, EYE_LAT, int(cfg.cache_topology == "shared")],
+            STEP_LAT, INT_LAT if cfg.int_test == "watertight" else INT_LAT_PROJECTION,
+            CACHE_HIT, EYE_LAT, int(cfg.cache_topology == "shared")],
             np.int64)
 
 

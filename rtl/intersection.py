@@ -29,6 +29,7 @@ from .common import (COUNTER_BITS, BlockRAM, OutputStage, SkidBuffer, from_binar
 from .fp.cmp import compare
 from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
+from .intersection_projection import PROJ_K_BIT, ProjectionPipe
 from .memport import MemReadPort
 from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, PacketDone, RayIn,
                           RayResult, TriRequest, lane_bits)
@@ -57,7 +58,7 @@ class IntersectPipe(wiring.Component):
     Operations (all rounded to the format, the model's order): 9 subs (vertices - origin), 9
     muls (Sx, Sy times the z of each vertex; Sz times it), 6 subs (shear), 6 muls + 3 subs (edge
     functions U, V, W), 2 adds (det), 3 muls + 2 adds (T), 1 div (1/det), 3 muls (t, u, v):
-    20 add/sub, 21 mul, 1 div. The operands are registered first (they come from block RAM).
+    22 add/sub, 21 mul, 1 div. The operands are registered first (they come from block RAM).
     Latency (binary32, default FP latencies 3/3/8): 33 cycles.
     Throughput: one test per cycle in which ``en`` is 1 (``en`` = 0 holds every stage).
     ``latencies``: optional ``{"add": n, "mul": n, "div": n}`` for the FP units.
@@ -170,7 +171,8 @@ class IntersectionUnit(wiring.Component):
         ``last`` marks the leaf's final triangle.
     ``mem`` (``MemReadPort`` requester, tag = slot): one read per triangle, address = the
         triangle's index, answered with its 9 binary32 vertex words (``cfg.int_item_bits``
-        bits, vertex 0's x in the low bits: an int-cache item, ``rtl/cache.py``).
+        bits, vertex 0's x in the low bits: an int-cache item, ``rtl/cache.py``); with
+        ``cfg.int_test = "projection"`` the 9 words of its projection record, k in them.
     ``lane_out`` (Out stream, ``LaneResult``): for a leaf's last triangle, one result per lane
         of the mask in lane order (``last`` on the highest lane): has-hit and best t.
     ``done`` (In stream, ``PacketDone``) / ``result`` (Out stream, ``RayResult``): read out
@@ -187,7 +189,7 @@ class IntersectionUnit(wiring.Component):
     Timing: up to ``tri_slots`` triangles are fetched ahead of the one being tested (a request
     leaves one cycle after its ``TriRequest`` was taken, one triangle a cycle); tests issue one
     lane per cycle with no gap between triangles. A test's result is stored 2 + ``IntersectPipe.latency`` cycles after its issue
-    (34 for binary32); the LaneResult leaves one cycle later. The whole pipeline stalls only while
+    (34 for binary32; ``ProjectionPipe.latency`` with ``cfg.int_test = "projection"``: 38); the LaneResult leaves one cycle later. The whole pipeline stalls only while
     ``lane_out`` is full and not taken (``cfg.fast_clock``: while a second LaneResult waits
     behind the full output, in a skid register, so the stall starts a cycle later and comes
     from a flip-flop).
@@ -211,7 +213,11 @@ class IntersectionUnit(wiring.Component):
             "tri_last": 1, "lane_last": 1})
         if latencies is None:
             latencies = cfg.fp_latencies()
-        self.pipe = IntersectPipe(cfg.fmt, tag_width=self.pipe_meta.size, latencies=latencies)
+        # the test (Config.int_test): the watertight one on the vertices, or the paper's on
+        # precomputed records (the ray store then keeps the direction where ``s`` was)
+        self.projection = cfg.int_test == "projection"
+        pipe = ProjectionPipe if self.projection else IntersectPipe
+        self.pipe = pipe(cfg.fmt, tag_width=self.pipe_meta.size, latencies=latencies)
         super().__init__({
             "ray_in": In(stream.Signature(RayWrite(cfg))),
             "tri_in": In(stream.Signature(TriRequest(cfg))),
@@ -237,8 +243,10 @@ class IntersectionUnit(wiring.Component):
         wiring.connect(m, self._lane_stage.o, wiring.flipped(self.lane_out))
         en = self._lane_stage.i.ready
         w = self.fmt.width
-        ray_l = data.StructLayout({"org": data.ArrayLayout(w, 3), "k": data.ArrayLayout(2, 3),
-                                   "s": data.ArrayLayout(w, 3)})
+        ray_l = data.StructLayout(
+            {"org": data.ArrayLayout(w, 3), "dir": data.ArrayLayout(w, 3)} if self.projection
+            else {"org": data.ArrayLayout(w, 3), "k": data.ArrayLayout(2, 3),
+                  "s": data.ArrayLayout(w, 3)})
         best_l = data.StructLayout({"t": w, "u": w, "v": w, "tri": TRI_ID_BITS, "hit": 1})
         depth = 1 << (self.cfg.thread_bits + self.lane_bits)
         # local ray store (read-only data) and best-hit store, one word per (thread, lane)
@@ -465,20 +473,33 @@ class IntersectionUnit(wiring.Component):
         s1_valid = Signal()
         s1_tri = Signal(data.ArrayLayout(fmt.width, 9))
         s1_meta = Signal(self.pipe_meta)
+        words = [tri[j] for j in range(9)]
+        if self.projection:
+            # a record keeps its axis k in the spare exponent bits of n_u and n_v
+            s1_k = Signal(2)
+            kb = [words[j][PROJ_K_BIT] for j in (0, 1)]
+            clear = Const(0xFFFFFFFF ^ (1 << PROJ_K_BIT), 32)
+            words[0], words[1] = (w_ & clear for w_ in words[:2])
+            with m.If(en):
+                m.d.sync += s1_k.eq(Cat(*kb))
         m.d.comb += [ray_r.addr.eq(self._addr(thread, lane)), ray_r.en.eq(en)]
         with m.If(en):
             m.d.sync += [
                 s1_valid.eq(issue),
-                s1_tri.eq(Cat(*(from_binary32(fmt, tri[j]) for j in range(9)))),
+                s1_tri.eq(Cat(*(from_binary32(fmt, x) for x in words))),
                 s1_meta.thread.eq(thread), s1_meta.lane.eq(lane),
                 s1_meta.id.eq(index), s1_meta.tri_last.eq(tri_last),
                 s1_meta.lane_last.eq(lane_last),
             ]
         ray = ray_r.data
         m.d.comb += [
-            pipe.tri.eq(s1_tri), pipe.org.eq(ray.org), pipe.k.eq(ray.k), pipe.s.eq(ray.s),
+            pipe.tri.eq(s1_tri), pipe.org.eq(ray.org),
             pipe.tag.eq(s1_meta), pipe.i_valid.eq(s1_valid), pipe.en.eq(en),
         ]
+        if self.projection:
+            m.d.comb += [pipe.tri_k.eq(s1_k), pipe.dir.eq(ray.dir)]
+        else:
+            m.d.comb += [pipe.k.eq(ray.k), pipe.s.eq(ray.s)]
         return issue
 
     def _best_hit(self, m: Module, en: Value, best_r, best_w, ray_w) -> None:
@@ -510,8 +531,11 @@ class IntersectionUnit(wiring.Component):
         LaneResult, from the deciding stage's values."""
         ray_in = self.ray_in
         rp = ray_in.payload
+        # (projection: RayIn's ``s`` carries the direction, rtl/rtc_streams.py)
         ray = dict(addr=self._addr(rp.thread, rp.ray.lane),
-                   data=Cat(rp.ray.org, rp.ray.k, rp.ray.s), en=ray_in.valid & ray_in.ready)
+                   data=(Cat(rp.ray.org, rp.ray.s) if self.projection
+                         else Cat(rp.ray.org, rp.ray.k, rp.ray.s)),
+                   en=ray_in.valid & ray_in.ready)
         # (the initial best's write is used only while no update holds the port, when the
         # ray input is ready: its enable is the handshake, as the ray store's)
         init = dict(addr=ray["addr"], tmax=rp.ray.tmax, en=ray["en"])

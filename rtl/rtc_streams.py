@@ -52,8 +52,9 @@ def RayIn(cfg: Config) -> data.StructLayout:
         "octant": 3,               # direction sign bits x | y<<1 | z<<2 (traversal)
         "tnear": w,                # interval clipped to the scene box (traversal)
         "tfar": w,
-        "k": data.ArrayLayout(2, 3),   # kx, ky, kz (intersection)
-        "s": vec3(cfg),                # Sx, Sy, Sz (intersection)
+        "k": data.ArrayLayout(2, 3),   # kx, ky, kz (intersection; 0 for int_test="projection")
+        "s": vec3(cfg),                # Sx, Sy, Sz (intersection; int_test="projection": the
+                                       # direction, which that test reads instead)
         "tmax": w,                 # best t starts here (intersection)
         "anyhit": 1,               # shadow ray: any hit ends it
     })

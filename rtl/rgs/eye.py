@@ -222,20 +222,23 @@ def _stall(m: Module, o) -> Signal:
 
 
 def _ray_out(m: Module, pipe: RaySetupPipe, ray, packet, lane, last, anyhit,
-             box_cull: Value) -> list:
+             box_cull: Value, projection: bool = False) -> list:
     """Assignments of a ``RayIn`` view ``ray`` from the setup pipe's outputs. With
     ``box_cull`` = 0 a ray whose clipped interval is empty (``not tnear <= tfar``, the
     traversal's test) gets ``[+0, tmax]`` instead and is traversed like any other
     (``model.raygen.setup(box_cull=False)``: only to measure what the cull saves); a
-    combinational compare and two muxes on the output registers, no cycle."""
+    combinational compare and two muxes on the output registers, no cycle. ``projection``
+    (``Config.int_test``): the intersection unit's ``s`` is the direction, ``k`` is 0."""
     from ..fp.cmp import compare
     keep = Signal(name="box_keep")
     m.d.comb += keep.eq(box_cull | compare(pipe.fmt, pipe.tnear, pipe.tfar).le)
     return [ray.packet.eq(packet), ray.lane.eq(lane), ray.last.eq(last),
             ray.org.eq(pipe.o_org), ray.inv.eq(pipe.inv), ray.octant.eq(pipe.octant),
             ray.tnear.eq(Mux(keep, pipe.tnear, _fp_const(pipe.fmt, "+0"))),
-            ray.tfar.eq(Mux(keep, pipe.tfar, pipe.o_tmax)), ray.k.eq(pipe.k),
-            ray.s.eq(pipe.s), ray.tmax.eq(pipe.o_tmax), ray.anyhit.eq(anyhit)]
+            ray.tfar.eq(Mux(keep, pipe.tfar, pipe.o_tmax)),
+            ray.k.eq(0 if projection else pipe.k),
+            ray.s.eq(pipe.o_dir if projection else pipe.s), ray.tmax.eq(pipe.o_tmax),
+            ray.anyhit.eq(anyhit)]
 
 
 class RaySetup(wiring.Component):
@@ -282,7 +285,7 @@ class RaySetup(wiring.Component):
         tag = data.View(self.tag, pipe.o_tag)
         m.d.comb += self.o.valid.eq(pipe.o_valid)
         m.d.comb += _ray_out(m, pipe, self.o.payload, tag.packet, tag.lane, tag.last,
-                             tag.anyhit, self.box_cull)
+                             tag.anyhit, self.box_cull, self.cfg.int_test == "projection")
         return m
 
 
@@ -477,5 +480,5 @@ class EyeRays(wiring.Component):
         m.d.comb += [self.o.valid.eq(setup.o_valid), self.o.payload.pixel.eq(out.pixel),
                      self.o.payload.dir.eq(setup.o_dir)]
         m.d.comb += _ray_out(m, setup, self.o.payload.ray, out.packet, out.lane, out.last, 0,
-                             self.box_cull)
+                             self.box_cull, self.cfg.int_test == "projection")
         return m

@@ -287,6 +287,10 @@ def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
                          "rays once; use a smaller image")
     bits = lambda x: int(fmt.to_bits(np.float32(x)))
     f32 = lambda b: np.uint32(b).view(np.float32)
+    # Config.int_test = "projection": the unit keeps the direction where ``s`` was, k is 0
+    proj = cfg.int_test == "projection"
+    ray_k = np.zeros_like(g.setup.k) if proj else g.setup.k
+    ray_s = g.rays.dir if proj else g.setup.s
     rays = []
     for p in range(n_packets):
         r0, r1 = int(g.rays.pk_start[p]), int(g.rays.pk_start[p + 1])
@@ -294,7 +298,7 @@ def unit_streams(g, max_leaves: int | None = None) -> UnitStreams:
             rays.append({"thread": p % T, "ray": {
                 "packet": p, "lane": r - r0, "last": int(r == r1 - 1),
                 "org": [bits(x) for x in g.rays.org[r]],
-                "k": [int(x) for x in g.setup.k[r]], "s": [bits(x) for x in g.setup.s[r]],
+                "k": [int(x) for x in ray_k[r]], "s": [bits(x) for x in ray_s[r]],
                 "tmax": bits(g.rays.tmax[r]), "anyhit": int(g.rays.anyhit[r])}})
     # replay the model's accept decisions to know every lane's best hit after each leaf
     best = {}

@@ -37,7 +37,10 @@ def ray_payloads(rays, rs, cfg: Config) -> list[list[dict]]:
     """``RayIn`` payloads (dicts) per packet, lanes in order, ``last`` on the final lane."""
     fmt = cfg.fmt
     bits = lambda x: fmt.to_bits(np.asarray(x, np.float32)).astype(np.int64)
-    org, inv, s = bits(rays.org), bits(rs.inv), bits(rs.s)
+    # Config.int_test = "projection": the intersection unit's k is 0 and s the direction
+    proj = cfg.int_test == "projection"
+    org, inv, s = bits(rays.org), bits(rs.inv), bits(rays.dir if proj else rs.s)
+    kk = np.zeros_like(rs.k) if proj else rs.k
     tnear, tfar, tmax = bits(rs.tnear), bits(rs.tfar), bits(rays.tmax)
     sign = (np.ascontiguousarray(rays.dir, np.float32).view(np.uint32) >> 31).astype(np.int64)
     octant = sign[:, 0] | (sign[:, 1] << 1) | (sign[:, 2] << 2)
@@ -48,7 +51,7 @@ def ray_payloads(rays, rs, cfg: Config) -> list[list[dict]]:
             "packet": p, "lane": r - a, "last": int(r == b - 1),
             "org": [int(x) for x in org[r]], "inv": [int(x) for x in inv[r]],
             "octant": int(octant[r]), "tnear": int(tnear[r]), "tfar": int(tfar[r]),
-            "k": [int(x) for x in rs.k[r]], "s": [int(x) for x in s[r]], "tmax": int(tmax[r]),
+            "k": [int(x) for x in kk[r]], "s": [int(x) for x in s[r]], "tmax": int(tmax[r]),
             "anyhit": int(rays.anyhit[r]),
         } for r in range(a, b)])
     return out
