@@ -22,6 +22,7 @@ from .eye import (eye_packets, eye_ray, flushed_box, packet_count, ray_setup, sa
 from .secondary import (FIX_BITS, FIX_FRAC, FIX_MAX, dot3, hit_colour, hit_colours, light_colour,
                         light_colours, secondary, secondary_rays, shadow_dir, shadow_rays,
                         spec_pow, to_fixed, to_fixed_array)
+from .refract import refract_one, refraction_rays
 from .slave import shade_batch
 from .texture import (TEX_FRAC, TEX_ONE, TEX_SCALE, UV_FRAC, tex_coord, tex_pos, texture_kd,
                       wrap_coord)
@@ -30,5 +31,5 @@ __all__ = ["CHUNK", "eye_packets", "eye_ray", "flushed_box", "packet_count", "ra
            "sample_coord", "setup_one", "setup_rays", "FIX_BITS", "FIX_FRAC", "FIX_MAX", "dot3",
            "hit_colour", "hit_colours", "light_colour", "light_colours", "secondary",
            "secondary_rays", "shadow_dir", "shadow_rays", "spec_pow", "to_fixed",
-           "to_fixed_array", "shade_batch", "TEX_FRAC", "TEX_ONE", "TEX_SCALE", "UV_FRAC",
+           "to_fixed_array", "refract_one", "refraction_rays", "shade_batch", "TEX_FRAC", "TEX_ONE", "TEX_SCALE", "UV_FRAC",
            "tex_coord", "tex_pos", "texture_kd", "wrap_coord"]
