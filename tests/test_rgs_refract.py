@@ -220,3 +220,19 @@ def test_refract_pipe_latency():
     assert (a.latency, b.latency) == (70, 90)
     assert b.counts["mul"] - a.counts["mul"] == 13 and b.counts["add"] - a.counts["add"] == 14
     assert b.counts["sqrt"] - a.counts["sqrt"] == 1 and b.counts["div"] == a.counts["div"]
+
+
+def test_chip_harness_refuses_transmitting_scenes():
+    """The chip's slaves make no refracted rays: the chip harness refuses such a scene
+    rather than report a frame that differs from the golden model's; the same scene with the
+    glass made opaque is accepted."""
+    from model.render import prepare
+    from model.scene import load_scene
+    from tb.harness.chip import frame_registers
+    scene = load_scene(ROOT / "scenes" / "glass.toml")
+    cfg = Config()
+    prep = prepare(scene, cfg, cache_dir=None)
+    with pytest.raises(ValueError, match="refracted"):
+        frame_registers(cfg, prep.image, scene.camera, 8, 8, scene=scene)
+    opaque = replace(scene, materials=[replace(m, transmit=0.0) for m in scene.materials])
+    assert frame_registers(cfg, prep.image, scene.camera, 8, 8, scene=opaque)["n_lights"] == 3
