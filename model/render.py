@@ -2,7 +2,8 @@
 
 ``prepare`` quantizes the scene to the hardware format, builds (or loads) the kd-tree and lays
 out the memory image; ``render`` traces eye rays, shadow rays for every light, reflections and
-refracted rays (off materials that transmit) to ``cfg.reflect_depth``, all as 64-ray packets through :func:`model.rtc.trace`, and shades.
+refracted rays (off materials that transmit) to ``cfg.reflect_depth``, all as 64-ray packets
+through :func:`model.rtc.trace`, and shades.
 """
 from __future__ import annotations
 
