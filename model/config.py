@@ -430,10 +430,10 @@ def scene_needs(scene, image, cfg: Config) -> dict:
     """What rendering ``scene`` (``image``: its memory image) with ``cfg`` uses of the chip:
     ``stack_depth`` (the kd-tree's depth), ``lights`` (shadow-casting lights: 0 without
     ``cfg.shadows``), ``reflect_depth`` (``cfg.reflect_depth``, 0 if no triangle's material
-    reflects), ``tex_cache_kb`` (``cfg.tex_cache_kb``, 0 if no triangle's material has a
-    texture), ``addr_bits`` (memory word address bits the image's words need)."""
+    reflects or transmits), ``tex_cache_kb`` (``cfg.tex_cache_kb``, 0 if no triangle's
+    material has a texture), ``addr_bits`` (memory word address bits the image's words need)."""
     import numpy as np
-    reflect = np.array([m.reflect for m in scene.materials], np.float64)
+    reflect = np.array([m.reflect + m.transmit for m in scene.materials], np.float64)
     reflective = bool(len(scene.material) and (reflect[scene.material] > 0).any())
     tex = np.array([m.texture is not None for m in scene.materials], bool)
     textured = bool(len(scene.material) and tex[scene.material].any())

@@ -105,15 +105,23 @@ def face_normals(tris: np.ndarray, fmt: FPFormat) -> np.ndarray:
 
 def rec_material(mats: np.ndarray, fmt: FPFormat) -> dict:
     """The colour constants of materials ``mats`` (MATERIAL_DTYPE) as the slave records hold
-    them: ``kd`` = (1 - reflect) * diffuse and ``ks`` = (1 - reflect) * specular ((n, 3), the
-    light the surface itself sends back; the rest goes to the reflection ray), ``kr`` = reflect
-    ((n,)), each computed in float64 and rounded once to ``fmt``; ``shin`` = the Phong exponent
-    rounded to an integer and clipped to 0..1023 ((n,) int)."""
+    them: ``kd`` = (1 - reflect - transmit) * diffuse and ``ks`` = (1 - reflect - transmit) *
+    specular ((n, 3), the light the surface itself sends back; the rest goes to the reflection
+    and the refracted ray), ``kr`` = reflect, ``kt`` = transmit, ``eta_in`` = 1 / ior (a ray
+    entering the mesh), ``eta_out`` = ior (leaving it) ((n,) each), each computed in float64
+    and rounded once to ``fmt``; ``shin`` = the Phong exponent rounded to an integer and
+    clipped to 0..1023 ((n,) int)."""
     mats = np.asarray(mats)
-    keep = 1.0 - mats["reflect"].astype(np.float64)[:, None]
+    keep = (1.0 - mats["reflect"].astype(np.float64) - mats["transmit"].astype(np.float64)
+            )[:, None]
+    ior = mats["ior"].astype(np.float64)
+    ior = np.where(ior > 0, ior, 1.0)                # an unset record (ior 0) refracts nothing
     return {"kd": fmt.quantize(keep * mats["diffuse"].astype(np.float64)).astype(np.float32),
             "ks": fmt.quantize(keep * mats["specular"].astype(np.float64)).astype(np.float32),
             "kr": fmt.quantize(mats["reflect"].astype(np.float64)).astype(np.float32),
+            "kt": fmt.quantize(mats["transmit"].astype(np.float64)).astype(np.float32),
+            "eta_in": fmt.quantize(1.0 / ior).astype(np.float32),
+            "eta_out": fmt.quantize(ior).astype(np.float32),
             "shin": np.clip(np.rint(mats["shininess"].astype(np.float64)), 0,
                             (1 << SHIN_BITS) - 1).astype(np.int64)}
 

@@ -15,9 +15,12 @@ class RayKind(enum.IntEnum):
     * ``SHADOW``: from a hit toward a light (any hit ends it; one per light that faces the
       surface);
     * ``REFLECTION``: from a hit on a reflective surface, while the reflection depth allows;
-    * ``REFRACTION``: named so the encoding has room for it, but no ray of this kind is made:
-      refraction is future work (the materials carry ``transmit`` and ``ior``; neither the
-      model nor the hardware makes refracted rays). :meth:`made` leaves it out.
+    * ``REFRACTION``: from a hit on a material that transmits (``transmit > 0``), through the
+      surface by Snell's law (``model/rgs/refract.py``; total internal reflection makes it a
+      mirror ray, still of this kind), while the reflection depth allows (each refracted ray
+      adds one to the depth, as a reflection does). The golden model makes them; the chip's
+      RGS slaves do not (the chip harness refuses a scene whose materials transmit), so
+      :meth:`made`, the kinds of the chip's rays, leaves it out.
 
     The chip's records do not carry a kind but the ray's id (``rtl.rgs.SlaveResult``:
     ``depth``, and ``sub``, 0 an eye or reflection ray, 1 + l a shadow ray toward light l);
@@ -35,5 +38,6 @@ class RayKind(enum.IntEnum):
 
     @classmethod
     def made(cls) -> tuple[RayKind, ...]:
-        """The kinds a frame's rays can have (not ``REFRACTION``)."""
+        """The kinds the chip's rays can have (not ``REFRACTION``: only the golden model makes
+        refracted rays)."""
         return (cls.EYE, cls.SHADOW, cls.REFLECTION)

@@ -172,7 +172,8 @@ class Reference:
 
 def render64(ref: Reference, width: int, height: int, reflect_depth: int = 3,
              shadows: bool = True) -> tuple[np.ndarray, tuple]:
-    """Float64 render with :func:`model.render.render`'s steps (oversampling 1).
+    """Float64 render with :func:`model.render.render`'s steps (oversampling 1), refracted
+    rays included.
 
     Returns the (H, W, 3) float32 linear image and the eye rays' hits (in the model's eye-ray
     order: tri, t, u, v)."""
@@ -235,15 +236,28 @@ def render64(ref: Reference, width: int, height: int, reflect_depth: int = 3,
                 lit[keep] = 1.0
             local += shader.phong(dh, ns, albedo, mat, light, lit, p)
         refl = shader.reflect[mat]
-        local *= (1 - refl)[:, None]
+        trans = shader.transmit[mat]
+        local *= (1 - refl - trans)[:, None]
         np.add.at(color, pixel[hit], local * weight[hit, None])
         if depth == reflect_depth:
             break
         nsd = ns.astype(np.float64)
         r = dh - (2 * np.sum(dh * nsd, axis=1))[:, None] * nsd
         want = refl > 0
-        org, d = p0[want], r[want]
-        pixel, weight = pixel[hit[want]], weight[hit[want]] * refl[want]
+        tw = trans > 0
+        # refraction (model/rgs/refract.py's steps in float64): entering where the ray meets
+        # the face from the front, total internal reflection as the mirror ray
+        ior = np.array([m.ior for m in scene.materials], np.float64)[mat[tw]]
+        leave = np.sum(fn[shader.kept[tri[hit[tw]]]] * dh[tw], axis=1) > 0
+        eta = np.where(leave, ior, 1 / ior)[:, None]
+        c = -np.sum(w[tw] * nsd[tw], axis=1, keepdims=True)
+        k = 1 - eta ** 2 * (1 - c ** 2)
+        tir = k < 0
+        tdir = np.where(tir, r[tw], eta * w[tw] + (eta * c - np.sqrt(np.maximum(k, 0))) * nsd[tw])
+        torg = np.where(tir, p0[tw], (p[tw] - eps * ng[tw]) + eps * w[tw])
+        org, d = np.concatenate([p0[want], torg]), np.concatenate([r[want], tdir])
+        pixel = np.concatenate([pixel[hit[want]], pixel[hit[tw]]])
+        weight = np.concatenate([weight[hit[want]] * refl[want], weight[hit[tw]] * trans[tw]])
     return color.reshape(height, width, 3).astype(np.float32), eye_hits
 
 

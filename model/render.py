@@ -1,8 +1,9 @@
 """Render a scene with the golden model: build, trace every ray kind, shade, write outputs.
 
 ``prepare`` quantizes the scene to the hardware format, builds (or loads) the kd-tree and lays
-out the memory image; ``render`` traces eye rays, shadow rays for every light and reflections to
-``cfg.reflect_depth``, all as 64-ray packets through :func:`model.rtc.trace`, and shades.
+out the memory image; ``render`` traces eye rays, shadow rays for every light, reflections and
+refracted rays (off materials that transmit) to ``cfg.reflect_depth``, all as 64-ray packets
+through :func:`model.rtc.trace`, and shades.
 """
 from __future__ import annotations
 
@@ -105,7 +106,8 @@ class Skip:
 def render(scene, cfg: Config, width: int, height: int, progress: bool = False,
            prepared: Prepared | None = None, skip: Skip = Skip(),
            textures: bool | None = None) -> RenderResult:
-    """Render a frame: eye rays, shadow rays per light, reflections to ``cfg.reflect_depth``,
+    """Render a frame: eye rays, shadow rays per light, reflections and refracted rays (off
+    materials with ``transmit > 0``) to ``cfg.reflect_depth``,
     each ray's colour contribution as the RGS slave computes it (``model.shading``), summed per
     pixel in fixed point. ``textures``: filter the textures (default: if the chip has a
     texture unit, ``cfg.tex_cache_kb > 0``); False leaves kd as the records hold it."""
@@ -162,33 +164,42 @@ def _render(scene, cfg, width, height, progress, prepared, skip, textures) -> Re
     col = frame_colour_registers(scene, cfg.fmt, n_samples)
     weight = np.full(len(rays), col["w_eye"], np.float32)
     miss_col = col["eye_miss"].reshape(1, 3)           # one row: every eye ray's
+    # the rays of one depth: the eye rays, then per source set its reflection rays and its
+    # refracted rays (those only where a material transmits), each traced as a set of its own
+    level = [(rays, weight, miss_col)]
     for depth in range(cfg.reflect_depth + 1):
-        if len(rays) == 0:
-            break
-        hits = run(rays)
-        hit = np.flatnonzero(hits.tri >= 0)
-        if hit.size == 0:
-            add_misses(acc, rays.pixel, hits.tri, miss_col)
-            break
-        sh = shader.shade(rays, hit, hits.tri, hits.t, hits.u, hits.v, weight, col,
-                          cull_behind=skip.lights_behind)
-        # misses, ambient terms and, without shadow rays, every light's term (zero where no
-        # shadow ray is cast) in one pass
-        add_trace_colours(acc, rays.pixel, hits.tri, miss_col, hit, sh.ambient, sh.light,
-                          not cfg.shadows)
-        for li in range(len(scene.lights) if cfg.shadows else 0):
-            srays, keep = shader.shaded_shadow_rays(rays, hit, sh, li)
-            if not skip.anyhit:
-                srays.anyhit = np.zeros(len(srays), bool)
-            if not len(srays):
+        nxt = []
+        for rays, weight, miss_col in level:
+            if len(rays) == 0:
                 continue
-            lit = np.flatnonzero(run(srays).tri < 0)
-            add_colours(acc, srays.pixel, lit, sh.light[li][keep[lit]])
-        if depth == cfg.reflect_depth:
-            break
-        rays, keep = shader.reflection_rays(rays, hit, sh, cull_matte=skip.nonreflective)
-        weight = sh.wr[keep]
-        miss_col = sh.miss[keep]
+            hits = run(rays)
+            hit = np.flatnonzero(hits.tri >= 0)
+            if hit.size == 0:
+                add_misses(acc, rays.pixel, hits.tri, miss_col)
+                continue
+            sh = shader.shade(rays, hit, hits.tri, hits.t, hits.u, hits.v, weight, col,
+                              cull_behind=skip.lights_behind)
+            # misses, ambient terms and, without shadow rays, every light's term (zero where
+            # no shadow ray is cast) in one pass
+            add_trace_colours(acc, rays.pixel, hits.tri, miss_col, hit, sh.ambient, sh.light,
+                              not cfg.shadows)
+            for li in range(len(scene.lights) if cfg.shadows else 0):
+                srays, keep = shader.shaded_shadow_rays(rays, hit, sh, li)
+                if not skip.anyhit:
+                    srays.anyhit = np.zeros(len(srays), bool)
+                if not len(srays):
+                    continue
+                lit = np.flatnonzero(run(srays).tri < 0)
+                add_colours(acc, srays.pixel, lit, sh.light[li][keep[lit]])
+            if depth == cfg.reflect_depth:
+                continue
+            rrays, keep = shader.reflection_rays(rays, hit, sh, cull_matte=skip.nonreflective)
+            nxt.append((rrays, sh.wr[keep], sh.miss[keep]))
+            if shader.transmit.any():
+                trays, _, twt, tmiss = shader.refraction_rays(rays, hit, sh, hits.tri, hits.t,
+                                                              hits.u, hits.v, weight, col)
+                nxt.append((trays, twt, tmiss))
+        level = nxt
     if bar is not None:
         bar.close()
     t_render = time.perf_counter() - t1

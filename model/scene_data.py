@@ -52,6 +52,8 @@ class Material:
     reflect: float                # 0..1
     texture: np.ndarray | None    # (H, W, 3) uint8, row 0 = top of the image; uv (0,0) = bottom-left
     name: str = ""
+    transmit: float = 0.0         # 0..1 - reflect: the share the refracted ray carries
+    ior: float = 1.0              # index of refraction (inside / outside the closed mesh)
 
 
 @dataclass

@@ -22,7 +22,8 @@ VIEW_KEYS = ("name", "background", "camera", "light", "base")
 CAMERA_KEYS = ("position", "look_at", "up", "fov")
 LIGHT_KEYS = {"point": ("kind", "position", "color", "intensity"),
               "parallel": ("kind", "direction", "color", "intensity")}
-MATERIAL_KEYS = ("name", "diffuse", "specular", "shininess", "reflect", "texture", "checker")
+MATERIAL_KEYS = ("name", "diffuse", "specular", "shininess", "reflect", "transmit", "ior",
+                 "texture", "checker")
 TRANSFORM_KEYS = ("translate", "rotate", "scale")
 SHAPES = {  # primitive -> allowed keys of its table
     "box": ("size", "inward"),
@@ -223,10 +224,12 @@ def _material(tbl, where: str, base: Path) -> Material:
                              "image") from e
     elif r.has("checker"):
         tex = _checker(r.tbl["checker"], r)
+    reflect = r.num("reflect", 0.0, lo=0.0, hi=1.0)
+    transmit = r.num("transmit", 0.0, lo=0.0, hi=1.0 - reflect)
+    ior = r.num("ior", 1.0, lo=0.25, hi=4.0)
     return Material(r.vec("diffuse", default=(0.8, 0.8, 0.8), lo=0.0),
                     r.vec("specular", default=(0.0, 0.0, 0.0), lo=0.0),
-                    r.num("shininess", 32.0, lo=0.0),
-                    r.num("reflect", 0.0, lo=0.0, hi=1.0), tex, name)
+                    r.num("shininess", 32.0, lo=0.0), reflect, tex, name, transmit, ior)
 
 
 def _transform(tbl, where: str) -> np.ndarray:

@@ -36,7 +36,7 @@ from .fp import FPFormat
 from .layout import MATERIAL_DTYPE, ShadingData, face_normals, rec_material
 from .raygen import Rays
 from .raykind import RayKind
-from .rgs import secondary_rays, shade_batch, shadow_rays, texture_kd
+from .rgs import refraction_rays, secondary_rays, shade_batch, shadow_rays, texture_kd
 
 AMBIENT = np.float32(0.08)
 
@@ -51,7 +51,8 @@ def shading_data(scene, fmt: FPFormat) -> ShadingData:
         mats[i]["specular"] = mm.specular
         mats[i]["shininess"] = mm.shininess
         mats[i]["reflect"] = mm.reflect
-        mats[i]["ior"] = 1.0
+        mats[i]["transmit"] = mm.transmit
+        mats[i]["ior"] = mm.ior
         mats[i]["texture"] = -1
         if mm.texture is not None:
             t = np.asarray(mm.texture, np.uint8)
@@ -152,6 +153,7 @@ class Shader:
         self.specular = np.array([mm.specular for mm in m], np.float32).reshape(-1, 3)
         self.shininess = np.array([mm.shininess for mm in m], np.float32)
         self.reflect = np.array([mm.reflect for mm in m], np.float32)
+        self.transmit = np.array([mm.transmit for mm in m], np.float32)
         sd = shading_data(scene, fmt)
         self.rec = rec_material(sd.materials, fmt)
         # the textures as the memory image holds them: RGBA8 words, row by row, one after the
@@ -269,6 +271,40 @@ class Shader:
         return _packetize(src, sel, want, surf.p0, surf.r,
                           np.full(len(surf.r), np.inf, np.float32), RayKind.REFLECTION)
 
+    def refraction_rays(self, src: Rays, sel, sh: "Shaded", tri, t, u, v, weight,
+                        colours: dict) -> tuple[Rays, np.ndarray, np.ndarray, np.ndarray]:
+        """One refracted ray per hit on a material that transmits (``transmit > 0``;
+        ``model.rgs.refraction_rays``): the rays ``sel`` of ``src`` hit ``tri``, ``t``, ``u``,
+        ``v`` (per ray of ``src``), ``sh`` is :meth:`shade`'s result for them, ``weight`` the
+        rays' weights (per ray of ``src``). Returns the rays, per ray its index into ``sel``,
+        its weight and its fixed-point colour if it misses."""
+        sel = np.asarray(sel, np.int64)
+        want = self.transmit[sh.mat] > 0
+        n = len(sel)
+        org = np.zeros((n, 3), np.float32)
+        d = np.zeros((n, 3), np.float32)
+        wt = np.zeros(n, np.float32)
+        miss = np.zeros((n, 3), np.int64)
+        idx = np.flatnonzero(want)
+        if len(idx):
+            E, M = self.fmt.em
+            rows = sel[idx]
+            mat = sh.mat[idx]
+            o, dd, _, w, mc = refraction_rays(
+                np.ascontiguousarray(src.org, np.float32),
+                np.ascontiguousarray(src.dir, np.float32), rows,
+                np.asarray(t, np.float32)[rows], np.asarray(u, np.float32)[rows],
+                np.asarray(v, np.float32)[rows], self.kept[np.asarray(tri)[rows]],
+                np.ascontiguousarray(self.face_n, np.float32),
+                np.ascontiguousarray(self.vertex_n, np.float32), self.eps,
+                self.rec["kt"][mat], self.rec["eta_in"][mat], self.rec["eta_out"][mat],
+                np.asarray(weight, np.float32)[rows], np.asarray(colours["bg"], np.float32),
+                E, M)
+            org[idx], d[idx], wt[idx], miss[idx] = o, dd, w, mc
+        rays, keep = _packetize(src, sel, want, org, d, np.full(n, np.inf, np.float32),
+                                RayKind.REFRACTION)
+        return rays, keep, wt[keep], miss[keep]
+
     def phong(self, d, ns, albedo, mat, light, lit, p):
         """Direct light from one light (zero where unlit/shadowed), in the precision of the
         inputs (the float64 reference and the host's unshadowed preview): the terms of
@@ -292,13 +328,13 @@ def _packetize(src: Rays, sel: np.ndarray, want: np.ndarray, org, d, tmax, kind,
                light: int = -1):
     """Keep rays where ``want``; a secondary packet = the wanted rays of one source packet, in
     lane order (the RGS slave packs them the same way). Shadow rays keep their source ray's
-    depth, reflection rays add one; both keep its eye ray."""
+    depth, reflection and refracted rays add one; all keep its eye ray."""
     keep = np.nonzero(want)[0]
     src_packet = np.searchsorted(src.pk_start, sel[keep], side="right") - 1
     counts = np.bincount(src_packet, minlength=src.n_packets)
     pk_start = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
     parent = sel[keep]
-    depth = src.depth[parent] + (1 if kind == RayKind.REFLECTION else 0)
+    depth = src.depth[parent] + (1 if kind in (RayKind.REFLECTION, RayKind.REFRACTION) else 0)
     rays = Rays(org[keep].astype(np.float32), d[keep].astype(np.float32), tmax[keep],
                 np.full(len(keep), kind, np.uint8), src.pixel[parent], pk_start,
                 eye=src.eye[parent], depth=depth.astype(np.uint8),

@@ -19,6 +19,7 @@ TEAPOT = SHARED_MESHES / "teapot.obj"
 # (file, min triangles, max triangles, number of lights, light kinds)
 SHIPPED = [
     ("cornell.toml", 1_000, 5_000, 3, {"point"}),
+    ("glass.toml", 5_000, 6_000, 3, {"point"}),
     ("conference.toml", 20_000, 300_000, 2, {"point"}),
     ("terrain.toml", 50_000, 200_000, 1, {"parallel"}),
     ("office.toml", 2_000, 60_000, 3, {"point"}),

@@ -72,16 +72,29 @@ class SecondaryPipe(_Datapath):
     root, reciprocal and the reflection ends the longest path). Throughput: one hit per cycle
     in which ``en`` is 1.
     ``latencies``: optional ``{"add": n, "mul": n, "div": n, "sqrt": n}``.
+
+    ``refract`` (default off: the datapath above, unchanged): also the refracted ray
+    (``model.rgs.refract``, ``docs/rgs.md``): inputs ``eta_in``, ``eta_out`` (the material's
+    1 / ior and ior), outputs ``tp0``, ``tdir`` (its origin and direction: ``p0`` and ``r``
+    where ``tir``) and ``tir`` (total internal reflection). It shares ``face``,
+    ``dir_norm``, ``hit`` and ``offset``'s products and adds 13 mul, 14 add/sub, 1 sqrt;
+    latency 90 at the binary32 defaults (70 without: the refraction ends 38 cycles after ``n``).
     """
 
     def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None,
-                 budget: dict | None = None):
+                 budget: dict | None = None, refract: bool = False):
         w = fmt.width
         v3 = data.ArrayLayout(w, 3)
+        self.refract = refract
+        ins, outs = {}, {}
+        if refract:
+            ins = {"eta_in": In(w), "eta_out": In(w)}
+            outs = {"tp0": Out(v3), "tdir": Out(v3), "tir": Out(1)}
         super().__init__(fmt, tag_width, latencies,
                          {"org": In(v3), "dir": In(v3), "t": In(w), "u": In(w), "v": In(w),
-                          "nf": In(v3), "nv": In(data.ArrayLayout(v3, 3)), "eps": In(w)},
-                         {"p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3)}, budget)
+                          "nf": In(v3), "nv": In(data.ArrayLayout(v3, 3)), "eps": In(w), **ins},
+                         {"p0": Out(v3), "g": Out(v3), "n": Out(v3), "r": Out(v3), **outs},
+                         budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
         return self._emit(m, self._schedule(m, dry), dry)
@@ -108,9 +121,12 @@ class SecondaryPipe(_Datapath):
         w_ = [sch.op("mul", d[a], rl, f"w{a}") for a in range(3)]
         # -- hit, offset: p0 = (o + t*d + eps*g) - eps*w --------------------------------------
         p = [sch.op("add", o[a], sch.op("mul", t, d[a], f"hit_m{a}"), f"hit{a}") for a in range(3)]
-        p0 = [sch.op("sub", sch.op("add", p[a], sch.op("mul", eps, g[a], f"off_g{a}"),
-                                   f"off_a{a}"),
-                     sch.op("mul", eps, w_[a], f"off_w{a}"), f"p0_{a}") for a in range(3)]
+        eg, ew, p0 = [], [], []
+        for a in range(3):               # (the operations in the order of one expression)
+            eg.append(sch.op("mul", eps, g[a], f"off_g{a}"))
+            pa = sch.op("add", p[a], eg[a], f"off_a{a}")
+            ew.append(sch.op("mul", eps, w_[a], f"off_w{a}"))
+            p0.append(sch.op("sub", pa, ew[a], f"p0_{a}"))
         # -- normal: interpolate, normalize (g where the sum is zero), turn to g's side --------
         b = sch.op("sub", sch.op("sub", one, u, "bary_1u"), v, "bary_b")
         s = [sch.op("add", sch.op("add", sch.op("mul", b, nv[0][a], f"nrm_b{a}"),
@@ -131,12 +147,42 @@ class SecondaryPipe(_Datapath):
         two = (Const(fmt.to_bits(2.0).item(), fmt.width), t0)
         k = sch.op("mul", two, _dot(sch, d, n, "refl_dot"), "refl_k")
         r = [sch.op("sub", d[a], sch.op("mul", k, n[a], f"refl_m{a}"), f"r{a}") for a in range(3)]
-        L = max(x[1] for x in (*p0, *g, *n, *r))
+        rf = self._refract(m, sch, t0, dn[1], flip, w_, n, p, eg, ew) if self.refract else None
+        L = max(x[1] for x in (*p0, *g, *n, *r, *(rf[0] + rf[1] + [rf[2]] if rf else [])))
         if dry:
             return L, None
         out = lambda xs: Cat(*(at(x[0], x[1], L) for x in xs))  # noqa: E731
-        return L, {"p0": out(p0), "g": out(g), "n": out(n), "r": out(r),
-                   "o_tag": at(self.tag, t0, L)}
+        outs = {"p0": out(p0), "g": out(g), "n": out(n), "r": out(r),
+                "o_tag": at(self.tag, t0, L)}
+        if rf:
+            pt, td, tir = rf
+            tir_l = at(tir[0], tir[1], L)
+            outs.update(tp0=Mux(tir_l, out(p0), out(pt)), tdir=Mux(tir_l, out(r), out(td)),
+                        tir=tir_l)
+        return L, outs
+
+    def _refract(self, m: Module, sch: Schedule, t0: int, tf: int, flip: Value, w_: list,
+                 n: list, p: list, eg: list, ew: list) -> tuple:
+        """``model.rgs.refract``'s steps on the secondary datapath's values (``flip`` the face
+        test, ready at ``tf``; ``w``, ``n``, ``p`` and the offset's products ``eps*g``,
+        ``eps*w``): (origin, direction, tir), the first two before the tir mux."""
+        fmt, at = self.fmt, sch.at
+        one = (_fp_const(fmt, "one"), t0)
+        eta = (wire(m, Mux(flip, at(self.eta_out, t0, tf), at(self.eta_in, t0, tf)),
+                    "rfr_eta"), tf)
+        cd = _dot(sch, w_, n, "rfr_dot")
+        c = (wire(m, _neg_if(fmt, cd[0], Const(1, 1)), "rfr_c"), cd[1])
+        s2 = sch.op("sub", one, sch.op("mul", c, c, "rfr_c2"), "rfr_s2")
+        k = sch.op("sub", one, sch.op("mul", sch.op("mul", eta, eta, "rfr_e2"), s2, "rfr_es"),
+                   "rfr_k")
+        tir = (wire(m, _negative(fmt, k[0]), "rfr_tir"), k[1])
+        mu = sch.op("sub", sch.op("mul", eta, c, "rfr_ec"), sch.op("sqrt", k, None, "rfr_root"),
+                    "rfr_mu")
+        td = [sch.op("add", sch.op("mul", eta, w_[a], f"rfr_ew{a}"),
+                     sch.op("mul", mu, n[a], f"rfr_mn{a}"), f"rfr_t{a}") for a in range(3)]
+        pt = [sch.op("add", sch.op("sub", p[a], eg[a], f"rfr_pg{a}"), ew[a], f"rfr_p{a}")
+              for a in range(3)]
+        return pt, td, tir
 
 
 # ---------------------------------------------------------------------------------------------

@@ -53,6 +53,10 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
     if len(lights) > cfg.rgs_lights:
         raise ValueError(f"the scene has {len(lights)} lights; the chip's slaves hold "
                          f"rgs_lights={cfg.rgs_lights}: raise --rgs-lights")
+    if scene is not None and any(m.transmit > 0 for m in scene.materials):
+        raise ValueError("the scene has a material that transmits (refracted rays): the "
+                         "chip's RGS slaves make no refracted rays; render it with the golden "
+                         "model (saarcor render)")
     depth = cfg.reflect_depth if scene is not None else 0
     rec_base = image.shading_header()["rec_base"]
     if (lights or depth) and not rec_base:

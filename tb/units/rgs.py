@@ -351,6 +351,37 @@ def run_secondary(hits: Hits, fmt: FPFormat, *, latencies=None, seed: int = 0,
     return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
 
 
+def refract_ports(hits: Hits, eta_in: np.ndarray, eta_out: np.ndarray, fmt: FPFormat,
+                  tag_width: int) -> tuple[dict, dict]:
+    """``SecondaryPipe(refract=True)``'s port values per hit (:func:`secondary_ports` and
+    the material's ``eta_in``, ``eta_out`` (N,)) and the model's outputs: those of
+    :func:`secondary_ports` and ``model.rgs.refraction_rays``' ``tp0``, ``tdir``, ``tir``."""
+    from model.rgs import refraction_rays
+    ins, outs = secondary_ports(hits, fmt, tag_width)
+    i = np.arange(len(hits), dtype=np.int64)
+    zero = np.zeros(len(hits), np.float32)
+    org, d, tir, _, _ = refraction_rays(hits.org, hits.dir, i, hits.t, hits.u, hits.v, i,
+                                        hits.nf, hits.nv, np.float32(hits.eps), zero,
+                                        eta_in, eta_out, zero, np.zeros(3, np.float32),
+                                        *fmt.em)
+    ins.update(eta_in=_pack_rows(fmt, eta_in), eta_out=_pack_rows(fmt, eta_out))
+    outs.update(tp0=_pack_rows(fmt, org), tdir=_pack_rows(fmt, d),
+                tir=tir.astype(int).tolist())
+    return ins, outs
+
+
+def run_refract(hits: Hits, eta_in, eta_out, fmt: FPFormat, *, latencies=None, seed: int = 0,
+                p_bubble: float = 0.2, p_stall: float = 0.2, budget: dict | None = None):
+    """Every hit through ``SecondaryPipe(refract=True)``, checked like :func:`run_secondary`
+    (the refracted ray against ``model.rgs.refraction_rays``)."""
+    from rtl.rgs import SecondaryPipe
+    from tb.harness.common import run_fixed_pipe
+    dut = SecondaryPipe(fmt, tag_width=max(1, len(hits).bit_length()), latencies=latencies,
+                        budget=budget, refract=True)
+    ins, outs = refract_ports(hits, eta_in, eta_out, fmt, dut.tag_width)
+    return run_fixed_pipe(dut, ins, outs, seed=seed, p_bubble=p_bubble, p_stall=p_stall)
+
+
 def shadow_ports(hits: Hits, lights: np.ndarray, point: np.ndarray, fmt: FPFormat,
                  tag_width: int) -> tuple[dict, dict]:
     """``LightPipe``'s shadow-ray port values for every (hit, light) pair — the hits' ``p0``
