@@ -450,9 +450,11 @@ PRESETS: dict[str, dict] = {
     # Config's defaults: the standard chip (4 RTCs of 16 threads and 4 traversal sub-units, the
     # shared 64 / 64 / 144 KB caches, 4 SDRAM chips), every RGS datapath with a unit per operation
     "standard": {},
-    # the standard chip at the paper's cost (Section 5: 192 FP units): each RGS slave datapath
-    # on 3 adders and 4 multipliers, the shading datapaths on one pool of them
-    "paper": {"rgs_fp_adders": 3, "rgs_fp_muls": 4, "rgs_fp_pool": True},
+    # the standard chip at the paper's cost (Section 5: 192 FP units): the paper's triangle
+    # test (projection on precomputed records), each RGS slave datapath on 3 adders and 4
+    # multipliers, the shading datapaths on one pool of them
+    "paper": {"int_test": "projection", "rgs_fp_adders": 3, "rgs_fp_muls": 4,
+              "rgs_fp_pool": True},
 }
 """Named configurations (``--preset``): the fields each changes from :class:`Config`'s
 defaults."""

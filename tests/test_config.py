@@ -132,6 +132,7 @@ def test_presets_start_from_the_defaults_and_options_override_them():
     assert preset("standard") == Config()
     paper = preset("paper")
     assert (paper.rgs_fp_adders, paper.rgs_fp_muls, paper.rgs_fp_pool) == (3, 4, True)
+    assert paper.int_test == "projection"
     assert paper.replace(**{k: getattr(Config(), k) for k in PRESETS["paper"]}) == Config()
     with pytest.raises(ConfigError, match="preset 'nope'"):
         preset("nope")
