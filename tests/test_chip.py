@@ -117,11 +117,13 @@ def test_chip_frame_in_amaranth_sim(rtcs, topology, cornell):
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
+@pytest.mark.slow
 def test_cache_hits_are_the_cache_models(cornell):
     """One RTC of one thread traces packet after packet in the model's event order, so each
     of its private caches sees the model's request sequence: ``model.cache.CacheModel``
     predicts its hits. (Shared caches see the RTCs' requests interleaved: their replay is
-    ``tests/test_rtcmi_rtl.py``'s.)"""
+    ``tests/test_rtcmi_rtl.py``'s, in CI. Slow: two minutes of Amaranth's simulator for the
+    private topology.)"""
     from tb.harness.chip import run_chip
     scene, image = cornell
     cfg = TINY.replace(threads=1, cache_topology="private")

@@ -260,7 +260,8 @@ def run_chip_frame(cfg: Config, image, camera, width: int, height: int, *, stall
                      desc="chip (Verilator)", names=names, allow_limit=True,
                      sample_every=sample_every, ray_bit=_record_bit(cfg, "shade"),
                      res_ports=cfg.result_ports,
-                     total=lambda: (len(golden.result()[1]) if golden.done() else None))
+                     total=lambda wait=False: (len(golden.result()[1])
+                                               if wait or golden.done() else None))
     took["simulation_s"] = time.perf_counter() - t1 - took.get("input_s", 0.0)
     t2 = time.perf_counter()
     golden.result()

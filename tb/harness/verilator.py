@@ -518,8 +518,9 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
     """Run the frame binary ``b`` on the input ``write(path)`` writes, with a progress bar of
     ``n`` results; return its parsed output (``names``: its counters). ``ray_bit``: the bar
     counts only the records whose bit ``ray_bit`` is 0 (the chip's ray results, not its pixel
-    records), and ``total()`` (when given) names the rays to expect once it is known (None
-    before: the bar then shows no total and no ETA). ``trace_file`` gets
+    records), and ``total(wait=False)`` (when given) names the rays to expect once it is known
+    (None before: the bar then shows no total and no ETA; ``total(True)`` waits for it, once
+    the run has ended first). ``trace_file`` gets
     the waveform from run cycle ``trace_from`` on (0: the load as well). ``sample_every``:
     the counters every that many cycles (``FrameOutput.samples``). A run that hits
     ``max_cycles`` raises :class:`FrameError` (``allow_limit``: returns it, status 2, for the
@@ -560,6 +561,9 @@ def run_binary(b: FrameBuild, write, cfg: Config, n: int, *, max_cycles: int,
                 else:
                     other.append(line.rstrip())
             rc = p.wait()
+            if known is None and total is not None:   # the run ended first: wait for it
+                bar.total = total(True)
+                bar.refresh()
         if rc == 1 or not fout.exists():
             raise FrameError(f"{b.binary} failed (exit {rc}): " + " / ".join(other[-5:]))
         out = read_output(fout, cfg, names)
