@@ -31,6 +31,7 @@ from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
 from .intersection_projection import PROJ_K_BIT, ProjectionPipe
 from .memport import MemReadPort
+from .triangle_pipe import TrianglePipe, pick
 from .rtc_streams import (PACKET_ID_BITS, TRI_ID_BITS, LaneResult, PacketDone, RayIn,
                           RayResult, TriRequest, lane_bits)
 
@@ -42,11 +43,8 @@ def RayWrite(cfg: Config) -> data.StructLayout:
     return data.StructLayout({"thread": cfg.thread_bits, "ray": RayIn(cfg)})
 
 
-def _pick(v, k):
-    return Mux(k == 0, v[0], Mux(k == 1, v[1], v[2]))
 
-
-class IntersectPipe(wiring.Component):
+class IntersectPipe(TrianglePipe):
     """Bare intersection datapath: ``model.intersection.intersect`` as a pipeline.
 
     In: ``tri`` (9 format words: A, B, C), ``org`` (3), ``k`` (kx, ky, kz), ``s`` (Sx, Sy, Sz),
@@ -65,26 +63,10 @@ class IntersectPipe(wiring.Component):
     """
 
     def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
-        self.fmt = fmt
-        self.tag_width = tag_width
-        self.latencies = dict(latencies or {})
-        for kind in ("add", "mul", "div"):
-            if self.latencies.get(kind) is None:
-                probe = _Schedule.UNITS[kind](fmt)          # the unit's default latency
-                probe._MustUse__silence = True
-                self.latencies[kind] = probe.latency
-        self.latencies["sub"] = self.latencies["add"]
         w = fmt.width
-        super().__init__({
+        super().__init__(fmt, tag_width, latencies, {
             "tri": In(data.ArrayLayout(w, 9)), "org": In(data.ArrayLayout(w, 3)),
-            "k": In(data.ArrayLayout(2, 3)), "s": In(data.ArrayLayout(w, 3)),
-            "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
-            "o_valid": Out(1), "hit": Out(1), "t": Out(w), "u": Out(w), "v": Out(w),
-            "o_tag": Out(tag_width), "pre_tag": Out(tag_width), "pre2_tag": Out(tag_width),
-        })
-        dry = Module()
-        dry._MustUse__silence = True
-        self.latency = self._build(dry, dry=True)[1]         # the schedule's length
+            "k": In(data.ArrayLayout(2, 3)), "s": In(data.ArrayLayout(w, 3))})
 
     def _build(self, m, dry=False):
         fmt, w = self.fmt, self.fmt.width
@@ -102,7 +84,7 @@ class IntersectPipe(wiring.Component):
         for v, name in enumerate("abc"):
             p = rel[3 * v:3 * v + 3]
             t = p[0][1]
-            px, py, pz = ((_pick([q[0] for q in p], sch.at(kk, t0, t)), t) for kk in (kx, ky, kz))
+            px, py, pz = ((pick([q[0] for q in p], sch.at(kk, t0, t)), t) for kk in (kx, ky, kz))
             # name the picks: one mux each, shared by every use
             px, py, pz = [(self._wire(m, q[0], f"{name}{c}_pick"), q[1])
                           for q, c in ((px, "x"), (py, "y"), (pz, "z"))]
@@ -135,28 +117,7 @@ class IntersectPipe(wiring.Component):
         v = sch.op("mul", ew, rcp, "v")
         L = max(t[1], u[1], v[1])
         hit = sch.at(edge_ok[0], edge_ok[1], L) & sch.at(det_ok[0], det_ok[1], L)
-        m.d.comb += [
-            self.hit.eq(hit),
-            self.t.eq(Mux(hit, sch.at(t[0], t[1], L), 0)),
-            self.u.eq(Mux(hit, sch.at(u[0], u[1], L), 0)),
-            self.v.eq(Mux(hit, sch.at(v[0], v[1], L), 0)),
-            self.o_valid.eq(sch.at(self.i_valid, 0, L)),
-            self.o_tag.eq(sch.at(self.tag, 0, L)),
-            self.pre_tag.eq(sch.at(self.tag, 0, L - 1)),
-            self.pre2_tag.eq(sch.at(self.tag, 0, L - 2)),
-        ]
-        if not dry:     # the delay storage built (``Config.delay_ram``): flip-flop, ring bits
-            self.delay_bits = (sch.reg_bits, sch.ring_bits)
-        return m, L
-
-    @staticmethod
-    def _wire(m, v, name):
-        s = Signal.like(Value.cast(v), name=name)
-        m.d.comb += s.eq(v)
-        return s
-
-    def elaborate(self, platform):
-        return self._build(Module())[0]
+        return self._outputs(m, sch, hit, t, u, v, L, dry)
 
 
 class IntersectionUnit(wiring.Component):

@@ -7,9 +7,9 @@ pipeline (the projection test of Wald et al. 2001 on a precomputed triangle reco
 """
 from __future__ import annotations
 
-from amaranth.hdl import Const, Module, Mux, Signal, Value
-from amaranth.lib import data, wiring
-from amaranth.lib.wiring import In, Out
+from amaranth.hdl import Const, Mux
+from amaranth.lib import data
+from amaranth.lib.wiring import In
 
 from model.fp import FPFormat
 from model.layout import PROJ_K_BIT
@@ -17,15 +17,12 @@ from model.layout import PROJ_K_BIT
 from .fp.cmp import compare
 from .fp.common import unpack
 from .fp.schedule import Schedule as _Schedule
+from .triangle_pipe import TrianglePipe, pick
 
 __all__ = ["PROJ_K_BIT", "ProjectionPipe"]
 
 
-def _pick(v, k):
-    return Mux(k == 0, v[0], Mux(k == 1, v[1], v[2]))
-
-
-class ProjectionPipe(wiring.Component):
+class ProjectionPipe(TrianglePipe):
     """Bare projection-test datapath: ``model.intersection_projection.intersect_projection``.
 
     In: ``tri`` (9 format words of the record: n_u, n_v, n_d, b_nu, b_nv, b_d, c_nu, c_nv,
@@ -47,26 +44,10 @@ class ProjectionPipe(wiring.Component):
     """
 
     def __init__(self, fmt: FPFormat, tag_width: int = 1, latencies: dict | None = None):
-        self.fmt = fmt
-        self.tag_width = tag_width
-        self.latencies = dict(latencies or {})
-        for kind in ("add", "mul", "div"):
-            if self.latencies.get(kind) is None:
-                probe = _Schedule.UNITS[kind](fmt)          # the unit's default latency
-                probe._MustUse__silence = True
-                self.latencies[kind] = probe.latency
-        self.latencies["sub"] = self.latencies["add"]
         w = fmt.width
-        super().__init__({
+        super().__init__(fmt, tag_width, latencies, {
             "tri": In(data.ArrayLayout(w, 9)), "tri_k": In(2),
-            "org": In(data.ArrayLayout(w, 3)), "dir": In(data.ArrayLayout(w, 3)),
-            "tag": In(tag_width), "i_valid": In(1), "en": In(1, init=1),
-            "o_valid": Out(1), "hit": Out(1), "t": Out(w), "u": Out(w), "v": Out(w),
-            "o_tag": Out(tag_width), "pre_tag": Out(tag_width), "pre2_tag": Out(tag_width),
-        })
-        dry = Module()
-        dry._MustUse__silence = True
-        self.latency = self._build(dry, dry=True)[1]         # the schedule's length
+            "org": In(data.ArrayLayout(w, 3)), "dir": In(data.ArrayLayout(w, 3))})
 
     def _build(self, m, dry=False):
         fmt, w = self.fmt, self.fmt.width
@@ -80,9 +61,9 @@ class ProjectionPipe(wiring.Component):
         org = [sch.at(self.org[i], 0, t0) for i in range(3)]
         dirn = [sch.at(self.dir[i], 0, t0) for i in range(3)]
         # one mux each, shared by every use
-        ok, ou, ov = ((self._wire(m, _pick(org, a), f"o{n}_pick"), t0)
+        ok, ou, ov = ((self._wire(m, pick(org, a), f"o{n}_pick"), t0)
                       for a, n in ((k, "k"), (ku, "u"), (kv, "v")))
-        dk, du, dv = ((self._wire(m, _pick(dirn, a), f"d{n}_pick"), t0)
+        dk, du, dv = ((self._wire(m, pick(dirn, a), f"d{n}_pick"), t0)
                       for a, n in ((k, "k"), (ku, "u"), (kv, "v")))
         n_u, n_v, n_d, b_nu, b_nv, b_d, c_nu, c_nv, c_d = rec
         # -- the distance along the ray to the plane -----------------------------------------------
@@ -109,25 +90,4 @@ class ProjectionPipe(wiring.Component):
         hit0 = sch.at(ge0[0], lam[1], L0) & sch.at(ge0[1], mu[1], L0) & le1
         L = L0 + 1                                        # verdict and results registered
         hit = sch.at(self._wire(m, hit0, "hit_d"), L0, L)
-        m.d.comb += [
-            self.hit.eq(hit),
-            self.t.eq(Mux(hit, sch.at(f[0], f[1], L), 0)),
-            self.u.eq(Mux(hit, sch.at(lam[0], lam[1], L), 0)),
-            self.v.eq(Mux(hit, sch.at(mu[0], mu[1], L), 0)),
-            self.o_valid.eq(sch.at(self.i_valid, 0, L)),
-            self.o_tag.eq(sch.at(self.tag, 0, L)),
-            self.pre_tag.eq(sch.at(self.tag, 0, L - 1)),
-            self.pre2_tag.eq(sch.at(self.tag, 0, L - 2)),
-        ]
-        if not dry:     # the delay storage built (``Config.delay_ram``): flip-flop, ring bits
-            self.delay_bits = (sch.reg_bits, sch.ring_bits)
-        return m, L
-
-    @staticmethod
-    def _wire(m, v, name):
-        s = Signal.like(Value.cast(v), name=name)
-        m.d.comb += s.eq(v)
-        return s
-
-    def elaborate(self, platform):
-        return self._build(Module())[0]
+        return self._outputs(m, sch, hit, f, lam, mu, L, dry)
