@@ -30,6 +30,7 @@ from model.fp import FPFormat
 
 from ..fp.common import unpack, wire
 from ..fp.conv import FPFromInt
+from ..fp.schedule import Schedule
 from ..rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
 from .common import _Datapath, _fp_const, _valid_chain
 
@@ -142,14 +143,18 @@ class RaySetupPipe(_Datapath):
                           "tfar": Out(w), "o_tmax": Out(w)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
+        return self._emit(m, self._schedule(m, dry), dry)
+
+    def _graph(self, m: Module, sch: Schedule, t0: int, dry: bool) -> tuple:
+        """The operations, inputs ready at cycle ``t0``: ``(L, outputs)``, the cycle the
+        outputs are ready in and ``{port name: value}`` (None when ``dry``)."""
         fmt = self.fmt
-        sch = self._schedule(m, dry)
         d = [wire(m, self.dir[a], f"d{a}") for a in range(3)]
         org = [wire(m, self.org[a], f"o{a}") for a in range(3)]
         tmax = wire(m, self.tmax, "tmax")
         # -- inv: 1 / d per axis ------------------------------------------------------------------
-        one = (_fp_const(fmt, "one"), 0)
-        inv = [sch.op("div", one, (d[a], 0), f"inv{a}") for a in range(3)]
+        one = (_fp_const(fmt, "one"), t0)
+        inv = [sch.op("div", one, (d[a], t0), f"inv{a}") for a in range(3)]
         # -- axes: kz = first axis of largest |d| (NaN key is the largest), swap if dz < 0 -------
         u = [unpack(fmt, x) for x in d]
         gt1 = u[1].key > u[0].key
@@ -161,56 +166,54 @@ class RaySetupPipe(_Datapath):
         kx = wire(m, Mux(neg, ky0, kx0)[:2], "axes_kx")
         ky = wire(m, Mux(neg, kx0, ky0)[:2], "axes_ky")
         # -- shear: d[kx] / dz, d[ky] / dz (operands picked from the registered axes), inv[kz] ----
-        t1 = 1
-        d1 = [sch.at(x, 0, t1) for x in d]
-        dz = (wire(m, _pick(d1, sch.at(kz, 0, t1)), "shear_dz"), t1)
-        dkx = (wire(m, _pick(d1, sch.at(kx, 0, t1)), "shear_dkx"), t1)
-        dky = (wire(m, _pick(d1, sch.at(ky, 0, t1)), "shear_dky"), t1)
+        t1 = t0 + 1
+        d1 = [sch.at(x, t0, t1) for x in d]
+        dz = (wire(m, _pick(d1, sch.at(kz, t0, t1)), "shear_dz"), t1)
+        dkx = (wire(m, _pick(d1, sch.at(kx, t0, t1)), "shear_dkx"), t1)
+        dky = (wire(m, _pick(d1, sch.at(ky, t0, t1)), "shear_dky"), t1)
         s_x = sch.op("div", dkx, dz, "shear_sx")
         s_y = sch.op("div", dky, dz, "shear_sy")
         ti = max(x[1] for x in inv)       # (one cycle unless the dividers are shared)
-        s_z = (wire(m, _pick([sch.at(*x, ti) for x in inv], sch.at(kz, 0, ti)), "shear_sz"), ti)
+        s_z = (wire(m, _pick([sch.at(*x, ti) for x in inv], sch.at(kz, t0, ti)), "shear_sz"), ti)
         # -- slab, flat, order per axis -----------------------------------------------------------
         near, far = [], []
         for a in range(3):
             lo = wire(m, self.lo[a], f"lo{a}")
             hi = wire(m, self.hi[a], f"hi{a}")
-            t0 = sch.op("mul", sch.op("sub", (lo, 0), (org[a], 0), f"slab_lo{a}"), inv[a],
+            ta = sch.op("mul", sch.op("sub", (lo, t0), (org[a], t0), f"slab_lo{a}"), inv[a],
                         f"slab_t0_{a}")
-            t1_ = sch.op("mul", sch.op("sub", (hi, 0), (org[a], 0), f"slab_hi{a}"), inv[a],
-                         f"slab_t1_{a}")
-            tt = max(t0[1], t1_[1])
-            v0, v1 = sch.at(t0[0], t0[1], tt), sch.at(t1_[0], t1_[1], tt)
+            tb = sch.op("mul", sch.op("sub", (hi, t0), (org[a], t0), f"slab_hi{a}"), inv[a],
+                        f"slab_t1_{a}")
+            tt = max(ta[1], tb[1])
+            v0, v1 = sch.at(ta[0], ta[1], tt), sch.at(tb[0], tb[1], tt)
             flat = wire(m, unpack(fmt, v0).nan | unpack(fmt, v1).nan, f"flat{a}")
             f0 = (wire(m, Mux(flat, _fp_const(fmt, "-inf"), v0), f"flat_t0_{a}"), tt)
             f1 = (wire(m, Mux(flat, _fp_const(fmt, "+inf"), v1), f"flat_t1_{a}"), tt)
             near.append(sch.op("min", f0, f1, f"order_near{a}"))
             far.append(sch.op("max", f0, f1, f"order_far{a}"))
         # -- clip: two chains in axis order -------------------------------------------------------
-        tnear = (_fp_const(fmt, "+0"), 0)
-        tfar = (tmax, far[0][1] if "tmax" in self.static else 0)
+        tnear = (_fp_const(fmt, "+0"), t0)
+        tfar = (tmax, far[0][1] if "tmax" in self.static else t0)
         for a in range(3):
             tnear = sch.op("max", tnear, near[a], f"clip_near{a}")
             tfar = sch.op("min", tfar, far[a], f"clip_far{a}")
         octant = wire(m, Cat(*(x[-1] for x in d)), "octant")
-        L = max(tnear[1], tfar[1], s_x[1], s_y[1], s_z[1], 1)
+        L = max(tnear[1], tfar[1], s_x[1], s_y[1], s_z[1], t0 + 1)
         if dry:
-            return L
-        at = lambda x: sch.at(x[0], x[1], L)
-        keep = lambda x, name: x if name in self.static else sch.at(x, 0, L)
-        m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
-            self.o_org.eq(Cat(*(keep(x, "org") for x in org))),
-            self.o_dir.eq(Cat(*(sch.at(x, 0, L) for x in d))),
-            self.inv.eq(Cat(*(at(x) for x in inv))),
-            self.octant.eq(sch.at(octant, 0, L)),
-            self.k.eq(Cat(sch.at(kx, 0, L), sch.at(ky, 0, L), sch.at(kz, 0, L))),
-            self.s.eq(Cat(at(s_x), at(s_y), at(s_z))),
-            self.tnear.eq(at(tnear)), self.tfar.eq(at(tfar)),
-            self.o_tmax.eq(keep(tmax, "tmax")),
-            self.o_tag.eq(sch.at(self.tag, 0, L)),
-        ]
-        return L
+            return L, None
+        at = lambda x: sch.at(x[0], x[1], L)  # noqa: E731
+        keep = lambda x, name: x if name in self.static else sch.at(x, t0, L)  # noqa: E731
+        return L, {
+            "o_org": Cat(*(keep(x, "org") for x in org)),
+            "o_dir": Cat(*(sch.at(x, t0, L) for x in d)),
+            "inv": Cat(*(at(x) for x in inv)),
+            "octant": sch.at(octant, t0, L),
+            "k": Cat(sch.at(kx, t0, L), sch.at(ky, t0, L), sch.at(kz, t0, L)),
+            "s": Cat(at(s_x), at(s_y), at(s_z)),
+            "tnear": at(tnear), "tfar": at(tfar),
+            "o_tmax": keep(tmax, "tmax"),
+            "o_tag": sch.at(self.tag, t0, L),
+        }
 
 
 def _stall(m: Module, o) -> Signal:
@@ -316,8 +319,12 @@ class EyeRayPipe(_Datapath):
                          {"dir": Out(v3), "pixel": Out(PIXEL_BITS)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
+        return self._emit(m, self._schedule(m, dry), dry)
+
+    def _graph(self, m: Module, sch: Schedule, t0: int, dry: bool) -> tuple:
+        """The operations, inputs ready at cycle ``t0``: ``(L, outputs)``, the cycle the
+        outputs are ready in and ``{port name: value}`` (None when ``dry``)."""
         fmt = self.fmt
-        sch = self._schedule(m, dry)
         # -- sample: (2*s + 1) * 2**-1 rounded once -----------------------------------------------
         pts = []
         for name, s in (("x", self.sx), ("y", self.sy)):
@@ -327,7 +334,7 @@ class EyeRayPipe(_Datapath):
                 m.d.comb += [conv.a.eq(Cat(C(1, 1), s)), conv.en.eq(self.en)]
             else:
                 conv._MustUse__silence = True
-            pts.append((wire(m, conv.o, f"sample_p{name}"), conv.latency))
+            pts.append((wire(m, conv.o, f"sample_p{name}"), t0 + conv.latency))
         px, py = pts
         # -- mul_x, mul_y, add_x, add_y (camera registers are static: ready whenever read) --------
         d = []
@@ -340,18 +347,13 @@ class EyeRayPipe(_Datapath):
         n = self.n
         qx = wire(m, div_const(self.sx, n), "pixel_qx")
         qy = wire(m, div_const(self.sy, n), "pixel_qy")
-        pixel = wire(m, (sch.at(qy, 0, 1) * self.width + sch.at(qx, 0, 1))[:PIXEL_BITS],
-                     "pixel_index")
-        L = max(max(x[1] for x in d), 2)
+        pixel = wire(m, (sch.at(qy, t0, t0 + 1) * self.width
+                         + sch.at(qx, t0, t0 + 1))[:PIXEL_BITS], "pixel_index")
+        L = max(max(x[1] for x in d), t0 + 2)
         if dry:
-            return L
-        m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
-            self.dir.eq(Cat(*(sch.at(x[0], x[1], L) for x in d))),
-            self.pixel.eq(sch.at(pixel, 1, L)),
-            self.o_tag.eq(sch.at(self.tag, 0, L)),
-        ]
-        return L
+            return L, None
+        return L, {"dir": Cat(*(sch.at(x[0], x[1], L) for x in d)),
+                   "pixel": sch.at(pixel, t0 + 1, L), "o_tag": sch.at(self.tag, t0, L)}
 
 
 class EyeRays(wiring.Component):
