@@ -151,20 +151,22 @@ start() {
   die "the node did not come up in 30 s (logs in $DIR)"
 }
 
-stop_pid() {   # stop_pid FILE: SIGTERM the process in FILE, wait up to 10 s, then SIGKILL
-  local f=$1 pid
-  alive "$f" || { rm -f "$f"; return 0; }
-  pid=$(cat "$f")
-  kill "$pid" 2>/dev/null || true
-  for _ in $(seq 50); do kill -0 "$pid" 2>/dev/null || break; sleep 0.2; done
-  kill -0 "$pid" 2>/dev/null && kill -9 "$pid" 2>/dev/null || true
-  rm -f "$f"
-}
-
-stop_daemons() {
-  stop_pid "$DIR/slurmd.pid"
-  stop_pid "$DIR/slurmctld.pid"
-  stop_pid "$DIR/munged.pid"
+stop_daemons() {   # SIGTERM the daemons this script started, wait up to 10 s, then SIGKILL
+  local f pids=()
+  for f in "$DIR/slurmd.pid" "$DIR/slurmctld.pid" "$DIR/munged.pid"; do
+    if alive "$f"; then
+      pids+=("$(cat "$f")")
+      kill "${pids[-1]}" 2>/dev/null || true
+    fi
+    rm -f "$f"
+  done
+  for _ in $(seq 50); do
+    local left=0 p
+    for p in "${pids[@]}"; do kill -0 "$p" 2>/dev/null && left=1; done
+    [ $left = 0 ] && return 0
+    sleep 0.2
+  done
+  for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null || true; done
 }
 
 stop() {
