@@ -109,6 +109,8 @@ SlurmdTimeout=30
 InactiveLimit=0
 KillWait=5
 MinJobAge=600
+# jobs run at the nice value of the command that submitted them (sbatch under `nice`)
+PropagatePrioProcess=1
 $node NodeAddr=127.0.0.1 State=UNKNOWN
 PartitionName=local Nodes=$host Default=YES MaxTime=INFINITE State=UP
 EOF
