@@ -3,10 +3,12 @@
 ``SLURMCluster`` submitting its workers with ``sbatch``. Skipped only where SLURM is not
 installed (``make setup`` installs it as root where apt-get works) or its daemons cannot start."""
 import csv
+import fcntl
 import os
 import re
 import shutil
 import subprocess
+import tempfile
 import time
 
 import pytest
@@ -37,19 +39,26 @@ def slurm():
         pytest.skip(f"SLURM not installed (no {', '.join(missing)}): make setup installs "
                     "slurmctld, slurmd, slurm-client and munge as root where apt-get works")
     env = dict(os.environ)
+    # one test run at a time uses the cluster: another run on this machine would stop it
+    lock = open(tempfile.gettempdir() + "/saarcor-slurm-test.lock", "w")
+    fcntl.flock(lock, fcntl.LOCK_EX)
     started = script("status", env=env).returncode != 0
     if started:
         r = script("start", env=env)
         if r.returncode != 0:
             script("stop", env=env)
+            lock.close()
             pytest.skip(f"the one-node SLURM cluster did not start: {r.stdout}{r.stderr}")
     conf = script("env", env=env).stdout.strip().partition("SLURM_CONF=")[2]
     try:
         yield conf
     finally:
-        if started:
-            r = script("stop", env=env)
-            assert r.returncode == 0, r.stdout + r.stderr
+        try:
+            if started:
+                r = script("stop", env=env)
+                assert r.returncode == 0, r.stdout + r.stderr
+        finally:
+            lock.close()
 
 
 def read_csv(path):
