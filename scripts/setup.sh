@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Idempotent set-up of everything `make test`, `make sim` and `make bench` need:
 # a virtual environment in .venv with the project and its dev dependencies (and the `saarcor`
-# command, .venv/bin/saarcor), the Debian packages the simulators use (installed only when
-# missing and apt is available), and the golden model's compiled numba kernels.
+# command, .venv/bin/saarcor), the Debian packages the simulators and the SLURM sweep test use
+# (Icarus Verilog, the lz4 headers, SLURM and munge; installed only when missing and apt is
+# available), and the golden model's compiled numba kernels.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 VENV=${VENV:-.venv}
@@ -30,6 +31,20 @@ if ! [ -f /usr/include/lz4.h ]; then
       || echo "setup: could not install liblz4-dev (FST traces unavailable; VCD works)" >&2
   else
     echo "setup: liblz4-dev missing (FST traces unavailable; VCD works; as root: apt-get install liblz4-dev)" >&2
+  fi
+fi
+# SLURM (slurmctld, slurmd, the client commands) and munge: scripts/slurm-local.sh runs a
+# one-node SLURM cluster on this machine for `saarcor sweep --cluster slurm` and its test
+# (tests/test_slurm.py, skipped without them). Installed only, not started (no systemd here).
+if ! command -v slurmctld >/dev/null 2>&1 || ! command -v slurmd >/dev/null 2>&1 \
+   || ! command -v sbatch >/dev/null 2>&1 || ! command -v munged >/dev/null 2>&1; then
+  SLURM_PKGS="slurmctld slurmd slurm-client munge"
+  if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+    (DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends $SLURM_PKGS >/dev/null 2>&1 \
+     || (apt-get update -q >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends $SLURM_PKGS >/dev/null)) \
+      || echo "setup: could not install $SLURM_PKGS (the SLURM sweep test will be skipped)" >&2
+  else
+    echo "setup: SLURM missing and apt-get unavailable (the SLURM sweep test will be skipped; as root: apt-get install $SLURM_PKGS)" >&2
   fi
 fi
 # The golden model's numba kernels compile on their first use and are cached on disk
