@@ -500,3 +500,36 @@ def test_shade_pool_units_fit_the_budget():
     from model.config import ConfigError
     with pytest.raises(ConfigError, match="rgs_fp_pool"):
         Config(rgs_fp_pool=True)                      # a pool needs a budget of units
+
+
+def test_slave_pool_units_fit_the_budget():
+    """Every ray datapath of the slave on one pool (``rtl.rgs.SlavePool``, what
+    ``Config.rgs_fp_pool`` builds): the interval is the least at which the budget takes
+    SecondaryPipe's operations, a LightPipe entry per light, the eye-ray chain (EyeRayPipe
+    then RaySetupPipe) and a ray-setup entry per light and one for the reflection; every
+    datapath runs at that interval, the chain's second pipe in the phase its first one's
+    outputs arrive in, and no class has more units than the interval needs."""
+    from rtl.rgs import EyeRayPipe, RaySetupPipe, Slave
+    for lights, budget in ((1, {"add": 3, "mul": 4}), (3, {"add": 3, "mul": 4}),
+                           (2, {"add": 1, "mul": 2})):
+        cfg = Config(rgs_lights=lights, reflect_depth=1, rgs_fp_adders=budget["add"],
+                     rgs_fp_muls=budget["mul"], rgs_fp_pool=True)
+        s = Slave(cfg)
+        s._MustUse__silence = True
+        p = s.pool
+        parts = [(SecondaryPipe(B32), 1), (LightPipe(B32), lights), (EyeRayPipe(B32), 1),
+                 (RaySetupPipe(B32), 1), (RaySetupPipe(B32), lights + 1)]
+        counts = {k: sum(n * d.counts[k] for d, n in parts) for k in parts[0][0].counts}
+        for d, _ in parts:
+            d._MustUse__silence = True
+        want = max([lights, 2] + [-(-counts[k] // n) for k, n in budget.items()])
+        assert p.ii == want, (lights, budget)
+        for k, n in counts.items():
+            if n:
+                assert p.units[k] == -(-n // p.ii), k
+                assert k not in budget or p.units[k] <= budget[k]
+        pipes = (s.sec, s.shd, s.eye.gen, s.eye.setup, s.setup.pipe)
+        assert {d.ii for d in pipes} == {p.ii}
+        assert [d.per_ii for d in pipes] == [1, lights, 1, 1, lights + 1]
+        assert s.setup.pipe.in_flight == (s.setup.pipe.latency // p.ii + 1) * (lights + 1)
+        assert s.eye.in_flight == (s.eye.gen.latency + s.eye.setup.latency) // p.ii + 1

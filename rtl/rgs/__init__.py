@@ -10,7 +10,8 @@ per RTC, in hardware. Each file reads beside its golden model, ``model/rgs/`` (s
 * ``eye.py``: the slave's eye rays from the camera registers and ray setup (``EyeRays``,
   ``RaySetup`` and their bare datapaths).
 * ``secondary.py``: a hit's secondary rays (``SecondaryPipe``), its shadow rays toward the
-  lights and its colour (``LightPipe``), both on one pool of FP units (``ShadePool``).
+  lights and its colour (``LightPipe``), both on one pool of FP units (``ShadePool``), or with
+  the eye rays and the ray setup too (``SlavePool``).
 * ``texture.py``: the slave's texture unit (``Texture``).
 * ``common.py``: the bare fixed-latency datapath the ``*Pipe`` s are built on.
 
@@ -19,7 +20,7 @@ The public names of every file are re-exported here (``from rtl.rgs import Slave
 from .eye import (COORD_BITS, PIXEL_BITS, EyeRay, EyeRayPipe, EyeRays, EyeRequest, RaySetup,
                   RaySetupIn, RaySetupPipe, div_const, div_const_params, sample_converter)
 from .master import RGSMaster
-from .secondary import LightPipe, SecondaryPipe, ShadePool, to_fixed
+from .secondary import LightPipe, SecondaryPipe, ShadePool, SlavePool, to_fixed
 from .slave import (DEPTH_BITS, RAY_COUNTERS, SUB_BITS, Slave, SlaveResult,
                     shade_cache_geometry, slave_buffers, tex_cache_geometry)
 from .texture import (TEX_INDEX_BITS, TEX_SIZE_BITS, TexCoordPipe, TexFilterPipe, TexIn, TexOut,
@@ -27,7 +28,8 @@ from .texture import (TEX_INDEX_BITS, TEX_SIZE_BITS, TexCoordPipe, TexFilterPipe
 
 __all__ = ["COORD_BITS", "PIXEL_BITS", "EyeRay", "EyeRayPipe", "EyeRays", "EyeRequest",
            "RaySetup", "RaySetupIn", "RaySetupPipe", "div_const", "div_const_params",
-           "sample_converter", "RGSMaster", "LightPipe", "SecondaryPipe", "ShadePool", "to_fixed",
+           "sample_converter", "RGSMaster", "LightPipe", "SecondaryPipe", "ShadePool", "SlavePool",
+           "to_fixed",
            "DEPTH_BITS", "RAY_COUNTERS", "SUB_BITS", "Slave", "SlaveResult", "shade_cache_geometry",
            "slave_buffers", "tex_cache_geometry", "TEX_INDEX_BITS", "TEX_SIZE_BITS",
            "TexCoordPipe", "TexFilterPipe", "TexIn", "TexOut", "Texture", "tex_pos",

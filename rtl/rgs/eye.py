@@ -20,8 +20,11 @@ entered when the output is never stalled.
 """
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 from amaranth.hdl import C, Cat, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
+from amaranth.lib.fifo import SyncFIFO
 from amaranth.lib.wiring import In, Out
 from amaranth.utils import ceil_log2
 
@@ -32,7 +35,7 @@ from ..fp.common import unpack, wire
 from ..fp.conv import FPFromInt
 from ..fp.schedule import Schedule
 from ..rtc_streams import PACKET_ID_BITS, RayIn, lane_bits, vec3
-from .common import _Datapath, _fp_const, _valid_chain
+from .common import _Datapath, _fp_const
 
 __all__ = ["COORD_BITS", "PIXEL_BITS", "RaySetupIn", "EyeRequest", "EyeRay", "RaySetupPipe",
            "RaySetup", "EyeRayPipe", "EyeRays", "div_const", "div_const_params",
@@ -224,6 +227,24 @@ def _stall(m: Module, o) -> Signal:
     return en
 
 
+def _credit_out(m: Module, pipe, lay, value: Value, o, name: str) -> Value:
+    """The output of a datapath on a pool of FP units (which never stalls) through a queue as
+    deep as the inputs the datapath holds at once + 1: ``value`` (``lay``) goes in when
+    ``pipe.o_valid``, ``o`` (a stream of ``lay``) takes it out. Returns the credit: 1 while
+    the datapath and the queue together hold fewer inputs than the queue takes, so an input
+    entering now always finds room when it comes out."""
+    depth = pipe.in_flight + 1
+    q = SyncFIFO(width=lay.size, depth=depth)
+    m.submodules[f"{name}_q"] = q
+    held = Signal(range(depth + 1), name=f"{name}_held")
+    fed = pipe.i_valid & pipe.i_slot
+    credit = Signal(name=f"{name}_credit")
+    m.d.comb += [credit.eq(held < depth), q.w_en.eq(pipe.o_valid), q.w_data.eq(value),
+                 o.valid.eq(q.r_rdy), o.payload.eq(q.r_data), q.r_en.eq(o.ready)]
+    m.d.sync += held.eq(held + fed - (o.valid & o.ready))
+    return credit
+
+
 def _ray_out(m: Module, pipe: RaySetupPipe, ray, packet, lane, last, anyhit,
              box_cull: Value, projection: bool = False) -> list:
     """Assignments of a ``RayIn`` view ``ray`` from the setup pipe's outputs. With
@@ -258,36 +279,51 @@ class RaySetup(wiring.Component):
     every ``pipe.ii`` cycles: ``i.ready`` also waits for the pipe's input slot.
     """
 
-    def __init__(self, cfg: Config, latencies: dict | None = None):
-        self.cfg = cfg
+    def __init__(self, cfg: Config, latencies: dict | None = None, pooled: bool = False):
+        self.cfg, self.pooled = cfg, pooled
         self.tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": lane_bits(cfg),
                                       "last": 1, "anyhit": 1})
         self.pipe = RaySetupPipe(cfg.fmt, self.tag.size,
                                  cfg.fp_latencies() if latencies is None else latencies,
-                                 budget=cfg.rgs_budget())
-        self.latency = self.pipe.latency
+                                 budget=None if pooled else cfg.rgs_budget())
+        if pooled:
+            self.pipe._MustUse__silence = True          # ports only: the pool builds it
         super().__init__({
             "i": In(stream.Signature(RaySetupIn(cfg))),
             "box_lo": In(vec3(cfg)), "box_hi": In(vec3(cfg)), "box_cull": In(1, init=1),
             "o": Out(stream.Signature(RayIn(cfg))),
         })
 
+    @property
+    def latency(self) -> int:
+        return self.pipe.latency
+
     def elaborate(self, platform):
         m = Module()
-        m.submodules.pipe = pipe = self.pipe
-        en = _stall(m, self.o)
+        pipe = self.pipe
         p = self.i.payload
         tag_in = data.View(self.tag, pipe.tag)
+        if self.pooled:
+            o = stream.Signature(RayIn(self.cfg)).create(path=("setup_o",))
+            en = _credit_out(m, pipe, RayIn(self.cfg), o.payload.as_value(), self.o, "setup")
+            m.d.comb += pipe.en.eq(1)
+            out = o.payload
+        else:
+            m.submodules.pipe = pipe
+            en = _stall(m, self.o)
+            m.d.comb += pipe.en.eq(en)
+            out = self.o.payload
         m.d.comb += [
-            self.i.ready.eq(en & pipe.i_slot), pipe.en.eq(en), pipe.i_valid.eq(self.i.valid),
+            self.i.ready.eq(en & pipe.i_slot), pipe.i_valid.eq(self.i.valid & en),
             pipe.org.eq(p.org), pipe.dir.eq(p.dir), pipe.tmax.eq(p.tmax),
             pipe.lo.eq(self.box_lo), pipe.hi.eq(self.box_hi),
             tag_in.packet.eq(p.packet), tag_in.lane.eq(p.lane), tag_in.last.eq(p.last),
             tag_in.anyhit.eq(p.anyhit),
         ]
         tag = data.View(self.tag, pipe.o_tag)
-        m.d.comb += self.o.valid.eq(pipe.o_valid)
-        m.d.comb += _ray_out(m, pipe, self.o.payload, tag.packet, tag.lane, tag.last,
+        if not self.pooled:
+            m.d.comb += self.o.valid.eq(pipe.o_valid)
+        m.d.comb += _ray_out(m, pipe, out, tag.packet, tag.lane, tag.last,
                              tag.anyhit, self.box_cull, self.cfg.int_test == "projection")
         return m
 
@@ -392,26 +428,27 @@ class EyeRays(wiring.Component):
     """
 
     def __init__(self, cfg: Config, latencies: dict | None = None,
-                 coord_bits: int = COORD_BITS):
-        self.cfg, self.coord_bits = cfg, coord_bits
+                 coord_bits: int = COORD_BITS, pooled: bool = False):
+        self.cfg, self.coord_bits, self.pooled = cfg, coord_bits, pooled
         lat = cfg.fp_latencies() if latencies is None else latencies
         self.lane_bits = lane_bits(cfg)
         self.tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": self.lane_bits,
                                       "last": 1})
         self.setup_tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": self.lane_bits,
                                             "last": 1, "pixel": PIXEL_BITS})
-        budget = cfg.rgs_budget()
+        budget = None if pooled else cfg.rgs_budget()
         self.gen = EyeRayPipe(cfg.fmt, cfg.oversampling, self.tag.size, lat, coord_bits, budget)
         self.setup = RaySetupPipe(cfg.fmt, self.setup_tag.size, lat, static=("org", "tmax"),
                                   budget=budget)
         ii = max(self.gen.ii, self.setup.ii)
-        if ii > 1:                     # one interval; setup's slots meet gen's outputs
+        if pooled:                     # ports only: the pool builds both
+            self.gen._MustUse__silence = self.setup._MustUse__silence = True
+        elif ii > 1:                   # one interval; setup's slots meet gen's outputs
             self.gen._MustUse__silence = self.setup._MustUse__silence = True
             self.gen = EyeRayPipe(cfg.fmt, cfg.oversampling, self.tag.size, lat, coord_bits,
                                   {**budget, "ii": ii})
             self.setup = RaySetupPipe(cfg.fmt, self.setup_tag.size, lat, static=("org", "tmax"),
                                       budget={**budget, "ii": ii, "offset": self.gen.latency})
-        self.latency = 1 + self.gen.latency + self.setup.latency
         v3 = vec3(cfg)
         super().__init__({
             "req": In(stream.Signature(EyeRequest(cfg))),
@@ -421,12 +458,31 @@ class EyeRays(wiring.Component):
             "box_lo": In(v3), "box_hi": In(v3), "box_cull": In(1, init=1),
         })
 
+    @property
+    def latency(self) -> int:
+        return 1 + self.gen.latency + self.setup.latency
+
+    @property
+    def in_flight(self) -> int:
+        """The most samples in the two datapaths at once (on a pool: one chain)."""
+        return (self.gen.latency + self.setup.latency) // self.gen.ii + 1
+
     def elaborate(self, platform):
         m = Module()
         cfg, cb = self.cfg, self.coord_bits
-        m.submodules.gen = gen = self.gen
-        m.submodules.setup = setup = self.setup
-        en = _stall(m, self.o)
+        gen, setup = self.gen, self.setup
+        if self.pooled:
+            o = stream.Signature(EyeRay(cfg)).create(path=("eye_o",))
+            chain = SimpleNamespace(in_flight=self.in_flight, i_valid=gen.i_valid,
+                                    i_slot=gen.i_slot, o_valid=setup.o_valid)
+            en = _credit_out(m, chain, EyeRay(cfg), o.payload.as_value(), self.o, "eye")
+            m.d.comb += [gen.en.eq(1), setup.en.eq(1)]
+            out = o.payload
+        else:
+            m.submodules.gen, m.submodules.setup = gen, setup
+            en = _stall(m, self.o)
+            m.d.comb += [gen.en.eq(en), setup.en.eq(en)]
+            out = self.o.payload
 
         # -- sequencer: the current tile's lanes, x fastest ---------------------------------------
         tw, th, n = cfg.tile_w, cfg.tile_h, cfg.oversampling
@@ -462,7 +518,7 @@ class EyeRays(wiring.Component):
         # -- eye rays, then ray setup -------------------------------------------------------------
         tag = data.View(self.tag, gen.tag)
         m.d.comb += [
-            gen.en.eq(en), gen.i_valid.eq(busy),
+            gen.i_valid.eq(busy & en),
             gen.sx.eq(x0 + lx), gen.sy.eq(y0 + ly),
             tag.packet.eq(packet), tag.lane.eq(lane), tag.last.eq(last),
             gen.corner.eq(self.corner), gen.dx.eq(self.dx), gen.dy.eq(self.dy),
@@ -472,15 +528,16 @@ class EyeRays(wiring.Component):
         st = data.View(self.setup_tag, setup.tag)
         inf = _fp_const(cfg.fmt, "+inf")
         m.d.comb += [
-            setup.en.eq(en), setup.i_valid.eq(gen.o_valid),
+            setup.i_valid.eq(gen.o_valid),
             setup.org.eq(self.pos), setup.dir.eq(gen.dir), setup.tmax.eq(inf),
             setup.lo.eq(self.box_lo), setup.hi.eq(self.box_hi),
             st.packet.eq(g.packet), st.lane.eq(g.lane), st.last.eq(g.last),
             st.pixel.eq(gen.pixel),
         ]
-        out = data.View(self.setup_tag, setup.o_tag)
-        m.d.comb += [self.o.valid.eq(setup.o_valid), self.o.payload.pixel.eq(out.pixel),
-                     self.o.payload.dir.eq(setup.o_dir)]
-        m.d.comb += _ray_out(m, setup, self.o.payload.ray, out.packet, out.lane, out.last, 0,
+        t = data.View(self.setup_tag, setup.o_tag)
+        if not self.pooled:
+            m.d.comb += self.o.valid.eq(setup.o_valid)
+        m.d.comb += [out.pixel.eq(t.pixel), out.dir.eq(setup.o_dir)]
+        m.d.comb += _ray_out(m, setup, out.ray, t.packet, t.lane, t.last, 0,
                              self.box_cull, self.cfg.int_test == "projection")
         return m

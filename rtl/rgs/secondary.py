@@ -9,7 +9,9 @@ in its order (``docs/rgs.md``).
   ``normal``, ``reflect``).
 * :class:`LightPipe`: (origin, normals, light, material) -> the shadow ray's direction, tmax
   and whether it is cast, and the colour contributions (:func:`to_fixed`: fixed point).
-* :class:`ShadePool`: both datapaths on one pool of FP units (``Config.rgs_fp_pool``).
+* :class:`ShadePool`: both datapaths on one pool of FP units.
+* :class:`SlavePool`: those two, the eye rays' and the ray setup's on one pool
+  (``Config.rgs_fp_pool``).
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from ..fp.common import bits_for, unpack, wire
 from ..fp.schedule import Schedule, Share
 from .common import _Datapath, _fp_const, _valid_chain
 
-__all__ = ["SecondaryPipe", "LightPipe", "ShadePool", "to_fixed"]
+__all__ = ["SecondaryPipe", "LightPipe", "ShadePool", "SlavePool", "to_fixed"]
 
 
 def _dot(sch: Schedule, a: list, b: list, name: str) -> tuple:
@@ -344,41 +346,108 @@ class ShadePool(Elaboratable):
         self.sec = SecondaryPipe(fmt, sec_tag_width, latencies)
         self.shd = LightPipe(fmt, shd_tag_width, latencies)
         self.sec._MustUse__silence = self.shd._MustUse__silence = True   # ports only
-        self.counts = {c: self.sec.counts[c] + copies * self.shd.counts[c]
+        self.groups = [((self.shd,), copies, 0)] + list(self.more)
+        pipes = [p for chain, _, _ in self.more for p in chain]
+        self.counts = {c: self.sec.counts[c] + sum(n * sum(p.counts.get(c, 0) for p in chain)
+                                                   for chain, n, _ in self.groups)
                        for c in self.sec.counts}
         self.share = Share.for_budget(self.counts, dict(budget), min_ii=max(2, copies))
         self.ii = ii = self.share.ii
         self.units = dict(self.share.units)
-        self.t0 = [j * ii // copies for j in range(copies)]
-        sec_l, shd_l = self._build(_Datapath._dry(), dry=True)
-        for pipe, lat, per in ((self.sec, sec_l, 1), (self.shd, shd_l, copies)):
+        self.t0 = self._t0s(0)
+        sec_l, lats = self._build(_Datapath._dry(), dry=True)
+        shd_l = lats[0][0]
+        for pipe, lat, per in ((self.sec, sec_l, 1),
+                               *((p, lat, n) for (chain, n, _), ls in zip(self.groups, lats)
+                                 for p, lat in zip(chain, ls))):
             pipe.latency, pipe.ii, pipe.per_ii = lat, ii, per
             pipe.share, pipe.units = self.share, self.units
         self.latency = max(sec_l, shd_l)
+        self.pipes = pipes
+
+    #: further datapaths on the pool: ``(chain, copies, phase)``, a chain of pipes (each fed by
+    #: the one before it; ``copies`` > 1 only for a chain of one) taking ``copies`` inputs an
+    #: interval, the first in ``phase`` (a fraction of the interval in thirds)
+    more: tuple = ()
+
+    def _t0s(self, g: int) -> list:
+        """The cycles (phases) group ``g``'s copies take their inputs in: spread over the
+        interval from the group's phase."""
+        _, n, third = self.groups[g]
+        return [third * self.ii // 3 + j * self.ii // n for j in range(n)]
 
     def _build(self, m: Module, dry: bool = False) -> tuple:
-        """Both graphs on one schedule: ``(sec latency, shd latency)``."""
-        sec, shd = self.sec, self.shd
+        """Every graph on one schedule: ``(sec latency, [[latency of each pipe] per group]``
+        (a group's copies all at one latency: each copy's outputs delayed to the longest, so
+        inputs leave in the order they entered, in distinct cycles, and the copies look like
+        one pipe taking ``copies`` inputs per interval)."""
+        sec = self.sec
         sch = Schedule(m, Const(1, 1), self.fmt, sec.latencies, dry, self.share)
         ls = sec._emit(m, sch, dry, en=Const(1, 1))        # as alone, on the pool's schedule
-        graphs = [shd._graph(m, sch, t, dry) for t in self.t0]
-        lmax = max(L - t for (L, _), t in zip(graphs, self.t0))
-        if dry:
-            return ls, lmax
-        m.d.comb += sec.i_slot.eq(sch.slot)
-        valids, outs = [], {}
-        for j, ((L, o), t) in enumerate(zip(graphs, self.t0)):
-            v = _valid_chain(m, Const(1, 1), shd.i_valid & sch.slot_at(t), lmax, f"shd{j}_valid")
-            for k, x in o.items():
-                x = sch.at(x, L, t + lmax)
-                outs[k] = x if j == 0 else Mux(v, x, outs[k])
-            valids.append(v)
-        m.d.comb += [shd.i_slot.eq(Cat(*(sch.slot_at(t) for t in self.t0)).any()),
-                     shd.o_valid.eq(Cat(*valids).any())]
-        m.d.comb += [getattr(shd, k).eq(v) for k, v in outs.items()]
-        return ls, lmax
+        if not dry:
+            m.d.comb += sec.i_slot.eq(sch.slot)
+        lats = []
+        for g, (chain, n, _) in enumerate(self.groups):
+            t0s = self._t0s(g)
+            if len(chain) > 1:                             # a chain: one copy
+                t, ls_g = t0s[0], []
+                for j, pipe in enumerate(chain):
+                    L, outs = pipe._graph(m, sch, t, dry)
+                    ls_g.append(L - t)
+                    if not dry:
+                        v = _valid_chain(m, Const(1, 1), pipe.i_valid & sch.slot_at(t), L - t,
+                                         f"g{g}_{j}_valid")
+                        m.d.comb += [pipe.i_slot.eq(sch.slot_at(t)), pipe.o_valid.eq(v)]
+                        m.d.comb += [getattr(pipe, k).eq(x) for k, x in outs.items()]
+                    t = L
+                lats.append(ls_g)
+                continue
+            pipe = chain[0]
+            graphs = [pipe._graph(m, sch, t, dry) for t in t0s]
+            lmax = max(L - t for (L, _), t in zip(graphs, t0s))
+            lats.append([lmax])
+            if dry:
+                continue
+            valids, outs = [], {}
+            for j, ((L, o), t) in enumerate(zip(graphs, t0s)):
+                v = _valid_chain(m, Const(1, 1), pipe.i_valid & sch.slot_at(t), lmax,
+                                 f"g{g}_{j}_valid")
+                for k, x in o.items():
+                    x = sch.at(x, L, t + lmax)
+                    outs[k] = x if j == 0 else Mux(v, x, outs[k])
+                valids.append(v)
+            m.d.comb += [pipe.i_slot.eq(Cat(*(sch.slot_at(t) for t in t0s)).any()),
+                         pipe.o_valid.eq(Cat(*valids).any())]
+            m.d.comb += [getattr(pipe, k).eq(v) for k, v in outs.items()]
+        return ls, lats
 
     def elaborate(self, platform):
         m = Module()
         self._build(m)
         return m
+
+
+class SlavePool(ShadePool):
+    """Every ray datapath of the slave on one pool of FP units (``Config.rgs_fp_pool``): the
+    shading's (:class:`ShadePool`'s SecondaryPipe and LightPipe entries), the eye rays'
+    (``eye``: an :class:`~rtl.rgs.EyeRays` built ``pooled``; its EyeRayPipe feeds its
+    RaySetupPipe, one chain) and ``setup_copies`` entries of the secondary rays' ray setup
+    (``setup``: a :class:`~rtl.rgs.RaySetup` built ``pooled``; a hit spawns up to a shadow ray
+    per light and a reflection ray), in one modulo schedule over ``budget``.
+
+    In each interval of ``ii`` cycles SecondaryPipe takes a hit (phase 0), LightPipe
+    ``copies`` (hit, light) tokens (from phase 0), the eye rays one sample (phase ``ii // 3``)
+    and the ray setup ``setup_copies`` rays (from phase ``2 * ii // 3``); ``ii`` is the least
+    interval at which the budget takes all their operations. The pool never stalls: the eye
+    rays and the ray setup put their outputs into queues as deep as their inputs in flight
+    and take an input only while there is room (``rtl.rgs.eye``). Latency: each datapath's
+    own, plus the cycles its operations wait for a free unit. The texture unit keeps its own
+    units (its budget is ``Config.rgs_budget``)."""
+
+    def __init__(self, fmt: FPFormat, sec_tag_width: int, shd_tag_width: int,
+                 latencies: dict | None, budget: dict, copies: int, eye, setup,
+                 setup_copies: int = 1):
+        if setup_copies < 1:
+            raise ValueError(f"SlavePool: setup_copies={setup_copies} must be at least 1")
+        self.more = (((eye.gen, eye.setup), 1, 1), ((setup.pipe,), setup_copies, 2))
+        super().__init__(fmt, sec_tag_width, shd_tag_width, latencies, budget, copies)

@@ -89,7 +89,7 @@ from ..memport import WORD_BITS, MemReadPort
 from ..rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
 from .common import _fp_const
 from .eye import COORD_BITS, EyeRays, EyeRequest, RaySetup, RaySetupIn
-from .secondary import LightPipe, SecondaryPipe, ShadePool
+from .secondary import LightPipe, SecondaryPipe, SlavePool
 from .texture import Texture
 
 __all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "RAY_COUNTERS", "slave_buffers",
@@ -306,15 +306,16 @@ class Slave(wiring.Component):
 
     def __init__(self, cfg: Config):
         self.cfg = cfg
-        self.pool = None                 # ShadePool (Config.rgs_fp_pool)
+        self.pool = None                 # SlavePool (Config.rgs_fp_pool)
         L = cfg.rgs_lights
         if L < 0 or L + 1 >= 1 << SUB_BITS:
             raise ConfigError(f"rgs_lights={L} must be in 0..{(1 << SUB_BITS) - 2}")
         lat = cfg.fp_latencies()
-        self.eye = EyeRays(cfg, lat)
+        pooled = cfg.rgs_fp_pool and cfg.secondary_rays
+        self.eye = EyeRays(cfg, lat, pooled=pooled)
         self.slots = 2 * cfg.threads
         if cfg.secondary_rays:
-            self.setup = RaySetup(cfg, lat)
+            self.setup = RaySetup(cfg, lat, pooled=pooled)
             self.sec_tag = data.StructLayout({
                 "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
@@ -325,9 +326,10 @@ class Slave(wiring.Component):
                 "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "rhit": 1,
                 "refl": 1, "first": 1, "tlast": 1, "last": 1, "spawn": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
-            if cfg.rgs_fp_pool:          # one pool of units for both, a LightPipe entry per light
-                self.pool = ShadePool(cfg.fmt, self.sec_tag.size, self.shd_tag.size, lat,
-                                      cfg.rgs_budget(), max(1, L))
+            if pooled:                   # one pool of units for all, a LightPipe entry per light
+                self.pool = SlavePool(cfg.fmt, self.sec_tag.size, self.shd_tag.size, lat,
+                                      cfg.rgs_budget(), max(1, L), self.eye, self.setup,
+                                      max(1, L + (cfg.reflect_depth > 0)))
                 self.sec, self.shd = self.pool.sec, self.pool.shd
             else:
                 self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget())
