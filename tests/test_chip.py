@@ -402,8 +402,8 @@ def test_chip_shared_fp_units_verilator(cornell):
 def test_chip_shade_pool_verilator(cornell):
     """The slaves' ray datapaths on one pool of the paper's 3 adders and 4 multipliers
     (``Config.rgs_fp_pool``: the eye rays, the secondary rays' ray setup (an entry per light
-    and one for the reflection), SecondaryPipe and a LightPipe entry per light register in one
-    modulo schedule, ``rtl.rgs.SlavePool``): Cornell 16x16 with its shadows, the mirror sphere
+    and one for the reflection), SecondaryPipe, a LightPipe entry per light register and the
+    texture unit's two pipes in one modulo schedule, ``rtl.rgs.SlavePool``): Cornell 16x16 with its shadows, the mirror sphere
     and the textured floor, under back-pressure and random memory latency: every ray and every
     pixel bit-exact. The chip hands its results (rays and ambient records) out on two streams
     (``result_ports``), one a slave."""
@@ -417,7 +417,7 @@ def test_chip_shade_pool_verilator(cornell):
     pool = slave.pool
     assert pool.units["add"] <= 3 and pool.units["mul"] <= 4 and pool.copies == cfg.rgs_lights
     assert (slave.sec.ii == slave.shd.ii == slave.eye.gen.ii == slave.eye.setup.ii
-            == slave.setup.pipe.ii == pool.ii)
+            == slave.setup.pipe.ii == slave.tex.coord.ii == slave.tex.filter.ii == pool.ii)
     assert slave.setup.pipe.per_ii == cfg.rgs_lights + 1 and slave.eye.gen.per_ii == 1
     r = run_chip_frame(cfg, image, scene.camera, 16, 16, stall=0.25, mem_stall=0.5, seed=5,
                        scene=scene, progress=False, max_cycles=2_000_000)

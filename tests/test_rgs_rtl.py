@@ -506,10 +506,10 @@ def test_slave_pool_units_fit_the_budget():
     """Every ray datapath of the slave on one pool (``rtl.rgs.SlavePool``, what
     ``Config.rgs_fp_pool`` builds): the interval is the least at which the budget takes
     SecondaryPipe's operations, a LightPipe entry per light, the eye-ray chain (EyeRayPipe
-    then RaySetupPipe) and a ray-setup entry per light and one for the reflection; every
-    datapath runs at that interval, the chain's second pipe in the phase its first one's
-    outputs arrive in, and no class has more units than the interval needs."""
-    from rtl.rgs import EyeRayPipe, RaySetupPipe, Slave
+    then RaySetupPipe), a ray-setup entry per light and one for the reflection, and the
+    texture unit's two pipes; every datapath runs at that interval, and no class has more
+    units than the interval needs."""
+    from rtl.rgs import EyeRayPipe, RaySetupPipe, Slave, TexCoordPipe, TexFilterPipe
     for lights, budget in ((1, {"add": 3, "mul": 4}), (3, {"add": 3, "mul": 4}),
                            (2, {"add": 1, "mul": 2})):
         cfg = Config(rgs_lights=lights, reflect_depth=1, rgs_fp_adders=budget["add"],
@@ -518,7 +518,9 @@ def test_slave_pool_units_fit_the_budget():
         s._MustUse__silence = True
         p = s.pool
         parts = [(SecondaryPipe(B32), 1), (LightPipe(B32), lights), (EyeRayPipe(B32), 1),
-                 (RaySetupPipe(B32), 1), (RaySetupPipe(B32), lights + 1)]
+                 (RaySetupPipe(B32), 1), (RaySetupPipe(B32), lights + 1),
+                 (TexCoordPipe(B32), 1), (TexFilterPipe(B32), 1)]
+        assert cfg.tex_cache_kb > 0
         counts = {k: sum(n * d.counts[k] for d, n in parts) for k in parts[0][0].counts}
         for d, _ in parts:
             d._MustUse__silence = True
@@ -528,8 +530,8 @@ def test_slave_pool_units_fit_the_budget():
             if n:
                 assert p.units[k] == -(-n // p.ii), k
                 assert k not in budget or p.units[k] <= budget[k]
-        pipes = (s.sec, s.shd, s.eye.gen, s.eye.setup, s.setup.pipe)
+        pipes = (s.sec, s.shd, s.eye.gen, s.eye.setup, s.setup.pipe, s.tex.coord, s.tex.filter)
         assert {d.ii for d in pipes} == {p.ii}
-        assert [d.per_ii for d in pipes] == [1, lights, 1, 1, lights + 1]
+        assert [d.per_ii for d in pipes] == [1, lights, 1, 1, lights + 1, 1, 1]
         assert s.setup.pipe.in_flight == (s.setup.pipe.latency // p.ii + 1) * (lights + 1)
         assert s.eye.in_flight == (s.eye.gen.latency + s.eye.setup.latency) // p.ii + 1

@@ -367,14 +367,14 @@ class ShadePool(Elaboratable):
 
     #: further datapaths on the pool: ``(chain, copies, phase)``, a chain of pipes (each fed by
     #: the one before it; ``copies`` > 1 only for a chain of one) taking ``copies`` inputs an
-    #: interval, the first in ``phase`` (a fraction of the interval in thirds)
+    #: interval, the first in ``phase`` (a fraction of the interval)
     more: tuple = ()
 
     def _t0s(self, g: int) -> list:
         """The cycles (phases) group ``g``'s copies take their inputs in: spread over the
         interval from the group's phase."""
-        _, n, third = self.groups[g]
-        return [third * self.ii // 3 + j * self.ii // n for j in range(n)]
+        _, n, phase = self.groups[g]
+        return [int(phase * self.ii) + j * self.ii // n for j in range(n)]
 
     def _build(self, m: Module, dry: bool = False) -> tuple:
         """Every graph on one schedule: ``(sec latency, [[latency of each pipe] per group]``
@@ -436,18 +436,21 @@ class SlavePool(ShadePool):
     per light and a reflection ray), in one modulo schedule over ``budget``.
 
     In each interval of ``ii`` cycles SecondaryPipe takes a hit (phase 0), LightPipe
-    ``copies`` (hit, light) tokens (from phase 0), the eye rays one sample (phase ``ii // 3``)
-    and the ray setup ``setup_copies`` rays (from phase ``2 * ii // 3``); ``ii`` is the least
-    interval at which the budget takes all their operations. The pool never stalls: the eye
-    rays and the ray setup put their outputs into queues as deep as their inputs in flight
-    and take an input only while there is room (``rtl.rgs.eye``). Latency: each datapath's
-    own, plus the cycles its operations wait for a free unit. The texture unit keeps its own
-    units (its budget is ``Config.rgs_budget``)."""
+    ``copies`` (hit, light) tokens (from phase 0), the eye rays one sample (phase ``ii / 4``),
+    the ray setup ``setup_copies`` rays (from phase ``ii / 2``) and, with ``tex`` (a
+    :class:`~rtl.rgs.Texture` built ``pooled``), its TexCoordPipe and TexFilterPipe a hit each
+    (phases ``3 ii / 4``, ``7 ii / 8``); ``ii`` is the least interval at which the budget takes
+    all their operations. The pool never stalls: the eye rays, the ray setup and the texture
+    unit put their outputs into queues as deep as their inputs in flight and take an input
+    only while there is room (``rtl.rgs.eye``, ``rtl.rgs.texture``). Latency: each
+    datapath's own, plus the cycles its operations wait for a free unit."""
 
     def __init__(self, fmt: FPFormat, sec_tag_width: int, shd_tag_width: int,
                  latencies: dict | None, budget: dict, copies: int, eye, setup,
-                 setup_copies: int = 1):
+                 setup_copies: int = 1, tex=None):
         if setup_copies < 1:
             raise ValueError(f"SlavePool: setup_copies={setup_copies} must be at least 1")
-        self.more = (((eye.gen, eye.setup), 1, 1), ((setup.pipe,), setup_copies, 2))
+        self.more = (((eye.gen, eye.setup), 1, 1 / 4), ((setup.pipe,), setup_copies, 1 / 2),
+                     *((((tex.coord,), 1, 3 / 4), ((tex.filter,), 1, 7 / 8))
+                       if tex is not None else ()))
         super().__init__(fmt, sec_tag_width, shd_tag_width, latencies, budget, copies)

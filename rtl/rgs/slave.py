@@ -326,18 +326,18 @@ class Slave(wiring.Component):
                 "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "rhit": 1,
                 "refl": 1, "first": 1, "tlast": 1, "last": 1, "spawn": 1,
                 "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
+            self.tex = Texture(cfg, 1, lat, pooled=pooled) if cfg.tex_cache_kb > 0 else None
             if pooled:                   # one pool of units for all, a LightPipe entry per light
                 self.pool = SlavePool(cfg.fmt, self.sec_tag.size, self.shd_tag.size, lat,
                                       cfg.rgs_budget(), max(1, L), self.eye, self.setup,
-                                      max(1, L + (cfg.reflect_depth > 0)))
+                                      max(1, L + (cfg.reflect_depth > 0)), self.tex)
                 self.sec, self.shd = self.pool.sec, self.pool.shd
             else:
                 self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget())
                 self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat, cfg.rgs_budget())
             self.buffers = slave_buffers(cfg)
-            # the texture unit: in step with SecondaryPipe, as deep a queue as it can hold
-            self.tex = (Texture(cfg, 1, lat, out_depth=self.sec.in_flight + 1)
-                        if cfg.tex_cache_kb > 0 else None)
+            if self.tex is not None:     # in step with SecondaryPipe: as deep a queue as it holds
+                self.tex.out_depth = self.sec.in_flight + 1
         else:
             self.buffers = 0
             self.tex = None

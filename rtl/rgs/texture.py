@@ -22,7 +22,8 @@ from ..fp.common import bits_for, unpack, wire
 from ..fp.conv import FPFromInt
 from ..memport import WORD_BITS, MemReadPort
 from ..rtc_streams import vec3
-from .common import _Datapath, _fp_const, _valid_chain
+from ..fp.schedule import Schedule
+from .common import _Datapath, _fp_const
 
 __all__ = ["TEX_SIZE_BITS", "TEX_INDEX_BITS", "wrap_coord", "tex_pos", "TexCoordPipe",
            "TexFilterPipe", "TexIn", "TexOut", "Texture"]
@@ -92,12 +93,16 @@ class TexCoordPipe(_Datapath):
                           "wy": Out(TEX_FRAC)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
+        return self._emit(m, self._schedule(m, dry), dry)
+
+    def _graph(self, m: Module, sch: Schedule, t0: int, dry: bool) -> tuple:
+        """The operations, inputs ready at cycle ``t0``: ``(L, outputs)``, the cycle the
+        outputs are ready in and ``{port name: value}`` (None when ``dry``)."""
         fmt = self.fmt
-        sch = self._schedule(m, dry)
         at = sch.at
-        u, v = (wire(m, self.u, "u"), 0), (wire(m, self.v, "v"), 0)
-        uv = [(wire(m, self.uv[k], f"uv{k}"), 0) for k in range(6)]
-        one = (_fp_const(fmt, "one"), 0)
+        u, v = (wire(m, self.u, "u"), t0), (wire(m, self.v, "v"), t0)
+        uv = [(wire(m, self.uv[k], f"uv{k}"), t0) for k in range(6)]
+        one = (_fp_const(fmt, "one"), t0)
         b = sch.op("sub", sch.op("sub", one, u, "tex_1u"), v, "tex_b")
         st = [sch.op("add", sch.op("add", sch.op("mul", b, uv[k], f"tex_b{k}"),
                                    sch.op("mul", u, uv[2 + k], f"tex_u{k}"), f"tex_a{k}"),
@@ -105,31 +110,27 @@ class TexCoordPipe(_Datapath):
         T = max(x[1] for x in st)
         L = T + 2
         if dry:
-            return L
+            return L, None
 
         def reg(value, name):            # one register that loads with en
             r = Signal.like(Value.cast(value), name=name)
             with m.If(self.en):
                 m.d.sync += r.eq(value)
             return r
-        tw, th = at(self.tw, 0, T), at(self.th, 0, T)
+        tw, th = at(self.tw, t0, T), at(self.th, t0, T)
         fs = wire(m, wrap_coord(fmt, at(st[0][0], st[0][1], T)), "tex_fs")
         ft = wire(m, (1 << UV_FRAC) - wrap_coord(fmt, at(st[1][0], st[1][1], T)), "tex_ft")
         x0, x1, wx = tex_pos(m, fs, tw, "tex_x")
         y0, y1, wy = tex_pos(m, ft[:UV_FRAC + 1], th, "tex_y")
         r = {k: reg(val, f"tex_{k}") for k, val in
              (("x0", x0), ("x1", x1), ("wx", wx), ("y0", y0), ("y1", y1), ("wy", wy))}
-        tw1 = at(self.tw, 0, T + 1)
+        tw1 = at(self.tw, t0, T + 1)
         row0 = reg(r["y0"] * tw1, "tex_row0")
         row1 = reg(r["y1"] * tw1, "tex_row1")
         x0d, x1d = reg(r["x0"], "tex_x0d"), reg(r["x1"], "tex_x1d")
         j = [(row + x)[:TEX_INDEX_BITS] for row in (row0, row1) for x in (x0d, x1d)]
-        m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
-            self.j.eq(Cat(*j)), self.wx.eq(reg(r["wx"], "tex_wxd")),
-            self.wy.eq(reg(r["wy"], "tex_wyd")), self.o_tag.eq(at(self.tag, 0, L)),
-        ]
-        return L
+        return L, {"j": Cat(*j), "wx": reg(r["wx"], "tex_wxd"), "wy": reg(r["wy"], "tex_wyd"),
+                   "o_tag": at(self.tag, t0, L)}
 
 
 class TexFilterPipe(_Datapath):
@@ -155,19 +156,24 @@ class TexFilterPipe(_Datapath):
                          {"kd_o": Out(v3)}, budget)
 
     def _build(self, m: Module, dry: bool = False) -> int:
+        return self._emit(m, self._schedule(m, dry), dry)
+
+    def _graph(self, m: Module, sch: Schedule, t0: int, dry: bool) -> tuple:
+        """The operations, inputs ready at cycle ``t0``: ``(L, outputs)``, the cycle the
+        outputs are ready in and ``{port name: value}`` (None when ``dry``)."""
         fmt = self.fmt
-        sch = self._schedule(m, dry)
         at = sch.at
-        scale = (Const(fmt.to_bits(fmt.quantize(TEX_SCALE)).item(), fmt.width), 0)
+        scale = (Const(fmt.to_bits(fmt.quantize(TEX_SCALE)).item(), fmt.width), t0)
         if not dry:                      # the blends' weights: 256 - w and w
             nx = wire(m, TEX_ONE - self.wx, "tex_nx")
-            ny, wy = at(wire(m, TEX_ONE - self.wy, "tex_ny"), 0, 1), at(self.wy, 0, 1)
+            ny = at(wire(m, TEX_ONE - self.wy, "tex_ny"), t0, t0 + 1)
+            wy = at(self.wy, t0, t0 + 1)
         out = []
         for c in range(3):
             conv = FPFromInt(fmt, int_width=UV_FRAC, signed=False, frac_bits=UV_FRAC,
                              latency=self.latencies["conv"])
-            tex = (wire(m, conv.o, f"tex_f{c}"), 2 + conv.latency)
-            kd = (wire(m, self.kd[c], f"kd{c}"), 0)
+            tex = (wire(m, conv.o, f"tex_f{c}"), t0 + 2 + conv.latency)
+            kd = (wire(m, self.kd[c], f"kd{c}"), t0)
             out.append(sch.op("mul", kd, sch.op("mul", tex, scale, f"tex_s{c}"), f"tex_kd{c}"))
             if dry:
                 conv._MustUse__silence = True
@@ -183,15 +189,11 @@ class TexFilterPipe(_Datapath):
             m.d.comb += [conv.a.eq(col), conv.en.eq(self.en)]
         L = max(x[1] for x in out)
         if dry:
-            return L
-        on = at(self.on, 0, L)
-        m.d.comb += [
-            self.o_valid.eq(_valid_chain(m, self.en, sch.start(self.i_valid), L, "valid")),
-            self.kd_o.eq(Cat(*(Mux(on, at(*x, L), at(self.kd[c], 0, L))
-                               for c, x in enumerate(out)))),
-            self.o_tag.eq(at(self.tag, 0, L)),
-        ]
-        return L
+            return L, None
+        on = at(self.on, t0, L)
+        return L, {"kd_o": Cat(*(Mux(on, at(*x, L), at(self.kd[c], t0, L))
+                                 for c, x in enumerate(out))),
+                   "o_tag": at(self.tag, t0, L)}
 
 
 def TexIn(cfg: Config, tag_width: int = 1) -> data.StructLayout:
@@ -232,16 +234,18 @@ class Texture(wiring.Component):
     """
 
     def __init__(self, cfg: Config, tag_width: int = 1, latencies: dict | None = None,
-                 queue: int = 8, out_depth: int = 4):
-        self.cfg, self.queue, self.out_depth = cfg, queue, out_depth
+                 queue: int = 8, out_depth: int = 4, pooled: bool = False):
+        self.cfg, self.queue, self.out_depth, self.pooled = cfg, queue, out_depth, pooled
         fmt = cfg.fmt
         lat = cfg.fp_latencies() if latencies is None else latencies
+        budget = None if pooled else cfg.rgs_budget()
         self.carry = data.StructLayout({"addr": 32, "on": 1, "kd": vec3(cfg), "tag": tag_width})
-        self.coord = TexCoordPipe(fmt, self.carry.size, lat, cfg.rgs_budget())
+        self.coord = TexCoordPipe(fmt, self.carry.size, lat, budget)
         self.wait = data.StructLayout({"kd": vec3(cfg), "tag": tag_width, "on": 1, "half": 4,
                                        "wx": TEX_FRAC, "wy": TEX_FRAC})
-        self.filter = TexFilterPipe(fmt, tag_width, lat, cfg.rgs_budget())
-        self.latency = self.coord.latency + 1 + self.filter.latency + 1
+        self.filter = TexFilterPipe(fmt, tag_width, lat, budget)
+        if pooled:                       # ports only: the pool builds both
+            self.coord._MustUse__silence = self.filter._MustUse__silence = True
         super().__init__({
             "i": In(stream.Signature(TexIn(cfg, tag_width))),
             "o": Out(stream.Signature(TexOut(cfg, tag_width))),
@@ -249,39 +253,68 @@ class Texture(wiring.Component):
                                    tag_width=1)),
         })
 
+    @property
+    def latency(self) -> int:
+        return self.coord.latency + 1 + self.filter.latency + 1
+
     def elaborate(self, platform):
         from amaranth.lib.fifo import SyncFIFO
         m = Module()
-        m.submodules.coord = cp = self.coord
-        m.submodules.filter = fp = self.filter
+        cp, fp = self.coord, self.filter
+        out_depth = self.out_depth
+        if self.pooled:
+            out_depth = max(out_depth, fp.in_flight + 1)
+        else:
+            m.submodules.coord, m.submodules.filter = cp, fp
         m.submodules.waitq = waitq = SyncFIFO(width=self.wait.size, depth=self.queue)
         m.submodules.outq = outq = SyncFIFO(width=len(self.o.payload.as_value()),
-                                            depth=self.out_depth)
+                                            depth=out_depth)
         p = self.i.payload
-        # -- TexCoordPipe: held while its output hit is not yet queued ---------------------------
-        en_a = Signal()
+        # -- TexCoordPipe: held while its output hit is not yet queued (on the pool: its
+        #    outputs queued, a hit taken only while there is room) ------------------------------
         ci = data.View(self.carry, cp.tag)
-        m.d.comb += [cp.en.eq(en_a), cp.i_valid.eq(self.i.valid),
-                     self.i.ready.eq(en_a & cp.i_slot),
-                     cp.u.eq(p.u), cp.v.eq(p.v), cp.uv.eq(p.uv), cp.tw.eq(p.tw), cp.th.eq(p.th),
+        m.d.comb += [cp.u.eq(p.u), cp.v.eq(p.v), cp.uv.eq(p.uv), cp.tw.eq(p.tw), cp.th.eq(p.th),
                      ci.addr.eq(p.addr), ci.on.eq(p.on), ci.kd.eq(p.kd), ci.tag.eq(p.tag)]
+        done = Signal()                  # the issue stage is done with the coordinates' hit
+        if self.pooled:
+            lay = data.StructLayout({"tag": self.carry, "j": data.ArrayLayout(TEX_INDEX_BITS, 4),
+                                     "wx": TEX_FRAC, "wy": TEX_FRAC})
+            depth = cp.in_flight + 1
+            m.submodules.coordq = cq = SyncFIFO(width=lay.size, depth=depth)
+            held = Signal(range(depth + 1))
+            credit = Signal()
+            fed = cp.i_valid & cp.i_slot
+            m.d.comb += [credit.eq(held < depth), cp.en.eq(1),
+                         cp.i_valid.eq(self.i.valid & credit),
+                         self.i.ready.eq(credit & cp.i_slot),
+                         cq.w_en.eq(cp.o_valid),
+                         cq.w_data.eq(Cat(cp.o_tag, cp.j.as_value(), cp.wx, cp.wy)),
+                         cq.r_en.eq(cq.r_rdy & done)]
+            m.d.sync += held.eq(held + fed - (cq.r_rdy & done))
+            head = data.View(lay, cq.r_data)
+            c_valid, c_tag, c_j, c_wx, c_wy = cq.r_rdy, head.tag.as_value(), head.j, head.wx, head.wy
+        else:
+            en_a = Signal()
+            m.d.comb += [cp.en.eq(en_a), cp.i_valid.eq(self.i.valid),
+                         self.i.ready.eq(en_a & cp.i_slot), en_a.eq(~cp.o_valid | done)]
+            c_valid, c_tag, c_j, c_wx, c_wy = cp.o_valid, cp.o_tag, cp.j, cp.wx, cp.wy
         # -- issue: a textured hit's four requests, the hit queued with the first ---------------
-        co = data.View(self.carry, cp.o_tag)
+        co = data.View(self.carry, c_tag)
         cnt = Signal(2)
         req = self.mem.req
         first = cnt == 0
-        m.d.comb += [req.valid.eq(cp.o_valid & co.on & (~first | waitq.w_rdy)),
-                     req.payload.addr.eq(co.addr + (Array(cp.j)[cnt] >> 1)),
+        m.d.comb += [req.valid.eq(c_valid & co.on & (~first | waitq.w_rdy)),
+                     req.payload.addr.eq(co.addr + (Array(c_j)[cnt] >> 1)),
                      req.payload.tag.eq(0)]
         sent = req.valid & req.ready
         with m.If(sent):
             m.d.sync += cnt.eq(cnt + 1)
-        push = cp.o_valid & Mux(co.on, sent & first, waitq.w_rdy)
-        m.d.comb += en_a.eq(~cp.o_valid | Mux(co.on, sent & (cnt == 3), waitq.w_rdy))
+        push = c_valid & Mux(co.on, sent & first, waitq.w_rdy)
+        m.d.comb += done.eq(c_valid & Mux(co.on, sent & (cnt == 3), waitq.w_rdy))
         w_in = Signal(self.wait)
         m.d.comb += [w_in.kd.eq(co.kd), w_in.tag.eq(co.tag), w_in.on.eq(co.on),
-                     w_in.half.eq(Cat(*(cp.j[k][0] for k in range(4)))),
-                     w_in.wx.eq(cp.wx), w_in.wy.eq(cp.wy),
+                     w_in.half.eq(Cat(*(c_j[k][0] for k in range(4)))),
+                     w_in.wx.eq(c_wx), w_in.wy.eq(c_wy),
                      waitq.w_data.eq(w_in), waitq.w_en.eq(push)]
         # -- collector: the head's four texels in order, then the filter ------------------------
         head = data.View(self.wait, waitq.r_data)
@@ -289,8 +322,12 @@ class Texture(wiring.Component):
         got = Signal(2)
         held = [Signal(32, name=f"texel{k}") for k in range(3)]
         texel = Mux(head.half.bit_select(got, 1), resp.payload.data[32:], resp.payload.data[:32])
-        en_f = Signal()
-        m.d.comb += en_f.eq(~fp.o_valid | outq.w_rdy)
+        en_f = Signal()                  # the filter may take a hit
+        if self.pooled:                  # room for every hit in it and the output queue
+            n_f = Signal(range(out_depth + 1))
+            m.d.comb += [en_f.eq(n_f < out_depth), fp.en.eq(1)]
+        else:
+            m.d.comb += [en_f.eq(~fp.o_valid | outq.w_rdy), fp.en.eq(en_f)]
         last = got == 3
         go_f = en_f & fp.i_slot          # the filter takes a hit (its slot, with shared units)
         m.d.comb += resp.ready.eq(waitq.r_rdy & head.on & (~last | go_f))
@@ -301,9 +338,11 @@ class Texture(wiring.Component):
                 with m.If(got == k):
                     m.d.sync += held[k].eq(texel)
         feed = waitq.r_rdy & go_f & Mux(head.on, resp.valid & last, 1)
-        m.d.comb += [waitq.r_en.eq(feed), fp.en.eq(en_f), fp.i_valid.eq(feed),
+        m.d.comb += [waitq.r_en.eq(feed), fp.i_valid.eq(feed),
                      fp.t.eq(Cat(*held, texel)), fp.wx.eq(head.wx), fp.wy.eq(head.wy),
                      fp.kd.eq(head.kd), fp.on.eq(head.on), fp.tag.eq(head.tag)]
+        if self.pooled:
+            m.d.sync += n_f.eq(n_f + feed - (self.o.valid & self.o.ready))
         # -- output queue ----------------------------------------------------------------------
         out = Signal(self.o.payload.shape())
         m.d.comb += [out.kd.eq(fp.kd_o), out.tag.eq(fp.o_tag),
