@@ -88,8 +88,9 @@ class Config:
     # ii = ceil(operations / n) (docs/rgs.md). The paper's slave has 3 adders, 4 multipliers.
     rgs_fp_adders: int = 0
     rgs_fp_muls: int = 0
-    # the shading datapaths (secondary rays, light and colour) share one pool of those units
-    # instead of a budget each (docs/rgs.md, "One pool for the shading"); needs a budget
+    # every slave datapath (eye rays, ray setup, secondary rays, light and colour, texture)
+    # shares one pool of those units instead of a budget each (docs/rgs.md, "One pool for
+    # the slave"); needs a budget
     rgs_fp_pool: bool = False
     # ray results the chip hands out a cycle: one output stream each, slave s on stream
     # s mod result_ports (round-robin among its slaves); the stand-in for the frame buffer's
@@ -170,7 +171,7 @@ class Config:
             raise ConfigError(f"rgs_fp_adders={self.rgs_fp_adders}, rgs_fp_muls="
                               f"{self.rgs_fp_muls} must be >= 0 (0: a unit per operation)")
         if self.rgs_fp_pool and not (self.rgs_fp_adders or self.rgs_fp_muls):
-            raise ConfigError("rgs_fp_pool=True shares a budget of FP units among the shading "
+            raise ConfigError("rgs_fp_pool=True shares a budget of FP units among the slave's "
                               "datapaths: give rgs_fp_adders and/or rgs_fp_muls (the paper's "
                               "slave: 3 and 4)")
         if self.tex_cache_kb < 0:
@@ -451,8 +452,8 @@ PRESETS: dict[str, dict] = {
     # shared 64 / 64 / 144 KB caches, 4 SDRAM chips), every RGS datapath with a unit per operation
     "standard": {},
     # the standard chip at the paper's cost (Section 5: 192 FP units): the paper's triangle
-    # test (projection on precomputed records), each RGS slave datapath on 3 adders and 4
-    # multipliers, the shading datapaths on one pool of them
+    # test (projection on precomputed records), every RGS slave datapath on one pool of 3
+    # adders and 4 multipliers
     "paper": {"int_test": "projection", "rgs_fp_adders": 3, "rgs_fp_muls": 4,
               "rgs_fp_pool": True},
 }

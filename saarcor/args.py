@@ -146,8 +146,8 @@ def add_config_args(ap: argparse.ArgumentParser) -> None:
     g.add_argument("--preset", choices=list(PRESETS), default=None,
                    help="start from a named configuration, then apply the options below: "
                         "standard (Config's defaults) or paper (the standard chip at the "
-                        "paper's cost: the projection triangle test, each RGS slave datapath "
-                        "on 3 adders and 4 multipliers, the shading on one pool of them; "
+                        "paper's cost: the projection triangle test, every RGS slave datapath "
+                        "on one pool of 3 adders and 4 multipliers; "
                         "model/config.py PRESETS)")
     g.add_argument("--fmt", help="FP format E<exp>M<frac> (default E8M23, binary32)")
     text = field_help()
