@@ -284,13 +284,18 @@ def test_rtc_top_matches_model(caches, fast, kd_cache, monkeypatch):
 
 
 @pytest.mark.filterwarnings("ignore:.*created but never used")
-@pytest.mark.parametrize("budget", [(0, 0), pytest.param((3, 4), marks=pytest.mark.slow)],
-                         ids=["unshared", "shared"])
-def test_chip_top_lint_clean(tmp_path, budget):
+@pytest.mark.parametrize("changes", [
+    {"int_test": "projection", "rgs_fp_adders": 3, "rgs_fp_muls": 4, "rgs_fp_pool": True},
+    pytest.param({}, marks=pytest.mark.slow),
+    pytest.param({"rgs_fp_adders": 3, "rgs_fp_muls": 4}, marks=pytest.mark.slow)],
+    ids=["paper", "unshared", "shared"])
+def test_chip_top_lint_clean(tmp_path, changes):
     """``make verilog TOP=chip``: the whole chip (2 RTCs, their RTC-MIs, the RGS, the bus)
-    exports with one memory port and lints clean; Yosys reads it. Also (slow: 2 minutes) with
-    the slaves' FP units shared (``rgs_fp_adders``, ``rgs_fp_muls``)."""
-    cfg = SMALL.replace(rtcs=2, rgs_fp_adders=budget[0], rgs_fp_muls=budget[1])
+    exports with one memory port and lints clean; Yosys reads it. In CI at the paper's cost
+    (``--preset paper``: the projection test, every slave datapath on one pool of 3 adders and
+    4 multipliers); slow (3 to 9 minutes each): a unit per operation, and a budget per
+    datapath."""
+    cfg = SMALL.replace(rtcs=2, **changes)
     path = ex.export("chip", cfg, tmp_path)
     p = lint(path, "chip")
     out = p.stdout + p.stderr

@@ -181,6 +181,7 @@ def test_eye_only_chip_same_frame_same_cycles(cornell):
     assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
 
 
+@pytest.mark.slow
 def test_chip_box_cull_off_traverses_the_missing_rays(cornell):
     """With the slaves' box cull turned off (the ``box_cull`` register at 0) the 16 of Cornell
     8x4's 32 eye rays that miss the box are traversed with ``[0, +inf]``: every ray bit-exact
