@@ -4,7 +4,7 @@ import pytest
 from model.cache import cache_geometry
 from model.config import Config
 from model.fp import FPFormat
-from saarcor.bench.resources import resources
+from saarcor.bench.resources import chip_resources, resources
 
 
 @pytest.mark.filterwarnings("ignore:.*created but never used")
@@ -68,3 +68,17 @@ def test_parse_stat_counts_flip_flop_bits_and_products():
         parse_stat(json.dumps({"modules": {"\\a": mod, "\\b": mod}}))
     with pytest.raises(ValueError, match="one module"):
         parse_stat("2.64E+07 memory bits")
+
+
+def test_paper_preset_is_at_the_papers_fp_budget():
+    """The paper's Section 5: 192 FP units for 4 RTCs with their slaves, 48 each. One RTC
+    of the paper preset (``--preset paper``: the projection test, every slave datapath on one
+    pool of 3 adders and 4 multipliers) elaborated: at most 48 arithmetic units (the int ->
+    FP converters left out, as the paper counts), at most 4 multipliers and 3 adders beyond
+    the RTC's (the traversal's 4, the projection test's 10 and 12)."""
+    from model.config import preset
+    r = chip_resources(preset("paper", rtcs=1))
+    units = r["fp_units"]
+    assert r["totals"]["fp_arith_units"] == sum(n for k, n in units.items() if k != "int_to_fp")
+    assert r["totals"]["fp_arith_units"] <= 48, units
+    assert units["mul"] <= 4 + 10 + 4 and units["add"] <= 4 + 12 + 3, units
