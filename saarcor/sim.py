@@ -153,7 +153,7 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
     slaves = c.get("slave", [])
     return {
         "scene": scene, "resolution": [width, height], "backend": backend,
-        "rays": {k.label: int(kinds[k]) for k in RayKind.made()}, "rays_total": run.rays,
+        "rays": {k.label: int(kinds[k]) for k in RayKind.made(cfg.refraction)}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
         "cache_topology": cfg.cache_topology, "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
