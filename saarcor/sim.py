@@ -160,7 +160,10 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "memory": memory,
         "units": units,
         "stalls": stalls,
-        "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
+        "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves],
+                   # refracted rays into each slave's RTC (Config.refraction; its counter)
+                   **({"rays_refract": [x["rays_refract"] for x in slaves]}
+                      if cfg.refraction else {})},
         "bus": {"words_per_cycle": c["mem_reads"] / cyc},
         # the chip's result streams (Config.result_ports): records a cycle, and the share of
         # the streams' cycles that carried one
