@@ -10,11 +10,12 @@ the material transmits and the depth allows (``SecondaryPipe(refract=True)``, it
 miss colour from LightPipe on one more token of the hit). The secondary rays of one source
 packet are packed into packets exactly as ``model.shading`` packs them (per light, the
 reflections and the refracted rays: the wanted hits of the source packet in lane order) and
-set up (:class:`~rtl.rgs.RaySetup`) for the same RTC. It computes the colour too (``model.shading``): every ray carries its weight and
-the contribution it makes if it misses (the background for an eye or reflection ray, its
-light's Phong term for a shadow ray, computed by ``LightPipe`` when the ray is made); a hit
-adds its ambient term as a record of its own. The host sums the contributions per pixel (in
-fixed point: the same in any order).
+set up (:class:`~rtl.rgs.RaySetup`) for the same RTC. It computes the colour too
+(``model.shading``): every ray carries its weight and the contribution it makes if it misses
+(the background for an eye, reflection or refracted ray, its light's Phong term for a shadow
+ray, computed by ``LightPipe`` when the ray is made); a hit adds its ambient term as a record
+of its own. The host sums the contributions per pixel (in fixed point: the same in any
+order).
 
 Data paths::
 
@@ -39,8 +40,8 @@ other pieces share state (the slot table, the pending buffers and their credits)
   every hit of an eye, reflection or refracted ray, its ambient term.
 * **Shading records** (``REC_BITS``: unit face normal, vertex normals, flags, the material's
   colour constants; for a material that transmits, kt, eta_in and eta_out in the texture
-  coordinates' slots, ``model.layout.REC_KT``) come through the slave's shading cache (a ``rtl.cache.Cache`` on the
-  chip's bus), addressed by triangle.
+  coordinates' slots, ``model.layout.REC_KT``) come through the slave's shading cache (a
+  ``rtl.cache.Cache`` on the chip's bus), addressed by triangle.
 * **Pending buffers** (``buffers`` of ``packet_size`` rays: origin, direction, eye lane):
   secondary packets waiting for the RTC.
 * **Texture unit** (:class:`~rtl.rgs.Texture`, with ``cfg.tex_cache_kb > 0``): beside
@@ -56,19 +57,27 @@ pending buffers (one per light, one for the reflections; ``lights + 2`` with
 most one buffer per builder), so the results of every packet in the RTC can always be
 processed and the RTC always frees its threads; eye packets are admitted only while no
 secondary packet waits, and there are ``buffers >= 2 * K + 2`` (``Config.min_rgs_buffers``),
-so a waiting reflection or refracted packet always finds its own reservation once the packets
-ahead of it have finished.
+so a waiting reflection packet always finds its own reservation once the packets ahead of it
+have finished. With refraction a source packet may leave two waiting packets that need a
+reservation (its reflection and refracted packets), and that count no longer holds; two more
+rules bound the waiting packets (:meth:`Slave._branch_gate`, :meth:`Slave._send`): a packet
+that may spawn starts only while no deeper one that may spawn waits, and a *branching* packet
+(one that may spawn, below ``reflect_depth``) only while fewer than ``B = (buffers - K) //
+(reflect_depth + 1)`` are in flight. At most ``B * (reflect_depth + 1)`` packets then wait,
+and ``buffers >= K + reflect_depth + 1`` leaves K free for the deepest
+(``tests/test_rgs_slave_reservations.py`` searches every state of an abstract slave).
 
-Every result of an eye, reflection or refracted ray goes through the shading path (context queue,
-SecondaryPipe, light loop, LightPipe), hit or miss, so that its packet's last token commits
+Every result of an eye, reflection or refracted ray goes through the shading path (context
+queue, SecondaryPipe, light loop, LightPipe), hit or miss, so that its packet's last token commits
 the packet's secondary packets; the ambient records are reserved at the light loop (a queue
 as deep as the tokens LightPipe holds at once + 7, rounded up to a power of two), so LightPipe
 never stalls.
 
 Throughput: one ray into the RTC per cycle; one result per cycle; a hit takes
-``max(1, lights)`` cycles of the light loop (one more where it spawns a refracted ray). Latency of a hit's secondary rays: the shading
-cache, :class:`~rtl.rgs.SecondaryPipe` (70 cycles at binary32 defaults), the light loop,
-:class:`~rtl.rgs.LightPipe` (75), then the whole source packet must be done before its
+``max(1, lights)`` cycles of the light loop (one more where it spawns a refracted ray).
+Latency of a hit's secondary rays: the shading cache, :class:`~rtl.rgs.SecondaryPipe` (70
+cycles at binary32 defaults, 90 with refraction), the light loop, :class:`~rtl.rgs.LightPipe`
+(75), then the whole source packet must be done before its
 secondary packets go (they are complete only then).
 """
 from __future__ import annotations
@@ -603,8 +612,9 @@ class Slave(wiring.Component):
         ``count`` (rays), ``sub``, ``depth`` and eye ``packet``; ``credits`` (buffers not
         reserved; ``take`` and ``back``, this cycle's reservations and returns) and ``mem``,
         the rays (:func:`RayEntry`; write ports ``w[0]`` shadow, ``w[1]`` reflection rays,
-        from LightPipe; read port ``r``, the sender's)."""
-        NB, P, L = self.buffers, self.cfg.packet_size, self.cfg.rgs_lights
+        from LightPipe, and refracted rays through ``w[0]``; read port ``r``, the sender's;
+        with ``cfg.refraction`` per buffer its packet's ``path``)."""
+        NB, P = self.buffers, self.cfg.packet_size
         pb = SimpleNamespace(
             free=Signal(NB, init=(1 << NB) - 1, name="buf_free"),
             ready=Signal(NB, name="buf_ready"),
@@ -622,8 +632,9 @@ class Slave(wiring.Component):
         """With ``cfg.refraction``: the branching packets (those that may spawn, of depth
         below ``reflect_depth``: their hits may spawn a reflection and a refracted packet that
         spawn in turn) in flight, ``pb.branching`` (``br_eye``, ``br_send``, ``br_dec``: this
-        cycle's admitted eye packet, started secondary packet, commit), and ``pb.branch_ok``: fewer than ``B`` = (buffers - K) //
-        (reflect_depth + 1) (at least 1) are, so one more may start (the module docstring)."""
+        cycle's admitted eye packet, started secondary packet, commit), and ``pb.branch_ok``:
+        fewer than ``B`` = (buffers - K) // (reflect_depth + 1) (at least 1) are, so one more
+        may start (the module docstring)."""
         NB, D = self.buffers, self.reflect_depth
         pb.branching = Signal(range(self.slots + 1), name="branching")
         pb.br_eye, pb.br_send = Signal(name="branch_eye"), Signal(name="branch_send")
