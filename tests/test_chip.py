@@ -584,6 +584,9 @@ def test_chip_refuses_refraction_it_cannot_make(glass):
     scene, _, image = glass
     with pytest.raises(ValueError, match="refraction=True"):
         frame_registers(TINY, image, scene.camera, 4, 4, scene)
+    with pytest.raises(ConfigError, match="refraction=True"):
+        TINY.check_scene(scene, image, 4, 4)
+    assert GLASS.for_scene(scene, image, 4, 4).refraction
     with pytest.raises(ConfigError, match="rgs_fp_pool=False"):
         GLASS.replace(rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
     with pytest.raises(ConfigError, match="reflect_depth"):
