@@ -75,6 +75,10 @@ class Config:
     oversampling: int = 1          # rays per pixel side: n x n rays on a regular sub-pixel grid
     shadows: bool = True           # every light casts shadows
     rgs_lights: int = 4            # light registers per RGS slave (the most lights a scene has)
+    # the RGS slaves make refracted rays (a material with transmit > 0; docs/rgs.md,
+    # "Refraction"): the refraction datapath beside the secondary rays' and one more pending
+    # buffer reserved per packet that may spawn rays
+    refraction: bool = False
     # pending secondary packets per RGS slave (packet_size rays each); 0: enough to keep every
     # RTC thread busy, threads + rgs_lights + 1 (at least 2 (rgs_lights + 1) + 2, the fewest
     # that cannot deadlock: docs/chip.md)
@@ -162,11 +166,21 @@ class Config:
         if self.shade_cache_kb < 1:
             raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
         if self.rgs_buffers and self.rgs_buffers < self.min_rgs_buffers:
+            need = ("2 (rgs_lights + 2) + 2 and rgs_lights + 2 + reflect_depth + 1 "
+                    "(refraction)" if self.refraction else "2 (rgs_lights + 1) + 2")
             raise ConfigError(f"rgs_buffers={self.rgs_buffers} is too few for rgs_lights="
-                              f"{self.rgs_lights}: a slave needs at least 2 (rgs_lights + 1) "
-                              f"+ 2 = {self.min_rgs_buffers} pending buffers (or 0: the "
-                              "default) so that a reflection packet always finds its "
-                              "reservation")
+                              f"{self.rgs_lights}: a slave needs at least {need} = "
+                              f"{self.min_rgs_buffers} pending buffers (or 0: the default) so "
+                              "that a reflection packet always finds its reservation")
+        if self.refraction and self.rgs_fp_pool:
+            raise ConfigError("refraction=True: the shading pool (rgs_fp_pool=True) has no "
+                              "refraction datapath; set rgs_fp_pool=False (a budget of FP "
+                              "units per datapath, rgs_fp_adders/rgs_fp_muls, still applies)")
+        if self.refraction and not self.secondary_rays:
+            raise ConfigError("refraction=True but the RGS slaves make no secondary rays "
+                              "(rgs_lights=0 and reflect_depth=0): give reflect_depth >= 1 "
+                              "(refracted rays count as a reflection level), or set "
+                              "refraction=False")
         if self.rgs_fp_adders < 0 or self.rgs_fp_muls < 0:
             raise ConfigError(f"rgs_fp_adders={self.rgs_fp_adders}, rgs_fp_muls="
                               f"{self.rgs_fp_muls} must be >= 0 (0: a unit per operation)")
@@ -274,9 +288,17 @@ class Config:
 
     @property
     def min_rgs_buffers(self) -> int:
-        """The fewest pending buffers a slave can hold without deadlock: ``2 (rgs_lights + 1)
-        + 2`` (``rtl/rgs/slave.py``)."""
-        return 2 * (self.rgs_lights + 1) + 2
+        """The fewest pending buffers a slave can hold without deadlock: ``2 *``
+        :attr:`rgs_reserve` ``+ 2``, and with :attr:`refraction` at least :attr:`rgs_reserve`
+        ``+ reflect_depth + 1`` (``rtl/rgs/slave.py``, ``docs/chip.md``)."""
+        n = 2 * self.rgs_reserve + 2
+        return max(n, self.rgs_reserve + self.reflect_depth + 1) if self.refraction else n
+
+    @property
+    def rgs_reserve(self) -> int:
+        """The most pending buffers a packet that may spawn rays reserves: one per light, one
+        for its reflections and, with :attr:`refraction`, one for its refracted rays."""
+        return self.rgs_lights + 1 + int(self.refraction)
 
     @property
     def min_addr_bits(self) -> int:
@@ -316,7 +338,8 @@ class Config:
         memory image, built with this configuration: ``model.render.prepare``), as many light
         registers as the scene casts shadows from, no reflections if no triangle reflects (so
         for a scene without lights and mirrors no secondary-ray hardware:
-        :attr:`secondary_rays`), no texture unit if no triangle is textured. Rebuilding the
+        :attr:`secondary_rays`), no texture unit if no triangle is textured, no refraction
+        if no triangle transmits. Rebuilding the
         tree with the derived ``kd_max_depth`` gives the same tree (the limit was not
         reached below it). Memory addresses get as many bits as the image's words need (at
         least :attr:`min_addr_bits`). Raises :class:`ConfigError` if the scene needs more than this
@@ -325,6 +348,7 @@ class Config:
         need = scene_needs(scene, image, self)
         return self.replace(kd_max_depth=max(1, need["stack_depth"]),
                             rgs_lights=need["lights"], reflect_depth=need["reflect_depth"],
+                            refraction=need["refraction"],
                             tex_cache_kb=need["tex_cache_kb"],
                             addr_bits=max(self.min_addr_bits, need["addr_bits"]))
 
@@ -341,6 +365,9 @@ class Config:
             raise ConfigError(f"the scene casts shadows from {need['lights']} lights, the RGS "
                               f"slaves hold rgs_lights={self.rgs_lights}: raise rgs_lights "
                               "(or turn shadows off)")
+        if need["refracts"] and not self.refraction:
+            raise ConfigError("the scene has a material that transmits (refracted rays), the "
+                              "RGS slaves make none (refraction=False): set refraction=True")
         if need["addr_bits"] > self.addr_bits:
             raise ConfigError(f"the scene's memory image is {len(image.data)} words, the chip "
                               f"addresses 2**{self.addr_bits} (addr_bits={self.addr_bits}): "
@@ -370,9 +397,11 @@ class Config:
         (a Verilator binary's cache key; one binary serves every value of the others).
         ``reflect_depth`` enters only as :attr:`secondary_rays` (the RTL reads it through that
         property alone; the depth itself is a register loaded per frame), so a chip with light
-        registers is one binary for every reflection depth."""
+        registers is one binary for every reflection depth (but with :attr:`refraction`, whose
+        fewest pending buffers grow with the depth: :attr:`min_rgs_buffers`)."""
         d = {k: v for k, v in self.to_dict().items() if k not in HOST_FIELDS}
-        del d["reflect_depth"]
+        if not self.refraction:
+            del d["reflect_depth"]
         d["secondary_rays"] = self.secondary_rays
         return d
 
@@ -432,16 +461,22 @@ def scene_needs(scene, image, cfg: Config) -> dict:
     ``stack_depth`` (the kd-tree's depth), ``lights`` (shadow-casting lights: 0 without
     ``cfg.shadows``), ``reflect_depth`` (``cfg.reflect_depth``, 0 if no triangle's material
     reflects or transmits), ``tex_cache_kb`` (``cfg.tex_cache_kb``, 0 if no triangle's
-    material has a texture), ``addr_bits`` (memory word address bits the image's words need)."""
+    material has a texture), ``refracts`` (a triangle's material transmits, at a
+    ``cfg.reflect_depth`` above 0), ``refraction`` (``cfg.refraction`` and ``refracts``),
+    ``addr_bits`` (memory word address bits the image's words need)."""
     import numpy as np
     reflect = np.array([m.reflect + m.transmit for m in scene.materials], np.float64)
     reflective = bool(len(scene.material) and (reflect[scene.material] > 0).any())
+    transmit = np.array([m.transmit for m in scene.materials], np.float64)
+    refracts = bool(len(scene.material) and (transmit[scene.material] > 0).any()
+                    and cfg.reflect_depth > 0)
     tex = np.array([m.texture is not None for m in scene.materials], bool)
     textured = bool(len(scene.material) and tex[scene.material].any())
     return {"stack_depth": int(image.depth),
             "lights": len(scene.lights) if cfg.shadows else 0,
             "reflect_depth": cfg.reflect_depth if reflective else 0,
             "tex_cache_kb": cfg.tex_cache_kb if textured else 0,
+            "refracts": refracts, "refraction": cfg.refraction and refracts,
             "addr_bits": max(1, (len(image.data) - 1).bit_length())}
 
 

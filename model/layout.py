@@ -50,6 +50,7 @@ REC_KD = 13                   # 13..15: kd x (1 - reflectivity)
 REC_KS = 16                   # 16..18: ks x (1 - reflectivity)
 REC_KR = 19                   # 19: the reflectivity
 REC_UV = 20                   # 20..25: the texture coordinates of A, B, C (textured only)
+REC_KT = 20                   # 20..22: kt, eta_in, eta_out (transmitting, untextured only)
 REC_TEX_ADDR = 26             # 26: the texture's first texel word (textured only)
 REC_TEX_SIZE = 27             # 27: the texture's width | height << 16 (textured only)
 REC_SLOTS = 28
@@ -57,6 +58,7 @@ REC_WORDS = REC_SLOTS // 2
 REC_BITS = REC_SLOTS * 32
 REC_REFLECTIVE = 1            # flags bit 0: the material reflects (reflect > 0)
 REC_TEXTURED = 2              # flags bit 1: the material has a texture (and the scene UVs)
+REC_TRANSMITS = 4             # flags bit 2: the material transmits (transmit > 0, untextured)
 REC_SHIN_SHIFT = 16           # flags bits 16..25: the Phong exponent (0..1023)
 SHIN_BITS = 10
 NO_TEXTURE = 0xFFFFFFFF
@@ -426,6 +428,14 @@ def _shading_section(shading: ShadingData | None, n_tris: int, base: int, fmt: F
             entry = tex_dir[tex[textured]]                  # | texel addr | height | width |
             rec[textured, REC_TEX_ADDR] = (entry >> np.uint64(32)).astype(np.uint32)
             rec[textured, REC_TEX_SIZE] = (entry & np.uint64(0xFFFFFFFF)).astype(np.uint32)
+        # a material that transmits: kt, eta_in, eta_out where a textured one has its texture
+        # coordinates (a textured material that transmits has the texture; the chip's slaves
+        # refuse it, tb.harness.chip.frame_registers)
+        trans = (mats["transmit"][mat_id] > 0) & ~textured
+        if trans.any():
+            rec[trans, REC_FLAGS] |= np.uint32(REC_TRANSMITS)
+            for k, name in enumerate(("kt", "eta_in", "eta_out")):
+                rec[trans, REC_KT + k] = _f32_bits(mc[name][mat_id[trans]])
     rec_base = put(rec.view("<u8").ravel())
     hdr[1] = _lohi(n_mat, n_tex)
     hdr[2] = _lohi(matid_base, normal_base)

@@ -37,10 +37,13 @@ class Rays:
     pk_start: np.ndarray         # (P + 1,) int64
     anyhit: np.ndarray = field(default=None)   # (N,) bool: any hit ends the ray (shadow rays)
     # the ray's id in its frame (what the chip reports): the eye ray it descends from (index in
-    # eye-ray order), its depth (reflections before it) and, for a shadow ray, its light
+    # eye-ray order), its depth (reflections before it), for a shadow ray its light and its
+    # path: bit i set where the ray's ancestor (or itself) of depth i + 1 is a refracted ray
+    # (not a reflection), so that rays of one eye ray and depth differ
     eye: np.ndarray = field(default=None)      # (N,) int64; default: the ray's own index
     depth: np.ndarray = field(default=None)    # (N,) uint8; default 0
     light: np.ndarray = field(default=None)    # (N,) int16: light index, -1 for no shadow ray
+    path: np.ndarray = field(default=None)     # (N,) uint16; default 0
 
     def __post_init__(self):
         n = self.org.shape[0]
@@ -52,6 +55,8 @@ class Rays:
             self.depth = np.zeros(n, np.uint8)
         if self.light is None:
             self.light = np.full(n, -1, np.int16)
+        if self.path is None:
+            self.path = np.zeros(n, np.uint16)
 
     def __len__(self) -> int:
         return self.org.shape[0]
@@ -93,7 +98,8 @@ class Rays:
                     np.concatenate([p.anyhit for p in parts]),
                     np.concatenate([p.eye for p in parts]),
                     np.concatenate([p.depth for p in parts]),
-                    np.concatenate([p.light for p in parts]))
+                    np.concatenate([p.light for p in parts]),
+                    np.concatenate([p.path for p in parts]))
 
 
 def empty_rays() -> Rays:
@@ -209,5 +215,6 @@ def select_packets(rays: Rays, keep: np.ndarray) -> tuple[Rays, np.ndarray]:
     idx = np.flatnonzero(np.repeat(keep, sizes))
     pk = np.r_[0, np.cumsum(sizes[keep])].astype(np.int64)
     sub = Rays(rays.org[idx], rays.dir[idx], rays.tmax[idx], rays.kind[idx], rays.pixel[idx],
-               pk, rays.anyhit[idx], rays.eye[idx], rays.depth[idx], rays.light[idx])
+               pk, rays.anyhit[idx], rays.eye[idx], rays.depth[idx], rays.light[idx],
+               rays.path[idx])
     return sub, idx

@@ -18,13 +18,14 @@ class RayKind(enum.IntEnum):
     * ``REFRACTION``: from a hit on a material that transmits (``transmit > 0``), through the
       surface by Snell's law (``model/rgs/refract.py``; total internal reflection makes it a
       mirror ray, still of this kind), while the reflection depth allows (each refracted ray
-      adds one to the depth, as a reflection does). The golden model makes them; the chip's
-      RGS slaves do not (the chip harness refuses a scene whose materials transmit), so
-      :meth:`made`, the kinds of the chip's rays, leaves it out.
+      adds one to the depth, as a reflection does). The chip's RGS slaves make them with
+      ``Config.refraction``.
 
     The chip's records do not carry a kind but the ray's id (``rtl.rgs.SlaveResult``:
-    ``depth``, and ``sub``, 0 an eye or reflection ray, 1 + l a shadow ray toward light l);
-    the slave counts its rays into the RTC by kind (``rtl.rgs.slave.RAY_COUNTERS``)."""
+    ``depth``; ``sub``, 0 an eye, reflection or refracted ray, 1 + l a shadow ray toward
+    light l; with refraction ``path``, bit i set where the ray's ancestor of depth i + 1 is a
+    refracted ray); the slave counts its rays into the RTC by kind
+    (``rtl.rgs.slave.ray_counters``)."""
 
     EYE = 0
     SHADOW = 1
@@ -37,7 +38,7 @@ class RayKind(enum.IntEnum):
         return self.name.lower()
 
     @classmethod
-    def made(cls) -> tuple[RayKind, ...]:
-        """The kinds the chip's rays can have (not ``REFRACTION``: only the golden model makes
-        refracted rays)."""
-        return (cls.EYE, cls.SHADOW, cls.REFLECTION)
+    def made(cls, refraction: bool = False) -> tuple[RayKind, ...]:
+        """The kinds the chip's rays can have: ``REFRACTION`` only with ``refraction``
+        (``Config.refraction``)."""
+        return (cls.EYE, cls.SHADOW, cls.REFLECTION) + ((cls.REFRACTION,) if refraction else ())

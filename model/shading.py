@@ -328,15 +328,19 @@ def _packetize(src: Rays, sel: np.ndarray, want: np.ndarray, org, d, tmax, kind,
                light: int = -1):
     """Keep rays where ``want``; a secondary packet = the wanted rays of one source packet, in
     lane order (the RGS slave packs them the same way). Shadow rays keep their source ray's
-    depth, reflection and refracted rays add one; all keep its eye ray."""
+    depth, reflection and refracted rays add one; all keep its eye ray and its path, and a
+    refracted ray sets the path's bit of its source ray's depth (``Rays.path``)."""
     keep = np.nonzero(want)[0]
     src_packet = np.searchsorted(src.pk_start, sel[keep], side="right") - 1
     counts = np.bincount(src_packet, minlength=src.n_packets)
     pk_start = np.concatenate([[0], np.cumsum(counts[counts > 0])]).astype(np.int64)
     parent = sel[keep]
     depth = src.depth[parent] + (1 if kind in (RayKind.REFLECTION, RayKind.REFRACTION) else 0)
+    path = src.path[parent].astype(np.uint16)
+    if kind == RayKind.REFRACTION:         # the path's bit of the new depth: a refraction
+        path |= (np.uint16(1) << src.depth[parent].astype(np.uint16)).astype(np.uint16)
     rays = Rays(org[keep].astype(np.float32), d[keep].astype(np.float32), tmax[keep],
                 np.full(len(keep), kind, np.uint8), src.pixel[parent], pk_start,
                 eye=src.eye[parent], depth=depth.astype(np.uint8),
-                light=np.full(len(keep), light, np.int16))
+                light=np.full(len(keep), light, np.int16), path=path)
     return rays, keep

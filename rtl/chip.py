@@ -142,14 +142,14 @@ class Chip(wiring.Component):
     (one cycle) renders a frame; ``busy`` is high from the cycle after ``start`` until every
     ray the frame spawned has finished and its result has left; ``done`` = not busy.
     ``results[i]`` (``cfg.result_ports`` Out streams of ``SlaveResult``): every ray's id (eye
-    packet and lane, depth, sub), hit and colour contribution, and the ambient records of the
+    packet and lane, depth, sub; path with ``cfg.refraction``), hit and colour contribution, and the ambient records of the
     hits, in any order; slave s's on stream ``s % result_ports`` (a registered round-robin
     over its slaves: one result a cycle each).
 
     Counters: ``cycles`` (busy cycles of the last frame), ``rays_in`` (rays into the RTCs),
     ``results_out`` (ray results; the ambient records are not counted), ``packets[s]`` (eye
     packets slave s got), per slave ``rays_eye``, ``rays_shadow``, ``rays_reflect``,
-    ``sec_busy`` (``slave_counters[s]``), its shading cache's
+    ``rays_refract``, ``sec_busy`` (``slave_counters[s]``), its shading cache's
     ``shade_hits``/``shade_misses`` and its texel cache's ``tex_hits``/``tex_misses`` (0
     where there is none), and :class:`RTCArray`'s (``rtc_counters``, ``hits``,
     ``misses``, ``waits``, ``cache_stalls``, ``grants``, ``mem_reads``).

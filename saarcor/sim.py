@@ -153,14 +153,17 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
     slaves = c.get("slave", [])
     return {
         "scene": scene, "resolution": [width, height], "backend": backend,
-        "rays": {k.label: int(kinds[k]) for k in RayKind.made()}, "rays_total": run.rays,
+        "rays": {k.label: int(kinds[k]) for k in RayKind.made(cfg.refraction)}, "rays_total": run.rays,
         "cycles": run.cycles, "clock_mhz": cfg.clock_mhz, **perf,
         "trav_ops": trav, "int_ops": inter, "list_ops": lst,
         "cache_topology": cfg.cache_topology, "cache": cache, "shade_cache": cache_stats("shade"), "tex_cache": cache_stats("tex"),
         "memory": memory,
         "units": units,
         "stalls": stalls,
-        "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves]},
+        "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves],
+                   # refracted rays into each slave's RTC (Config.refraction; its counter)
+                   **({"rays_refract": [x["rays_refract"] for x in slaves]}
+                      if cfg.refraction else {})},
         "bus": {"words_per_cycle": c["mem_reads"] / cyc},
         # the chip's result streams (Config.result_ports): records a cycle, and the share of
         # the streams' cycles that carried one

@@ -513,3 +513,88 @@ def test_chip_projection_secondary_rays_verilator(kd_cache):
     check_frame(r, cfg, image, eye_rays(scene.camera, 8, 8, cfg))
     kinds = np.bincount(r.frame_rays.kind, minlength=3)
     assert r.color is not None and kinds[1] > kinds[0] > 0 and kinds[2] > 0
+
+
+# refracted rays (Config.refraction): the glass scene, reflections and refractions to depth 2
+GLASS = TINY.replace(refraction=True, reflect_depth=2)
+
+
+@pytest.fixture(scope="module")
+def glass(kd_cache):
+    """scenes/glass.toml, and the same scene seen from close to its glass block (every eye ray
+    of a 4x4 frame hits the block: a frame short enough for Amaranth's simulator)."""
+    import dataclasses
+
+    from model.scene_data import Camera
+    scene = load_scene(ROOT / "scenes/glass.toml")
+    block = dataclasses.replace(scene, camera=Camera(
+        np.array([1.6, 1.2, 7.0]), np.array([1.6, 1.2, 2.4]), np.array([0.0, 1.0, 0.0]), 12.0))
+    return scene, block, prepare(scene, GLASS, cache_dir=kd_cache).image
+
+
+def check_refraction(r, cfg, image, scene, width, height):
+    """:func:`check_frame`, and the frame's refracted rays: every kind, and rays of one eye
+    ray and depth told apart by their path (a reflection's refraction, a refraction's
+    reflection), refracted rays of refracted rays among them."""
+    check_frame(r, cfg, image, eye_rays(scene.camera, width, height, cfg))
+    rays = r.frame_rays
+    assert r.color is not None
+    kinds = np.bincount(rays.kind, minlength=4)
+    assert (kinds > 0).all(), kinds
+    assert sum(x["rays_refract"] for x in r.counters["slave"]) == kinds[RayKind.REFRACTION]
+    refracted_twice = (rays.kind == RayKind.REFRACTION) & (rays.path == 3)
+    reflected_after = (rays.kind == RayKind.REFLECTION) & (rays.path == 1) & (rays.depth == 2)
+    assert refracted_twice.any() and reflected_after.any()
+
+
+@pytest.mark.slow
+def test_chip_refraction_in_amaranth_sim(glass):
+    """The slaves make refracted rays (``Config.refraction``): the glass block 4x4 (3 point
+    lights, reflections and refractions to depth 2), every ray of the frame's ray tree
+    bit-exact with ``model.render``'s, found by its id (eye ray, depth, light, path), every
+    pixel's colour too, under result back-pressure. (Slow: about 3 minutes of Amaranth's
+    simulator; ``test_chip_refraction_verilator`` runs it in Verilator to the same cycle.)"""
+    from tb.harness.chip import run_chip
+    _, block, image = glass
+    r = run_chip(GLASS, image, block.camera, 4, 4, stall=0.25, seed=3, scene=block,
+                 max_cycles=100_000)
+    check_refraction(r, GLASS, image, block, 4, 4)
+    name = "chip/glass_block_4x4_refraction"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+
+
+@pytest.mark.slow
+def test_chip_refraction_verilator(glass):
+    """The same frame in Verilator to the same cycle; then scenes/glass.toml 8x8 (the glass
+    sphere and block among the Cornell walls) under back-pressure and random memory latency:
+    every ray and pixel bit-exact, the slaves' refracted-ray counters the model's count."""
+    from tb.harness.chip import run_chip_frame
+    scene, block, image = glass
+    r = run_chip_frame(GLASS, image, block.camera, 4, 4, stall=0.25, seed=3, scene=block,
+                       progress=False)
+    check_refraction(r, GLASS, image, block, 4, 4)
+    name = "chip/glass_block_4x4_refraction"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+    r = run_chip_frame(GLASS, image, scene.camera, 8, 8, stall=0.25, mem_stall=0.5, seed=5,
+                       scene=scene, progress=False, max_cycles=2_000_000)
+    check_refraction(r, GLASS, image, scene, 8, 8)
+
+
+def test_chip_refuses_refraction_it_cannot_make(glass):
+    """A scene whose materials transmit needs ``refraction=True``; refraction needs the
+    shading datapaths apart (not ``rgs_fp_pool``) and enough pending buffers for its depth."""
+    from model.config import ConfigError
+    from tb.harness.chip import frame_registers
+    scene, _, image = glass
+    with pytest.raises(ValueError, match="refraction=True"):
+        frame_registers(TINY, image, scene.camera, 4, 4, scene)
+    with pytest.raises(ConfigError, match="refraction=True"):
+        TINY.check_scene(scene, image, 4, 4)
+    assert GLASS.for_scene(scene, image, 4, 4).refraction
+    with pytest.raises(ConfigError, match="rgs_fp_pool=False"):
+        GLASS.replace(rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
+    with pytest.raises(ConfigError, match="reflect_depth"):
+        GLASS.replace(rgs_lights=1, reflect_depth=9, rgs_buffers=10)
+    assert GLASS.replace(rgs_lights=1, reflect_depth=9).min_rgs_buffers == 3 + 9 + 1
+    assert GLASS.hardware_dict() != GLASS.replace(reflect_depth=3).hardware_dict()
+    assert TINY.hardware_dict() == TINY.replace(reflect_depth=2).hardware_dict()

@@ -5,14 +5,17 @@ A slave takes packet requests (tiles) from the RGS master, makes their eye rays
 to the host, and for every hit of an eye or reflection ray makes the secondary rays in FP
 hardware (:class:`~rtl.rgs.SecondaryPipe`, :class:`~rtl.rgs.LightPipe`): one shadow ray per
 light that faces the surface (any-hit, tmax 1 for a point light), a reflection ray where the
-material reflects and the depth allows. The secondary rays of one source packet are packed
-into packets exactly as ``model.shading`` packs them (per light, and the reflections: the
-wanted hits of the source packet in lane order) and set up (:class:`~rtl.rgs.RaySetup`) for
-the same RTC. It computes the colour too (``model.shading``): every ray carries its weight and
-the contribution it makes if it misses (the background for an eye or reflection ray, its
-light's Phong term for a shadow ray, computed by ``LightPipe`` when the ray is made); a hit
-adds its ambient term as a record of its own. The host sums the contributions per pixel (in
-fixed point: the same in any order).
+material reflects and the depth allows; with ``cfg.refraction`` also a refracted ray where
+the material transmits and the depth allows (``SecondaryPipe(refract=True)``, its weight and
+miss colour from LightPipe on one more token of the hit). The secondary rays of one source
+packet are packed into packets exactly as ``model.shading`` packs them (per light, the
+reflections and the refracted rays: the wanted hits of the source packet in lane order) and
+set up (:class:`~rtl.rgs.RaySetup`) for the same RTC. It computes the colour too
+(``model.shading``): every ray carries its weight and the contribution it makes if it misses
+(the background for an eye, reflection or refracted ray, its light's Phong term for a shadow
+ray, computed by ``LightPipe`` when the ray is made); a hit adds its ambient term as a record
+of its own. The host sums the contributions per pixel (in fixed point: the same in any
+order).
 
 Data paths::
 
@@ -29,14 +32,16 @@ other pieces share state (the slot table, the pending buffers and their credits)
 
 * **Ray store**: per RTC packet slot (``2 * threads`` slots; the slot is the packet id the RTC
   sees) and lane, the ray's origin, direction and lane in its eye packet; per slot the eye
-  packet (tile), the depth and the kind (``sub``: 0 eye or reflection, 1 + l shadow ray of
-  light l).
-* **Host record** (:func:`SlaveResult`) of every ray: eye packet and lane, depth, sub — the
-  ray's id — its hit (triangle, t, u, v) and its colour if it missed; and of every hit of an
-  eye or reflection ray, its ambient term.
+  packet (tile), the depth, the kind (``sub``: 0 eye, reflection or refracted ray, 1 + l
+  shadow ray of light l) and, with refraction, the path (bit i: the packet's ancestor of
+  depth i + 1 is a refracted packet).
+* **Host record** (:func:`SlaveResult`) of every ray: eye packet and lane, depth, sub (and
+  path) — the ray's id — its hit (triangle, t, u, v) and its colour if it missed; and of
+  every hit of an eye, reflection or refracted ray, its ambient term.
 * **Shading records** (``REC_BITS``: unit face normal, vertex normals, flags, the material's
-  colour constants) come through the slave's shading cache (a ``rtl.cache.Cache`` on the
-  chip's bus), addressed by triangle.
+  colour constants; for a material that transmits, kt, eta_in and eta_out in the texture
+  coordinates' slots, ``model.layout.REC_KT``) come through the slave's shading cache (a
+  ``rtl.cache.Cache`` on the chip's bus), addressed by triangle.
 * **Pending buffers** (``buffers`` of ``packet_size`` rays: origin, direction, eye lane):
   secondary packets waiting for the RTC.
 * **Texture unit** (:class:`~rtl.rgs.Texture`, with ``cfg.tex_cache_kb > 0``): beside
@@ -45,24 +50,34 @@ other pieces share state (the slot table, the pending buffers and their credits)
   texel cache); the light loop waits for it.
 
 Nothing is dropped and nothing deadlocks (``docs/chip.md``): a packet whose hits may spawn
-rays (an eye or reflection packet, when there are lights or its depth is below
-``reflect_depth``) enters the RTC only after it has *reserved* ``lights + 1``
-pending buffers (one per light, one for the reflections), so the results of every packet in
-the RTC can always be processed and the RTC always frees its threads; eye packets are admitted
-only while no secondary packet waits, and there are ``buffers >= 2 * (lights + 1) + 2``, so a
-waiting reflection packet always finds its own reservation once the packets ahead of it have
-finished.
+rays (an eye, reflection or refracted packet, when there are lights or its depth is below
+``reflect_depth``) enters the RTC only after it has *reserved* K = ``lights + 1``
+pending buffers (one per light, one for the reflections; ``lights + 2`` with
+``cfg.refraction``, one more for the refracted rays: a source packet's spawned rays fill at
+most one buffer per builder), so the results of every packet in the RTC can always be
+processed and the RTC always frees its threads; eye packets are admitted only while no
+secondary packet waits, and there are ``buffers >= 2 * K + 2`` (``Config.min_rgs_buffers``),
+so a waiting reflection packet always finds its own reservation once the packets ahead of it
+have finished. With refraction a source packet may leave two waiting packets that need a
+reservation (its reflection and refracted packets), and that count no longer holds; two more
+rules bound the waiting packets (:meth:`Slave._branch_gate`, :meth:`Slave._send`): a packet
+that may spawn starts only while no deeper one that may spawn waits, and a *branching* packet
+(one that may spawn, below ``reflect_depth``) only while fewer than ``B = (buffers - K) //
+(reflect_depth + 1)`` are in flight. At most ``B * (reflect_depth + 1)`` packets then wait,
+and ``buffers >= K + reflect_depth + 1`` leaves K free for the deepest
+(``tests/test_rgs_slave_reservations.py`` searches every state of an abstract slave).
 
-Every result of an eye or reflection ray goes through the shading path (context queue,
-SecondaryPipe, light loop, LightPipe), hit or miss, so that its packet's last token commits
+Every result of an eye, reflection or refracted ray goes through the shading path (context
+queue, SecondaryPipe, light loop, LightPipe), hit or miss, so that its packet's last token commits
 the packet's secondary packets; the ambient records are reserved at the light loop (a queue
 as deep as the tokens LightPipe holds at once + 7, rounded up to a power of two), so LightPipe
 never stalls.
 
 Throughput: one ray into the RTC per cycle; one result per cycle; a hit takes
-``max(1, lights)`` cycles of the light loop. Latency of a hit's secondary rays: the shading
-cache, :class:`~rtl.rgs.SecondaryPipe` (70 cycles at binary32 defaults), the light loop,
-:class:`~rtl.rgs.LightPipe` (75), then the whole source packet must be done before its
+``max(1, lights)`` cycles of the light loop (one more where it spawns a refracted ray).
+Latency of a hit's secondary rays: the shading cache, :class:`~rtl.rgs.SecondaryPipe` (70
+cycles at binary32 defaults, 90 with refraction), the light loop, :class:`~rtl.rgs.LightPipe`
+(75), then the whole source packet must be done before its
 secondary packets go (they are complete only then).
 """
 from __future__ import annotations
@@ -78,9 +93,9 @@ from amaranth.utils import ceil_log2
 
 from model.cache import CacheGeometry
 from model.config import Config, ConfigError
-from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_NF, REC_NV,
+from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_KT, REC_NF, REC_NV,
                           REC_REFLECTIVE, REC_SHIN_SHIFT, REC_TEX_ADDR, REC_TEX_SIZE, REC_TEXTURED,
-                          REC_UV, REC_WORDS, SHIN_BITS)
+                          REC_TRANSMITS, REC_UV, REC_WORDS, SHIN_BITS)
 from model.raykind import RayKind
 from model.rgs.secondary import FIX_BITS
 
@@ -92,19 +107,23 @@ from .eye import COORD_BITS, EyeRays, EyeRequest, RaySetup, RaySetupIn
 from .secondary import LightPipe, SecondaryPipe, SlavePool
 from .texture import Texture
 
-__all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "RAY_COUNTERS", "slave_buffers",
+__all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "PATH_BITS", "RAY_COUNTERS",
+           "slave_buffers",
            "shade_cache_geometry", "tex_cache_geometry"]
 
 DEPTH_BITS = 4          # reflection depth of a ray (0: eye ray)
-SUB_BITS = 4            # 0: eye or reflection ray, 1 + l: shadow ray toward light l
-# the slave's counters of rays into the RTC, by kind (no refraction: RayKind)
+SUB_BITS = 4            # 0: eye, reflection or refracted ray, 1 + l: shadow ray toward light l
+PATH_BITS = 15          # (Config.refraction) bit i: the ray's ancestor of depth i + 1 refracted
+# the slave's counters of rays into the RTC, by kind (rays_refract stays 0 without
+# Config.refraction)
 RAY_COUNTERS = {RayKind.EYE: "rays_eye", RayKind.SHADOW: "rays_shadow",
-                RayKind.REFLECTION: "rays_reflect"}
+                RayKind.REFLECTION: "rays_reflect", RayKind.REFRACTION: "rays_refract"}
 
 
 def slave_buffers(cfg: Config) -> int:
     """Pending secondary packets a slave holds: ``cfg.rgs_buffers``, or by default
-    ``threads + rgs_lights + 1``, at least ``2 * (rgs_lights + 1) + 2``.
+    ``threads + rgs_reserve`` (``rgs_lights + 1``, + 1 with refraction), at least
+    ``2 * rgs_reserve + 2``.
 
     The fewest that cannot deadlock is ``cfg.min_rgs_buffers`` (the module docstring), but
     then only ``buffers // (lights + 1)`` eye packets (3 with 12 buffers and 3 lights) hold a
@@ -112,7 +131,7 @@ def slave_buffers(cfg: Config) -> int:
     idle. ``threads + rgs_lights + 1`` lets ``threads / (lights + 1)`` eye packets and their
     ``lights`` shadow packets each fill every thread (office 1024x768 with all its rays on the
     standard chip: 8 118 838 cycles against 8 747 633 with 12 buffers, ``docs/chip.md``)."""
-    return cfg.rgs_buffers or max(cfg.min_rgs_buffers, cfg.threads + cfg.rgs_lights + 1)
+    return cfg.rgs_buffers or max(cfg.min_rgs_buffers, cfg.threads + cfg.rgs_reserve)
 
 
 def _slave_cache(cfg: Config, kb: int, name: str, item_bits: int, words: int) -> CacheGeometry:
@@ -156,10 +175,14 @@ def SlaveResult(cfg: Config) -> data.StructLayout:
     ``model.rgs.to_fixed``: its colour if it misses — the background for an eye or reflection
     ray, its light's Phong term for a shadow ray — else 0); with ``shade`` 1 the ambient term
     of the hit of the eye or reflection ray (``packet``, ``lane``, ``depth``) in ``col`` (the
-    other fields 0). A pixel is the sum of the ``col`` of every record of its eye rays."""
+    other fields 0). A pixel is the sum of the ``col`` of every record of its eye rays.
+    With ``cfg.refraction`` the id has ``path`` too (bit i: the ray's ancestor of depth
+    i + 1, or the ray itself, is a refracted ray, not a reflection; ``sub`` 0 is then an eye,
+    reflection or refracted ray)."""
     w = cfg.fmt.width
+    path = {"path": PATH_BITS} if cfg.refraction else {}
     return data.StructLayout({"packet": PACKET_ID_BITS, "lane": lane_bits(cfg),
-                              "depth": DEPTH_BITS, "sub": SUB_BITS, "tri": TRI_ID_BITS,
+                              "depth": DEPTH_BITS, "sub": SUB_BITS, **path, "tri": TRI_ID_BITS,
                               "t": w, "u": w, "v": w,
                               "col": data.ArrayLayout(FIX_BITS, 3), "shade": 1})
 
@@ -299,7 +322,8 @@ class Slave(wiring.Component):
     ``model.shading.frame_colour_registers`` — and ``colour`` (1: the frame is shaded; 0: no
     ambient records, and only packets that spawn rays take the shading path, as for a frame
     of bare eye rays). ``idle``: nothing in flight. Counters: ``rays_eye``, ``rays_shadow``,
-    ``rays_reflect`` (rays into the RTC by kind: :data:`RAY_COUNTERS`), ``sec_busy`` (cycles
+    ``rays_reflect``, ``rays_refract`` (rays into the RTC by kind: :data:`RAY_COUNTERS`;
+    ``cfg.refraction``: refracted rays), ``sec_busy`` (cycles
     the light loop held a
     hit).
     """
@@ -316,16 +340,20 @@ class Slave(wiring.Component):
         self.slots = 2 * cfg.threads
         if cfg.secondary_rays:
             self.setup = RaySetup(cfg, lat, pooled=pooled)
+            # refraction: the material transmits (trans), the ray's path; rtok: the hit's
+            # refraction token (after its lights' tokens)
+            refr = {"trans": 1, "path": PATH_BITS} if cfg.refraction else {}
             self.sec_tag = data.StructLayout({
                 "lane": lane_bits(cfg), "hit": 1, "refl": 1, "last": 1,
-                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
+                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS, **refr})
             # hit: a shadow ray is wanted (a hit, lights); rhit: the ray hit; first: the hit's
             # first token; tlast: its last; last: the packet's last token; spawn: the packet
             # reserved pending buffers
             self.shd_tag = data.StructLayout({
                 "lane": lane_bits(cfg), "light": range(max(2, L)), "hit": 1, "rhit": 1,
                 "refl": 1, "first": 1, "tlast": 1, "last": 1, "spawn": 1,
-                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS})
+                "packet": PACKET_ID_BITS, "depth": DEPTH_BITS,
+                **({"rtok": 1, "path": PATH_BITS} if cfg.refraction else {})})
             self.tex = Texture(cfg, 1, lat, pooled=pooled) if cfg.tex_cache_kb > 0 else None
             if pooled:                   # one pool of units for all, a LightPipe entry per light
                 self.pool = SlavePool(cfg.fmt, self.sec_tag.size, self.shd_tag.size, lat,
@@ -333,7 +361,8 @@ class Slave(wiring.Component):
                                       max(1, L + (cfg.reflect_depth > 0)), self.tex)
                 self.sec, self.shd = self.pool.sec, self.pool.shd
             else:
-                self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget())
+                self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget(),
+                                         refract=cfg.refraction)
                 self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat, cfg.rgs_budget())
             self.buffers = slave_buffers(cfg)
             if self.tex is not None:     # in step with SecondaryPipe: as deep a queue as it holds
@@ -384,7 +413,8 @@ class Slave(wiring.Component):
         if self.pool is None:
             m.d.comb += [sec_en.eq(~sec.o_valid | take), sec.en.eq(sec_en)]
             return SimpleNamespace(valid=sec.o_valid, tag=sec.o_tag, p0=sec.p0, g=sec.g,
-                                   n=sec.n, r=sec.r, take=take)
+                                   n=sec.n, r=sec.r, take=take,
+                                   **({"tp0": sec.tp0, "tdir": sec.tdir} if sec.refract else {}))
         lay = data.StructLayout({"p0": v3, "g": v3, "n": v3, "r": v3, "tag": self.sec_tag})
         depth = sec.in_flight + 1
         m.submodules.secq = q = SyncFIFO(width=lay.size, depth=depth)
@@ -503,11 +533,14 @@ class Slave(wiring.Component):
         eye = self._eye(m)
         setup = self._datapaths(m)
         # K: the pending buffers a packet that may spawn rays reserves (one per light in use,
-        # one for its reflections)
-        K = Signal(range(L + 2))
-        m.d.comb += K.eq(self.n_lights + 1)
+        # one for its reflections, one for its refracted rays with cfg.refraction)
+        R = int(self.cfg.refraction)
+        K = Signal(range(L + 2 + R))
+        m.d.comb += K.eq(self.n_lights + 1 + R)
         slot = self._slot_table(m)
         pb = self._pending(m)
+        if R:
+            self._branch_gate(m, pb, K)
         m.submodules.store = store = TwoWriteMemory(RayEntry(self.cfg), self.slots *
                                                     self.cfg.packet_size, self._block)
         m.submodules.sender = snd = Sender(self.cfg, self.buffers, self.slots)
@@ -518,6 +551,11 @@ class Slave(wiring.Component):
         fed = self._shade_feed(m, res)
         loop = self._light_loop(m, fed, res)
         bld = self._builders(m, pb, loop, K)
+        if R:           # a branching packet's commit (its last token left LightPipe)
+            ot = loop.ot
+            m.d.comb += pb.br_dec.eq(self.shd.o_valid & ot.last & ot.spawn &
+                                     (ot.depth < self.reflect_depth))
+            m.d.sync += pb.branching.eq(pb.branching + pb.br_eye + pb.br_send - pb.br_dec)
         self._ambient(m, res, loop)
         m.d.sync += pb.ready.eq((pb.ready | bld.committed) &
                                 ~Mux(start.go, 1 << start.buf, 0))
@@ -567,6 +605,8 @@ class Slave(wiring.Component):
         slot = self._slots(m)
         slot.depth = _regs(self.slots, DEPTH_BITS, "slot_depth")
         slot.sub = _regs(self.slots, SUB_BITS, "slot_sub")
+        if self.cfg.refraction:          # the packet's path (SlaveResult)
+            slot.path = _regs(self.slots, PATH_BITS, "slot_path")
         return slot
 
     def _pending(self, m: Module) -> SimpleNamespace:
@@ -574,32 +614,58 @@ class Slave(wiring.Component):
         ``count`` (rays), ``sub``, ``depth`` and eye ``packet``; ``credits`` (buffers not
         reserved; ``take`` and ``back``, this cycle's reservations and returns) and ``mem``,
         the rays (:func:`RayEntry`; write ports ``w[0]`` shadow, ``w[1]`` reflection rays,
-        from LightPipe; read port ``r``, the sender's)."""
-        NB, P, L = self.buffers, self.cfg.packet_size, self.cfg.rgs_lights
+        from LightPipe, and refracted rays through ``w[0]``; read port ``r``, the sender's;
+        with ``cfg.refraction`` per buffer its packet's ``path``)."""
+        NB, P = self.buffers, self.cfg.packet_size
         pb = SimpleNamespace(
             free=Signal(NB, init=(1 << NB) - 1, name="buf_free"),
             ready=Signal(NB, name="buf_ready"),
             count=_regs(NB, range(P + 1), "buf_count"), sub=_regs(NB, SUB_BITS, "buf_sub"),
             depth=_regs(NB, DEPTH_BITS, "buf_depth"),
             packet=_regs(NB, PACKET_ID_BITS, "buf_packet"),
+            path=_regs(NB, PATH_BITS, "buf_path") if self.cfg.refraction else None,
             credits=Signal(range(NB + 1), init=NB, name="credits"),
-            take=Signal(range(L + 2), name="credit_take"),
+            take=Signal(range(self.cfg.rgs_reserve + 1), name="credit_take"),
             back=Signal(range(NB + 1), name="credit_back"))
         m.submodules.pend = pb.mem = TwoWriteMemory(RayEntry(self.cfg), NB * P, self._block)
         return pb
 
+    def _branch_gate(self, m: Module, pb, K: Value):
+        """With ``cfg.refraction``: the branching packets (those that may spawn, of depth
+        below ``reflect_depth``: their hits may spawn a reflection and a refracted packet that
+        spawn in turn) in flight, ``pb.branching`` (``br_eye``, ``br_send``, ``br_dec``: this
+        cycle's admitted eye packet, started secondary packet, commit), and ``pb.branch_ok``:
+        fewer than ``B`` = (buffers - K) // (reflect_depth + 1) (at least 1) are, so one more
+        may start (the module docstring)."""
+        NB, D = self.buffers, self.reflect_depth
+        pb.branching = Signal(range(self.slots + 1), name="branching")
+        pb.br_eye, pb.br_send = Signal(name="branch_eye"), Signal(name="branch_send")
+        pb.br_dec = Signal(name="branch_commit")
+        bmax = Signal(range(NB + 1), name="branch_max")
+        m.d.comb += bmax.eq(sum((K + i * (D + 1) <= NB).as_unsigned()
+                                for i in range(1, NB + 1)))
+        pb.branch_ok = pb.branching < Mux(bmax == 0, 1, bmax)
+
     def _admit(self, m: Module, eye: EyeRays, slot, pb, K: Value, sender_busy: Value):
         """Admission of eye packets: a tile takes the lowest free RTC slot and, if its hits may
         spawn rays, reserves K pending buffers; only while no secondary packet waits (no
-        ready buffer, the sender idle)."""
+        ready buffer, the sender idle), and with ``cfg.refraction`` only while one more
+        branching packet may start (:meth:`_branch_gate`)."""
         eye_spawns = self._spawns(0)
         can_admit = (slot.any & (~eye_spawns | (pb.credits >= K)) & (pb.ready == 0) &
                      ~sender_busy)
+        if self.cfg.refraction:
+            eye_branches = self.reflect_depth != 0
+            can_admit &= ~eye_branches | pb.branch_ok
         admit = self._admission(m, eye, slot.new, can_admit)
+        if self.cfg.refraction:
+            m.d.comb += pb.br_eye.eq(admit & eye_branches)
         with m.If(admit):
             m.d.comb += [slot.take.eq(1), pb.take.eq(Mux(eye_spawns, K, 0))]
             m.d.sync += [slot.packet[slot.new].eq(self.req.payload.packet),
                          slot.depth[slot.new].eq(0), slot.sub[slot.new].eq(0)]
+            if self.cfg.refraction:
+                m.d.sync += slot.path[slot.new].eq(0)
 
     def _send(self, m: Module, snd: "Sender", setup: RaySetup, slot, pb, K: Value,
               store: TwoWriteMemory) -> SimpleNamespace:
@@ -607,13 +673,21 @@ class Slave(wiring.Component):
         the ray store. A ready reflection packet that may spawn waits for its reservation;
         the others (shadow packets, reflections that spawn nothing) may start: the lowest
         ready buffer that can start goes, so a waiting reflection packet never blocks the
-        shadow packets whose buffers give the credits back. Returns ``go`` (a packet starts)
-        and ``buf`` (its buffer)."""
+        shadow packets whose buffers give the credits back. With ``cfg.refraction`` a
+        packet that may spawn waits also while a deeper one that may spawn is ready, and a
+        branching one while no more may start (:meth:`_branch_gate`). Returns ``go`` (a
+        packet starts) and ``buf`` (its buffer)."""
         NB, P = self.buffers, self.cfg.packet_size
         startable = Signal(NB)
-        m.d.comb += startable.eq(Cat(*(
-            pb.ready[i] & ~((pb.sub[i] == 0) & self._spawns(pb.depth[i]) & (pb.credits < K))
-            for i in range(NB))))
+        sp = [(pb.sub[i] == 0) & self._spawns(pb.depth[i]) for i in range(NB)]
+        if self.cfg.refraction:          # the deepest first; branching ones while they may
+            wait = [(pb.credits < K) |
+                    Cat(*(pb.ready[j] & sp[j] & (pb.depth[j] > pb.depth[i])
+                          for j in range(NB) if j != i)).any() |
+                    ((pb.depth[i] < self.reflect_depth) & ~pb.branch_ok) for i in range(NB)]
+        else:
+            wait = [pb.credits < K] * NB
+        m.d.comb += startable.eq(Cat(*(pb.ready[i] & ~(sp[i] & wait[i]) for i in range(NB))))
         any_ready, rb = lowest(m, startable, "ready")
         # a reflection packet that may spawn
         spawning = (pb.sub[rb] == 0) & self._spawns(pb.depth[rb])
@@ -622,6 +696,8 @@ class Slave(wiring.Component):
                      snd.start.payload.slot.eq(slot.new),
                      snd.start.payload.count.eq(pb.count[rb]),
                      go.eq(snd.start.valid & snd.start.ready)]
+        if self.cfg.refraction:
+            m.d.comb += pb.br_send.eq(go & spawning & (pb.depth[rb] < self.reflect_depth))
         with m.If(go):
             m.d.comb += slot.take.eq(1)
             with m.If(spawning):
@@ -629,6 +705,8 @@ class Slave(wiring.Component):
             m.d.sync += [slot.packet[slot.new].eq(pb.packet[rb]),
                          slot.depth[slot.new].eq(pb.depth[rb]),
                          slot.sub[slot.new].eq(pb.sub[rb])]
+            if self.cfg.refraction:
+                m.d.sync += slot.path[slot.new].eq(pb.path[rb])
         rd = pb.mem.r
         m.d.comb += [rd.addr.eq(snd.rd_addr), rd.en.eq(snd.rd_en), snd.rd_data.eq(rd.data),
                      snd.sub.eq(slot.sub[snd.slot]), snd.light_point.eq(self.light_point)]
@@ -637,7 +715,16 @@ class Slave(wiring.Component):
         w = store.w[1]
         m.d.comb += [w.addr.eq(snd.slot * P + snd.o.payload.lane), w.data.eq(rd.data),
                      w.en.eq(xfer)]
-        self._count_rays(m, xfer, snd.kind, (RayKind.SHADOW, RayKind.REFLECTION))
+        if self.cfg.refraction:          # a refracted packet: its path's bit of its depth
+            kind = Signal(RayKind, name="send_kind")
+            sd = slot.depth[snd.slot]
+            refracted = slot.path[snd.slot].bit_select((sd - 1)[:DEPTH_BITS], 1)
+            m.d.comb += kind.eq(Mux((snd.kind == RayKind.REFLECTION) & refracted,
+                                    RayKind.REFRACTION, snd.kind))
+            self._count_rays(m, xfer, kind,
+                             (RayKind.SHADOW, RayKind.REFLECTION, RayKind.REFRACTION))
+        else:
+            self._count_rays(m, xfer, snd.kind, (RayKind.SHADOW, RayKind.REFLECTION))
         return SimpleNamespace(go=go, buf=rb)
 
     def _rtc_input(self, m: Module, eye: EyeRays, setup: RaySetup, store: TwoWriteMemory):
@@ -679,7 +766,8 @@ class Slave(wiring.Component):
         b.ctx_lay = data.StructLayout({"org": vec3(cfg), "dir": vec3(cfg),
                                        "lane": lane_bits(cfg), "hit": 1, "last": 1,
                                        "packet": PACKET_ID_BITS, "depth": DEPTH_BITS, "t": w,
-                                       "u": w, "v": w, "wt": w, "spawn": 1})
+                                       "u": w, "v": w, "wt": w, "spawn": 1,
+                                       **({"path": PATH_BITS} if cfg.refraction else {})})
         m.submodules.ctx = b.ctxq = ctxq = SyncFIFO(width=b.ctx_lay.size,
                                                     depth=4 + cfg.cache_queue)
         # ambient records: as many as LightPipe can hold in flight, reserved at the light loop
@@ -695,12 +783,16 @@ class Slave(wiring.Component):
                      rec.depth.eq(depth), rec.sub.eq(sub), rec.tri.eq(b.res.tri),
                      rec.t.eq(b.res.t), rec.u.eq(b.res.u), rec.v.eq(b.res.v),
                      rec.col.eq(Mux(hit, 0, stored.col.as_value()))]
+        if cfg.refraction:
+            m.d.comb += rec.path.eq(slot.path[bslot])
         ctx = Signal(b.ctx_lay)
         m.d.comb += [ctx.org.eq(stored.org), ctx.dir.eq(stored.dir), ctx.lane.eq(stored.lane),
                      ctx.hit.eq(hit), ctx.last.eq(b.res.last),
                      ctx.packet.eq(slot.packet[bslot]), ctx.depth.eq(depth), ctx.t.eq(b.res.t),
                      ctx.u.eq(b.res.u), ctx.v.eq(b.res.v), ctx.wt.eq(stored.wt),
                      ctx.spawn.eq(spawn_pkt)]
+        if cfg.refraction:
+            m.d.comb += ctx.path.eq(slot.path[bslot])
         m.d.comb += [outq.w_data.eq(rec), outq.w_en.eq(b.adv),
                      ctxq.w_data.eq(ctx), ctxq.w_en.eq(b.adv & b.need_ctx),
                      rq.valid.eq(b.valid & want_rec & outq.w_rdy & ctxq.w_rdy),
@@ -729,7 +821,8 @@ class Slave(wiring.Component):
         flags = rec.field(REC_FLAGS)
         tex = self.tex
         mat_lay = data.StructLayout({**({} if tex else {"kd": vec3(cfg)}), "ks": vec3(cfg),
-                                     "kr": w, "shin": SHIN_BITS, "wt": w, "spawn": 1})
+                                     "kr": w, "shin": SHIN_BITS, "wt": w, "spawn": 1,
+                                     **({"kt": w} if cfg.refraction else {})})
         m.submodules.matq = f.matq = matq = SyncFIFO(width=mat_lay.size,
                                                      depth=sec.in_flight + 1)
         if tex is not None:
@@ -754,6 +847,10 @@ class Slave(wiring.Component):
                      st.lane.eq(head.lane), st.hit.eq(head.hit), st.last.eq(head.last),
                      st.refl.eq((flags & REC_REFLECTIVE) != 0), st.packet.eq(head.packet),
                      st.depth.eq(head.depth)]
+        if cfg.refraction:               # the refraction's record constants, its tag
+            m.d.comb += [sec.eta_in.eq(rec.word(REC_KT + 1)), sec.eta_out.eq(rec.word(REC_KT + 2)),
+                         mat_in.kt.eq(rec.word(REC_KT)),
+                         st.trans.eq((flags & REC_TRANSMITS) != 0), st.path.eq(head.path)]
         return f
 
     def _texture_feed(self, m: Module, head, rec: "_Record", feed: Signal, go: Value) -> tuple:
@@ -789,15 +886,27 @@ class Slave(wiring.Component):
         if no hit, or no light), in LightPipe's slots; a hit's first token reserves its
         ambient record (``amb_cnt``, at most the ambient queue's depth); after a packet's last
         token no new token until that token leaves LightPipe (``commit_wait``, which the
-        builders clear). Returns ``ot`` (LightPipe's output tag), ``commit_wait``,
-        ``amb_cnt``."""
+        builders clear). With ``cfg.refraction`` a hit on a material that transmits, below
+        ``reflect_depth``, takes one more token, its refraction token (``rtok``): LightPipe
+        carries the refracted ray's origin and direction (in place of ``p0`` and ``r``) and
+        makes its weight and miss colour (``kr`` = kt: wt * kt, bg * (wt * kt)); it casts no
+        shadow ray. Returns ``ot`` (LightPipe's output tag), ``commit_wait``, ``amb_cnt``."""
         L, shd, out, mat = self.cfg.rgs_lights, self.shd, f.out, f.mat
+        R = self.cfg.refraction
         so = data.View(self.sec_tag, out.tag)
-        li = Signal(range(max(2, L)))
+        li = Signal(range(max(2, L + R)))
         lp = SimpleNamespace(commit_wait=Signal(name="commit_wait"),  # a packet's last token
                              amb_cnt=Signal(range(res.amb_depth + 1), name="amb_cnt"),  # in
                              ot=data.View(self.shd_tag, shd.o_tag))                      # shd
         tokens_last = Mux(so.hit & (self.n_lights != 0), li == self.n_lights - 1, 1)
+        rtok, lsel = Const(0, 1), li        # the refraction token; the light register index
+        if R:
+            ltoks = Mux(so.hit & (self.n_lights != 0), self.n_lights, 1)   # the lights' tokens
+            refr = so.hit & so.trans & (so.depth < self.reflect_depth)
+            rtok = Signal(name="rtok")
+            m.d.comb += rtok.eq(refr & (li == ltoks))
+            tokens_last = Mux(refr, rtok, tokens_last)
+            lsel = Mux(rtok, 0, li)
         amb_tok = so.hit & (li == 0) & self.colour   # the token makes the hit's ambient record
         loop_go = (out.valid & f.ok & ~lp.commit_wait &
                    (~amb_tok | (lp.amb_cnt < res.amb_depth)) & shd.i_slot)
@@ -814,35 +923,48 @@ class Slave(wiring.Component):
 
         def per_light(regs):                # light li's register (a complete read mux)
             return Array([x.as_value() for x in regs] + [regs[0].as_value()] *
-                         ((1 << ceil_log2(max(2, L))) - L))[li] if L else 0
-        m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go), shd.p0.eq(out.p0),
+                         ((1 << ceil_log2(max(2, L))) - L))[lsel] if L else 0
+
+        def on_rtok(refracted, value):     # the refraction token's input, else value's
+            return Mux(rtok, Value.cast(refracted), Value.cast(value)) if R else value
+        m.d.comb += [shd.en.eq(1), shd.i_valid.eq(loop_go),
+                     shd.p0.eq(on_rtok(getattr(out, "tp0", None), out.p0)),
                      shd.g.eq(out.g),
                      shd.light.eq(per_light(self.lights)),
-                     shd.point.eq(self.light_point.bit_select(li, 1) if L else 0),
-                     shd.n.eq(out.n), shd.r.eq(out.r), shd.kd.eq(f.kd), shd.ks.eq(mat.ks),
-                     shd.kr.eq(mat.kr), shd.shin.eq(mat.shin), shd.wt.eq(mat.wt),
+                     shd.point.eq(self.light_point.bit_select(lsel, 1) if L else 0),
+                     shd.n.eq(out.n), shd.r.eq(on_rtok(getattr(out, "tdir", None), out.r)),
+                     shd.kd.eq(f.kd), shd.ks.eq(mat.ks),
+                     shd.kr.eq(on_rtok(getattr(mat, "kt", None), mat.kr)),
+                     shd.shin.eq(mat.shin), shd.wt.eq(mat.wt),
                      shd.lc.eq(per_light(self.light_col)), shd.amb.eq(self.amb),
                      shd.bg.eq(self.bg),
-                     tt.lane.eq(so.lane), tt.light.eq(li),
-                     tt.hit.eq(so.hit & (self.n_lights != 0)), tt.rhit.eq(so.hit),
+                     tt.lane.eq(so.lane), tt.light.eq(lsel),
+                     tt.hit.eq(so.hit & (self.n_lights != 0) & ~rtok), tt.rhit.eq(so.hit),
                      tt.refl.eq(so.refl), tt.first.eq(li == 0), tt.tlast.eq(tokens_last),
                      tt.last.eq(take & so.last), tt.spawn.eq(mat.spawn),
                      tt.packet.eq(so.packet), tt.depth.eq(so.depth)]
+        if R:
+            m.d.comb += [tt.rtok.eq(rtok), tt.path.eq(so.path)]
         ambq = res.ambq
         m.d.sync += lp.amb_cnt.eq(lp.amb_cnt + (loop_go & amb_tok) - (ambq.r_rdy & ambq.r_en))
         return lp
 
     def _builders(self, m: Module, pb, lp, K: Value) -> SimpleNamespace:
         """The builders: the L shadow packets and the reflection packet of the current source
-        packet, written from LightPipe's output into pending buffers (up to two new buffers a
-        cycle for builders without one); at the source packet's commit (its last token left
-        LightPipe) each built packet's buffer becomes ready with its metadata, and the
-        reservations it did not use return. Returns ``taken`` (buffers allocated),
-        ``committed`` (buffers made ready), ``unused`` (credits returned) this cycle."""
+        packet (and its refracted packet, builder L + 1, with ``cfg.refraction``), written
+        from LightPipe's output into pending buffers (up to two new buffers a cycle for
+        builders without one); at the source packet's commit (its last token left LightPipe)
+        each built packet's buffer becomes ready with its metadata, and the reservations it
+        did not use return. A refracted ray is written on its hit's refraction token, through
+        the shadow rays' write port (the token casts no shadow ray, and no reflection ray is
+        written then). Returns ``taken`` (buffers allocated), ``committed`` (buffers made
+        ready), ``unused`` (credits returned) this cycle."""
         L, P, NB = self.cfg.rgs_lights, self.cfg.packet_size, self.buffers
         shd, ot = self.shd, lp.ot
         w = self.cfg.fmt.width
-        nbld = L + 1
+        R = self.cfg.refraction
+        T = L + 1                     # the refracted packet's builder
+        nbld = L + 1 + R
         has = Signal(nbld)
         bbuf = _regs(nbld, max(1, ceil_log2(NB)), "bld_buf")
         bcnt = _regs(nbld, range(P + 1), "bld_count")
@@ -855,6 +977,8 @@ class Slave(wiring.Component):
         # buffers for builders without one: up to two new ones a cycle
         a1, f1 = lowest(m, pb.free, "alloc1")
         a2, f2 = lowest(m, pb.free & ~(1 << f1), "alloc2")
+        # refraction write (LightPipe output, the hit's refraction token)
+        rt_w = shd.o_valid & ot.rtok if R else Const(0, 1)
         need_rf = rf_w & ~has[L]
         need_sh = sh_w & ~has.bit_select(sh_b, 1)
         rf_buf = Mux(has[L], bbuf[L], f1)
@@ -862,21 +986,30 @@ class Slave(wiring.Component):
         bld = SimpleNamespace(taken=Signal(NB, name="taken"),
                               committed=Signal(NB, name="committed"),
                               unused=Signal(range(nbld + 1), name="unused"))
+        need_rt = (rt_w & ~has[T]) if R else Const(0, 1)
         m.d.comb += bld.taken.eq(Mux(need_rf, 1 << f1, 0) |
-                                 Mux(need_sh, Mux(need_rf, 1 << f2, 1 << f1), 0))
+                                 Mux(need_sh, Mux(need_rf, 1 << f2, 1 << f1), 0) |
+                                 Mux(need_rt, 1 << f1, 0))
         w_sh, w_rf = pb.mem.w
+        # a reflection or refracted ray: origin, direction (LightPipe's o_r), weight, miss
+        bounce = Cat(shd.o_p0.as_value(), shd.o_r.as_value(), ot.lane, shd.wr,
+                     shd.rmiss.as_value())
+        sh_addr = sh_buf * P + bcnt[sh_b]
+        sh_data = Cat(shd.o_p0.as_value(), shd.dir.as_value(), ot.lane, Const(0, w),
+                      shd.col.as_value())
+        if R:
+            rt_buf = Mux(has[T], bbuf[T], f1)
+            sh_addr = Mux(rt_w, rt_buf * P + bcnt[T], sh_addr)
+            sh_data = Mux(rt_w, bounce, sh_data)
         m.d.comb += [
-            w_rf.addr.eq(rf_buf * P + bcnt[L]), w_rf.en.eq(rf_w),
-            w_rf.data.eq(Cat(shd.o_p0.as_value(), shd.o_r.as_value(), ot.lane, shd.wr,
-                             shd.rmiss.as_value())),
-            w_sh.addr.eq(sh_buf * P + bcnt[sh_b]), w_sh.en.eq(sh_w),
-            w_sh.data.eq(Cat(shd.o_p0.as_value(), shd.dir.as_value(), ot.lane,
-                             Const(0, w), shd.col.as_value())),
+            w_rf.addr.eq(rf_buf * P + bcnt[L]), w_rf.en.eq(rf_w), w_rf.data.eq(bounce),
+            w_sh.addr.eq(sh_addr), w_sh.en.eq(sh_w | rt_w), w_sh.data.eq(sh_data),
         ]
         # commit: the source packet's last token left LightPipe
         commit = shd.o_valid & ot.last
         new_has = Signal(nbld)
-        m.d.comb += new_has.eq(has | Mux(rf_w, 1 << L, 0) | Mux(sh_w, 1 << sh_b, 0))
+        m.d.comb += new_has.eq(has | Mux(rf_w, 1 << L, 0) | Mux(sh_w, 1 << sh_b, 0) |
+                               Mux(rt_w, 1 << T, 0))
         with m.If(rf_w):
             m.d.sync += [bcnt[L].eq(bcnt[L] + 1)]
             with m.If(~has[L]):
@@ -885,20 +1018,30 @@ class Slave(wiring.Component):
             m.d.sync += bcnt[sh_b].eq(bcnt[sh_b] + 1)
             with m.If(~has.bit_select(sh_b, 1)):
                 m.d.sync += bbuf[sh_b].eq(Mux(need_rf, f2, f1))
+        if R:
+            with m.If(rt_w):
+                m.d.sync += bcnt[T].eq(bcnt[T] + 1)
+                with m.If(~has[T]):
+                    m.d.sync += bbuf[T].eq(f1)
 
         def fresh(i):                # the buffer builder i is given this cycle
-            return f1 if i == L else Mux(need_rf, f2, f1)
+            return f1 if i in (L, T) else Mux(need_rf, f2, f1)
         with m.If(commit):
             m.d.sync += has.eq(0)
             for i in range(nbld):
-                cnt = bcnt[i] + Mux(sh_w & (sh_b == i), 1, 0) + (rf_w if i == L else 0)
+                cnt = (bcnt[i] + Mux(sh_w & (sh_b == i), 1, 0) + (rf_w if i == L else 0) +
+                       (rt_w if i == T else 0))
                 b = Mux(has[i], bbuf[i], fresh(i))
                 m.d.sync += bcnt[i].eq(0)
                 with m.If(new_has[i]):
                     m.d.sync += [pb.count[b].eq(cnt),
-                                 pb.sub[b].eq(0 if i == L else i + 1),
-                                 pb.depth[b].eq(ot.depth + (1 if i == L else 0)),
+                                 pb.sub[b].eq(0 if i in (L, T) else i + 1),
+                                 pb.depth[b].eq(ot.depth + (1 if i in (L, T) else 0)),
                                  pb.packet[b].eq(ot.packet)]
+                    if R:                # a refracted packet: its path's bit of the new depth
+                        m.d.sync += pb.path[b].eq(
+                            ot.path | (Const(1, PATH_BITS) << ot.depth)[:PATH_BITS]
+                            if i == T else ot.path)
             m.d.comb += bld.unused.eq(Mux(ot.spawn, K - sum(new_has[i] for i in range(nbld)),
                                           0))
             m.d.comb += bld.committed.eq(Cat(*(
@@ -917,4 +1060,5 @@ class Slave(wiring.Component):
         amb_w = shd.o_valid & ot.first & ot.rhit & self.colour
         m.d.comb += [amb_rec.packet.eq(ot.packet), amb_rec.lane.eq(ot.lane),
                      amb_rec.depth.eq(ot.depth), amb_rec.col.eq(shd.amb_col),
+                     *([amb_rec.path.eq(ot.path)] if self.cfg.refraction else []),
                      amb_rec.shade.eq(1), res.ambq.w_data.eq(amb_rec), res.ambq.w_en.eq(amb_w)]

@@ -41,8 +41,9 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
                     scene=None, box_cull: bool = True) -> dict:
     """The chip's host registers for a ``width x height`` frame of ``camera`` (values as the
     chip's ports take them: format words as their bit patterns). With ``scene`` the slaves make
-    its secondary rays (a shadow ray per light, if ``cfg.shadows``; reflections to
-    ``cfg.reflect_depth``) from the image's slave records; without, eye rays only.
+    its secondary rays (a shadow ray per light, if ``cfg.shadows``; reflections, and refracted
+    rays with ``cfg.refraction``, to ``cfg.reflect_depth``) from the image's slave records;
+    without, eye rays only.
     ``box_cull=False`` turns the slaves' box cull off (only to measure what it saves)."""
     from model.shading import Shader, frame_colour_registers, surface_offset
     fmt, n = cfg.fmt, cfg.oversampling
@@ -53,10 +54,15 @@ def frame_registers(cfg: Config, image, camera, width: int, height: int,
     if len(lights) > cfg.rgs_lights:
         raise ValueError(f"the scene has {len(lights)} lights; the chip's slaves hold "
                          f"rgs_lights={cfg.rgs_lights}: raise --rgs-lights")
-    if scene is not None and any(m.transmit > 0 for m in scene.materials):
-        raise ValueError("the scene has a material that transmits (refracted rays): the "
-                         "chip's RGS slaves make no refracted rays; render it with the golden "
-                         "model (saarcor render)")
+    transmits = [m for m in (scene.materials if scene is not None else []) if m.transmit > 0]
+    if transmits and cfg.reflect_depth > 0 and not cfg.refraction:
+        raise ValueError("the scene has a material that transmits (refracted rays), the "
+                         "chip's RGS slaves make none: set refraction=True (--refraction "
+                         "true)")
+    if cfg.refraction and any(m.texture is not None for m in transmits):
+        raise ValueError("a material that transmits has a texture: the slaves' records hold "
+                         "its refraction constants where a texture's coordinates go "
+                         "(model.layout.REC_KT); give it no texture")
     depth = cfg.reflect_depth if scene is not None else 0
     rec_base = image.shading_header()["rec_base"]
     if (lights or depth) and not rec_base:

@@ -94,11 +94,12 @@ def _place(records: Mapping[str, np.ndarray], ray: np.ndarray, n: int) -> dict:
     return got
 
 
-def ray_ids(eye: np.ndarray, depth: np.ndarray, sub: np.ndarray) -> np.ndarray:
-    """One integer per ray from its id: eye ray index, depth (< 16), sub (< 16: 0 eye or
-    reflection ray, 1 + l shadow ray of light l)."""
-    return (np.asarray(eye, np.int64) * 16 + np.asarray(depth, np.int64)) * 16 + \
-        np.asarray(sub, np.int64)
+def ray_ids(eye: np.ndarray, depth: np.ndarray, sub: np.ndarray, path=0) -> np.ndarray:
+    """One integer per ray from its id: eye ray index, path (< 2**15: bit i, the ancestor of
+    depth i + 1 is a refracted ray), depth (< 16), sub (< 16: 0 eye, reflection or refracted
+    ray, 1 + l shadow ray of light l)."""
+    e = np.asarray(eye, np.int64) << 15 | np.asarray(path, np.int64)
+    return (e * 16 + np.asarray(depth, np.int64)) * 16 + np.asarray(sub, np.int64)
 
 
 def record_fields(layout) -> list[tuple[str, int, int]]:
@@ -119,7 +120,8 @@ def record_fields(layout) -> list[tuple[str, int, int]]:
 
 def results_by_id(records: Mapping[str, np.ndarray], rays, eye_pk_start) -> dict:
     """Order the chip's result records by ray: ``records`` holds ``packet`` and ``lane`` (of
-    the ray's eye ray), ``depth``, ``sub`` and each of :data:`FIELDS`; ``rays`` every ray of
+    the ray's eye ray), ``depth``, ``sub`` (and ``path``, with refraction) and each of
+    :data:`FIELDS`; ``rays`` every ray of
     the frame with its id (``Rays.eye``, ``depth``, ``light``); ``eye_pk_start`` the eye
     rays' packet starts. Unknown, repeated and missing rays raise :class:`ResultError`."""
     pk = np.asarray(eye_pk_start, np.int64)
@@ -129,8 +131,8 @@ def results_by_id(records: Mapping[str, np.ndarray], rays, eye_pk_start) -> dict
     p = np.where(ok, packet, 0)
     eye = pk[p] + lane
     ok &= (lane >= 0) & (eye < pk[p + 1])
-    got_id = ray_ids(eye, records["depth"], records["sub"])
-    want_id = ray_ids(rays.eye, rays.depth, np.asarray(rays.light, np.int64) + 1)
+    got_id = ray_ids(eye, records["depth"], records["sub"], records.get("path", 0))
+    want_id = ray_ids(rays.eye, rays.depth, np.asarray(rays.light, np.int64) + 1, rays.path)
     order = np.argsort(want_id, kind="stable")
     pos = np.searchsorted(want_id[order], got_id)
     pos = np.minimum(pos, len(order) - 1) if len(order) else pos
