@@ -172,10 +172,6 @@ class Config:
                               f"{self.rgs_lights}: a slave needs at least {need} = "
                               f"{self.min_rgs_buffers} pending buffers (or 0: the default) so "
                               "that a reflection packet always finds its reservation")
-        if self.refraction and self.rgs_fp_pool:
-            raise ConfigError("refraction=True: the shading pool (rgs_fp_pool=True) has no "
-                              "refraction datapath; set rgs_fp_pool=False (a budget of FP "
-                              "units per datapath, rgs_fp_adders/rgs_fp_muls, still applies)")
         if self.refraction and not self.secondary_rays:
             raise ConfigError("refraction=True but the RGS slaves make no secondary rays "
                               "(rgs_lights=0 and reflect_depth=0): give reflect_depth >= 1 "

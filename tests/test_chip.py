@@ -402,6 +402,7 @@ def test_chip_shared_fp_units_verilator(cornell):
     assert r.cycles > full.cycles
 
 
+@pytest.mark.slow
 def test_chip_shade_pool_verilator(cornell):
     """The slaves' ray datapaths on one pool of the paper's 3 adders and 4 multipliers
     (``Config.rgs_fp_pool``: the eye rays, the secondary rays' ray setup (an entry per light
@@ -409,7 +410,8 @@ def test_chip_shade_pool_verilator(cornell):
     texture unit's two pipes in one modulo schedule, ``rtl.rgs.SlavePool``): Cornell 16x16 with its shadows, the mirror sphere
     and the textured floor, under back-pressure and random memory latency: every ray and every
     pixel bit-exact. The chip hands its results (rays and ambient records) out on two streams
-    (``result_ports``), one a slave."""
+    (``result_ports``), one a slave. (Slow: in CI ``test_chip_paper_preset_refraction_verilator``
+    runs the pool with refraction.)"""
     from rtl.rgs import Slave
     from tb.harness.chip import run_chip_frame
     scene, image = cornell
@@ -580,9 +582,52 @@ def test_chip_refraction_verilator(glass):
     check_refraction(r, GLASS, image, scene, 8, 8)
 
 
+def test_chip_paper_preset_refraction_verilator(glass, kd_cache):
+    """The paper preset (``--preset paper``: the projection triangle test, every slave
+    datapath on one pool of 3 adders and 4 multipliers, ``rtl.rgs.SlavePool``) with
+    refraction: scenes/glass.toml 8x8 (its glass sphere and block, 3 point lights, the
+    checkered floor through the texture unit, reflections and refractions to depth 2) under
+    back-pressure and random memory latency, the results on two streams
+    (``result_ports``): every ray of the ray tree and every pixel bit-exact with the model,
+    the slaves' refracted-ray counters its count."""
+    from model.config import PRESETS
+    from rtl.rgs import Slave
+    from tb.harness.chip import run_chip_frame
+    scene, _, _ = glass
+    cfg = GLASS.replace(**PRESETS["paper"], rtcs=2, result_ports=2)
+    image = prepare(scene, cfg, cache_dir=kd_cache).image
+    slave = Slave(cfg)
+    slave._MustUse__silence = True
+    assert slave.sec.refract and slave.tex is not None and slave.tex.coord.ii == slave.pool.ii
+    assert slave.pool.units["mul"] <= 4 and slave.pool.units["add"] <= 3
+    assert slave.setup.pipe.per_ii == cfg.rgs_lights + 2
+    r = run_chip_frame(cfg, image, scene.camera, 8, 8, stall=0.25, mem_stall=0.5, seed=5,
+                       scene=scene, progress=False, max_cycles=3_000_000)
+    check_refraction(r, cfg, image, scene, 8, 8)
+
+
+@pytest.mark.slow
+def test_chip_paper_preset_refraction_both_simulators(glass, kd_cache):
+    """The paper preset with refraction on the glass block 4x4 in Amaranth's simulator and in
+    Verilator: every ray and pixel bit-exact in both, to the same cycle. (Slow: minutes of
+    Amaranth's simulator.)"""
+    from model.config import PRESETS
+    from tb.harness.chip import run_chip, run_chip_frame
+    scene, block, _ = glass
+    cfg = GLASS.replace(**PRESETS["paper"])
+    image = prepare(scene, cfg, cache_dir=kd_cache).image
+    a = run_chip(cfg, image, block.camera, 4, 4, stall=0.25, seed=3, scene=block,
+                 max_cycles=400_000)
+    check_refraction(a, cfg, image, block, 4, 4)
+    v = run_chip_frame(cfg, image, block.camera, 4, 4, stall=0.25, seed=3, scene=block,
+                       progress=False)
+    check_refraction(v, cfg, image, block, 4, 4)
+    assert a.cycles == v.cycles
+
+
 def test_chip_refuses_refraction_it_cannot_make(glass):
-    """A scene whose materials transmit needs ``refraction=True``; refraction needs the
-    shading datapaths apart (not ``rgs_fp_pool``) and enough pending buffers for its depth."""
+    """A scene whose materials transmit needs ``refraction=True``; refraction needs enough
+    pending buffers for its depth."""
     from model.config import ConfigError
     from tb.harness.chip import frame_registers
     scene, _, image = glass
@@ -591,8 +636,6 @@ def test_chip_refuses_refraction_it_cannot_make(glass):
     with pytest.raises(ConfigError, match="refraction=True"):
         TINY.check_scene(scene, image, 4, 4)
     assert GLASS.for_scene(scene, image, 4, 4).refraction
-    with pytest.raises(ConfigError, match="rgs_fp_pool=False"):
-        GLASS.replace(rgs_fp_adders=3, rgs_fp_muls=4, rgs_fp_pool=True)
     with pytest.raises(ConfigError, match="reflect_depth"):
         GLASS.replace(rgs_lights=1, reflect_depth=9, rgs_buffers=10)
     assert GLASS.replace(rgs_lights=1, reflect_depth=9).min_rgs_buffers == 3 + 9 + 1

@@ -337,13 +337,13 @@ class ShadePool(Elaboratable):
     cycles, and ``shd`` looks like one pipe taking ``copies`` inputs per interval."""
 
     def __init__(self, fmt: FPFormat, sec_tag_width: int, shd_tag_width: int,
-                 latencies: dict | None, budget: dict, copies: int):
+                 latencies: dict | None, budget: dict, copies: int, refract: bool = False):
         if copies < 1:
             raise ValueError(f"ShadePool: copies={copies}; LightPipe needs at least one")
         if not budget:
             raise ValueError("ShadePool: an FP unit budget ({'add': n, 'mul': n}) is needed")
         self.fmt, self.copies = fmt, copies
-        self.sec = SecondaryPipe(fmt, sec_tag_width, latencies)
+        self.sec = SecondaryPipe(fmt, sec_tag_width, latencies, refract=refract)
         self.shd = LightPipe(fmt, shd_tag_width, latencies)
         self.sec._MustUse__silence = self.shd._MustUse__silence = True   # ports only
         self.groups = [((self.shd,), copies, 0)] + list(self.more)
@@ -433,7 +433,8 @@ class SlavePool(ShadePool):
     (``eye``: an :class:`~rtl.rgs.EyeRays` built ``pooled``; its EyeRayPipe feeds its
     RaySetupPipe, one chain) and ``setup_copies`` entries of the secondary rays' ray setup
     (``setup``: a :class:`~rtl.rgs.RaySetup` built ``pooled``; a hit spawns up to a shadow ray
-    per light and a reflection ray), in one modulo schedule over ``budget``.
+    per light, a reflection ray and, with ``refract``, a refracted ray: SecondaryPipe is
+    then built with its refraction), in one modulo schedule over ``budget``.
 
     In each interval of ``ii`` cycles SecondaryPipe takes a hit (phase 0), LightPipe
     ``copies`` (hit, light) tokens (from phase 0), the eye rays one sample (phase ``ii / 4``),
@@ -447,10 +448,10 @@ class SlavePool(ShadePool):
 
     def __init__(self, fmt: FPFormat, sec_tag_width: int, shd_tag_width: int,
                  latencies: dict | None, budget: dict, copies: int, eye, setup,
-                 setup_copies: int = 1, tex=None):
+                 setup_copies: int = 1, tex=None, refract: bool = False):
         if setup_copies < 1:
             raise ValueError(f"SlavePool: setup_copies={setup_copies} must be at least 1")
         self.more = (((eye.gen, eye.setup), 1, 1 / 4), ((setup.pipe,), setup_copies, 1 / 2),
                      *((((tex.coord,), 1, 3 / 4), ((tex.filter,), 1, 7 / 8))
                        if tex is not None else ()))
-        super().__init__(fmt, sec_tag_width, shd_tag_width, latencies, budget, copies)
+        super().__init__(fmt, sec_tag_width, shd_tag_width, latencies, budget, copies, refract)

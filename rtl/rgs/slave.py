@@ -358,7 +358,8 @@ class Slave(wiring.Component):
             if pooled:                   # one pool of units for all, a LightPipe entry per light
                 self.pool = SlavePool(cfg.fmt, self.sec_tag.size, self.shd_tag.size, lat,
                                       cfg.rgs_budget(), max(1, L), self.eye, self.setup,
-                                      max(1, L + (cfg.reflect_depth > 0)), self.tex)
+                                      max(1, L + (cfg.reflect_depth > 0) + cfg.refraction),
+                                      self.tex, cfg.refraction)
                 self.sec, self.shd = self.pool.sec, self.pool.shd
             else:
                 self.sec = SecondaryPipe(cfg.fmt, self.sec_tag.size, lat, cfg.rgs_budget(),
@@ -415,7 +416,9 @@ class Slave(wiring.Component):
             return SimpleNamespace(valid=sec.o_valid, tag=sec.o_tag, p0=sec.p0, g=sec.g,
                                    n=sec.n, r=sec.r, take=take,
                                    **({"tp0": sec.tp0, "tdir": sec.tdir} if sec.refract else {}))
-        lay = data.StructLayout({"p0": v3, "g": v3, "n": v3, "r": v3, "tag": self.sec_tag})
+        rf = ("tp0", "tdir") if sec.refract else ()
+        lay = data.StructLayout({"p0": v3, "g": v3, "n": v3, "r": v3, "tag": self.sec_tag,
+                                 **{k: v3 for k in rf}})
         depth = sec.in_flight + 1
         m.submodules.secq = q = SyncFIFO(width=lay.size, depth=depth)
         held = Signal(range(depth + 1))           # hits in the pipe and the queue
@@ -423,12 +426,13 @@ class Slave(wiring.Component):
         m.d.comb += [sec_en.eq(held < depth),
                      q.w_en.eq(sec.o_valid),
                      q.w_data.eq(Cat(sec.p0.as_value(), sec.g.as_value(), sec.n.as_value(),
-                                     sec.r.as_value(), sec.o_tag)),
+                                     sec.r.as_value(), sec.o_tag,
+                                     *(getattr(sec, k).as_value() for k in rf))),
                      q.r_en.eq(take)]
         m.d.sync += held.eq(held + fed - (take & q.r_rdy))
         h = data.View(lay, q.r_data)
         return SimpleNamespace(valid=q.r_rdy, tag=h.tag.as_value(), p0=h.p0, g=h.g, n=h.n,
-                               r=h.r, take=take)
+                               r=h.r, take=take, **{k: getattr(h, k) for k in rf})
 
     def _slots(self, m: Module) -> SimpleNamespace:
         """The RTC packet slots: ``free`` (mask), ``any``/``new`` (the lowest free one),
