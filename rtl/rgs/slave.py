@@ -358,7 +358,7 @@ class Slave(wiring.Component):
             if pooled:                   # one pool of units for all, a LightPipe entry per light
                 self.pool = SlavePool(cfg.fmt, self.sec_tag.size, self.shd_tag.size, lat,
                                       cfg.rgs_budget(), max(1, L), self.eye, self.setup,
-                                      max(1, L + (cfg.reflect_depth > 0) + cfg.refraction),
+                                      L + 1 + cfg.refraction,
                                       self.tex, cfg.refraction)
                 self.sec, self.shd = self.pool.sec, self.pool.shd
             else:
