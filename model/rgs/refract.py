@@ -38,7 +38,7 @@ from .secondary import dot3, secondary_at, to_fixed
 __all__ = ["refract_one", "refraction_rays"]
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def refract_one(o0, o1, o2, d0, d1, d2, t, f0, f1, f2, p00, p01, p02, g0, g1, g2, n0, n1, n2,
                 r0, r1, r2, eps, eta_in, eta_out, E, M):
     """The module docstring's steps for one hit, on scalars (``f`` the face normal n_f; ``p0``,

@@ -18,7 +18,7 @@ TEX_ONE = 1 << TEX_FRAC
 TEX_SCALE = 256.0 / 255.0   # c * 2**-24 * 256/255: a filtered channel 0..255*2**16 as 0..1
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def tex_coord(u, v, s0, s1, s2, E, M):
     """``tex_st``: a texture coordinate at the hit, (b*s0 + u*s1) + v*s2 with
     b = (1 - u) - v (the barycentric weights of ``normal``)."""
@@ -26,7 +26,7 @@ def tex_coord(u, v, s0, s1, s2, E, M):
     return fadd(fadd(fmul(b, s0, E, M), fmul(u, s1, E, M), E, M), fmul(v, s2, E, M), E, M)
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def wrap_coord(s, E):
     """``wrap``: floor(s * 2**UV_FRAC) mod 2**UV_FRAC, the fraction of s (s - floor(s), the
     texture repeats) in UV_FRAC-bit fixed point; 0 for a NaN, an infinity or a zero
@@ -39,7 +39,7 @@ def wrap_coord(s, E):
     return np.int64(f - np.floor(f / one) * one)
 
 
-@numba.njit(cache=True, inline="always")
+@numba.njit(cache=True)
 def tex_pos(fs, size):
     """``pos``: the two texels and the weight of the second along one axis for the wrapped
     coordinate ``fs`` (UV_FRAC bits) on a texture ``size`` texels long: X = fs * size - 1/2 in
@@ -84,13 +84,13 @@ def texture_kd(kd, u, v, uv, tex, tw, th, texels, E, M):
     return out
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def tex_scale(E, M):
     """``scale``'s constant: 256/255 in the format."""
     return round_exact(np.float64(TEX_SCALE), E, M)
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def texture_one(kd0, kd1, kd2, u, v, uv, j, tex, tw, th, texels, scale, E, M):
     """:func:`texture_kd` of one hit (``uv[j]`` its triangle's texture coordinates,
     ``scale`` = :func:`tex_scale`): its 3 channels (``kd`` unchanged if ``tex < 0``)."""
@@ -113,7 +113,7 @@ def texture_one(kd0, kd1, kd2, u, v, uv, j, tex, tw, th, texels, scale, E, M):
             _texel_channel(kd2, t00, t10, t01, t11, wx, wy, 16, scale, E, M))
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
+@numba.njit(cache=True, error_model="numpy")
 def _texel_channel(kd, t00, t10, t01, t11, wx, wy, sh, scale, E, M):
     """``filter``, ``scale`` and ``kd`` of one channel (bits ``sh`` .. ``sh + 7`` of a texel)."""
     a00, a10 = (t00 >> sh) & 255, (t10 >> sh) & 255
