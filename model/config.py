@@ -167,7 +167,8 @@ class Config:
             raise ConfigError(f"shade_cache_kb={self.shade_cache_kb} must be >= 1")
         if self.rgs_buffers and self.rgs_buffers < self.min_rgs_buffers:
             need = ("2 (rgs_lights + 2) + 2 and rgs_lights + 2 + reflect_depth + 1 "
-                    "(refraction)" if self.refraction else "2 (rgs_lights + 1) + 2")
+                    "(refraction)" if self.refraction else
+                    "2 (rgs_lights + 1) + 2 and reflect_depth + 2 (a frame without lights)")
             raise ConfigError(f"rgs_buffers={self.rgs_buffers} is too few for rgs_lights="
                               f"{self.rgs_lights}: a slave needs at least {need} = "
                               f"{self.min_rgs_buffers} pending buffers (or 0: the default) so "
@@ -285,10 +286,11 @@ class Config:
     @property
     def min_rgs_buffers(self) -> int:
         """The fewest pending buffers a slave can hold without deadlock: ``2 *``
-        :attr:`rgs_reserve` ``+ 2``, and with :attr:`refraction` at least :attr:`rgs_reserve`
-        ``+ reflect_depth + 1`` (``rtl/rgs/slave.py``, ``docs/chip.md``)."""
-        n = 2 * self.rgs_reserve + 2
-        return max(n, self.rgs_reserve + self.reflect_depth + 1) if self.refraction else n
+        :attr:`rgs_reserve` ``+ 2``, and at least K ``+ reflect_depth + 1`` for the K under
+        the branching bound (``rtl/rgs/slave.py``, ``docs/chip.md``): :attr:`rgs_reserve` with
+        :attr:`refraction`, else 1 (a frame without lights)."""
+        k = self.rgs_reserve if self.refraction else 1
+        return max(2 * self.rgs_reserve + 2, k + self.reflect_depth + 1)
 
     @property
     def rgs_reserve(self) -> int:
@@ -394,10 +396,12 @@ class Config:
         ``reflect_depth`` enters only as :attr:`secondary_rays` (the RTL reads it through that
         property alone; the depth itself is a register loaded per frame), so a chip with light
         registers is one binary for every reflection depth (but with :attr:`refraction`, whose
-        fewest pending buffers grow with the depth: :attr:`min_rgs_buffers`)."""
+        fewest pending buffers grow with the depth, and without it the fewest buffers,
+        :attr:`min_rgs_buffers`, which grow with a deep enough depth)."""
         d = {k: v for k, v in self.to_dict().items() if k not in HOST_FIELDS}
         if not self.refraction:
             del d["reflect_depth"]
+            d["min_rgs_buffers"] = self.min_rgs_buffers
         d["secondary_rays"] = self.secondary_rays
         return d
 

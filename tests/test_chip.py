@@ -16,6 +16,7 @@ from model.layout import REC_WORDS
 from model.render import prepare
 from model.rtc import trace
 from model.scene import load_scene
+from rtl.rgs.slave import slave_buffers as rtl_slave_buffers
 from rtl.rtcmi import rtcmi_geometries
 from tb.harness.compare import COMPARED
 
@@ -641,3 +642,45 @@ def test_chip_refuses_refraction_it_cannot_make(glass):
     assert GLASS.replace(rgs_lights=1, reflect_depth=9).min_rgs_buffers == 3 + 9 + 1
     assert GLASS.hardware_dict() != GLASS.replace(reflect_depth=3).hardware_dict()
     assert TINY.hardware_dict() == TINY.replace(reflect_depth=2).hardware_dict()
+
+
+MIRROR_BOX = """
+name = "mirror box"
+background = [0.1, 0.2, 0.3]
+[camera]
+position = [0.3, 0.2, 0.5]
+look_at = [0.0, 0.0, -2.0]
+up = [0.0, 1.0, 0.0]
+fov = 60.0
+[[material]]
+name = "mirror"
+diffuse = [0.1, 0.1, 0.1]
+reflect = 0.8
+[[object]]
+name = "box"
+box = { size = [4.0, 3.0, 5.0] }
+material = "mirror"
+"""
+
+
+def test_chip_reflections_without_lights_in_amaranth_sim(tmp_path, kd_cache):
+    """A frame without lights (K = 1: a packet reserves one buffer, for its reflections)
+    inside a mirrored box, every ray reflected to depth 2, more RTC slots than pending
+    buffers (4 threads: 8 slots; 4 buffers, the fewest) and 8 packets of 2x2 rays: every eye
+    packet commits with a waiting reflection packet that may spawn. Without the branching bound the waiting packets hold
+    every buffer and the slave deadlocks (``tests/test_rgs_slave_reservations.py``); with it
+    the frame finishes, every ray and pixel bit-exact."""
+    from tb.harness.chip import run_chip
+    path = tmp_path / "mirror_box.toml"
+    path.write_text(MIRROR_BOX)
+    scene = load_scene(path)
+    assert len(scene.lights) == 0
+    cfg = TINY.replace(threads=4, rgs_lights=0, reflect_depth=2, rgs_buffers=4, tile_w=2,
+                       tile_h=2)
+    assert rtl_slave_buffers(cfg) == cfg.min_rgs_buffers == 4
+    image = prepare(scene, cfg, cache_dir=kd_cache).image
+    r = run_chip(cfg, image, scene.camera, 8, 4, stall=0.25, seed=3, scene=scene,
+                 max_cycles=100_000)
+    check_frame(r, cfg, image, eye_rays(scene.camera, 8, 4, cfg))
+    rays = r.frame_rays
+    assert ((rays.kind == RayKind.REFLECTION) & (rays.depth == 2)).sum() == 32

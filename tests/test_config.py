@@ -74,14 +74,18 @@ def test_host_fields_are_not_read_by_the_hardware():
 
 def test_reflect_depth_enters_the_hardware_key_as_secondary_rays():
     """The RTL reads ``reflect_depth`` only through ``Config.secondary_rays`` (the depth is a
-    register loaded per frame), so a binary with light registers serves every depth, and the
-    eye-ray-only chip (no lights, no reflections) is a binary of its own."""
+    register loaded per frame), so a binary with light registers serves every depth up to
+    where the fewest pending buffers grow with it (``Config.min_rgs_buffers``: reflect_depth
+    + 2 for a frame without lights, above 2 (rgs_lights + 1) + 2), and the eye-ray-only chip
+    (no lights, no reflections) is a binary of its own."""
     read = config_names_the_hardware_reads()
     assert "secondary_rays" in read and "reflect_depth" not in read
-    lit = [Config(reflect_depth=d).hardware_dict() for d in (0, 1, 3)]
-    assert lit[0] == lit[1] == lit[2] and lit[0]["secondary_rays"] is True
-    dark = [Config(rgs_lights=0, reflect_depth=d).hardware_dict() for d in (0, 1, 3)]
+    lit = [Config(reflect_depth=d).hardware_dict() for d in (0, 1, 3, 10)]
+    assert lit[0] == lit[1] == lit[2] == lit[3] and lit[0]["secondary_rays"] is True
+    assert Config(reflect_depth=11).hardware_dict() != lit[0]
+    dark = [Config(rgs_lights=0, reflect_depth=d).hardware_dict() for d in (0, 1, 2, 3)]
     assert dark[1] == dark[2] != dark[0] and dark[0]["secondary_rays"] is False
+    assert dark[3] != dark[2] and Config(rgs_lights=0, reflect_depth=3).min_rgs_buffers == 5
     assert dark[0] != lit[0]
 
 

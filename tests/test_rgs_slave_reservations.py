@@ -81,7 +81,8 @@ def test_refraction_reservations_never_deadlock(lights, depth):
     the slave's rules (the deepest first, at most B branching packets in flight)."""
     cfg = Config(refraction=True, rgs_lights=lights, reflect_depth=depth)
     for NB in range(cfg.min_rgs_buffers, cfg.min_rgs_buffers + 3):
-        assert deadlock(NB, lights, depth, S=4, eyes=4, refraction=True, gate=True) is None
+        assert deadlock(NB, lights, depth, S=NB + 2, eyes=NB + 2, refraction=True,
+                        gate=True) is None
 
 
 def test_refraction_without_the_rules_deadlocks():
@@ -93,11 +94,31 @@ def test_refraction_without_the_rules_deadlocks():
     assert deadlock(8, 1, 2, S=4, eyes=4, refraction=True, gate=True) is None
 
 
+@pytest.mark.parametrize("depth", [1, 2, 3, 5])
+def test_reflections_without_lights_never_deadlock_under_the_rules(depth):
+    """K = 1 (no light in use, no refraction): a commit's waiting reflection packet takes the
+    buffer its parent reserved and returns none, so from depth 2 the lowest-first order alone
+    deadlocks (every buffer held by a waiting packet); the slave applies the refraction rules
+    there (``rtl/rgs/slave.py``, ``pb.gated``), and from the configuration's fewest buffers
+    (at least reflect_depth + 2) no state deadlocks.
+    (More RTC slots than buffers, as in the chip: 2 x threads slots, threads + K buffers.)"""
+    cfg = Config(rgs_lights=0, reflect_depth=depth)
+    assert cfg.min_rgs_buffers == max(4, depth + 2)
+    for NB in range(cfg.min_rgs_buffers, cfg.min_rgs_buffers + 3):
+        assert deadlock(NB, 0, depth, S=NB + 2, eyes=NB + 2, refraction=False,
+                        gate=True) is None
+    if depth >= 2:
+        NB = cfg.min_rgs_buffers
+        assert deadlock(NB, 0, depth, S=NB + 2, eyes=NB + 2, refraction=False,
+                        gate=False) is not None
+
+
 @pytest.mark.parametrize("lights", [1, 3])
 def test_reflections_alone_never_deadlock(lights):
     """Without refraction (one waiting packet per commit at most), the fewest buffers,
     2 (lights + 1) + 2, never deadlock with the lowest-first order."""
     cfg = Config(rgs_lights=lights)
     for depth in (1, 2, 3):
-        assert deadlock(cfg.min_rgs_buffers, lights, depth, S=4, eyes=4, refraction=False,
+        NB = cfg.min_rgs_buffers
+        assert deadlock(NB, lights, depth, S=NB + 2, eyes=NB + 2, refraction=False,
                         gate=False) is None

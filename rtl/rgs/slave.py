@@ -59,8 +59,9 @@ processed and the RTC always frees its threads; eye packets are admitted only wh
 secondary packet waits, and there are ``buffers >= 2 * K + 2`` (``Config.min_rgs_buffers``),
 so a waiting reflection packet always finds its own reservation once the packets ahead of it
 have finished. With refraction a source packet may leave two waiting packets that need a
-reservation (its reflection and refracted packets), and that count no longer holds; two more
-rules bound the waiting packets (:meth:`Slave._branch_gate`, :meth:`Slave._send`): a packet
+reservation (its reflection and refracted packets), and with K = 1 (no light in use) its one
+waiting packet takes the buffer it reserved and gives none back; there that count no longer
+holds, and two more rules bound the waiting packets (:meth:`Slave._branch_gate`, :meth:`Slave._send`): a packet
 that may spawn starts only while no deeper one that may spawn waits, and a *branching* packet
 (one that may spawn, below ``reflect_depth``) only while fewer than ``B = (buffers - K) //
 (reflect_depth + 1)`` are in flight. At most ``B * (reflect_depth + 1)`` packets then wait,
@@ -543,8 +544,7 @@ class Slave(wiring.Component):
         m.d.comb += K.eq(self.n_lights + 1 + R)
         slot = self._slot_table(m)
         pb = self._pending(m)
-        if R:
-            self._branch_gate(m, pb, K)
+        self._branch_gate(m, pb, K)
         m.submodules.store = store = TwoWriteMemory(RayEntry(self.cfg), self.slots *
                                                     self.cfg.packet_size, self._block)
         m.submodules.sender = snd = Sender(self.cfg, self.buffers, self.slots)
@@ -555,11 +555,11 @@ class Slave(wiring.Component):
         fed = self._shade_feed(m, res)
         loop = self._light_loop(m, fed, res)
         bld = self._builders(m, pb, loop, K)
-        if R:           # a branching packet's commit (its last token left LightPipe)
-            ot = loop.ot
-            m.d.comb += pb.br_dec.eq(self.shd.o_valid & ot.last & ot.spawn &
-                                     (ot.depth < self.reflect_depth))
-            m.d.sync += pb.branching.eq(pb.branching + pb.br_eye + pb.br_send - pb.br_dec)
+        # a branching packet's commit (its last token left LightPipe)
+        ot = loop.ot
+        m.d.comb += pb.br_dec.eq(self.shd.o_valid & ot.last & ot.spawn &
+                                 (ot.depth < self.reflect_depth))
+        m.d.sync += pb.branching.eq(pb.branching + pb.br_eye + pb.br_send - pb.br_dec)
         self._ambient(m, res, loop)
         m.d.sync += pb.ready.eq((pb.ready | bld.committed) &
                                 ~Mux(start.go, 1 << start.buf, 0))
@@ -635,13 +635,17 @@ class Slave(wiring.Component):
         return pb
 
     def _branch_gate(self, m: Module, pb, K: Value):
-        """With ``cfg.refraction``: the branching packets (those that may spawn, of depth
-        below ``reflect_depth``: their hits may spawn a reflection and a refracted packet that
+        """The branching packets (those that may spawn, of depth below ``reflect_depth``:
+        their hits may spawn a reflection and, with ``cfg.refraction``, a refracted packet that
         spawn in turn) in flight, ``pb.branching`` (``br_eye``, ``br_send``, ``br_dec``: this
         cycle's admitted eye packet, started secondary packet, commit), and ``pb.branch_ok``:
         fewer than ``B`` = (buffers - K) // (reflect_depth + 1) (at least 1) are, so one more
-        may start (the module docstring)."""
+        may start (the module docstring). ``pb.gated``: the rules apply, with
+        ``cfg.refraction`` always, else while K = 1 (no light in use: a commit's one waiting
+        reflection packet takes the buffer its parent reserved and gives none back, so
+        without the bound the waiting packets can hold every buffer)."""
         NB, D = self.buffers, self.reflect_depth
+        pb.gated = Const(1) if self.cfg.refraction else (self.n_lights == 0)
         pb.branching = Signal(range(self.slots + 1), name="branching")
         pb.br_eye, pb.br_send = Signal(name="branch_eye"), Signal(name="branch_send")
         pb.br_dec = Signal(name="branch_commit")
@@ -653,17 +657,16 @@ class Slave(wiring.Component):
     def _admit(self, m: Module, eye: EyeRays, slot, pb, K: Value, sender_busy: Value):
         """Admission of eye packets: a tile takes the lowest free RTC slot and, if its hits may
         spawn rays, reserves K pending buffers; only while no secondary packet waits (no
-        ready buffer, the sender idle), and with ``cfg.refraction`` only while one more
-        branching packet may start (:meth:`_branch_gate`)."""
+        ready buffer, the sender idle), and where the branching bound applies
+        (``pb.gated``) only while one more branching packet may start
+        (:meth:`_branch_gate`)."""
         eye_spawns = self._spawns(0)
         can_admit = (slot.any & (~eye_spawns | (pb.credits >= K)) & (pb.ready == 0) &
                      ~sender_busy)
-        if self.cfg.refraction:
-            eye_branches = self.reflect_depth != 0
-            can_admit &= ~eye_branches | pb.branch_ok
+        eye_branches = self.reflect_depth != 0
+        can_admit &= ~pb.gated | ~eye_branches | pb.branch_ok
         admit = self._admission(m, eye, slot.new, can_admit)
-        if self.cfg.refraction:
-            m.d.comb += pb.br_eye.eq(admit & eye_branches)
+        m.d.comb += pb.br_eye.eq(admit & eye_branches)
         with m.If(admit):
             m.d.comb += [slot.take.eq(1), pb.take.eq(Mux(eye_spawns, K, 0))]
             m.d.sync += [slot.packet[slot.new].eq(self.req.payload.packet),
@@ -677,20 +680,20 @@ class Slave(wiring.Component):
         the ray store. A ready reflection packet that may spawn waits for its reservation;
         the others (shadow packets, reflections that spawn nothing) may start: the lowest
         ready buffer that can start goes, so a waiting reflection packet never blocks the
-        shadow packets whose buffers give the credits back. With ``cfg.refraction`` a
-        packet that may spawn waits also while a deeper one that may spawn is ready, and a
-        branching one while no more may start (:meth:`_branch_gate`). Returns ``go`` (a
+        shadow packets whose buffers give the credits back. Where the rules apply
+        (``pb.gated``: with ``cfg.refraction``, or K = 1) a packet that may spawn waits also
+        while a deeper one that may spawn is ready, and a branching one while no more may
+        start (:meth:`_branch_gate`). Returns ``go`` (a
         packet starts) and ``buf`` (its buffer)."""
         NB, P = self.buffers, self.cfg.packet_size
         startable = Signal(NB)
         sp = [(pb.sub[i] == 0) & self._spawns(pb.depth[i]) for i in range(NB)]
-        if self.cfg.refraction:          # the deepest first; branching ones while they may
-            wait = [(pb.credits < K) |
-                    Cat(*(pb.ready[j] & sp[j] & (pb.depth[j] > pb.depth[i])
-                          for j in range(NB) if j != i)).any() |
-                    ((pb.depth[i] < self.reflect_depth) & ~pb.branch_ok) for i in range(NB)]
-        else:
-            wait = [pb.credits < K] * NB
+        # the deepest first; branching ones while they may (where the rules apply)
+        wait = [(pb.credits < K) |
+                (pb.gated & (Cat(*(pb.ready[j] & sp[j] & (pb.depth[j] > pb.depth[i])
+                                   for j in range(NB) if j != i)).any() |
+                             ((pb.depth[i] < self.reflect_depth) & ~pb.branch_ok)))
+                for i in range(NB)]
         m.d.comb += startable.eq(Cat(*(pb.ready[i] & ~(sp[i] & wait[i]) for i in range(NB))))
         any_ready, rb = lowest(m, startable, "ready")
         # a reflection packet that may spawn
@@ -700,8 +703,7 @@ class Slave(wiring.Component):
                      snd.start.payload.slot.eq(slot.new),
                      snd.start.payload.count.eq(pb.count[rb]),
                      go.eq(snd.start.valid & snd.start.ready)]
-        if self.cfg.refraction:
-            m.d.comb += pb.br_send.eq(go & spawning & (pb.depth[rb] < self.reflect_depth))
+        m.d.comb += pb.br_send.eq(go & spawning & (pb.depth[rb] < self.reflect_depth))
         with m.If(go):
             m.d.comb += slot.take.eq(1)
             with m.If(spawning):
