@@ -82,6 +82,19 @@ def stack_bits(cfg: Config) -> int:
     return max(1, ceil_log2(cfg.stack_depth))
 
 
+def stack_entry(cfg: Config, thread: Value, sp: Value) -> Value:
+    """The row of ``thread``'s stack entry ``sp`` in a stack memory of ``threads x
+    stack_depth`` rows: ``thread * stack_depth + sp``, so a depth that is not a power of two
+    pads nothing (24 levels: 3/4 of the 32-level memory). Entries written are below the
+    depth: a step at an inner node of depth k writes entry sp <= k <= stack_depth - 1."""
+    D = cfg.stack_depth
+    if D == 1:
+        return thread
+    if D & (D - 1) == 0:
+        return Cat(sp[:stack_bits(cfg)], thread)
+    return (thread * D + sp)[:ceil_log2(cfg.threads * D)]
+
+
 def step_layout(cfg: Config) -> data.StructLayout:
     """A step for one sub-unit: its lanes of the active mask and the node's split plane."""
     return data.StructLayout({
@@ -227,11 +240,12 @@ class TravSubunit(wiring.Component):
 
     def elaborate(self, platform):
         m = Module()
-        w, T, rb, db = self.cfg.fmt.width, self.cfg.threads, self.rbits, self.dbits
+        w, T, rb = self.cfg.fmt.width, self.cfg.threads, self.rbits
         m.submodules.ray = ray = BlockRAM(shape=6 * w, depth=T << rb)
         m.submodules.anyhit = ah = BlockRAM(shape=1, depth=T << rb)
         m.submodules.nmem = nmem = BlockRAM(shape=2 * w, depth=T << rb)
-        m.submodules.smem = smem = BlockRAM(shape=2 * w, depth=T << (rb + db))
+        m.submodules.smem = smem = BlockRAM(shape=2 * w,
+                                            depth=(T * self.cfg.stack_depth) << rb)
         ray_r, ray_w = ray.read_port(), ray.write_port()
         ah_r, ah_w = ah.read_port(), ah.write_port()
         n_r, n_rq, n_w = nmem.read_port(), nmem.read_port(), nmem.write_port()
@@ -242,7 +256,7 @@ class TravSubunit(wiring.Component):
         near_iv, far_iv = self._classify(m, st, dist, self._interval(m, st, kd, n_r, s_r))
         # ---- k=K: write the far interval to S[sp] (the near one to N: _write_n)
         sw = st[self.LAT]
-        m.d.comb += [s_w.addr.eq(Cat(sw.lane, sw.sp, sw.thread)), s_w.data.eq(far_iv),
+        m.d.comb += [s_w.addr.eq(Cat(sw.lane, stack_entry(self.cfg, sw.thread, sw.sp))), s_w.data.eq(far_iv),
                      s_w.en.eq(sw.v)]
         self._write_n(m, st, near_iv, n_w, ray_w, ah_w)
         self._request(m, n_rq, s_rq, ah_r)
@@ -301,7 +315,8 @@ class TravSubunit(wiring.Component):
         w = self.cfg.fmt.width
         rd = max(2, min(4, kd)) if self.cfg.fast_clock else 2
         m.d.comb += [n_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].thread)),
-                     s_r.addr.eq(Cat(st[kd - rd].lane, st[kd - rd].sp, st[kd - rd].thread))]
+                     s_r.addr.eq(Cat(st[kd - rd].lane,
+                                     stack_entry(self.cfg, st[kd - rd].thread, st[kd - rd].sp)))]
         iv = Signal(2 * w)
         s_d, n_d = s_r.data, n_r.data
         for i in range(rd - 2):
@@ -378,7 +393,8 @@ class TravSubunit(wiring.Component):
         later (the block RAMs' outputs straight into registers when more than 1)."""
         w = self.cfg.fmt.width
         m.d.comb += [n_rq.addr.eq(Cat(self.rq_lane, self.rq_thread)),
-                     s_rq.addr.eq(Cat(self.rq_lane, self.rq_sp, self.rq_thread)),
+                     s_rq.addr.eq(Cat(self.rq_lane,
+                                      stack_entry(self.cfg, self.rq_thread, self.rq_sp))),
                      ah_r.addr.eq(Cat(self.rq_lane, self.rq_thread))]
         cur_d = Signal()
         m.d.sync += cur_d.eq(self.rq_cur)
@@ -776,7 +792,7 @@ class _ControlEngine:
             with m.If(self.sp == 0):
                 self.goto("PASS")
             with m.Else():
-                m.d.comb += self.st_r.addr.eq(Cat((self.sp - 1)[:db], self.t))
+                m.d.comb += self.st_r.addr.eq(stack_entry(self.cfg, self.t, (self.sp - 1)[:db]))
                 m.d.sync += self.sp.eq(self.sp - 1)
                 self.goto("POP2")
         state, node, mask, live = self.pop_read(self.st_data[:NODE_BITS], self.popped,
@@ -1150,9 +1166,8 @@ class Traversal(wiring.Component):
         for j, s in enumerate(self.subunits):
             m.submodules[f"sub{j}"] = s
         th = _Threads(self.cfg, len(self.rays.payload.packet))
-        db = stack_bits(self.cfg)
         m.submodules.stack = stack = BlockRAM(shape=NODE_BITS + self.cfg.packet_size,
-                                              depth=self.cfg.threads << db)
+                                              depth=self.cfg.threads * self.cfg.stack_depth)
         m.submodules.passmask = pmem = BlockRAM(shape=8 * self.cfg.packet_size,
                                                 depth=self.cfg.threads)
         pm_r = pmem.read_port()
@@ -1328,7 +1343,7 @@ class Traversal(wiring.Component):
         with m.If(dcd.wr.valid):
             for f in ("sp", "node", "mask", "cur", "state"):
                 th.set(m, f, w.thread, w[f])
-        m.d.comb += [st_w.addr.eq(Cat(p.sp, p.thread)), st_w.data.eq(Cat(p.node, p.mask)),
+        m.d.comb += [st_w.addr.eq(stack_entry(self.cfg, p.thread, p.sp)), st_w.data.eq(Cat(p.node, p.mask)),
                      st_w.en.eq(dcd.push.valid), self.pushes.eq(dcd.pushes)]
         ctl.fsm()
         ctl.write_back()

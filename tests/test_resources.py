@@ -70,15 +70,42 @@ def test_parse_stat_counts_flip_flop_bits_and_products():
         parse_stat("2.64E+07 memory bits")
 
 
-def test_paper_preset_is_at_the_papers_fp_budget():
+@pytest.fixture(scope="module")
+def paper_one_rtc():
+    """One RTC of the paper preset, elaborated and counted."""
+    from model.config import preset
+    cfg = preset("paper", rtcs=1)
+    return cfg, chip_resources(cfg)
+
+
+def test_paper_preset_is_at_the_papers_fp_budget(paper_one_rtc):
     """The paper's Section 5: 192 FP units for 4 RTCs with their slaves, 48 each. One RTC
     of the paper preset (``--preset paper``: the projection test, every slave datapath on one
     pool of 3 adders and 4 multipliers) elaborated: at most 48 arithmetic units (the int ->
     FP converters left out, as the paper counts), at most 4 multipliers and 3 adders beyond
     the RTC's (the traversal's 4, the projection test's 10 and 12)."""
-    from model.config import preset
-    r = chip_resources(preset("paper", rtcs=1))
+    _, r = paper_one_rtc
     units = r["fp_units"]
     assert r["totals"]["fp_arith_units"] == sum(n for k, n in units.items() if k != "int_to_fp")
     assert r["totals"]["fp_arith_units"] <= 48, units
     assert units["mul"] <= 4 + 10 + 4 and units["add"] <= 4 + 12 + 3, units
+
+
+def test_memory_by_kind_and_the_papers_way(paper_one_rtc):
+    """Every memory bit has one kind; the caches' data are the paper's 64 + 64 + 144 KB; the
+    traversal stack is threads x stack_depth entries of (node, mask) and a (tnear, tfar) pair
+    per lane, unpadded at 24 levels; the paper's register files at d levels are Section
+    5.4's 287.6 KB + d x 17.25 KB."""
+    from rtl.traversal import NODE_BITS
+    from saarcor.bench.resources import paper_way
+    cfg, r = paper_one_rtc
+    kinds = r["memory_bits_by_kind"]
+    assert sum(kinds.values()) == r["totals"]["memory_bits"]
+    assert kinds["cache data"] == (64 + 64 + 144) * 8192
+    T, D, P, w = cfg.threads, cfg.stack_depth, cfg.packet_size, cfg.fmt.width
+    assert D == 24
+    assert kinds["traversal stack"] == T * D * (NODE_BITS + P + P * 2 * w)
+    assert kinds["slave ray store"] > 0 and kinds["slave pending buffers"] > 0
+    pw = paper_way(r, D)
+    assert pw["paper_register_file_kb"] == pytest.approx(287.6 + 24 * 17.25)
+    assert pw["cache_kb"] + pw["register_file_kb"] == pytest.approx(r["totals"]["memory_kb"])

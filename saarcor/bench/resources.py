@@ -31,9 +31,35 @@ from collections import Counter
 from pathlib import Path
 from saarcor.outputs import write_atomic
 
-__all__ = ["resources", "chip_resources", "yosys_resources", "main"]
+__all__ = ["resources", "chip_resources", "yosys_resources", "paper_way", "main"]
 
-PAPER = {"fp_units": 192, "register_file_kb": 822, "cache_kb": 272}
+PAPER = {"fp_units": 192, "register_file_kb": 822, "cache_kb": 272,
+         # Section 5.4: on-chip memory = cache + 287.6 KB + d x 17.25 KB for d kd-tree levels
+         # (the traversal stack has a level per subdivision)
+         "fixed_kb": 287.6, "per_level_kb": 17.25}
+
+# the memories by what they hold, in the paper's terms (caches, and register files of which
+# the traversal stack grows with the kd-tree's depth); the slave's ray store and pending
+# buffers are what keeps every secondary ray (the paper's slaves drop rays when full)
+MEMORY_KINDS = ("cache data", "cache tags", "traversal stack", "ray state", "slave ray store",
+                "slave pending buffers", "slave caches", "queues")
+
+
+def _memory_kind(path: tuple, name: str) -> str:
+    """Which of :data:`MEMORY_KINDS` the memory ``name`` of the netlist module ``path`` is."""
+    part, names = _part(path), [str(p) for p in path]
+    if name == "storage":                       # a SyncFIFO's
+        return "queues"
+    if part in ("shade_cache", "tex_cache"):
+        return "slave caches"
+    if part == "rtcmi":
+        return ("cache data" if name.startswith("data") else
+                "cache tags" if name == "tags" else "queues")
+    if part == "rtc":
+        return "traversal stack" if name in ("smem", "stack") else "ray state"
+    if part == "slave" and names[-1] in ("store", "pend"):
+        return "slave ray store" if names[-1] == "store" else "slave pending buffers"
+    return "queues" if part in ("slave", "master", "bus", "res_out") else "ray state"
 
 
 def _part(path: tuple) -> str:
@@ -89,12 +115,16 @@ def resources(make) -> dict:
             cls.elaborate = orig
     ff: Counter = Counter()
     mem: Counter = Counter()
+    kind: Counter = Counter()
     for cell in netlist.cells:
         if isinstance(cell, _nir.FlipFlop):
             ff[_part(netlist.modules[cell.module_idx].name)] += len(cell.data)
         elif isinstance(cell, _nir.Memory):
-            mem[_part(netlist.modules[cell.module_idx].name)] += cell.width * cell.depth
+            path = netlist.modules[cell.module_idx].name
+            mem[_part(path)] += cell.width * cell.depth
+            kind[_memory_kind(path, str(cell.name))] += cell.width * cell.depth
     return {"fp_units": dict(units), "flipflop_bits": dict(ff), "memory_bits": dict(mem),
+            "memory_bits_by_kind": {k: kind[k] for k in MEMORY_KINDS if kind[k]},
             "totals": {"fp_units": sum(units.values()),
                        # the arithmetic units the paper counts (no int -> FP converters)
                        "fp_arith_units": sum(n for k, n in units.items() if k != "int_to_fp"),
@@ -103,6 +133,20 @@ def resources(make) -> dict:
                        "flipflop_kb": sum(ff.values()) / 8192,
                        "memory_kb": sum(mem.values()) / 8192},
             "seconds": round(time.perf_counter() - t0, 1)}
+
+
+def paper_way(r: dict, levels: int) -> dict:
+    """The memories of :func:`resources` counted as the paper counts them (Section 5.4): the
+    caches' data (``cache_kb``) and the register files (``register_file_kb``, every other
+    memory: the traversal stack, ``stack_kb``, ``per_level_kb`` a kd-tree level, and the
+    rest, ``fixed_kb``); beside the paper's register files at the same depth."""
+    kb = {k: v / 8192 for k, v in r["memory_bits_by_kind"].items()}
+    cache = kb.get("cache data", 0.0)
+    stack = kb.get("traversal stack", 0.0)
+    regs = sum(kb.values()) - cache
+    return {"cache_kb": cache, "register_file_kb": regs, "stack_kb": stack,
+            "per_level_kb": stack / max(1, levels), "fixed_kb": regs - stack,
+            "paper_register_file_kb": PAPER["fixed_kb"] + levels * PAPER["per_level_kb"]}
 
 
 # ``opt_clean`` before ``flatten``: Amaranth gives a constant-driven wire an ``init`` of 0 that
@@ -190,6 +234,15 @@ def main(argv=None) -> int:
               f"{y['cells']} cells; RTLIL {y['rtlil_s']} s, Yosys {y['yosys_s']} s")
     print(f"  paper: {PAPER['fp_units']} FP units, {PAPER['register_file_kb']} KB of register "
           f"files, {PAPER['cache_kb']} KB of caches")
+    r["paper_way"] = pw = paper_way(r, cfg.stack_depth)
+    print("  memory KB by kind: " + ", ".join(
+        f"{k} {v / 8192:.1f}" for k, v in r["memory_bits_by_kind"].items()))
+    print(f"  the paper's way (Section 5.4: cache + 287.6 KB + d x 17.25 KB, d = "
+          f"{cfg.stack_depth} stack levels): caches {pw['cache_kb']:.1f} KB (data), register "
+          f"files {pw['register_file_kb']:.1f} KB of which the stack {pw['stack_kb']:.1f} "
+          f"({pw['per_level_kb']:.2f} KB a level), the rest {pw['fixed_kb']:.1f}; the paper "
+          f"at d = {cfg.stack_depth}: {pw['paper_register_file_kb']:.1f} KB of register files "
+          f"({PAPER['per_level_kb']} a level, {PAPER['fixed_kb']} the rest)")
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         write_atomic(Path(args.json), json.dumps(r, indent=1))
