@@ -37,7 +37,7 @@ from .memport import WORD_BITS, MemReadPort, connect_tags
 from .rtc import COUNTERS, RTC, STALLS
 from .stalls import REASONS, StallCounters
 from .rtc_streams import RayIn, RayResult
-from .rgs.slave import RAY_COUNTERS
+from .rgs.slave import POOL_COUNTERS, RAY_COUNTERS
 from .rtcmi import CACHES, RTCMI, SharedRTCMI, port_tags
 from .traversal import NODE_BITS
 
@@ -149,13 +149,14 @@ class Chip(wiring.Component):
     Counters: ``cycles`` (busy cycles of the last frame), ``rays_in`` (rays into the RTCs),
     ``results_out`` (ray results; the ambient records are not counted), ``packets[s]`` (eye
     packets slave s got), per slave ``rays_eye``, ``rays_shadow``, ``rays_reflect``,
-    ``rays_refract``, ``sec_busy`` (``slave_counters[s]``), its shading cache's
+    ``rays_refract``, ``sec_busy``, the pool's ``rtl.rgs.POOL_COUNTERS``
+    (``slave_counters[s]``), its shading cache's
     ``shade_hits``/``shade_misses`` and its texel cache's ``tex_hits``/``tex_misses`` (0
     where there is none), and :class:`RTCArray`'s (``rtc_counters``, ``hits``,
     ``misses``, ``waits``, ``cache_stalls``, ``grants``, ``mem_reads``).
     """
 
-    SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy", *REASONS)
+    SLAVE_COUNTERS = (*RAY_COUNTERS.values(), "sec_busy", *POOL_COUNTERS, *REASONS)
     """Per slave: rays into its RTC by kind, the secondary datapath's busy cycles, and its
     cycles by what it did (``rtl/stalls.py``): work = a ray sent to the RTC or a result taken
     from it, memory = a shading or texel read in flight, blocked = the RTC not taking a ray or

@@ -161,6 +161,9 @@ def frame_stats(cfg: Config, run, *, scene: str, width: int, height: int, backen
         "units": units,
         "stalls": stalls,
         "slaves": {"secondary_busy": [x["sec_busy"] / cyc for x in slaves],
+                   # the slaves' FP pool (Config.rgs_fp_pool): per datapath, the share of its
+                   # input slots it took (mean over the slaves)
+                   **({"pool": pool_fill(cfg, slaves)} if cfg.rgs_fp_pool and slaves else {}),
                    # refracted rays into each slave's RTC (Config.refraction; its counter)
                    **({"rays_refract": [x["rays_refract"] for x in slaves]}
                       if cfg.refraction else {})},
@@ -196,6 +199,8 @@ LIMIT_SDRAM = 0.70       # an SDRAM chip's data bus busy this share: memory band
 LIMIT_BUS_WAIT = 0.30    # requests waiting on an RTC-MI cache's bus this share: the bus
 LIMIT_OUTPUT = 0.75      # the result streams carrying a record this share of their cycles,
 LIMIT_OUTPUT_BLOCKED = 0.5   # with the RGS slaves blocked this share: the chip's output
+LIMIT_POOL = 0.85        # a datapath on the slaves' FP pool taking inputs in this share of its
+                         # slots, the RTC units not the limit: the pool
 
 
 SATURATED = 0.80         # an SDRAM chip this busy in a slice of the frame is saturated there
@@ -214,6 +219,19 @@ def sdram_saturated_share(cfg: Config, samples: np.ndarray) -> float:
     return float(d[busy >= SATURATED, 0].sum() / max(d[:, 0].sum(), 1e-9))
 
 
+def pool_fill(cfg, slaves: list) -> dict:
+    """Per datapath on the slaves' pool of FP units, the share of its input slots it took,
+    the mean over the slaves (``rtl.rgs.POOL_COUNTERS``; the datapaths this chip has)."""
+    from rtl.rgs import pool_entries
+    out = {}
+    for name, n in pool_entries(cfg).items():
+        if name.startswith("tex") and not cfg.tex_cache_kb:
+            continue
+        out[name] = float(np.mean([x[f"pool_{name}"] / max(1, n * x["pool_intervals"])
+                                   for x in slaves]))
+    return out
+
+
 def limiter(stats: dict) -> dict:
     """The frame's measured limit from the chip's counters (``stats``: :func:`frame_stats`):
     ``{"limit": short name, "why": a sentence with the figures}``.
@@ -227,7 +245,9 @@ def limiter(stats: dict) -> dict:
     memory bandwidth, an RTC-MI cache bus on which requests wait ``LIMIT_BUS_WAIT`` of the cycles is
     the bus, else memory latency (misses); blocked is back-pressure from the next unit (or,
     for intersection, the RGS slave taking results); starved is too little work in flight
-    (too few packets for the threads, or the RGS not making rays fast enough)."""
+    (too few packets for the threads, or the RGS not making rays fast enough). Before those
+    two: a datapath on the slaves' FP pool (``--rgs-fp-pool``) taking an input in
+    ``LIMIT_POOL`` of its slots is the pool, the slaves' pace."""
     st, rtcs = stats["stalls"], stats["config"]["rtcs"]
     work = {u: st[u]["work"] for u in UNIT_NAMES}
     top = max(work, key=work.get)
@@ -242,6 +262,18 @@ def limiter(stats: dict) -> dict:
                        f"blocked {100 * sl['blocked']:.0f} % (raise --result-ports)"}
     reasons = {k: v for k, v in st[top].items() if k != "work"}
     why = max(reasons, key=reasons.get)
+    pool = stats.get("slaves", {}).get("pool")
+    if why != "memory" and pool and max(pool.values()) >= LIMIT_POOL:
+        d = max(pool, key=pool.get)
+        cfg = stats["config"]
+        return {"limit": "slave-pool-bound",
+                "why": f"the RGS slaves' pool of {cfg['rgs_fp_adders']} adders and "
+                       f"{cfg['rgs_fp_muls']} multipliers sets the pace: its {POOL_NAMES[d]} "
+                       f"takes an input in {100 * pool[d]:.0f} % of its slots, and the busiest "
+                       f"unit, the {UNIT_NAMES[top]}, works {100 * work[top]:.0f} % of the "
+                       f"cycles and is {'blocked' if why == 'blocked' else 'without input'} "
+                       f"{100 * reasons[why]:.0f} % of them (a larger pool: "
+                       f"--rgs-fp-adders, --rgs-fp-muls)"}
     share = f"{100 * reasons[why]:.0f} %"
     head = (f"the busiest unit, the {UNIT_NAMES[top]}, works {100 * work[top]:.0f} % of the "
             f"cycles and")
@@ -278,6 +310,10 @@ def limiter(stats: dict) -> dict:
                    f"{stats['config']['threads']} threads (a small frame, or the RGS not "
                    f"making rays fast enough){rgs}"}
 
+
+POOL_NAMES = {"sec": "secondary-ray datapath", "light": "light datapath",
+              "eye": "eye-ray datapath", "setup": "ray setup", "tex_coord": "texture coordinates",
+              "tex_filter": "texture filter"}
 
 USAGE_BINS = 120           # usage.png: the frame in this many equal slices of cycles
 USAGE_RTC_ROWS = 4         # usage.png: one row per RTC up to this many, else their mean

@@ -605,6 +605,18 @@ def test_chip_paper_preset_refraction_verilator(glass, kd_cache):
     r = run_chip_frame(cfg, image, scene.camera, 8, 8, stall=0.25, mem_stall=0.5, seed=5,
                        scene=scene, progress=False, max_cycles=3_000_000)
     check_refraction(r, cfg, image, scene, 8, 8)
+    # the pool's counters (rtl.rgs.POOL_COUNTERS): SecondaryPipe took every eye, reflection
+    # and refracted result, and so did both texture pipes (textured or not), the eye-ray
+    # datapath every eye ray, the ray setup every secondary ray; an interval every ii cycles
+    c, rays = r.counters["slave"], r.frame_rays
+    total = {k: sum(x[k] for x in c) for k in c[0]}
+    assert total["pool_sec"] == int((rays.kind != RayKind.SHADOW).sum())
+    assert total["pool_eye"] == int((rays.kind == RayKind.EYE).sum())
+    assert total["pool_setup"] == int((rays.kind != RayKind.EYE).sum())
+    assert total["pool_tex_coord"] == total["pool_tex_filter"] == total["pool_sec"]
+    assert total["pool_light"] >= total["pool_sec"]
+    for x in c:
+        assert abs(x["pool_intervals"] - r.cycles / slave.pool.ii) <= 2
 
 
 @pytest.mark.slow

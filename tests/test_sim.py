@@ -81,13 +81,13 @@ def test_sim_writes_image_stats_usage_and_the_chips_hits(tmp_path, kd_cache):
     assert stats["limiter"]["limit"] in ("trav-bound", "list-bound", "int-bound",
                                          "memory-bandwidth-bound", "bus-bound",
                                          "memory-latency-bound", "back-pressure", "starved",
-                                         "output-bound")
+                                         "output-bound", "slave-pool-bound")
     assert "%" in stats["limiter"]["why"]
     assert 0 <= stats["memory"]["saturated_share"] <= 1
 
 
 def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2, wait=0.0,
-           sat=0.0, output=0.3, slave_blocked=0.2):
+           sat=0.0, output=0.3, slave_blocked=0.2, pool=None):
     other = {"work": 0.1, "memory": 0.1, "blocked": 0.0, "starved": 0.8}
     st = {u: dict(other) for u in ("trav", "list", "int")}
     st["slave"] = {"work": 0.2, "memory": 0.0, "blocked": slave_blocked,
@@ -95,7 +95,9 @@ def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2
     st[unit] = {"work": work, "memory": memory, "blocked": blocked, "starved": starved}
     cache = {k: {"hit_rate": 0.9, "bus": {"busy": 0.3, "wait": wait}}
              for k in ("trav", "list", "int")}
-    return {"stalls": st, "cache": cache, "config": {"rtcs": 4, "threads": 16},
+    return {"stalls": st, "cache": cache,
+            "config": {"rtcs": 4, "threads": 16, "rgs_fp_adders": 3, "rgs_fp_muls": 4},
+            "slaves": {"pool": pool} if pool else {},
             "memory": {"per_chip": [{"busy": sdram}, {"busy": sdram / 2}],
                        "saturated_share": sat},
             "packets_per_rtc": [12, 12, 12, 12], "output": {"ports": 1, "busy": output}}
@@ -114,6 +116,13 @@ def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2
     (_stats(0.6, 0.3, 0.05, 0.05), "memory-latency-bound", "cache hits 90.0 %"),
     (_stats(0.5, 0.1, 0.3, 0.1, unit="int"), "back-pressure", "RGS slave"),
     (_stats(0.3, 0.1, 0.0, 0.6), "starved", "48 packets for 4 RTCs x 16 threads"),
+    (_stats(0.5, 0.1, 0.3, 0.1, unit="int", pool={"sec": 0.95, "light": 0.7}),
+     "slave-pool-bound", "3 adders and 4 multipliers sets the pace: its secondary-ray "
+     "datapath takes an input in 95 % of its slots"),
+    (_stats(0.3, 0.1, 0.0, 0.6, pool={"sec": 0.5, "light": 0.9}), "slave-pool-bound",
+     "light datapath takes an input in 90 %"),
+    (_stats(0.3, 0.1, 0.0, 0.6, pool={"sec": 0.5, "light": 0.8}), "starved", "48 packets"),
+    (_stats(0.6, 0.3, 0.05, 0.05, pool={"sec": 0.9}), "memory-latency-bound", "hits 90.0"),
 ])
 def test_limiter_rule(stats, limit, words):
     from saarcor.sim import limiter

@@ -21,8 +21,8 @@ from .eye import (COORD_BITS, PIXEL_BITS, EyeRay, EyeRayPipe, EyeRays, EyeReques
                   RaySetupIn, RaySetupPipe, div_const, div_const_params, sample_converter)
 from .master import RGSMaster
 from .secondary import LightPipe, SecondaryPipe, ShadePool, SlavePool, to_fixed
-from .slave import (DEPTH_BITS, RAY_COUNTERS, SUB_BITS, Slave, SlaveResult,
-                    shade_cache_geometry, slave_buffers, tex_cache_geometry)
+from .slave import (DEPTH_BITS, POOL_COUNTERS, RAY_COUNTERS, SUB_BITS, Slave, SlaveResult,
+                    pool_entries, shade_cache_geometry, slave_buffers, tex_cache_geometry)
 from .texture import (TEX_INDEX_BITS, TEX_SIZE_BITS, TexCoordPipe, TexFilterPipe, TexIn, TexOut,
                       Texture, tex_pos, wrap_coord)
 
@@ -30,7 +30,7 @@ __all__ = ["COORD_BITS", "PIXEL_BITS", "EyeRay", "EyeRayPipe", "EyeRays", "EyeRe
            "RaySetup", "RaySetupIn", "RaySetupPipe", "div_const", "div_const_params",
            "sample_converter", "RGSMaster", "LightPipe", "SecondaryPipe", "ShadePool", "SlavePool",
            "to_fixed",
-           "DEPTH_BITS", "RAY_COUNTERS", "SUB_BITS", "Slave", "SlaveResult", "shade_cache_geometry",
+           "DEPTH_BITS", "POOL_COUNTERS", "RAY_COUNTERS", "SUB_BITS", "pool_entries", "Slave", "SlaveResult", "shade_cache_geometry",
            "slave_buffers", "tex_cache_geometry", "TEX_INDEX_BITS", "TEX_SIZE_BITS",
            "TexCoordPipe", "TexFilterPipe", "TexIn", "TexOut", "Texture", "tex_pos",
            "wrap_coord"]

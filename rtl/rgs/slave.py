@@ -109,6 +109,7 @@ from .secondary import LightPipe, SecondaryPipe, SlavePool
 from .texture import Texture
 
 __all__ = ["Slave", "SlaveResult", "DEPTH_BITS", "SUB_BITS", "PATH_BITS", "RAY_COUNTERS",
+           "POOL_COUNTERS", "pool_entries",
            "slave_buffers",
            "shade_cache_geometry", "tex_cache_geometry"]
 
@@ -117,6 +118,24 @@ SUB_BITS = 4            # 0: eye, reflection or refracted ray, 1 + l: shadow ray
 PATH_BITS = 15          # (Config.refraction) bit i: the ray's ancestor of depth i + 1 refracted
 # the slave's counters of rays into the RTC, by kind (rays_refract stays 0 without
 # Config.refraction)
+#: the slave's pool of FP units (``Config.rgs_fp_pool``): ``pool_intervals`` (its intervals of
+#: ``ii`` cycles) and per datapath the inputs it took (0 without the pool): each takes at most
+#: :func:`pool_entries` inputs an interval, so ``pool_x / (entries * pool_intervals)`` is how
+#: full its slots were
+POOL_COUNTERS = ("pool_intervals", "pool_sec", "pool_light", "pool_eye", "pool_setup",
+                 "pool_tex_coord", "pool_tex_filter")
+
+
+def pool_entries(cfg: Config) -> dict:
+    """The inputs each datapath on the slave's pool takes an interval (``SlavePool``): one hit
+    (SecondaryPipe), a (hit, light) token per light register (LightPipe), one eye sample, a
+    ray per builder (ray setup: lights + 1, + 1 with refraction), one textured hit in each
+    texture pipe."""
+    L = cfg.rgs_lights
+    return {"sec": 1, "light": max(1, L), "eye": 1, "setup": L + 1 + int(cfg.refraction),
+            "tex_coord": 1, "tex_filter": 1}
+
+
 RAY_COUNTERS = {RayKind.EYE: "rays_eye", RayKind.SHADOW: "rays_shadow",
                 RayKind.REFLECTION: "rays_reflect", RayKind.REFRACTION: "rays_refract"}
 
@@ -326,7 +345,7 @@ class Slave(wiring.Component):
     ``rays_reflect``, ``rays_refract`` (rays into the RTC by kind: :data:`RAY_COUNTERS`;
     ``cfg.refraction``: refracted rays), ``sec_busy`` (cycles
     the light loop held a
-    hit).
+    hit), :data:`POOL_COUNTERS` (with ``cfg.rgs_fp_pool``).
     """
 
     def __init__(self, cfg: Config):
@@ -392,6 +411,7 @@ class Slave(wiring.Component):
             "idle": Out(1),
             **{name: Out(COUNTER_BITS) for name in RAY_COUNTERS.values()},
             "sec_busy": Out(COUNTER_BITS),
+            **{name: Out(COUNTER_BITS) for name in POOL_COUNTERS},
         })
 
     # -- pieces both slaves are built from -------------------------------------------------------
@@ -599,9 +619,22 @@ class Slave(wiring.Component):
             m.submodules.sec, m.submodules.shd = self.sec, self.shd
         else:
             m.submodules.shading = self.pool
+            self._pool_counters(m)
         m.d.comb += [setup.box_lo.eq(self.box_lo), setup.box_hi.eq(self.box_hi),
                      setup.box_cull.eq(self.box_cull)]
         return setup
+
+    def _pool_counters(self, m: Module):
+        """:data:`POOL_COUNTERS`: the pool's intervals (SecondaryPipe's slot, phase 0) and the
+        inputs each datapath on it took (its first pipe valid in one of its slots)."""
+        firsts = {"sec": self.sec, "light": self.shd, "eye": self.eye.gen,
+                  "setup": self.setup.pipe}
+        if self.tex is not None:
+            firsts.update(tex_coord=self.tex.coord, tex_filter=self.tex.filter)
+        m.d.sync += self.pool_intervals.eq(self.pool_intervals + self.sec.i_slot)
+        for name, pipe in firsts.items():
+            counter = getattr(self, f"pool_{name}")
+            m.d.sync += counter.eq(counter + (pipe.i_valid & pipe.i_slot))
 
     def _slot_table(self, m: Module) -> SimpleNamespace:
         """The RTC packet slots (:meth:`_slots`) with per slot the packet's reflection
