@@ -24,10 +24,11 @@ from model.config import Config
 
 
 def deadlock(NB: int, L: int, D: int, S: int, eyes: int, refraction: bool,
-             gate: bool) -> tuple | None:
+             gate: bool, deepest: bool = True) -> tuple | None:
     """A reachable deadlock of the abstract slave (the module docstring) as its state
     ``(free buffers, waiting per depth, in flight per depth, eye packets left)``, or None.
-    ``gate``: refraction's rules (the deepest first, at most B branching packets)."""
+    ``gate``: refraction's rules (the deepest first, at most B branching packets);
+    ``deepest``: with ``gate``, the first of the two (without it only the bound applies)."""
     R = int(refraction)
     K = L + 1 + R
     B = max(1, (NB - K) // (D + 1)) if gate else NB
@@ -46,7 +47,7 @@ def deadlock(NB: int, L: int, D: int, S: int, eyes: int, refraction: bool,
             f[0] += 1
             nxt.append((free - K, wait, tuple(f), left - 1))
         depths = [d for d in range(D + 1) if wait[d]]
-        if gate and depths:
+        if gate and deepest and depths:
             depths = [max(depths)]
         for d in depths:
             if free >= K and flying < S and (d >= D or branching < B):
@@ -98,15 +99,16 @@ def test_refraction_without_the_rules_deadlocks():
 def test_reflections_without_lights_never_deadlock_under_the_rules(depth):
     """K = 1 (no light in use, no refraction): a commit's waiting reflection packet takes the
     buffer its parent reserved and returns none, so from depth 2 the lowest-first order alone
-    deadlocks (every buffer held by a waiting packet); the slave applies the refraction rules
-    there (``rtl/rgs/slave.py``, ``pb.gated``), and from the configuration's fewest buffers
-    (at least reflect_depth + 2) no state deadlocks.
+    deadlocks (every buffer held by a waiting packet); the slave bounds the branching packets
+    there (``rtl/rgs/slave.py``, ``pb.gated``; one waiting packet a commit needs no
+    deepest-first order), and from the configuration's fewest buffers (at least
+    reflect_depth + 2) no state deadlocks.
     (More RTC slots than buffers, as in the chip: 2 x threads slots, threads + K buffers.)"""
     cfg = Config(rgs_lights=0, reflect_depth=depth)
     assert cfg.min_rgs_buffers == max(4, depth + 2)
     for NB in range(cfg.min_rgs_buffers, cfg.min_rgs_buffers + 3):
         assert deadlock(NB, 0, depth, S=NB + 2, eyes=NB + 2, refraction=False,
-                        gate=True) is None
+                        gate=True, deepest=False) is None
     if depth >= 2:
         NB = cfg.min_rgs_buffers
         assert deadlock(NB, 0, depth, S=NB + 2, eyes=NB + 2, refraction=False,

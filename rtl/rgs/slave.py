@@ -61,8 +61,9 @@ so a waiting reflection packet always finds its own reservation once the packets
 have finished. With refraction a source packet may leave two waiting packets that need a
 reservation (its reflection and refracted packets), and with K = 1 (no light in use) its one
 waiting packet takes the buffer it reserved and gives none back; there that count no longer
-holds, and two more rules bound the waiting packets (:meth:`Slave._branch_gate`, :meth:`Slave._send`): a packet
-that may spawn starts only while no deeper one that may spawn waits, and a *branching* packet
+holds, and two more rules bound the waiting packets (:meth:`Slave._branch_gate`, :meth:`Slave._send`): with
+refraction a packet that may spawn starts only while no deeper one that may spawn waits, and
+(with refraction, or K = 1) a *branching* packet
 (one that may spawn, below ``reflect_depth``) only while fewer than ``B = (buffers - K) //
 (reflect_depth + 1)`` are in flight. At most ``B * (reflect_depth + 1)`` packets then wait,
 and ``buffers >= K + reflect_depth + 1`` leaves K free for the deepest
@@ -714,19 +715,22 @@ class Slave(wiring.Component):
         the others (shadow packets, reflections that spawn nothing) may start: the lowest
         ready buffer that can start goes, so a waiting reflection packet never blocks the
         shadow packets whose buffers give the credits back. Where the rules apply
-        (``pb.gated``: with ``cfg.refraction``, or K = 1) a packet that may spawn waits also
-        while a deeper one that may spawn is ready, and a branching one while no more may
-        start (:meth:`_branch_gate`). Returns ``go`` (a
+        (``pb.gated``: with ``cfg.refraction``, or K = 1) a branching packet waits while no
+        more may start (:meth:`_branch_gate`), and with ``cfg.refraction`` a packet that may
+        spawn waits also while a deeper one that may spawn is ready. Returns ``go`` (a
         packet starts) and ``buf`` (its buffer)."""
         NB, P = self.buffers, self.cfg.packet_size
         startable = Signal(NB)
         sp = [(pb.sub[i] == 0) & self._spawns(pb.depth[i]) for i in range(NB)]
-        # the deepest first; branching ones while they may (where the rules apply)
+        # branching ones while they may (where the rules apply); with refraction (two waiting
+        # packets a commit) the deepest first
         wait = [(pb.credits < K) |
-                (pb.gated & (Cat(*(pb.ready[j] & sp[j] & (pb.depth[j] > pb.depth[i])
-                                   for j in range(NB) if j != i)).any() |
-                             ((pb.depth[i] < self.reflect_depth) & ~pb.branch_ok)))
+                (pb.gated & (pb.depth[i] < self.reflect_depth) & ~pb.branch_ok)
                 for i in range(NB)]
+        if self.cfg.refraction:
+            wait = [w | Cat(*(pb.ready[j] & sp[j] & (pb.depth[j] > pb.depth[i])
+                              for j in range(NB) if j != i)).any()
+                    for i, w in enumerate(wait)]
         m.d.comb += startable.eq(Cat(*(pb.ready[i] & ~(sp[i] & wait[i]) for i in range(NB))))
         any_ready, rb = lowest(m, startable, "ready")
         # a reflection packet that may spawn
