@@ -119,6 +119,9 @@ SUB_BITS = 4            # 0: eye, reflection or refracted ray, 1 + l: shadow ray
 PATH_BITS = 15          # (Config.refraction) bit i: the ray's ancestor of depth i + 1 refracted
 # the slave's counters of rays into the RTC, by kind (rays_refract stays 0 without
 # Config.refraction)
+RAY_COUNTERS = {RayKind.EYE: "rays_eye", RayKind.SHADOW: "rays_shadow",
+                RayKind.REFLECTION: "rays_reflect", RayKind.REFRACTION: "rays_refract"}
+
 #: the slave's pool of FP units (``Config.rgs_fp_pool``): ``pool_intervals`` (its intervals of
 #: ``ii`` cycles) and per datapath the inputs it took (0 without the pool): each takes at most
 #: :func:`pool_entries` inputs an interval, so ``pool_x / (entries * pool_intervals)`` is how
@@ -130,15 +133,11 @@ POOL_COUNTERS = ("pool_intervals", "pool_sec", "pool_light", "pool_eye", "pool_s
 def pool_entries(cfg: Config) -> dict:
     """The inputs each datapath on the slave's pool takes an interval (``SlavePool``): one hit
     (SecondaryPipe), a (hit, light) token per light register (LightPipe), one eye sample, a
-    ray per builder (ray setup: lights + 1, + 1 with refraction), one textured hit in each
-    texture pipe."""
+    ray per builder (ray setup: lights + 1, + 1 with refraction), one hit in each texture
+    pipe (every hit passes the texture unit, textured or not)."""
     L = cfg.rgs_lights
     return {"sec": 1, "light": max(1, L), "eye": 1, "setup": L + 1 + int(cfg.refraction),
             "tex_coord": 1, "tex_filter": 1}
-
-
-RAY_COUNTERS = {RayKind.EYE: "rays_eye", RayKind.SHADOW: "rays_shadow",
-                RayKind.REFLECTION: "rays_reflect", RayKind.REFRACTION: "rays_refract"}
 
 
 def slave_buffers(cfg: Config) -> int:
