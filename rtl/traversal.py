@@ -256,7 +256,8 @@ class TravSubunit(wiring.Component):
         near_iv, far_iv = self._classify(m, st, dist, self._interval(m, st, kd, n_r, s_r))
         # ---- k=K: write the far interval to S[sp] (the near one to N: _write_n)
         sw = st[self.LAT]
-        m.d.comb += [s_w.addr.eq(Cat(sw.lane, stack_entry(self.cfg, sw.thread, sw.sp))), s_w.data.eq(far_iv),
+        m.d.comb += [s_w.addr.eq(Cat(sw.lane, stack_entry(self.cfg, sw.thread, sw.sp))),
+                     s_w.data.eq(far_iv),
                      s_w.en.eq(sw.v)]
         self._write_n(m, st, near_iv, n_w, ray_w, ah_w)
         self._request(m, n_rq, s_rq, ah_r)
@@ -1343,7 +1344,8 @@ class Traversal(wiring.Component):
         with m.If(dcd.wr.valid):
             for f in ("sp", "node", "mask", "cur", "state"):
                 th.set(m, f, w.thread, w[f])
-        m.d.comb += [st_w.addr.eq(stack_entry(self.cfg, p.thread, p.sp)), st_w.data.eq(Cat(p.node, p.mask)),
+        m.d.comb += [st_w.addr.eq(stack_entry(self.cfg, p.thread, p.sp)),
+                     st_w.data.eq(Cat(p.node, p.mask)),
                      st_w.en.eq(dcd.push.valid), self.pushes.eq(dcd.pushes)]
         ctl.fsm()
         ctl.write_back()

@@ -226,8 +226,6 @@ def pool_fill(cfg, slaves: list) -> dict:
     from rtl.rgs import pool_entries
     out = {}
     for name, n in pool_entries(cfg).items():
-        if name.startswith("tex") and not cfg.tex_cache_kb:
-            continue
         out[name] = float(np.mean([x[f"pool_{name}"] / max(1, n * x["pool_intervals"])
                                    for x in slaves]))
     return out

@@ -679,9 +679,10 @@ def test_chip_reflections_without_lights_in_amaranth_sim(tmp_path, kd_cache):
     """A frame without lights (K = 1: a packet reserves one buffer, for its reflections)
     inside a mirrored box, every ray reflected to depth 2, more RTC slots than pending
     buffers (4 threads: 8 slots; 4 buffers, the fewest) and 8 packets of 2x2 rays: every eye
-    packet commits with a waiting reflection packet that may spawn. Without the branching bound the waiting packets hold
-    every buffer and the slave deadlocks (``tests/test_rgs_slave_reservations.py``); with it
-    the frame finishes, every ray and pixel bit-exact."""
+    packet commits with a waiting reflection packet that may spawn. Without the branching
+    bound the waiting packets hold every buffer and the slave deadlocks
+    (``tests/test_rgs_slave_reservations.py``); with it the frame finishes, every ray and
+    pixel bit-exact."""
     from tb.harness.chip import run_chip
     path = tmp_path / "mirror_box.toml"
     path.write_text(MIRROR_BOX)

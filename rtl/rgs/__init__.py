@@ -30,7 +30,8 @@ __all__ = ["COORD_BITS", "PIXEL_BITS", "EyeRay", "EyeRayPipe", "EyeRays", "EyeRe
            "RaySetup", "RaySetupIn", "RaySetupPipe", "div_const", "div_const_params",
            "sample_converter", "RGSMaster", "LightPipe", "SecondaryPipe", "ShadePool", "SlavePool",
            "to_fixed",
-           "DEPTH_BITS", "POOL_COUNTERS", "RAY_COUNTERS", "SUB_BITS", "pool_entries", "Slave", "SlaveResult", "shade_cache_geometry",
+           "DEPTH_BITS", "POOL_COUNTERS", "RAY_COUNTERS", "SUB_BITS", "pool_entries", "Slave",
+           "SlaveResult", "shade_cache_geometry",
            "slave_buffers", "tex_cache_geometry", "TEX_INDEX_BITS", "TEX_SIZE_BITS",
            "TexCoordPipe", "TexFilterPipe", "TexIn", "TexOut", "Texture", "tex_pos",
            "wrap_coord"]

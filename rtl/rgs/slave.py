@@ -61,8 +61,8 @@ so a waiting reflection packet always finds its own reservation once the packets
 have finished. With refraction a source packet may leave two waiting packets that need a
 reservation (its reflection and refracted packets), and with K = 1 (no light in use) its one
 waiting packet takes the buffer it reserved and gives none back; there that count no longer
-holds, and two more rules bound the waiting packets (:meth:`Slave._branch_gate`, :meth:`Slave._send`): with
-refraction a packet that may spawn starts only while no deeper one that may spawn waits, and
+holds, and two more rules bound the waiting packets (:meth:`Slave._branch_gate`,
+:meth:`Slave._send`): with refraction a packet that may spawn starts only while no deeper one that may spawn waits, and
 (with refraction, or K = 1) a *branching* packet
 (one that may spawn, below ``reflect_depth``) only while fewer than ``B = (buffers - K) //
 (reflect_depth + 1)`` are in flight. At most ``B * (reflect_depth + 1)`` packets then wait,
@@ -133,11 +133,12 @@ POOL_COUNTERS = ("pool_intervals", "pool_sec", "pool_light", "pool_eye", "pool_s
 def pool_entries(cfg: Config) -> dict:
     """The inputs each datapath on the slave's pool takes an interval (``SlavePool``): one hit
     (SecondaryPipe), a (hit, light) token per light register (LightPipe), one eye sample, a
-    ray per builder (ray setup: lights + 1, + 1 with refraction), one hit in each texture
-    pipe (every hit passes the texture unit, textured or not)."""
+    ray per builder (ray setup: lights + 1, + 1 with refraction) and, with a texture unit,
+    one hit in each texture pipe (every hit passes it, textured or not)."""
     L = cfg.rgs_lights
+    tex = {"tex_coord": 1, "tex_filter": 1} if cfg.tex_cache_kb > 0 else {}
     return {"sec": 1, "light": max(1, L), "eye": 1, "setup": L + 1 + int(cfg.refraction),
-            "tex_coord": 1, "tex_filter": 1}
+            **tex}
 
 
 def slave_buffers(cfg: Config) -> int:
