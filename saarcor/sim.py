@@ -200,8 +200,7 @@ LIMIT_BUS_WAIT = 0.30    # requests waiting on an RTC-MI cache's bus this share:
 LIMIT_OUTPUT = 0.75      # the result streams carrying a record this share of their cycles,
 LIMIT_OUTPUT_BLOCKED = 0.5   # with the RGS slaves blocked this share: the chip's output
 LIMIT_POOL = 0.85        # a datapath on the slaves' FP pool taking inputs in this share of its
-                         # slots (or the eye-ray and secondary-ray datapaths together, which
-                         # alternate), the RTC units not the limit: the pool
+                         # slots, the RTC units not the limit: the pool
 
 
 SATURATED = 0.80         # an SDRAM chip this busy in a slice of the frame is saturated there
@@ -246,9 +245,7 @@ def limiter(stats: dict) -> dict:
     for intersection, the RGS slave taking results); starved is too little work in flight
     (too few packets for the threads, or the RGS not making rays fast enough). Before those
     two: a datapath on the slaves' FP pool (``--rgs-fp-pool``) taking an input in
-    ``LIMIT_POOL`` of its slots, or its eye-ray and secondary-ray datapaths together (a slave
-    admits eye packets only while no secondary packet waits, so the two alternate), is the
-    pool, the slaves' pace."""
+    ``LIMIT_POOL`` of its slots is the pool, the slaves' pace."""
     st, rtcs = stats["stalls"], stats["config"]["rtcs"]
     work = {u: st[u]["work"] for u in UNIT_NAMES}
     top = max(work, key=work.get)
@@ -264,15 +261,10 @@ def limiter(stats: dict) -> dict:
     reasons = {k: v for k, v in st[top].items() if k != "work"}
     why = max(reasons, key=reasons.get)
     pool = stats.get("slaves", {}).get("pool")
-    both = pool.get("eye", 0.0) + pool.get("sec", 0.0) if pool else 0.0
-    if why != "memory" and pool and max(*pool.values(), both) >= LIMIT_POOL:
+    if why != "memory" and pool and max(pool.values()) >= LIMIT_POOL:
         d = max(pool, key=pool.get)
         cfg = stats["config"]
-        what = (f"its {POOL_NAMES[d]} takes an input in {100 * pool[d]:.0f} % of its slots"
-                if pool[d] >= LIMIT_POOL else
-                f"its eye-ray and secondary-ray datapaths take an input in {100 * both:.0f} % "
-                f"of the intervals together ({100 * pool['eye']:.0f} + {100 * pool['sec']:.0f}"
-                f" %: eye packets wait while secondary packets do, so the two alternate)")
+        what = f"its {POOL_NAMES[d]} takes an input in {100 * pool[d]:.0f} % of its slots"
         return {"limit": "slave-pool-bound",
                 "why": f"the RGS slaves' pool of {cfg['rgs_fp_adders']} adders and "
                        f"{cfg['rgs_fp_muls']} multipliers sets the pace: {what}, and the busiest "

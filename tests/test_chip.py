@@ -605,6 +605,8 @@ def test_chip_paper_preset_refraction_verilator(glass, kd_cache):
     r = run_chip_frame(cfg, image, scene.camera, 8, 8, stall=0.25, mem_stall=0.5, seed=5,
                        scene=scene, progress=False, max_cycles=3_000_000)
     check_refraction(r, cfg, image, scene, 8, 8)
+    name = "chip/glass_8x8_paper_rtcs2"
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
     # the pool's counters (rtl.rgs.POOL_COUNTERS): SecondaryPipe took every eye, reflection
     # and refracted result, and so did both texture pipes (textured or not), the eye-ray
     # datapath every eye ray, the ray setup every secondary ray; an interval every ii cycles

@@ -124,7 +124,7 @@ def _stats(work, memory=0.0, blocked=0.0, starved=0.0, *, unit="trav", sdram=0.2
     (_stats(0.3, 0.1, 0.0, 0.6, pool={"sec": 0.5, "light": 0.8, "eye": 0.3}), "starved",
      "48 packets"),
     (_stats(0.2, 0.02, 0.77, 0.01, unit="int", pool={"sec": 0.49, "eye": 0.47, "light": 0.37}),
-     "slave-pool-bound", "take an input in 96 % of the intervals together (47 + 49 %"),
+     "back-pressure", "RGS slave"),
     (_stats(0.6, 0.3, 0.05, 0.05, pool={"sec": 0.9}), "memory-latency-bound", "hits 90.0"),
 ])
 def test_limiter_rule(stats, limit, words):

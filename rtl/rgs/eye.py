@@ -227,13 +227,14 @@ def _stall(m: Module, o) -> Signal:
     return en
 
 
-def _credit_out(m: Module, pipe, lay, value: Value, o, name: str) -> Value:
+def _credit_out(m: Module, pipe, lay, value: Value, o, name: str, ahead: int = 0) -> Value:
     """The output of a datapath on a pool of FP units (which never stalls) through a queue as
-    deep as the inputs the datapath holds at once + 1: ``value`` (``lay``) goes in when
-    ``pipe.o_valid``, ``o`` (a stream of ``lay``) takes it out. Returns the credit: 1 while
-    the datapath and the queue together hold fewer inputs than the queue takes, so an input
-    entering now always finds room when it comes out."""
-    depth = pipe.in_flight + 1
+    deep as the inputs the datapath holds at once + 1 + ``ahead``: ``value`` (``lay``) goes in
+    when ``pipe.o_valid``, ``o`` (a stream of ``lay``) takes it out. Returns the credit: 1
+    while the datapath and the queue together hold fewer inputs than the queue takes, so an
+    input entering now always finds room when it comes out (and the datapath runs up to
+    ``ahead`` outputs ahead of a consumer that takes none)."""
+    depth = pipe.in_flight + 1 + ahead
     q = SyncFIFO(width=lay.size, depth=depth)
     m.submodules[f"{name}_q"] = q
     held = Signal(range(depth + 1), name=f"{name}_held")
@@ -425,11 +426,20 @@ class EyeRays(wiring.Component):
     sequencer issues in the eye-ray datapath's slots and ray setup's slots are offset by the
     eye-ray datapath's latency, so each direction meets a slot: one ray every ``ii`` cycles;
     the first ray waits up to ``ii - 1`` more cycles for a slot.
+
+    ``pooled`` (the slave's pool of FP units builds both datapaths; they never stall): the
+    rays go out through a queue, as deep as the rays in the datapaths + 1 + ``ahead``, and a
+    sample issues only while it will find room there, so the datapaths run up to ``ahead``
+    rays ahead of a consumer that takes none (the slave: one packet, made while it waits for
+    its RTC slot). ``idle``: no tile's samples left to issue and no ray in the datapaths or
+    the queue.
     """
 
     def __init__(self, cfg: Config, latencies: dict | None = None,
-                 coord_bits: int = COORD_BITS, pooled: bool = False):
-        self.cfg, self.coord_bits, self.pooled = cfg, coord_bits, pooled
+                 coord_bits: int = COORD_BITS, pooled: bool = False, ahead: int = 0):
+        if ahead and not pooled:
+            raise ValueError("EyeRays: ahead needs pooled (its output queue)")
+        self.cfg, self.coord_bits, self.pooled, self.ahead = cfg, coord_bits, pooled, ahead
         lat = cfg.fp_latencies() if latencies is None else latencies
         self.lane_bits = lane_bits(cfg)
         self.tag = data.StructLayout({"packet": PACKET_ID_BITS, "lane": self.lane_bits,
@@ -456,6 +466,7 @@ class EyeRays(wiring.Component):
             "pos": In(v3), "corner": In(v3), "dx": In(v3), "dy": In(v3),
             "width": In(coord_bits), "height": In(coord_bits),
             "box_lo": In(v3), "box_hi": In(v3), "box_cull": In(1, init=1),
+            "idle": Out(1),
         })
 
     @property
@@ -475,7 +486,8 @@ class EyeRays(wiring.Component):
             o = stream.Signature(EyeRay(cfg)).create(path=("eye_o",))
             chain = SimpleNamespace(in_flight=self.in_flight, i_valid=gen.i_valid,
                                     i_slot=gen.i_slot, o_valid=setup.o_valid)
-            en = _credit_out(m, chain, EyeRay(cfg), o.payload.as_value(), self.o, "eye")
+            en = _credit_out(m, chain, EyeRay(cfg), o.payload.as_value(), self.o, "eye",
+                             self.ahead)
             m.d.comb += [gen.en.eq(1), setup.en.eq(1)]
             out = o.payload
         else:
@@ -495,6 +507,9 @@ class EyeRays(wiring.Component):
         end_x = wire(m, lx == wt - 1, "seq_end_x")
         last = wire(m, end_x & (ly == ht - 1), "seq_last")
         issue = wire(m, busy & en & gen.i_slot, "seq_issue")
+        held = Signal(range(self.in_flight + self.ahead + 3))    # issued, not yet taken
+        m.d.sync += held.eq(held + issue - (self.o.valid & self.o.ready))
+        m.d.comb += self.idle.eq(~busy & (held == 0))
         with m.If(issue):
             m.d.sync += [lx.eq(Mux(end_x, 0, lx + 1)), lane.eq(lane + 1)]
             with m.If(end_x):

@@ -105,7 +105,7 @@ from ..common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, l
 from ..memport import WORD_BITS, MemReadPort
 from ..rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
 from .common import _fp_const
-from .eye import COORD_BITS, EyeRays, EyeRequest, RaySetup, RaySetupIn
+from .eye import COORD_BITS, EyeRay, EyeRays, EyeRequest, RaySetup, RaySetupIn
 from .secondary import LightPipe, SecondaryPipe, SlavePool
 from .texture import Texture
 
@@ -357,7 +357,8 @@ class Slave(wiring.Component):
             raise ConfigError(f"rgs_lights={L} must be in 0..{(1 << SUB_BITS) - 2}")
         lat = cfg.fp_latencies()
         pooled = cfg.rgs_fp_pool and cfg.secondary_rays
-        self.eye = EyeRays(cfg, lat, pooled=pooled)
+        # on the pool the eye rays run a packet ahead of admission (Slave._admission_ahead)
+        self.eye = EyeRays(cfg, lat, pooled=pooled, ahead=cfg.packet_size if pooled else 0)
         self.slots = 2 * cfg.threads
         if cfg.secondary_rays:
             self.setup = RaySetup(cfg, lat, pooled=pooled)
@@ -387,8 +388,9 @@ class Slave(wiring.Component):
                                          refract=cfg.refraction)
                 self.shd = LightPipe(cfg.fmt, self.shd_tag.size, lat, cfg.rgs_budget())
             self.buffers = slave_buffers(cfg)
+            self.shade_hits = self.sec.in_flight + 1 + self._texture_hits(cfg)
             if self.tex is not None:     # in step with SecondaryPipe: as deep a queue as it holds
-                self.tex.out_depth = self.sec.in_flight + 1
+                self.tex.out_depth = self.shade_hits
         else:
             self.buffers = 0
             self.tex = None
@@ -414,6 +416,20 @@ class Slave(wiring.Component):
             "sec_busy": Out(COUNTER_BITS),
             **{name: Out(COUNTER_BITS) for name in POOL_COUNTERS},
         })
+
+    def _texture_hits(self, cfg: Config) -> int:
+        """On the pool with a texture unit, the hits the shading path holds beyond
+        SecondaryPipe's: the light loop takes a hit only with its kd from the texture unit,
+        whose latency on the pool is its two pipes, up to an interval's wait for each one's
+        slot and a texel read from SDRAM (``mem_latency`` memory cycles). Hits enough to
+        cover it keep SecondaryPipe taking one an interval (with SecondaryPipe's alone the
+        office at 128x96 took 1.75x the cycles: ``docs/paper-preset.md``). Else 0."""
+        if self.pool is None or self.tex is None:
+            return 0
+        tex, ii = self.tex, self.pool.ii
+        wait = (tex.coord.latency + tex.filter.latency + 2 * ii
+                + cfg.mem_latency * cfg.mem_clock_ratio)
+        return -(-wait // ii)
 
     # -- pieces both slaves are built from -------------------------------------------------------
     def _eye(self, m: Module) -> EyeRays:
@@ -441,7 +457,7 @@ class Slave(wiring.Component):
         rf = ("tp0", "tdir") if sec.refract else ()
         lay = data.StructLayout({"p0": v3, "g": v3, "n": v3, "r": v3, "tag": self.sec_tag,
                                  **{k: v3 for k in rf}})
-        depth = sec.in_flight + 1
+        depth = self.shade_hits
         m.submodules.secq = q = SyncFIFO(width=lay.size, depth=depth)
         held = Signal(range(depth + 1))           # hits in the pipe and the queue
         fed = sec.i_valid & sec.i_slot
@@ -569,9 +585,9 @@ class Slave(wiring.Component):
         m.submodules.store = store = TwoWriteMemory(RayEntry(self.cfg), self.slots *
                                                     self.cfg.packet_size, self._block)
         m.submodules.sender = snd = Sender(self.cfg, self.buffers, self.slots)
-        self._admit(m, eye, slot, pb, K, snd.busy)
+        eye_o = self._admit(m, eye, slot, pb, K, snd.busy)
         start = self._send(m, snd, setup, slot, pb, K, store)
-        self._rtc_input(m, eye, setup, store)
+        self._rtc_input(m, eye_o, setup, store)
         res = self._results(m, slot, store)
         fed = self._shade_feed(m, res)
         loop = self._light_loop(m, fed, res)
@@ -594,7 +610,7 @@ class Slave(wiring.Component):
         m.d.sync += shading.eq(shading + (res.adv & res.need_ctx) -
                                (shd.o_valid & loop.ot.tlast))
         m.d.comb += self.idle.eq((slot.free == (1 << NS) - 1) & (pb.credits == self.buffers) &
-                                 ~res.valid & ~res.outq.r_rdy & ~self.out.valid & ~snd.busy &
+                                 eye.idle & ~res.valid & ~res.outq.r_rdy & ~self.out.valid & ~snd.busy &
                                  (shading == 0) & (loop.amb_cnt == 0))
         return m
 
@@ -693,20 +709,49 @@ class Slave(wiring.Component):
         spawn rays, reserves K pending buffers; only while no secondary packet waits (no
         ready buffer, the sender idle), and where the branching bound applies
         (``pb.gated``) only while one more branching packet may start
-        (:meth:`_branch_gate`)."""
+        (:meth:`_branch_gate`). Returns the admitted packets' eye rays (a stream of
+        ``EyeRay``, ``ray.packet`` their slot): alone the tile is admitted before its rays
+        are made (:meth:`_admission`), on the pool once they are
+        (:meth:`_admission_ahead`)."""
         eye_spawns = self._spawns(0)
         can_admit = (slot.any & (~eye_spawns | (pb.credits >= K)) & (pb.ready == 0) &
                      ~sender_busy)
         eye_branches = self.reflect_depth != 0
         can_admit &= ~pb.gated | ~eye_branches | pb.branch_ok
-        admit = self._admission(m, eye, slot.new, can_admit)
+        if self.pool is None:
+            admit = self._admission(m, eye, slot.new, can_admit)
+            packet, eye_o = self.req.payload.packet, eye.o
+        else:
+            admit, packet, eye_o = self._admission_ahead(m, eye, slot.new, can_admit)
         m.d.comb += pb.br_eye.eq(admit & eye_branches)
         with m.If(admit):
             m.d.comb += [slot.take.eq(1), pb.take.eq(Mux(eye_spawns, K, 0))]
-            m.d.sync += [slot.packet[slot.new].eq(self.req.payload.packet),
+            m.d.sync += [slot.packet[slot.new].eq(packet),
                          slot.depth[slot.new].eq(0), slot.sub[slot.new].eq(0)]
             if self.cfg.refraction:
                 m.d.sync += slot.path[slot.new].eq(0)
+        return eye_o
+
+    def _admission_ahead(self, m: Module, eye: EyeRays, slot: Value, can_admit: Value):
+        """Admission on the pool, where a slave makes one eye ray an interval: the tiles go
+        straight into :class:`EyeRays`, which makes the next packet's rays into its queue
+        (``ahead``: one packet) while the packet waits; it is admitted once its first ray is
+        at the queue's head and ``can_admit``, and its rays leave from the next cycle with
+        ``slot`` as their packet id. So the eye rays are made while the pool shades hits
+        and sets up secondary rays, not only in turns with them. Returns ``admit``, the
+        admitted tile's packet id and the rays out."""
+        wiring.connect(m, wiring.flipped(self.req), eye.req)
+        admit, is_open = Signal(name="eye_admit"), Signal(name="eye_open")
+        eslot = Signal(PACKET_ID_BITS, name="eye_slot")
+        o = stream.Signature(EyeRay(self.cfg)).create(path=("eye_admitted",))
+        m.d.comb += [admit.eq(eye.o.valid & ~is_open & can_admit),
+                     o.valid.eq(eye.o.valid & is_open), o.payload.eq(eye.o.payload),
+                     o.payload.ray.packet.eq(eslot), eye.o.ready.eq(o.ready & is_open)]
+        with m.If(admit):
+            m.d.sync += [is_open.eq(1), eslot.eq(slot)]
+        with m.If(o.valid & o.ready & o.payload.ray.last):
+            m.d.sync += is_open.eq(0)
+        return admit, eye.o.payload.ray.packet, o
 
     def _send(self, m: Module, snd: "Sender", setup: RaySetup, slot, pb, K: Value,
               store: TwoWriteMemory) -> SimpleNamespace:
@@ -770,23 +815,24 @@ class Slave(wiring.Component):
             self._count_rays(m, xfer, snd.kind, (RayKind.SHADOW, RayKind.REFLECTION))
         return SimpleNamespace(go=go, buf=rb)
 
-    def _rtc_input(self, m: Module, eye: EyeRays, setup: RaySetup, store: TwoWriteMemory):
-        """:class:`RTCInput`: eye rays or set-up secondary rays to the RTC; each eye ray into
-        the ray store (origin, direction, lane, weight and its contribution if it misses)."""
+    def _rtc_input(self, m: Module, eye_o, setup: RaySetup, store: TwoWriteMemory):
+        """:class:`RTCInput`: eye rays (``eye_o``, the admitted packets') or set-up secondary
+        rays to the RTC; each eye ray into the ray store (origin, direction, lane, weight and
+        its contribution if it misses)."""
         m.submodules.rtc_in = rin = RTCInput(self.cfg)
         wiring.connect(m, setup.o, rin.sec)
-        m.d.comb += [rin.eye.valid.eq(eye.o.valid), rin.eye.payload.eq(eye.o.payload.ray),
-                     eye.o.ready.eq(rin.eye.ready)]
+        m.d.comb += [rin.eye.valid.eq(eye_o.valid), rin.eye.payload.eq(eye_o.payload.ray),
+                     eye_o.ready.eq(rin.eye.ready)]
         wiring.connect(m, rin.o, wiring.flipped(self.rays))
-        eo, w = eye.o.payload, store.w[0]
+        eo, w = eye_o.payload, store.w[0]
         m.d.comb += [
             w.addr.eq(eo.ray.packet[:ceil_log2(self.slots)] * self.cfg.packet_size +
                       eo.ray.lane),
             w.data.eq(Cat(self.pos.as_value(), eo.dir.as_value(), eo.ray.lane,
                           self.w_eye, self.eye_miss.as_value())),
-            w.en.eq(eye.o.valid & eye.o.ready),
+            w.en.eq(eye_o.valid & eye_o.ready),
         ]
-        self._count_rays(m, eye.o.valid & eye.o.ready, RayKind.EYE)
+        self._count_rays(m, eye_o.valid & eye_o.ready, RayKind.EYE)
 
     def _results(self, m: Module, slot, store: TwoWriteMemory) -> SimpleNamespace:
         """Every result: the ray store read with it (stage B, :meth:`_result_stage`), its host
@@ -867,7 +913,7 @@ class Slave(wiring.Component):
                                      "kr": w, "shin": SHIN_BITS, "wt": w, "spawn": 1,
                                      **({"kt": w} if cfg.refraction else {})})
         m.submodules.matq = f.matq = matq = SyncFIFO(width=mat_lay.size,
-                                                     depth=sec.in_flight + 1)
+                                                     depth=self.shade_hits)
         if tex is not None:
             f.kd, f.ok = self._texture_feed(m, head, rec, feed, feed_ok & sec_en & sec.i_slot)
         else:
@@ -907,7 +953,7 @@ class Slave(wiring.Component):
         ti = Signal(tex.i.payload.shape())
         if gcd(sec.ii, tex.coord.ii) > 1:
             m.submodules.texq = texq = SyncFIFO(width=len(ti.as_value()),
-                                                depth=sec.in_flight + 1)
+                                                depth=self.shade_hits)
             m.d.comb += [texq.w_en.eq(feed), texq.w_data.eq(ti),
                          feed.eq(go & texq.w_rdy),
                          tex.i.valid.eq(texq.r_rdy), tex.i.payload.eq(texq.r_data),
