@@ -13,6 +13,7 @@ from .fp import FPFormat
 
 CACHE_TOPOLOGIES = ("shared", "private")   # Config.cache_topology
 INT_TESTS = ("watertight", "projection")   # Config.int_test
+RGS_STORES = ("two_banks", "per_packet")    # Config.rgs_store
 
 
 _TYPE_WORDS = {bool: "true or false (a bool)", int: "an integer", float: "a finite number",
@@ -96,6 +97,11 @@ class Config:
     # shares one pool of those units instead of a budget each (docs/rgs.md, "One pool for
     # the slave"); needs a budget
     rgs_fp_pool: bool = False
+    # how an RGS slave builds its ray store and pending buffers, memories with two write
+    # ports: "two_banks" (a bank per write port and a live-value table: block RAM on an FPGA,
+    # twice the bits) or "per_packet" (a memory per packet of rays, written by one port at a
+    # time: the bits once, small memories; docs/chip.md)
+    rgs_store: str = "two_banks"
     # ray results the chip hands out a cycle: one output stream each, slave s on stream
     # s mod result_ports (round-robin among its slaves); the stand-in for the frame buffer's
     # writes, whose one result a cycle caps 16 RTCs (docs/memory-interface.md)
@@ -211,6 +217,10 @@ class Config:
             raise ConfigError(f"int_test={self.int_test!r} must be one of "
                               f"{', '.join(INT_TESTS)} (watertight: the test on the triangle's "
                               "vertices; projection: the paper's test on precomputed records)")
+        if self.rgs_store not in RGS_STORES:
+            raise ConfigError(f"rgs_store={self.rgs_store!r} must be one of "
+                              f"{', '.join(RGS_STORES)} (two_banks: a bank per write port and a "
+                              "live-value table; per_packet: a memory per packet)")
         if self.cache_ways not in (1, 2, 4):
             raise ConfigError(f"cache_ways={self.cache_ways} must be 1, 2 or 4")
         if not _pow2(self.threads):
@@ -488,9 +498,10 @@ PRESETS: dict[str, dict] = {
     "standard": {},
     # the standard chip at the paper's cost (Section 5: 192 FP units): the paper's triangle
     # test (projection on precomputed records), every RGS slave datapath on one pool of 3
-    # adders and 4 multipliers
+    # adders and 4 multipliers, the slaves' ray stores and pending buffers a memory per
+    # packet (their bits once)
     "paper": {"int_test": "projection", "rgs_fp_adders": 3, "rgs_fp_muls": 4,
-              "rgs_fp_pool": True},
+              "rgs_fp_pool": True, "rgs_store": "per_packet"},
 }
 """Named configurations (``--preset``): the fields each changes from :class:`Config`'s
 defaults."""

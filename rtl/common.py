@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import os
 from collections.abc import Callable
+from types import SimpleNamespace
 
-from amaranth.hdl import C, Cat, Const, Elaboratable, Module, Mux, Signal, Value
+from amaranth.hdl import Array, C, Cat, Const, Elaboratable, Module, Mux, Signal, Value
 from amaranth.lib import data, stream, wiring
 from amaranth.lib.memory import Memory
 from amaranth.lib.wiring import In, Out
@@ -311,6 +312,56 @@ class TwoWriteMemory(Elaboratable):
             m.d.comb += [r.addr.eq(self.r.addr), r.en.eq(self.r.en)]
         with m.If(self.r.en):
             m.d.sync += self._sel.eq(live.bit_select(self.r.addr[sh:], 1))
+        return m
+
+
+class PacketMemory(Elaboratable):
+    """:class:`TwoWriteMemory`'s ports on a memory of ``depth / block`` banks of ``block``
+    words (aligned; a power of two), one memory of one write port each: a bank is written by
+    the port whose address lies in it, so the two ports must never write one bank in the same
+    cycle (the slave's ray store and pending buffers: a bank is one packet's lanes, written by
+    one source while the packet holds it; port 1 wins if they do). The bits of one memory
+    (:class:`TwoWriteMemory`: twice), as many small memories (LUT RAM on an FPGA, register
+    files on a chip), a write-port multiplexer per bank and a ``depth / block``-way read
+    multiplexer. Synchronous read, not transparent. Ports: ``w[i]`` (``addr``, ``data``,
+    ``en``), ``r`` (``addr``, ``en``, ``data``: a view of ``shape``)."""
+
+    def __init__(self, shape, depth: int, block: int):
+        if block < 1 or block & (block - 1) or depth % block:
+            raise ValueError(f"PacketMemory: block={block} must be a power of two that "
+                             f"divides depth={depth}")
+        self.depth, self.block, self.shape = depth, block, shape
+        self._banks = [Memory(shape=shape, depth=block, init=[])
+                       for _ in range(depth // block)]
+        self._wp = [b.write_port() for b in self._banks]
+        self._rp = [b.read_port() for b in self._banks]
+        self.w = [SimpleNamespace(addr=Signal(range(depth), name=f"w{i}_addr"),
+                                  data=Signal(shape, name=f"w{i}_data"),
+                                  en=Signal(name=f"w{i}_en")) for i in range(2)]
+        self._sel = Signal(range(len(self._banks)))
+        datas = [p.data.as_value() if isinstance(p.data, data.View) else p.data
+                 for p in self._rp]
+        word = Array(datas)[self._sel] if len(datas) > 1 else datas[0]
+        self.r = SimpleNamespace(addr=Signal(range(depth), name="r_addr"),
+                                 en=Signal(init=1, name="r_en"),
+                                 data=data.View(data.Layout.cast(shape), word)
+                                 if isinstance(shape, data.Layout) else word)
+
+    def elaborate(self, platform):
+        m = Module()
+        sh = ceil_log2(self.block)
+        w0, w1 = self.w
+        for b, (mem, wp, rp) in enumerate(zip(self._banks, self._wp, self._rp)):
+            m.submodules[f"bank{b}"] = mem
+            hit0 = w0.en & (w0.addr[sh:] == b) if len(self._banks) > 1 else w0.en
+            hit1 = w1.en & (w1.addr[sh:] == b) if len(self._banks) > 1 else w1.en
+            m.d.comb += [wp.en.eq(hit0 | hit1),
+                         wp.addr.eq(Mux(hit1, w1.addr[:sh], w0.addr[:sh])),
+                         wp.data.eq(Mux(hit1, Value.cast(w1.data), Value.cast(w0.data))),
+                         rp.addr.eq(self.r.addr[:sh]), rp.en.eq(self.r.en)]
+        if len(self._banks) > 1:
+            with m.If(self.r.en):
+                m.d.sync += self._sel.eq(self.r.addr[sh:])
         return m
 
 

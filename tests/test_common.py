@@ -6,8 +6,8 @@ import pytest
 from amaranth.hdl import Array, Cat, Module, Signal
 from amaranth.sim import Simulator
 
-from rtl.common import (SkidBuffer, TwoWriteMemory, lowest, rr_pick, rr_pick_next,
-                        rr_pick_onehot, times_const)
+from rtl.common import (PacketMemory, SkidBuffer, TwoWriteMemory, lowest, rr_pick,
+                        rr_pick_next, rr_pick_onehot, times_const)
 from tb.harness.common import drain, drive, run
 
 
@@ -231,18 +231,21 @@ def test_skid_buffer_ready_does_not_follow_the_consumer():
     assert [(v, p) for _, _, v, p in seen][1:] == [(1, 0)] * 4 + [(1, 1), (1, 5), (1, 6)]
 
 
-def test_two_write_memory_reads_as_one_memory_with_two_write_ports():
+@pytest.mark.parametrize("kind", [TwoWriteMemory, PacketMemory])
+def test_two_write_memory_reads_as_one_memory_with_two_write_ports(kind):
     """Each port owns blocks for a while (never both the same block), writes words of them,
     often the word being read and both ports in one cycle; a block changes owner from time to
     time; every word read was written since its block's owner took it (the slave's use) and
     the read enable is random: every cycle the same read data as a ``lib.memory.Memory`` with
-    two write ports and a read port beside it."""
+    two write ports and a read port beside it. Both builds of the slave's ray store and
+    pending buffers (``Config.rgs_store``): two banks and a live-value table, a bank per
+    block."""
     from amaranth.lib import data
     from amaranth.lib.memory import Memory
     layout = data.StructLayout({"a": 5, "b": 7})
     depth, block = 16, 4
     m = Module()
-    m.submodules.dut = dut = TwoWriteMemory(layout, depth, block)
+    m.submodules.dut = dut = kind(layout, depth, block)
     m.submodules.ref = ref = Memory(shape=layout, depth=depth, init=[])
     rw = [ref.write_port(), ref.write_port()]
     rr = ref.read_port()
@@ -285,10 +288,11 @@ def test_two_write_memory_reads_as_one_memory_with_two_write_ports():
     assert pairs == [(b, b) for _, b in pairs] and len({b for _, b in pairs}) > 100
 
 
-def test_two_write_memory_block_must_divide_the_depth():
+@pytest.mark.parametrize("kind", [TwoWriteMemory, PacketMemory])
+def test_two_write_memory_block_must_divide_the_depth(kind):
     for block in (0, 3, 32):
         with pytest.raises(ValueError, match="block"):
-            TwoWriteMemory(8, 16, block)
+            kind(8, 16, block)
 
 
 @pytest.mark.parametrize("poison", [False, True])

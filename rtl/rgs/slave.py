@@ -101,7 +101,8 @@ from model.layout import (REC_BITS, REC_FLAGS, REC_KD, REC_KR, REC_KS, REC_KT, R
 from model.raykind import RayKind
 from model.rgs.secondary import FIX_BITS
 
-from ..common import COUNTER_BITS, OutputStage, TwoWriteMemory, from_binary32, lowest
+from ..common import (COUNTER_BITS, OutputStage, PacketMemory, TwoWriteMemory, from_binary32,
+                      lowest)
 from ..memport import WORD_BITS, MemReadPort
 from ..rtc_streams import PACKET_ID_BITS, TRI_ID_BITS, RayIn, RayResult, lane_bits, vec3
 from .common import _fp_const
@@ -582,8 +583,7 @@ class Slave(wiring.Component):
         slot = self._slot_table(m)
         pb = self._pending(m)
         self._branch_gate(m, pb, K)
-        m.submodules.store = store = TwoWriteMemory(RayEntry(self.cfg), self.slots *
-                                                    self.cfg.packet_size, self._block)
+        m.submodules.store = store = self._two_write(self.slots * self.cfg.packet_size)
         m.submodules.sender = snd = Sender(self.cfg, self.buffers, self.slots)
         eye_o = self._admit(m, eye, slot, pb, K, snd.busy)
         start = self._send(m, snd, setup, slot, pb, K, store)
@@ -615,15 +615,16 @@ class Slave(wiring.Component):
         return m
 
     # -- the whole slave's pieces, in the order elaborate builds them -------------------------
-    @property
-    def _block(self) -> int:
-        """The live-value block of the ray store and the pending buffers (two write ports each:
-        two banks and a live-value table, so that both map to block RAM,
-        ``rtl.common.TwoWriteMemory``): the largest power of two that divides the packet size,
-        so a block lies within one packet, and a buffer holds shadow or reflection rays, a
-        slot an eye or a secondary packet."""
+    def _two_write(self, depth: int):
+        """The ray store or the pending buffers (``depth`` rays of :func:`RayEntry`): a memory
+        with two write ports, built as ``cfg.rgs_store`` says (``rtl.common.TwoWriteMemory``:
+        two banks and a live-value table, so that both map to block RAM; ``PacketMemory``: a
+        memory per block, the bits once). The block is the largest power of two that divides
+        the packet size, so a block lies within one packet, and a buffer holds shadow or
+        reflection rays, a slot an eye or a secondary packet: one writer at a time."""
         P = self.cfg.packet_size
-        return P & -P
+        kind = PacketMemory if self.cfg.rgs_store == "per_packet" else TwoWriteMemory
+        return kind(RayEntry(self.cfg), depth, P & -P)
 
     def _spawns(self, depth: Value) -> Value:
         """May a packet (eye or reflection) of this depth spawn rays?"""
@@ -681,7 +682,7 @@ class Slave(wiring.Component):
             credits=Signal(range(NB + 1), init=NB, name="credits"),
             take=Signal(range(self.cfg.rgs_reserve + 1), name="credit_take"),
             back=Signal(range(NB + 1), name="credit_back"))
-        m.submodules.pend = pb.mem = TwoWriteMemory(RayEntry(self.cfg), NB * P, self._block)
+        m.submodules.pend = pb.mem = self._two_write(NB * P)
         return pb
 
     def _branch_gate(self, m: Module, pb, K: Value):
@@ -754,7 +755,7 @@ class Slave(wiring.Component):
         return admit, eye.o.payload.ray.packet, o
 
     def _send(self, m: Module, snd: "Sender", setup: RaySetup, slot, pb, K: Value,
-              store: TwoWriteMemory) -> SimpleNamespace:
+              store: "TwoWriteMemory | PacketMemory") -> SimpleNamespace:
         """The :class:`Sender` started on a ready buffer, into ray setup, each ray also into
         the ray store. A ready reflection packet that may spawn waits for its reservation;
         the others (shadow packets, reflections that spawn nothing) may start: the lowest
@@ -815,7 +816,7 @@ class Slave(wiring.Component):
             self._count_rays(m, xfer, snd.kind, (RayKind.SHADOW, RayKind.REFLECTION))
         return SimpleNamespace(go=go, buf=rb)
 
-    def _rtc_input(self, m: Module, eye_o, setup: RaySetup, store: TwoWriteMemory):
+    def _rtc_input(self, m: Module, eye_o, setup: RaySetup, store: "TwoWriteMemory | PacketMemory"):
         """:class:`RTCInput`: eye rays (``eye_o``, the admitted packets') or set-up secondary
         rays to the RTC; each eye ray into the ray store (origin, direction, lane, weight and
         its contribution if it misses)."""
@@ -834,7 +835,7 @@ class Slave(wiring.Component):
         ]
         self._count_rays(m, eye_o.valid & eye_o.ready, RayKind.EYE)
 
-    def _results(self, m: Module, slot, store: TwoWriteMemory) -> SimpleNamespace:
+    def _results(self, m: Module, slot, store: "TwoWriteMemory | PacketMemory") -> SimpleNamespace:
         """Every result: the ray store read with it (stage B, :meth:`_result_stage`), its host
         record (:meth:`_host_out`, taking turns with the ambient records), and for a result of
         an eye or reflection ray its shading context (the ``ctx`` queue) and, for a hit, its
