@@ -75,6 +75,12 @@ the packet's secondary packets; the ambient records are reserved at the light lo
 as deep as the tokens LightPipe holds at once + 7, rounded up to a power of two), so LightPipe
 never stalls.
 
+On the slave's pool of FP units (``cfg.rgs_fp_pool``: one eye ray and one hit an interval)
+a tile's eye rays are made before its admission, into a queue of one packet
+(:meth:`Slave._admission_ahead`), and the shading path holds hits enough to cover the
+texture unit's latency (:meth:`Slave._texture_hits`), so the pool makes eye rays, shades
+hits and sets up secondary rays in the same intervals.
+
 Throughput: one ray into the RTC per cycle; one result per cycle; a hit takes
 ``max(1, lights)`` cycles of the light loop (one more where it spawns a refracted ray).
 Latency of a hit's secondary rays: the shading cache, :class:`~rtl.rgs.SecondaryPipe` (70
