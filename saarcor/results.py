@@ -38,7 +38,11 @@ from saarcor.args import add_kd_cache_arg, parse_res
 ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
 PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene", "note")
-SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "raykinds_chip", "oversampling", "scaling")
+SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "raykinds_chip", "oversampling", "scaling",
+          "packets", "kddepth")
+# the paper's cost of an operation in FP units' operations (Section 4.2.1: a trav-op 3 adds and
+# a multiply; an int-op 12 adds and 13 multiplies, a division counted as three)
+FP_OPS = {"trav": 4, "int": 25}
 # the chip's office cases of Table 5, as (reflect_depth, shadows, oversampled 4x)
 CASES = [("(a) eye rays", (0, False, False)), ("(b) eye + reflections (depth 3)", (3, False, False)),
          ("(c) eye + 3 lights", (0, True, False)), ("(d) eye + reflections + 3 lights", (3, True, False)),
@@ -753,6 +757,92 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
 
 """ + _md_table(["threads", "cycles", "speed-up", "paper"], body) + f"\n\n{figure}")
 
+    # -- Figures 1 and 3: packet size and kd-tree depth (the golden model) --------------------
+    def figure1(self):
+        rows = _ok(self.run.rows.get("packets", []))
+        if not rows:
+            return
+        units = ("trav", "list", "int")
+        series, body = {}, []
+        for r in sorted(rows, key=lambda r: (_stem(r), int(r["tile_w"]) * int(r["tile_h"]))):
+            n = int(r["tile_w"]) * int(r["tile_h"])
+            words = [_num(r, f"memory_reads_64bit.{u}") or 0 for u in units]
+            mb = 8 * sum(words) / 2 ** 20
+            kb = 8 * sum(words) / 1024 / max(1, _num(r, "packets") or 1)
+            series.setdefault(_stem(r), []).append((n, mb, kb))
+            body.append([f"`{_stem(r)}`", n, f"{_num(r, 'packets'):,.0f}",
+                         *(f"{8 * x / 2 ** 20:,.1f}" for x in words), f"**{mb:,.1f}**",
+                         f"{kb:,.1f}"])
+        plt = _plt()
+        fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
+        for name, pts in series.items():
+            ax[0].plot([p[0] for p in pts], [p[1] for p in pts], "o-", label=name)
+            ax[1].plot([p[0] for p in pts], [p[2] for p in pts], "o-", label=name)
+        for a, label in zip(ax, ("MB read in a frame", "KB read by a packet (mean)")):
+            a.set_xscale("log", base=2)
+            a.set_xlabel("rays per packet")
+            a.set_ylabel(label)
+            a.legend(fontsize=7)
+        figure = self.fig(plt, fig, "results_packets.png")
+        self.add(f"""
+## Figure 1: rays per packet against the memory read
+
+The memory the RTC's units read in a frame — kd-tree nodes, list entries and triangles, before
+any cache: the bandwidth to the caches — and what one packet reads on average, the paper's
+rough size for the smallest useful cache. Eye rays at {_res(rows)}, packets of 1 to 64 rays
+(a packet's lane masks are 64 bits, so 64 is the most; the paper's standard packet), the
+golden model's counts (`{self._spec('packets')}`: the chip's units read the same words, their
+counters equal the model's on every frame checked). A packet reads a node once a pass and a
+triangle once a leaf it lies in, so "read by a packet" counts a word it reads twice twice.
+Packet size changes no ray's result, only what is read.
+
+""" + _md_table(["scene", "rays a packet", "packets", "nodes (MB)", "lists (MB)",
+                 "triangles (MB)", "a frame (MB)", "a packet (KB)"], body) + f"\n\n{figure}")
+
+    def figure3(self):
+        rows = _ok(self.run.rows.get("kddepth", []))
+        if not rows:
+            return
+        series, body = {}, []
+        for r in sorted(rows, key=lambda r: (_stem(r), int(r["kd_max_depth"]))):
+            rays = max(1.0, _num(r, "rays_total") or 1)
+            trav, inter = (_num(r, f"counters.{k}_ops") / rays for k in ("trav", "int"))
+            cost = FP_OPS["trav"] * trav + FP_OPS["int"] * inter
+            series.setdefault(_stem(r), []).append((int(r["kd_max_depth"]), trav, inter, cost))
+            body.append([f"`{_stem(r)}`", int(r["kd_max_depth"]), _f(_num(r, "kdtree.depth"),
+                         "{:.0f}"), _f(_num(r, "kdtree.mean_nonempty_leaf_size"), "{:.1f}"),
+                         f"{trav:.1f}", f"{inter:.1f}", f"{cost:.0f}"])
+        best = {k: min(v, key=lambda p: p[3]) for k, v in series.items()}
+        plt = _plt()
+        fig, ax = plt.subplots(1, 2, figsize=(9, 3.5))
+        for name, pts in series.items():
+            ax[0].plot([p[1] for p in pts], [p[2] for p in pts], "o-", label=name)
+            for d, t, i, _ in pts:
+                ax[0].annotate(str(d), (t, i), fontsize=6)
+            ax[1].plot([p[0] for p in pts], [p[3] for p in pts], "o-", label=name)
+        ax[0].set_xlabel("trav-ops a ray")
+        ax[0].set_ylabel("int-ops a ray")
+        ax[1].set_xlabel("kd_max_depth (scene subdivisions)")
+        ax[1].set_ylabel("FP operations a ray (paper's costs)")
+        for a in ax:
+            a.legend(fontsize=7)
+        figure = self.fig(plt, fig, "results_kddepth.png")
+        least = "; ".join(f"`{k}` at depth {p[0]} ({p[3]:.0f} FP operations a ray)"
+                          for k, p in best.items())
+        self.add(f"""
+## Figure 3: trav-ops against int-ops as the kd-tree deepens
+
+Operations a ray for kd-trees of at most `kd_max_depth` levels (leaves of at most 4 triangles,
+SAH: a tree stops where its SAH or leaf size says, so the deepest settings can build the same
+tree), all the rays each scene has at {_res(rows)}, the golden model's counts
+(`{self._spec('kddepth')}`). The cost column weighs them as the paper does, a trav-op 4 FP
+operations (3 adds, 1 multiply) and an int-op 25 (12 adds, 13 multiplies, a division counted
+as three): the least cost is {least}.
+
+""" + _md_table(["scene", "kd_max_depth", "tree depth", "triangles a non-empty leaf",
+                 "trav-ops a ray", "int-ops a ray", "FP operations a ray"], body)
+                 + f"\n\n{figure}")
+
     def usage(self):
         rows = self.run.rows.get("rtcs", [])
         scene = self.plan.usage_scene
@@ -1010,6 +1100,8 @@ def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float
     w.table5()
     w.table6()
     w.threads()
+    w.figure1()
+    w.figure3()
     w.usage()
     w.trends()
     w.scaling()

@@ -80,11 +80,17 @@ def make_plan(tmp_path, scenes=(CORNELL,)):
         f"[[point]]\nreflect_depth = {r}\nshadows = {s}\n{extra}"
         for r, s, extra in ((3, "true", ""), (0, "false", ""), (3, "false", ""),
                             (0, "true", ""), (0, "false", 'resolutions = ["32x32"]\n'))), "16x16")
+    # Figures 1 and 3: packets of 1 and 64 rays, two kd-tree depths
+    spec(d / "packets.toml", "model", "[config]\nreflect_depth = 0\nshadows = false\n"
+         "[[point]]\ntile_w = 1\ntile_h = 1\ntrav_subunits = 1\n"
+         "[[point]]\ntile_w = 8\ntile_h = 8\n", "32x32")
+    spec(d / "kddepth.toml", "model", "[grid]\nkd_max_depth = [3, 16]\n")
     classes = "".join(f'{s.stem} = "{p}"\n' for s, p in zip(scenes, ("Quake3", "Sodahall")))
     (d / "plan.toml").write_text(
         f'title = "tiny"\nusage_scene = "cornell"\n[class]\n{classes}[sweeps]\n'
         'rays = "rays.toml"\nrtcs = "rtcs.toml"\nintcache = "intcache.toml"\n'
         f'raykinds = "raykinds.toml"\nraykinds_chip = "raykinds_chip.toml"\n'
+        'packets = "packets.toml"\nkddepth = "kddepth.toml"\n'
         f'scaling = "{TINY}"\n[threads]\nscene = "{CORNELL}"\nres = "16x16"\n'
         'counts = [1, 8]\n')
     return d
@@ -158,9 +164,26 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     # the trends, from the tables: the made-up int-cache and bandwidth gains hold
     trends = text[text.index("## Which of the paper's trends hold"):]
     assert re.search(r"larger int-cache gives 1\.\d\d× the fps \(paper 1\.31×\): \*\*holds", trends)
+    # Figure 1: the model's words read, a frame and a packet, for 1 and 64 rays a packet
+    pk = {int(r["tile_w"]): r for r in read_csv(work / "packets" / "results.csv")}
+    f1 = table(text, "## Figure 1")
+    words = {n: sum(int(pk[n][f"memory_reads_64bit.{u}"]) for u in ("trav", "list", "int"))
+             for n in (1, 8)}
+    assert [r[1] for r in f1] == ["1", "64"]
+    assert f1[0][6] == f"**{8 * words[1] / 2 ** 20:,.1f}**"
+    assert f1[1][7] == f"{8 * words[8] / 1024 / int(pk[8]['packets']):,.1f}"
+    assert words[1] > words[8] and int(pk[1]["packets"]) == 64 * int(pk[8]["packets"])
+    # Figure 3: ops a ray of each depth, and the paper's cost of them
+    kd = {int(r["kd_max_depth"]): r for r in read_csv(work / "kddepth" / "results.csv")}
+    f3 = table(text, "## Figure 3")
+    for row, d in zip(f3, (3, 16)):
+        rays = int(kd[d]["rays_total"])
+        t, i = (int(kd[d][f"counters.{k}_ops"]) / rays for k in ("trav", "int"))
+        assert row[4:7] == [f"{t:.1f}", f"{i:.1f}", f"{4 * t + 25 * i:.0f}"]
+    assert int(kd[3]["counters.int_ops"]) > int(kd[16]["counters.int_ops"])
     # scaling: both worker counts timed, every plot written
     assert len(table(text, "## Sweeps on more workers")) == 2
-    for name in ("rtcs", "intcache", "raykinds", "usage"):
+    for name in ("rtcs", "intcache", "raykinds", "usage", "packets", "kddepth"):
         assert (page.parent / "img" / f"results_{name}.png").stat().st_size > 1000
     assert "4 RTCs, " in text[text.index("## Table 3"):text.index("## Table 5")]
     # a second run computes no point of the plan; the skipped timing and threads bench are

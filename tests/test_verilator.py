@@ -236,3 +236,30 @@ def test_ideal_memory_load_port():
     run(dut, load_then_read, sink)
     assert [p["data"] for _, p in got] == [words[a] for a in addrs]
     assert [p["tag"] for _, p in got] == list(range(len(addrs)))
+
+
+def test_prune_builds_keeps_the_recent_and_the_busy(tmp_path):
+    """The binaries' cache stays under its limit: the builds used least recently go first; a
+    build another process holds (its lock taken), the one being made and unfinished folders
+    stay."""
+    import fcntl
+    import io
+    import os
+    root = tmp_path / "verilator"
+    for i, name in enumerate(["a", "b", "c", "d"]):           # a oldest ... d newest, 1 MB each
+        d = root / name / "obj_dir"
+        d.mkdir(parents=True)
+        (d / "Vframe").write_bytes(b"x" * 2 ** 20)
+        stamp = root / name / "build.json"
+        stamp.write_text("{}")
+        os.utime(stamp, (1000 + i, 1000 + i))
+    (root / "half").mkdir()                                   # an interrupted build
+    (root / "half" / "frame.v").write_bytes(b"x" * 2 ** 20)
+    with open(root / "b.lock", "w") as busy:                  # another process builds/uses b
+        fcntl.flock(busy, fcntl.LOCK_EX)
+        log = io.StringIO()
+        gone = vl.prune_builds(root, limit_gb=1.5 / 1024, keep=root / "c", log=log)
+    assert sorted(p.name for p in gone) == ["a", "d"]
+    assert sorted(p.name for p in root.iterdir() if p.is_dir()) == ["b", "c", "half"]
+    assert "removed 2 binaries" in log.getvalue()
+    assert vl.prune_builds(root, limit_gb=1.0) == []

@@ -48,6 +48,10 @@ __all__ = ["FrameError", "FrameBuild", "VerilatorRun", "build", "write_input", "
 ROOT = Path(__file__).resolve().parents[2]
 BUILD_ROOT = ROOT / "build" / "verilator"
 BUILD_ROOT_ENV = "SAARCOR_BUILD_ROOT"     # another cache folder for the chip's binaries
+# the most disk the cache of binaries keeps (GB): before a build the binaries used least
+# recently go (a chip's binary is 0.2-0.5 GB; every RTL edit makes new ones)
+BUILD_KEEP_ENV = "SAARCOR_BUILD_KEEP_GB"
+BUILD_KEEP_GB = 20.0
 MAIN_CPP = Path(__file__).with_name("verilator_main.cpp")
 MEM_V = Path(__file__).with_name("frame_mem.sv")
 TOP = "frame"
@@ -238,9 +242,11 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
     with open(root / f"{key}.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if stamp.exists() and binary.exists():
+            os.utime(stamp)            # used now: the last to go (prune_builds)
             return FrameBuild(binary, d, False, 0.0, mem_words, ray_slots)
         if d.exists():
             shutil.rmtree(d)           # an interrupted build
+        prune_builds(root, keep=d)
         d.mkdir(parents=True)
         print(announce_build(root, top, cfg, cxx_opt()), file=log, flush=True)
         expect = last_build(root, top, cfg, cxx_opt())     # the same scan: a few small files
@@ -265,6 +271,52 @@ def build(cfg: Config, *, mem_words: int = MIN_MEM_WORDS, ray_slots: int = MIN_R
                                      "trace": trace}, indent=1))
         print(f"tb.harness.verilator: built {binary} in {secs:.0f} s", file=log, flush=True)
         return FrameBuild(binary, d, True, secs, mem_words, ray_slots)
+
+
+def _tree_bytes(d: Path) -> int:
+    return sum(p.stat().st_size for p in d.rglob("*") if p.is_file() and not p.is_symlink())
+
+
+def prune_builds(root: Path, limit_gb: float | None = None, keep: Path | None = None,
+                 log=None) -> list[Path]:
+    """Delete the finished builds in ``root`` used least recently (``build.json``'s time: set
+    when built and whenever reused) until they take at most ``limit_gb`` (default
+    ``$SAARCOR_BUILD_KEEP_GB``, else :data:`BUILD_KEEP_GB`) together; a build another process
+    holds (its lock taken) and ``keep`` stay. Returns the deleted folders."""
+    if limit_gb is None:
+        try:
+            limit_gb = float(os.environ.get(BUILD_KEEP_ENV, BUILD_KEEP_GB))
+        except ValueError:
+            raise ConfigError(f"${BUILD_KEEP_ENV}={os.environ[BUILD_KEEP_ENV]!r}: give the "
+                              "gigabytes the chip's binaries may take, e.g. 20") from None
+    builds = []
+    for stamp in root.glob("*/build.json"):
+        try:
+            builds.append((stamp.stat().st_mtime, stamp.parent))
+        except OSError:
+            continue
+    builds.sort(reverse=True)                         # newest first
+    sizes = {d: _tree_bytes(d) for _, d in builds}
+    total, limit, gone = sum(sizes.values()), limit_gb * 2 ** 30, []
+    for _, d in reversed(builds):                     # oldest first
+        if total <= limit:
+            break
+        if keep is not None and d.resolve() == Path(keep).resolve():
+            continue
+        lock = root / f"{d.name}.lock"
+        try:
+            with open(lock, "w") as f:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                shutil.rmtree(d, ignore_errors=True)
+        except BlockingIOError:
+            continue                                  # in use by another process
+        total -= sizes[d]
+        gone.append(d)
+    if gone:
+        print(f"tb.harness.verilator: removed {len(gone)} binaries used least recently from "
+              f"{root} (they took over {limit_gb:g} GB; ${BUILD_KEEP_ENV} sets it)",
+              file=sys.stderr if log is None else log, flush=True)
+    return gone
 
 
 def _translate_compile(exe, d: Path, trace, phases: dict, t0: float, log, bar) -> dict:
