@@ -430,7 +430,7 @@ class Slave(wiring.Component):
         whose latency on the pool is its two pipes, up to an interval's wait for each one's
         slot and a texel read from SDRAM (``mem_latency`` memory cycles). Hits enough to
         cover it keep SecondaryPipe taking one an interval (with SecondaryPipe's alone the
-        office at 128x96 took 1.75x the cycles: ``docs/paper-preset.md``). Else 0."""
+        office at 128x96 took 1.75x the cycles: ``docs/rgs.md``). Else 0."""
         if self.pool is None or self.tex is None:
             return 0
         tex, ii = self.tex, self.pool.ii
@@ -616,8 +616,8 @@ class Slave(wiring.Component):
         m.d.sync += shading.eq(shading + (res.adv & res.need_ctx) -
                                (shd.o_valid & loop.ot.tlast))
         m.d.comb += self.idle.eq((slot.free == (1 << NS) - 1) & (pb.credits == self.buffers) &
-                                 eye.idle & ~res.valid & ~res.outq.r_rdy & ~self.out.valid & ~snd.busy &
-                                 (shading == 0) & (loop.amb_cnt == 0))
+                                 eye.idle & ~res.valid & ~res.outq.r_rdy & ~self.out.valid &
+                                 ~snd.busy & (shading == 0) & (loop.amb_cnt == 0))
         return m
 
     # -- the whole slave's pieces, in the order elaborate builds them -------------------------
