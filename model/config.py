@@ -14,6 +14,7 @@ from .fp import FPFormat
 CACHE_TOPOLOGIES = ("shared", "private")   # Config.cache_topology
 INT_TESTS = ("watertight", "projection")   # Config.int_test
 RGS_STORES = ("two_banks", "per_packet")    # Config.rgs_store
+TRAV_STACKS = ("two_values", "one_value")   # Config.trav_stack
 
 
 _TYPE_WORDS = {bool: "true or false (a bool)", int: "an integer", float: "a finite number",
@@ -42,6 +43,10 @@ class Config:
                                    # (Woop, Benthin, Wald 2013, on the vertices) or
                                    # "projection" (the paper's: Wald et al. 2001, on
                                    # precomputed triangle records; docs/memory-format.md)
+    # the traversal stack's word a lane and level: "two_values" (the far interval, tnear and
+    # tfar: a pop copies nothing) or "one_value" (one value and a bit, the paper's 34.5 bits:
+    # a pop after a leaf first writes the lanes' intervals back; docs/architecture.md)
+    trav_stack: str = "two_values"
     int_tri_slots: int = 8         # triangles the intersection unit holds (fetched ahead + tested)
     list_outstanding: int = 8      # list-word reads the list unit keeps in flight
     # pipeline stages of the RTL's FP units (0: the unit's default: add 3, mul 3, divider
@@ -221,6 +226,13 @@ class Config:
             raise ConfigError(f"rgs_store={self.rgs_store!r} must be one of "
                               f"{', '.join(RGS_STORES)} (two_banks: a bank per write port and a "
                               "live-value table; per_packet: a memory per packet)")
+        if self.trav_stack not in TRAV_STACKS:
+            raise ConfigError(f"trav_stack={self.trav_stack!r} must be one of "
+                              f"{', '.join(TRAV_STACKS)} (two_values: the far interval a lane "
+                              "and level; one_value: one value and a bit)")
+        if self.trav_stack == "one_value" and self.fast_clock:
+            raise ConfigError("trav_stack='one_value' is built for the default clock only: "
+                              "set fast_clock=False, or trav_stack='two_values'")
         if self.cache_ways not in (1, 2, 4):
             raise ConfigError(f"cache_ways={self.cache_ways} must be 1, 2 or 4")
         if not _pow2(self.threads):

@@ -22,7 +22,7 @@ from .list import leaf_entries
 from .fp import flush_in
 from .rgs import flushed_box, setup_one
 from .traversal import (bits_to_f32, classify, classify32, decide, decode_node, pass_masks,
-                        pop, start_packet, terminate)
+                        pop, pop_one, start_packet, terminate)
 
 # per-packet counters; the names are the keys of the statistics
 COUNTERS = (
@@ -85,11 +85,12 @@ def packet_scratch(depth):
 
 
 @numba.njit(cache=True, error_model="numpy")
-def trace_packet(mem, node_base, list_base, tri_base, root, depth,
+def trace_packet(mem, node_base, list_base, tri_base, root, depth, one,
                  r0, n, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                  hit_t, hit_tri, hit_u, hit_v, ctr, E, M, pid, rec, rec_n, scratch):
     """Trace the packet of rays ``r0 .. r0+n-1`` (lane l = ray r0 + l), packet id ``pid``,
-    in the arrays ``scratch`` (:func:`packet_scratch`).
+    in the arrays ``scratch`` (:func:`packet_scratch`); ``one``: the traversal stack keeps one
+    value a lane (``Config.trav_stack``).
 
     ``rec`` (K, 8) int64: when K > 0, every unit's input/output events are appended at row
     ``rec_n[0]`` (``model.events``); recording stops (rec_n[0] > K) when the buffer is full."""
@@ -165,7 +166,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
                 if rec.shape[0]:
                     record(rec, rec_n, EV_NODE, pid, oc, node, mask, mnear, mfar, sp)
                 node, mask, sp, pushed = decide(oc, kind, field, mnear, mfar, sp, dist, tnear,
-                                                tfar, s_node, s_mask, s_near, s_far, n)
+                                                tfar, s_node, s_mask, s_near, s_far, n, one)
                 if pushed:
                     c_pushes += 1
                     c_max_stack = max(c_max_stack, sp)
@@ -196,7 +197,12 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
             terminated = terminate(mask, terminated, b_tri, anyhit, r0, best, tfar)
             if rec.shape[0]:
                 record(rec, rec_n, EV_RESULT, pid, oc, node, mask, terminated, 0, sp)
-            sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n)
+            if one:
+                sp, node, mask = pop_one(sp, terminated, tnear, tfar, s_node, s_mask, s_near,
+                                         s_far, n)
+            else:
+                sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near,
+                                     s_far, n)
 
     if rec.shape[0]:
         record(rec, rec_n, EV_DONE, pid, 0, 0, live, terminated, 0, 0)
@@ -221,7 +227,7 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth,
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def trace_all(mem, node_base, list_base, tri_base, root, depth,
+def trace_all(mem, node_base, list_base, tri_base, root, depth, one,
               pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
               hit_t, hit_tri, hit_u, hit_v, ctrs, E, M):
     n_packets = pk_start.shape[0] - 1
@@ -233,14 +239,14 @@ def trace_all(mem, node_base, list_base, tri_base, root, depth,
         task = scatter_task(j, step, n_tasks)
         scratch = packet_scratch(depth)
         for p in range(task * TASK_PACKETS, min(n_packets, (task + 1) * TASK_PACKETS)):
-            trace_packet(mem, node_base, list_base, tri_base, root, depth,
+            trace_packet(mem, node_base, list_base, tri_base, root, depth, one,
                          pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss,
                          tnear0, tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E,
                          M, p, no_rec, no_n, scratch)
 
 
 @numba.njit(cache=True, parallel=True, error_model="numpy")
-def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, lo, hi, scene_ids,
+def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, one, lo, hi, scene_ids,
                     pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                     hit_t, hit_tri, hit_u, hit_v, ctrs, E, M):
     """:func:`trace_all` with the ray setup of ``model.rgs.setup_rays`` (box ``[lo, hi]``, the
@@ -266,7 +272,7 @@ def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, lo, hi, sc
                     flush_in(dirn[r, 0], E), flush_in(dirn[r, 1], E),
                     flush_in(dirn[r, 2], E), flush_in(tmax[r], E), lo_f[0], lo_f[1],
                     lo_f[2], hi_f[0], hi_f[1], hi_f[2], E, M)
-            trace_packet(mem, node_base, list_base, tri_base, root, depth,
+            trace_packet(mem, node_base, list_base, tri_base, root, depth, one,
                          r0, r1 - r0, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                          hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M, p, no_rec, no_n, scratch)
             for r in range(r0, r1):
@@ -274,13 +280,13 @@ def trace_all_setup(mem, node_base, list_base, tri_base, root, depth, lo, hi, sc
 
 
 @numba.njit(cache=True, error_model="numpy")
-def trace_recorded(mem, node_base, list_base, tri_base, root, depth,
+def trace_recorded(mem, node_base, list_base, tri_base, root, depth, one,
                    pk_start, org, dirn, inv, kk, ss, tnear0, tfar0, tmax, anyhit,
                    hit_t, hit_tri, hit_u, hit_v, ctrs, E, M, rec, rec_n):
     """Packets one after another (packet order), appending every event to ``rec``."""
     scratch = packet_scratch(depth)
     for p in range(pk_start.shape[0] - 1):
-        trace_packet(mem, node_base, list_base, tri_base, root, depth,
+        trace_packet(mem, node_base, list_base, tri_base, root, depth, one,
                      pk_start[p], pk_start[p + 1] - pk_start[p], org, dirn, inv, kk, ss, tnear0,
                      tfar0, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs[p], E, M,
                      p, rec, rec_n, scratch)
@@ -329,10 +335,10 @@ def _trace_with_setup(image, rays, cfg):
     args, ctrs, out = _kernel_args(image, rays, cfg, rs, True)
     if not n:
         return out()
-    (mem, node_base, list_base, tri_base, root, depth, pk_start, org, dirn, inv, kk, ss,
+    (mem, node_base, list_base, tri_base, root, depth, one, pk_start, org, dirn, inv, kk, ss,
      tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M) = args
     b = np.asarray(image.bounds, np.float32)
-    trace_all_setup(mem, node_base, list_base, tri_base, root, depth, b[0].copy(),
+    trace_all_setup(mem, node_base, list_base, tri_base, root, depth, one, b[0].copy(),
                     b[1].copy(), image.scene_id_table(), pk_start, org, dirn, inv, kk, ss,
                     tnear, tfar, tmax, anyhit, hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)
     return Hits(hit_tri, hit_t, hit_u, hit_v), ctrs
@@ -380,7 +386,7 @@ def _kernel_args(image, rays, cfg, ray_setup, box_cull):
     org = np.ascontiguousarray(rays.org, np.float32)
     dirn = np.ascontiguousarray(rays.dir, np.float32)
     args = (image.data, image.node_base, image.list_base, image.tri_base, image.root,
-            image.depth, np.ascontiguousarray(rays.pk_start), org, dirn, rs.inv, rs.k, rs.s,
+            image.depth, cfg.trav_stack == "one_value", np.ascontiguousarray(rays.pk_start), org, dirn, rs.inv, rs.k, rs.s,
             rs.tnear, rs.tfar, np.ascontiguousarray(rays.tmax, np.float32),
             np.ascontiguousarray(rays.anyhit, np.bool_),
             hit_t, hit_tri, hit_u, hit_v, ctrs, E, M)

@@ -124,6 +124,23 @@ def push(sp, node, mask, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n):
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
+def push_one(sp, node, mask, mnear, dist, tnear, tfar, s_node, s_mask, s_val, s_keep, n):
+    """:func:`push` with one value a lane (``Config.trav_stack = "one_value"``): a lane that
+    needs the near child too and whose ``tfar`` the near clip changes (``dist < tfar``: the
+    interval is never NaN, a live ray's ``tnear <= tfar``) stores ``tfar`` (``keep`` 0: at the pop its ``tnear`` is its
+    ``tfar`` then, which is ``min(tfar, dist)`` again); every other lane stores ``max(tnear,
+    dist)`` (``keep`` 1: its ``tfar`` then is this one). The caller clips the far-only lanes'
+    ``tnear`` now, so their registers hold the far interval until the pop."""
+    s_node[sp] = node
+    s_mask[sp] = mask
+    for l in range(n):
+        changed = lane_on(mnear, l) and dist[l] < tfar[l]
+        s_val[sp, l] = tfar[l] if changed else fmax(tnear[l], dist[l])
+        s_keep[sp, l] = np.float32(0) if changed else np.float32(1)
+    return sp + 1
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
     """Pop entries until one has a live ray. Returns (sp, node, mask); mask 0 = packet done."""
     while sp > 0:
@@ -134,6 +151,25 @@ def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
                 on = lane_on(mask, l)
                 tnear[l] = s_near[sp, l] if on else tnear[l]
                 tfar[l] = s_far[sp, l] if on else tfar[l]
+            return sp, s_node[sp], mask
+    return 0, np.int64(0), np.uint64(0)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def pop_one(sp, terminated, tnear, tfar, s_node, s_mask, s_val, s_keep, n):
+    """:func:`pop` of :func:`push_one`'s entries: a ``keep`` lane's interval is ``[value,
+    tfar]``, the others' ``[tfar, value]`` (``tfar``: the lane's, as the near subtree left it).
+    """
+    while sp > 0:
+        sp -= 1
+        mask = s_mask[sp] & ~terminated
+        if mask:
+            for l in range(n):
+                on = lane_on(mask, l)
+                keep = s_keep[sp, l] != np.float32(0)
+                cur = tfar[l]
+                tnear[l] = (s_val[sp, l] if keep else cur) if on else tnear[l]
+                tfar[l] = (cur if keep else s_val[sp, l]) if on else tfar[l]
             return sp, s_node[sp], mask
     return 0, np.int64(0), np.uint64(0)
 
@@ -176,18 +212,24 @@ def pass_masks(octant, live, n, masks):
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def decide(oc, axis, child, mnear, mfar, sp, dist, tnear, tfar, s_node, s_mask, s_near, s_far,
-           n):
+           n, one):
     """The decide engine, after every sub-unit classified its lanes at an inner node.
 
     The near child is ``child + neg`` (``neg``: the pass's direction sign on ``axis``), the
     far child the other one. Both needed: push the far child (rays of ``mfar``) and go near;
-    near only: go near; else go far (an empty ``mfar`` ends the pass). Returns
-    ``(node, mask, sp, pushed)``."""
+    near only: go near; else go far (an empty ``mfar`` ends the pass). ``one``: the stack
+    keeps one value a lane (:func:`push_one`; the stack's arrays ``s_near``, ``s_far`` hold
+    the values and the keep flags). Returns ``(node, mask, sp, pushed)``."""
     neg = (oc >> axis) & 1
     near = child + neg
     far = child + 1 - neg
     if mnear and mfar:
-        sp = push(sp, far, mfar, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n)
+        if one:
+            sp = push_one(sp, far, mfar, mnear, dist, tnear, tfar, s_node, s_mask, s_near,
+                          s_far, n)
+            clip_far(mfar & ~mnear, dist, tnear, n)
+        else:
+            sp = push(sp, far, mfar, dist, tnear, tfar, s_node, s_mask, s_near, s_far, n)
         clip_near(mnear, dist, tfar, n)
         return near, mnear, sp, True
     if mnear:

@@ -96,10 +96,12 @@ def stack_entry(cfg: Config, thread: Value, sp: Value) -> Value:
 
 
 def step_layout(cfg: Config) -> data.StructLayout:
-    """A step for one sub-unit: its lanes of the active mask and the node's split plane."""
+    """A step for one sub-unit: its lanes of the active mask and the node's split plane;
+    ``fold`` (``trav_stack = "one_value"``): no step but a fold, the lanes' intervals written
+    back (:class:`TravSubunit`)."""
     return data.StructLayout({
         "mask": cfg.rays_per_subunit, "thread": cfg.thread_bits, "axis": 2,
-        "split": cfg.fmt.width, "sp": stack_bits(cfg), "cur": 1})
+        "split": cfg.fmt.width, "sp": stack_bits(cfg), "cur": 1, "fold": 1})
 
 
 def step_result_layout(cfg: Config) -> data.StructLayout:
@@ -224,6 +226,8 @@ class TravSubunit(wiring.Component):
         self.LAT = 2 + self.add.latency + self.mul.latency + self.cmp_lat  # issue -> write stage
         self.STEP_LAT = self.LAT + 2      # step transfer -> verdict valid, minus active lanes
         self.RQ_LAT = 3 if cfg.fast_clock else 1    # rq_* address -> rq_tfar, rq_anyhit
+        self.one = cfg.trav_stack == "one_value"
+        self.s_width = w + 1 if self.one else 2 * w     # a stack slot's word
         super().__init__({
             "step": In(stream.Signature(step_layout(cfg))),
             "go": In(1, init=1), "can_start": Out(1),
@@ -244,7 +248,7 @@ class TravSubunit(wiring.Component):
         m.submodules.ray = ray = BlockRAM(shape=6 * w, depth=T << rb)
         m.submodules.anyhit = ah = BlockRAM(shape=1, depth=T << rb)
         m.submodules.nmem = nmem = BlockRAM(shape=2 * w, depth=T << rb)
-        m.submodules.smem = smem = BlockRAM(shape=2 * w,
+        m.submodules.smem = smem = BlockRAM(shape=self.s_width,
                                             depth=(T * self.cfg.stack_depth) << rb)
         ray_r, ray_w = ray.read_port(), ray.write_port()
         ah_r, ah_w = ah.read_port(), ah.write_port()
@@ -253,12 +257,13 @@ class TravSubunit(wiring.Component):
         m.submodules.add, m.submodules.mul = self.add, self.mul
         st, d = self._issue(m)
         dist, kd = self._distance(m, st, d, ray_r)
-        near_iv, far_iv = self._classify(m, st, dist, self._interval(m, st, kd, n_r, s_r))
-        # ---- k=K: write the far interval to S[sp] (the near one to N: _write_n)
+        near_iv, far_iv, s_word = self._classify(m, st, dist,
+                                                 self._interval(m, st, kd, n_r, s_r))
+        # ---- k=K: write the far interval (one_value: its word) to S[sp] (N: _write_n)
         sw = st[self.LAT]
         m.d.comb += [s_w.addr.eq(Cat(sw.lane, stack_entry(self.cfg, sw.thread, sw.sp))),
-                     s_w.data.eq(far_iv),
-                     s_w.en.eq(sw.v)]
+                     s_w.data.eq(s_word),
+                     s_w.en.eq(sw.v & ~sw.fold)]
         self._write_n(m, st, near_iv, n_w, ray_w, ah_w)
         self._request(m, n_rq, s_rq, ah_r)
         return m
@@ -272,11 +277,12 @@ class TravSubunit(wiring.Component):
         m.d.comb += [iss.go.eq(self.go), self.can_start.eq(iss.can_start)]
         act, has, d = iss.active, iss.has_lane, iss.cur
         tag = data.StructLayout({"e": 1, "v": 1, "last": 1, "lane": self.rbits,
-                                 "thread": self.tbits, "sp": self.dbits, "cur": 1})
+                                 "thread": self.tbits, "sp": self.dbits, "cur": 1, "fold": 1})
         st = [Signal(tag, name=f"s{k}") for k in range(self.LAT + 1)]
         m.d.comb += [st[0].e.eq(act), st[0].v.eq(act & has), st[0].last.eq(iss.last),
                      st[0].lane.eq(iss.lane), st[0].thread.eq(d.thread), st[0].sp.eq(d.sp),
-                     st[0].cur.eq(d.cur), self.issue.eq(act & has)]
+                     st[0].cur.eq(d.cur), st[0].fold.eq(d.fold),
+                     self.issue.eq(act & has & ~d.fold)]
         for k in range(1, self.LAT + 1):
             m.d.sync += st[k].eq(st[k - 1])
         m.d.comb += self.idle.eq(~act & ~iss.queued & ~Cat(*(s.e for s in st[1:])).any())
@@ -321,12 +327,22 @@ class TravSubunit(wiring.Component):
         iv = Signal(2 * w)
         s_d, n_d = s_r.data, n_r.data
         for i in range(rd - 2):
-            s_q, n_q = (Signal(2 * w, name=f"s_d{i}", reset_less=True),
+            s_q, n_q = (Signal(self.s_width, name=f"s_d{i}", reset_less=True),
                         Signal(2 * w, name=f"n_d{i}", reset_less=True))
             m.d.sync += [s_q.eq(s_d), n_q.eq(n_d)]
             s_d, n_d = s_q, n_q
-        m.d.sync += iv.eq(Mux(st[kd - 1].cur, s_d, n_d))
+        m.d.sync += iv.eq(Mux(st[kd - 1].cur, self._popped(s_d, n_d), n_d))
         return iv
+
+    def _popped(self, s_word, n_word) -> Value:
+        """A popped lane's interval from its stack word and its ``N`` word: the far interval
+        (two_values); one_value: ``[value, tfar]`` if the word's keep bit is 1, else ``[tfar,
+        value]`` (``tfar``: N's, as the near subtree left it; ``model.traversal.pop_one``)."""
+        if not self.one:
+            return s_word
+        w = self.cfg.fmt.width
+        val, keep, tfar = s_word[:w], s_word[w], n_word[w:]
+        return Mux(keep, Cat(val, tfar), Cat(tfar, val))
 
     def _classify(self, m: Module, st, dist, iv):
         """Stage ``kd``: ``max(tnear, dist)`` with ``dist < tnear`` (as ``tnear > dist``) and
@@ -334,8 +350,9 @@ class TravSubunit(wiring.Component):
         with the min or max it selects (:class:`~rtl.fp.FPMinMax`; ``cmp_lat`` cycles), so a
         trav-op costs an add, a multiply and two compares, the paper's 3 adds and 1 multiply
         with a compare counted as an add. At the write stage each lane's verdict joins its
-        step's, which goes to the ``res`` queue with the step's last lane. Returns the near and
-        far intervals to write."""
+        step's, which goes to the ``res`` queue with the step's last lane. Returns the words to
+        write to ``N`` and ``S[sp]`` (two_values: the near and the far interval, and the far
+        one again)."""
         fmt, R, c = self.cfg.fmt, self.R, self.cmp_lat
         w, kd = fmt.width, self.LAT - c
         m.submodules.vmin = vmin = FPMinMax(fmt, latency=c)
@@ -360,7 +377,16 @@ class TravSubunit(wiring.Component):
                      rq.r_en.eq(self.res.ready)]
         with m.If(sw.e):
             m.d.sync += [near.eq(Mux(sw.last, 0, near_n)), far.eq(Mux(sw.last, 0, far_n))]
-        return Cat(tnear_d, vmin.o), Cat(vmax.o, tfar_d)
+        near_iv, far_iv = Cat(tnear_d, vmin.o), Cat(vmax.o, tfar_d)
+        if not self.one:
+            return near_iv, far_iv, far_iv
+        # one_value (model.traversal.push_one): a lane that needs the near child and whose
+        # tfar the clip changes (dist < tfar) keeps tfar, any other max(tnear, dist) and the
+        # keep bit; N gets the interval the lane goes on with (a fold: its interval as read)
+        need_near, changed = ~vmax.gt, ~vmax.gt & vmin.gt
+        s_word = Cat(Mux(changed, tfar_d, vmax.o), ~changed)
+        n_iv = Mux(sw.fold, Cat(tnear_d, tfar_d), Mux(need_near, near_iv, far_iv))
+        return n_iv, far_iv, s_word
 
     def _write_n(self, m: Module, st, near_iv, n_w, ray_w, ah_w) -> None:
         """The write stage's near interval to ``N``, else the loader's lane (its interval to
@@ -399,7 +425,7 @@ class TravSubunit(wiring.Component):
                      ah_r.addr.eq(Cat(self.rq_lane, self.rq_thread))]
         cur_d = Signal()
         m.d.sync += cur_d.eq(self.rq_cur)
-        s_tfar, n_tfar, anyhit = s_rq.data[w:], n_rq.data[w:], ah_r.data
+        s_tfar, n_tfar, anyhit = self._popped(s_rq.data, n_rq.data)[w:], n_rq.data[w:], ah_r.data
         for i in range(self.RQ_LAT - 1):
             regs = (Signal(w, name=f"rq{i}_s_tfar", reset_less=True),
                     Signal(w, name=f"rq{i}_n_tfar", reset_less=True), Signal(name=f"rq{i}_ah"))
@@ -512,17 +538,17 @@ def _among(value: Value, states) -> Value:
 def packet_step_layout(cfg: Config) -> data.StructLayout:
     """An inner-node step as the control engine dispatches it: the thread, its node word, its
     active lanes, stack pointer and interval slot (``cur``), and the near child's side
-    (``neg``: the pass's octant bit on the node's axis)."""
+    (``neg``: the pass's octant bit on the node's axis); ``fold``: a fold, not a step."""
     return data.StructLayout({"thread": cfg.thread_bits, "word": node_layout(),
                               "mask": cfg.packet_size, "sp": stack_bits(cfg), "cur": 1,
-                              "neg": 1})
+                              "neg": 1, "fold": 1})
 
 
 def order_layout(cfg: Config) -> data.StructLayout:
     """An outstanding step as the decide engine needs it: the thread, the node's near and far
     children and the stack pointer (none of them changes while the step is out)."""
     return data.StructLayout({"thread": cfg.thread_bits, "near": NODE_BITS, "far": NODE_BITS,
-                              "sp": stack_bits(cfg)})
+                              "sp": stack_bits(cfg), "fold": 1})
 
 
 def decision_layout(cfg: Config) -> data.StructLayout:
@@ -570,12 +596,13 @@ class StepDispatch(wiring.Component):
         o = self.order.payload
         m.d.comb += [o.thread.eq(p.thread), o.near.eq((p.word.index + p.neg)[:NODE_BITS]),
                      o.far.eq((p.word.index + 1 - p.neg)[:NODE_BITS]), o.sp.eq(p.sp),
-                     self.order.valid.eq(disp)]
+                     o.fold.eq(p.fold), self.order.valid.eq(disp)]
         for j, s in enumerate(self.sub):
             m.d.comb += [s.payload.mask.eq(p.mask[j * R:(j + 1) * R]),
                          s.payload.thread.eq(p.thread), s.payload.axis.eq(p.word.axis),
                          s.payload.split.eq(from_binary32(cfg.fmt, p.word.value)),
-                         s.payload.sp.eq(p.sp), s.payload.cur.eq(p.cur), s.valid.eq(disp)]
+                         s.payload.sp.eq(p.sp), s.payload.cur.eq(p.cur),
+                         s.payload.fold.eq(p.fold), s.valid.eq(disp)]
         return m
 
 
@@ -583,8 +610,9 @@ class StepDecide(wiring.Component):
     """The decide engine: the oldest outstanding step (the head of ``order``, a queue of
     ``cfg.threads`` entries), once every sub-unit's verdict (``res[j]``) is in: both children
     -> push the far one (``push``: the entry at the thread's sp) and go near; near only; far
-    only; none ends the pass (NEXTPASS), as ``model.traversal.decide``. ``wr``: the thread's
-    next fields, one write each; ``pushes`` counts the pushes.
+    only; none ends the pass (NEXTPASS), as ``model.traversal.decide``; a fold (``trav_stack =
+    "one_value"``) returns its thread to POP. ``wr``: the thread's next fields, one write
+    each; ``pushes`` counts the pushes.
 
     Latency: ``wr`` and ``push`` in the cycle the last verdict is at the queues' heads (a
     cycle later with ``cfg.fast_clock``: the heads and the thread's next fields go through
@@ -618,6 +646,14 @@ class StepDecide(wiring.Component):
         new = dict(sp=Mux(both, d_sp + 1, d_sp)[:len(d_sp)],
                    node=Mux(n_any, head.near, head.far), mask=Mux(n_any, mn, mf), cur=~n_any,
                    state=Mux(n_any | f_any, ThreadState.FETCH, ThreadState.NEXTPASS))
+        if self.cfg.trav_stack == "one_value":
+            # every lane's next interval is in N; a fold (its verdicts mean nothing) returns
+            # the thread to POP with its intervals in N
+            fold = head.fold
+            both = both & ~fold
+            new = dict(sp=Mux(both, d_sp + 1, d_sp)[:len(d_sp)], node=new["node"],
+                       mask=Mux(fold, 0, new["mask"]), cur=Const(0),
+                       state=Mux(fold, ThreadState.POP, new["state"]))
         v = dict(v=dec, thread=head.thread, both=both, far_node=head.far, far=mf, sp=d_sp,
                  **{f"new_{k}": x for k, x in new.items()})
         if self.cfg.fast_clock:
@@ -672,8 +708,10 @@ class _ControlEngine:
                          for f in ("node", "mask", "sp", "cur")}
         self.w_fields_we = Signal()
         s, lf = step.payload, leaf.payload
+        self.fold = Signal(name="e_fold")            # POP offers a fold (one_value)
         m.d.comb += [s.thread.eq(self.t), s.word.eq(self.word), s.mask.eq(self.mask),
                      s.sp.eq(self.sp), s.cur.eq(self.cur), s.neg.eq(self.neg),
+                     s.fold.eq(self.fold),
                      lf.thread.eq(self.t), lf.first.eq(self.word.value),
                      lf.count.eq(self.word.index), lf.mask.eq(self.mask)]
 
@@ -787,10 +825,21 @@ class _ControlEngine:
             self.goto("PASS")
 
     def pop(self) -> None:
-        """POP reads entry sp - 1 (none: PASS); the state ``pop_read`` names uses it."""
+        """POP reads entry sp - 1 (none: PASS); the state ``pop_read`` names uses it.
+
+        ``trav_stack = "one_value"``: a thread whose intervals are a popped entry's (``cur``,
+        its node was a leaf) and whose stack is not empty first folds them into ``N`` (a step
+        with ``fold``: STEP, then the decide engine returns it to POP), as the next pop's
+        lanes take their ``tnear`` from the ``tfar`` the entry gave them."""
         m, db = self.m, stack_bits(self.cfg)
         with m.State("POP"):
-            with m.If(self.sp == 0):
+            fold = (self.cur & (self.sp != 0)) if self.cfg.trav_stack == "one_value" else 0
+            with m.If(fold):
+                m.d.comb += [self.fold.eq(1), self.step.valid.eq(1)]
+                with m.If(self.step.ready):
+                    self.set_state(ThreadState.STEP)
+                    self.goto("IDLE")
+            with m.Elif(self.sp == 0):
                 self.goto("PASS")
             with m.Else():
                 m.d.comb += self.st_r.addr.eq(stack_entry(self.cfg, self.t, (self.sp - 1)[:db]))

@@ -192,3 +192,33 @@ def test_scatter_visits_every_task_once():
             first = order[: n // 2]
             assert first.min() < n // 10 and first.max() > n - n // 10
             assert abs(np.mean(first) - (n - 1) / 2) < n / 20
+
+
+@pytest.mark.parametrize("fmt", [FPFormat(8, 23), FPFormat(8, 14)], ids=str)
+def test_one_value_stack_decides_as_two_values(fmt, kd_cache):
+    """``trav_stack="one_value"`` (one value and a bit a lane and level) takes every decision
+    the far interval's two values take: the same hits, bit for bit, and the same counts of
+    every unit, packet by packet. The rays mix direction octants, shadow rays and finite tmax,
+    and a quarter of them have a zero direction component from an origin on a grid of
+    coordinates (a ray in a split plane has a NaN distance and needs both children)."""
+    scene = load_scene(CONFERENCE)
+    two = Config(fmt=fmt)
+    one = two.replace(trav_stack="one_value")
+    prep = prepare(scene, two, cache_dir=kd_cache)
+    rays = eye_rays(scene.camera, 48, 32, two)
+    rng = np.random.default_rng(11)
+    d = rays.dir + rng.normal(0, 0.3, rays.dir.shape)
+    flat = rng.random(len(d)) < 0.25
+    d[flat, rng.integers(0, 3, flat.sum())] = 0
+    org = rays.org.copy()
+    org[flat] = np.round(org[flat])
+    tmax = np.where(rng.random(len(d)) < 0.3, np.float32(2.5), np.float32(np.inf))
+    packed = rays_from(fmt.quantize(org), fmt.quantize(d), tmax)
+    packed.anyhit = rng.random(len(d)) < 0.2
+    h2, c2 = trace(prep.image, packed, two)
+    h1, c1 = trace(prep.image, packed, one)
+    for f in ("tri", "t", "u", "v"):
+        assert np.array_equal(getattr(h1, f).view(np.uint32), getattr(h2, f).view(np.uint32)), f
+    assert np.array_equal(c1, c2)
+    assert c2[:, C["pushes"]].sum() > packed.n_packets        # the stack was used
+    assert (h2.tri >= 0).sum() > len(d) // 4
