@@ -511,9 +511,9 @@ PRESETS: dict[str, dict] = {
     # the standard chip at the paper's cost (Section 5: 192 FP units): the paper's triangle
     # test (projection on precomputed records), every RGS slave datapath on one pool of 3
     # adders and 4 multipliers, the slaves' ray stores and pending buffers a memory per
-    # packet (their bits once)
+    # packet (their bits once), the traversal stack one value and a bit a lane and level
     "paper": {"int_test": "projection", "rgs_fp_adders": 3, "rgs_fp_muls": 4,
-              "rgs_fp_pool": True, "rgs_store": "per_packet"},
+              "rgs_fp_pool": True, "rgs_store": "per_packet", "trav_stack": "one_value"},
 }
 """Named configurations (``--preset``): the fields each changes from :class:`Config`'s
 defaults."""

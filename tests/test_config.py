@@ -15,10 +15,17 @@ SMALL = dict(threads=2, tile_w=2, tile_h=2, trav_subunits=1, kd_max_depth=4)
     ("int_tri_slots", 1), ("int_tri_slots", 6), ("list_outstanding", 3),
     ("list_outstanding", 1), ("fp_sqrt_latency", 65), ("rgs_lights", 15), ("reflect_depth", 16),
     ("shade_cache_kb", 0), ("delay_ram", 1), ("delay_ram", -2), ("rgs_buffers", 11),
-    ("cache_topology", "per_rtc"), ("result_ports", 0), ("result_ports", 5)])
+    ("cache_topology", "per_rtc"), ("result_ports", 0), ("result_ports", 5),
+    ("trav_stack", "one")])
 def test_bad_rtl_parameters_are_named(field, value):
     with pytest.raises(ConfigError, match=field):
         Config(**{field: value})
+
+
+def test_one_value_stack_needs_the_default_clock():
+    with pytest.raises(ConfigError, match="trav_stack='one_value' is built for the default "
+                                          "clock only: set fast_clock=False"):
+        Config(trav_stack="one_value", fast_clock=True)
 
 
 def test_units_take_latencies_and_sizes_from_config():
@@ -136,7 +143,7 @@ def test_presets_start_from_the_defaults_and_options_override_them():
     assert preset("standard") == Config()
     paper = preset("paper")
     assert (paper.rgs_fp_adders, paper.rgs_fp_muls, paper.rgs_fp_pool) == (3, 4, True)
-    assert paper.int_test == "projection"
+    assert paper.int_test == "projection" and paper.trav_stack == "one_value"
     assert paper.replace(**{k: getattr(Config(), k) for k in PRESETS["paper"]}) == Config()
     with pytest.raises(ConfigError, match="preset 'nope'"):
         preset("nope")

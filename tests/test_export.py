@@ -15,7 +15,7 @@ from amaranth.lib import wiring
 from amaranth.lib.wiring import In, Out
 from amaranth.sim import Simulator
 
-from model.config import Config
+from model.config import PRESETS, Config
 from model.fp import FPFormat
 from tb.harness import tops as ex
 from saarcor.verilog import main as verilog_main
@@ -285,7 +285,7 @@ def test_rtc_top_matches_model(caches, fast, kd_cache, monkeypatch):
 
 @pytest.mark.filterwarnings("ignore:.*created but never used")
 @pytest.mark.parametrize("changes", [
-    {"int_test": "projection", "rgs_fp_adders": 3, "rgs_fp_muls": 4, "rgs_fp_pool": True},
+    PRESETS["paper"],
     pytest.param({}, marks=pytest.mark.slow),
     pytest.param({"rgs_fp_adders": 3, "rgs_fp_muls": 4}, marks=pytest.mark.slow)],
     ids=["paper", "unshared", "shared"])
@@ -293,7 +293,7 @@ def test_chip_top_lint_clean(tmp_path, changes):
     """``make verilog TOP=chip``: the whole chip (2 RTCs, their RTC-MIs, the RGS, the bus)
     exports with one memory port and lints clean; Yosys reads it. In CI at the paper's cost
     (``--preset paper``: the projection test, every slave datapath on one pool of 3 adders and
-    4 multipliers); slow (3 to 9 minutes each): a unit per operation, and a budget per
+    4 multipliers, the one-value traversal stack); slow (3 to 9 minutes each): a unit per operation, and a budget per
     datapath."""
     cfg = SMALL.replace(rtcs=2, **changes)
     path = ex.export("chip", cfg, tmp_path)

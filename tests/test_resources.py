@@ -93,8 +93,9 @@ def test_paper_preset_is_at_the_papers_fp_budget(paper_one_rtc):
 
 def test_memory_by_kind_and_the_papers_way(paper_one_rtc):
     """Every memory bit has one kind; the caches' data are the paper's 64 + 64 + 144 KB; the
-    traversal stack is threads x stack_depth entries of (node, mask) and a (tnear, tfar) pair
-    per lane, unpadded at 24 levels; the paper's register files at d levels are Section
+    traversal stack is threads x stack_depth entries of (node, mask) and, per lane, one
+    value and a keep bit (the paper preset's ``trav_stack``; the paper's 34.5 bits), unpadded
+    at 24 levels; the paper's register files at d levels are Section
     5.4's 287.6 KB + d x 17.25 KB."""
     from rtl.traversal import NODE_BITS
     from saarcor.bench.resources import paper_way
@@ -104,7 +105,8 @@ def test_memory_by_kind_and_the_papers_way(paper_one_rtc):
     assert kinds["cache data"] == (64 + 64 + 144) * 8192
     T, D, P, w = cfg.threads, cfg.stack_depth, cfg.packet_size, cfg.fmt.width
     assert D == 24
-    assert kinds["traversal stack"] == T * D * (NODE_BITS + P + P * 2 * w)
+    assert cfg.trav_stack == "one_value"
+    assert kinds["traversal stack"] == T * D * (NODE_BITS + P + P * (w + 1))
     assert kinds["slave ray store"] > 0 and kinds["slave pending buffers"] > 0
     pw = paper_way(r, D)
     assert pw["paper_register_file_kb"] == pytest.approx(287.6 + 24 * 17.25)

@@ -49,6 +49,28 @@ def test_traversal_reuses_threads(kd_cache):
     assert sorted(r.packets_done) == list(range(4))
 
 
+@pytest.mark.parametrize("case", ["cornell_16x8", "office_8x8_reuse"])
+def test_traversal_one_value_stack_replays_model(kd_cache, case):
+    """``trav_stack="one_value"`` (one value and a keep bit a lane and level): the same leaves,
+    done and counters as the model, whose pops take ``[value, tfar]`` or ``[tfar, value]``;
+    a pop after a leaf first folds the lanes' intervals into N (a fold through the sub-units,
+    no trav-op), so the cycles are pinned apart from the two-value stack's."""
+    if case == "cornell_16x8":
+        cfg = Config(threads=4, trav_stack="one_value")
+        image, rays = small_case(ROOT / "scenes/cornell.toml", 16, 8, cfg, kd_cache)
+        r = run_traversal(image, rays, cfg, seed=3)
+    else:
+        cfg = Config(threads=2, tile_w=4, tile_h=4, trav_subunits=2, trav_stack="one_value")
+        image, rays = small_case(ROOT / "scenes/office.toml", 8, 8, cfg, kd_cache)
+        r = run_traversal(image, rays, cfg, seed=5, mem_latency=6)
+    check(r)
+    assert r.model["pushes"] > rays.n_packets            # the stack was used
+    name = {"cornell_16x8": "traversal/cornell_16x8_one_value",
+            "office_8x8_reuse": "traversal/office_8x8_reuse_one_value"}[case]
+    assert r.cycles == TIMING[name], timing_changed(name, r.cycles)
+    assert sorted(r.packets_done) == list(range(rays.n_packets))
+
+
 # the deep settings of the FPGA build (docs/fpga.md): every FP unit and the compare units
 # deeper, block-RAM reads registered (fast_clock)
 DEEP = dict(fast_clock=True, fp_add_latency=7, fp_mul_latency=5, fp_cmp_latency=3)
@@ -119,15 +141,19 @@ def test_fast_step_queues_never_fill(kd_cache, sync):
     assert max(most) > 4, f"at most {most} steps waited: a 4-deep queue would have done"
 
 
-@pytest.mark.parametrize("deep", [False, True], ids=["default", "deep"])
-def test_subunit_classifies_like_model_at_fixed_latency(deep):
+@pytest.mark.parametrize("variant", ["default", "deep", "one_value"])
+def test_subunit_classifies_like_model_at_fixed_latency(variant):
     """Steps through one sub-unit: each verdict (near/far masks) equals
     ``model.traversal.classify``; the first comes exactly ``lanes + STEP_LAT`` cycles after its
     transfer; steps of other threads queued behind it follow back to back (one lane per cycle,
     an empty step one cycle, no pipeline drain in between); the stored intervals equal the
-    model's clipped near interval (N) and far interval (S[sp])."""
+    model's clipped near interval (N) and far interval (S[sp]). ``one_value``: N holds the
+    interval each lane goes on with (a far-only lane's keeps tfar), and S[sp] read as a popped
+    entry gives back tfar."""
+    deep = variant == "deep"
     cfg = Config(threads=4, tile_w=4, tile_h=4, trav_subunits=1, kd_max_depth=4,
-                 **(DEEP if deep else {}))
+                 **(DEEP if deep else {}),
+                 **({"trav_stack": "one_value"} if variant == "one_value" else {}))
     fmt, R = cfg.fmt, cfg.rays_per_subunit
     rng = np.random.default_rng(7)
     bits = lambda x: int(fmt.to_bits(np.float32(x)))
@@ -205,11 +231,12 @@ def test_subunit_classifies_like_model_at_fixed_latency(deep):
     assert dut.STEP_LAT == (2 + 3 + 3 + 1 + 2 if not deep else 2 + 7 + 5 + 3 + 2)
     assert got["at"][0] == lanes[0] + dut.STEP_LAT
     assert [b - a for a, b in zip(got["at"], got["at"][1:])] == lanes[1:]
-    for (thread, axis, split, sp, mask, org, inv, tnear, tfar), (_, _, dist) in zip(steps, want):
+    for (thread, axis, split, sp, mask, org, inv, tnear, tfar), (mn, _, dist) in zip(steps, want):
         act = [l for l in range(R) if mask >> l & 1]
         # near interval's tfar = min(tfar, dist); the far interval keeps tfar
+        near = [(mn >> l) & 1 or variant != "one_value" for l in act]
         assert [got["tfar_n"][thread, l] for l in act] == \
-            [bits(fmt.min(tfar[l], dist[l])) for l in act]
+            [bits(fmt.min(tfar[l], dist[l]) if nr else tfar[l]) for l, nr in zip(act, near)]
         assert [got["tfar_s"][thread, l] for l in act] == [bits(tfar[l]) for l in act]
 
 
