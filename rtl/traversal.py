@@ -15,6 +15,12 @@ it, so doing this in place is safe). Then: both children needed -> push entry ``
 intervals are already in ``S[sp]``), descend near (``cur = N``); near only -> ``cur = N``; far
 only -> ``cur = S``. A pop of entry ``i`` sets ``sp = i``, ``cur = S``: no interval is copied.
 
+``cfg.trav_stack = "one_value"``: ``S[sp]`` keeps one value and a keep bit a lane
+(``model.traversal.push_one``), ``N`` the interval each lane goes on with, so a step leaves
+``cur = N``; a popped lane's interval is ``[value, N.tfar]`` or ``[N.tfar, value]``. A pop that
+follows a leaf reached by a pop first folds those intervals into ``N`` (a ``fold`` step through
+the sub-units, ``_ControlEngine.pop``).
+
 Engines (each a small state machine; threads are picked round-robin among those waiting):
 
 * loader (``_Loader``): takes ``RayIn`` packets into a free thread (``load_thread`` says
@@ -178,7 +184,9 @@ class TravSubunit(wiring.Component):
 
     Memories (per sub-unit): ray data ``org, inv`` (T x R), ``anyhit`` (T x R), near slot
     intervals ``N`` (T x R) and stack slot intervals ``S`` (T x depth x R), each interval word
-    ``tnear | tfar << w``.
+    ``tnear | tfar << w`` (``cfg.trav_stack = "one_value"``: an ``S`` word is ``value | keep <<
+    w``, and a ``fold`` step writes the lanes' popped intervals to ``N``: no trav-op, no ``S``
+    write, its verdict ignored).
 
     Steps arrive on ``step`` (a queue of ``queue`` entries); one is taken when the issue stage
     is free (or frees in this cycle) and ``go`` is 1 (synchronous mode: the traversal raises
