@@ -52,7 +52,7 @@ import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
-from model.config import Config, ConfigError
+from model.config import PRESETS, Config, ConfigError
 from model.fp import FPFormat
 from saarcor.args import add_kd_cache_arg, parse_fmt, parse_res
 
@@ -61,7 +61,7 @@ __all__ = ["SpecError", "Point", "Spec", "load_spec", "code_hash", "point_key", 
 
 ROOT = Path(__file__).resolve().parents[1]
 BACKENDS = ("chip", "model")
-SPEC_KEYS = ("name", "backend", "scenes", "resolutions", "config", "grid", "point",
+SPEC_KEYS = ("name", "backend", "scenes", "resolutions", "preset", "config", "grid", "point",
              "max_cycles", "skip_invalid", "mem_words")
 POINT_KEYS = ("scenes", "resolutions")
 CODE_DIRS = ("rtl", "model", "tb", "saarcor")
@@ -236,7 +236,12 @@ def load_spec(path: str | Path) -> Spec:
             raise SpecError(f"{where}: [{key}] must be a table of Config fields")
         return v
 
-    base = {k: _check_field(k, v, f"{where} [config]") for k, v in table("config").items()}
+    preset = doc.get("preset", "standard")
+    if preset not in PRESETS:
+        raise SpecError(f"{where}: preset = {preset!r}: choose one of {', '.join(PRESETS)} "
+                        "(model/config.py PRESETS; [config] applies on top of it)")
+    base = {**PRESETS[preset],
+            **{k: _check_field(k, v, f"{where} [config]") for k, v in table("config").items()}}
     grid = {}
     for k, vals in table("grid").items():
         vals = vals if isinstance(vals, list) else [vals]

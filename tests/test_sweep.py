@@ -142,6 +142,8 @@ def test_spec_errors_name_the_problem(tmp_path, body, message):
     ('backend = "model"\nresolutions = ["8x8"]', "give scenes"),
     ('backend = "chip"\nscenes = ["a.toml"]\nresolutions = ["8x8"]\nmem_words = 1000',
      "mem_words = 1000 must be a power of two"),
+    ('backend = "chip"\nscenes = ["a.toml"]\nresolutions = ["8x8"]\npreset = "papr"',
+     "preset = 'papr': choose one of standard, paper"),
 ])
 def test_spec_top_level_errors(tmp_path, text, message):
     with pytest.raises(sweep.SpecError) as e:
@@ -183,6 +185,24 @@ scenes = ["a.toml"]
     last = spec.points[-1]
     assert (last.config["fmt"], last.config["cache_ways"], last.width) == ("E6M12", 2, 16)
     assert last.cfg().fmt.frac_bits == 12
+
+
+def test_spec_preset_is_the_start_of_every_point(tmp_path):
+    """``preset = "paper"``: every point starts from the preset's fields, ``[config]`` and the
+    grid on top of them."""
+    from model.config import preset
+    spec = sweep.load_spec(write_spec(tmp_path / "p.toml", """
+backend = "chip"
+scenes = ["a.toml"]
+resolutions = ["8x8"]
+preset = "paper"
+[config]
+rgs_fp_muls = 8
+[grid]
+rtcs = [1, 2]
+"""))
+    assert [p.cfg() for p in spec.points] == [preset("paper", rgs_fp_muls=8, rtcs=r)
+                                              for r in (1, 2)]
 
 
 def test_cache_key_follows_config_scene_and_resolution(tmp_path):

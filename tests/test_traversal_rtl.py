@@ -252,9 +252,11 @@ def test_traversal_subunit_modes(kd_cache, sync):
 
 
 @pytest.mark.slow
-def test_traversal_synthesizes_without_latches():
+@pytest.mark.parametrize("stack", ["two_values", "one_value"])
+def test_traversal_synthesizes_without_latches(stack):
     """A small configuration through Yosys ``synth -flatten`` (memories become flip-flops)."""
-    cfg = Config(threads=2, tile_w=2, tile_h=2, trav_subunits=2, kd_max_depth=2)
+    cfg = Config(threads=2, tile_w=2, tile_h=2, trav_subunits=2, kd_max_depth=2,
+                 trav_stack=stack)
     stat = synth_check(Traversal(cfg), "traversal")
     assert "Number of cells" in stat or "cells" in stat
 
