@@ -2,7 +2,8 @@
 
 One command runs every sweep of a plan (``scenes/sweeps/results/plan.toml``: which sweep
 spec feeds which table), on one Dask cluster, through :func:`saarcor.sweep.run_sweep` (so every
-point is cached and a second run computes nothing), the one-RTC threads bench, and the
+point is cached and a second run computes nothing; the threads section from the chip sweep
+``[sweeps] threads``, or the one-RTC threads bench of a ``[threads]`` table), and the
 sweep's own scaling measurement (a small spec with 1 and 2 workers, uncached); then writes
 the tables, each beside the paper's figures, and matplotlib plots into ``docs/img/``.
 
@@ -39,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
 PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene", "note")
 SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "raykinds_chip", "oversampling", "scaling",
-          "packets", "kddepth")
+          "packets", "kddepth", "threads")
 HOLDS = 0.15            # a trend holds where our ratio is within 15 % of the paper's
 # the paper's cost of an operation in FP units' operations (Section 4.2.1: a trav-op 3 adds and
 # a multiply; an int-op 12 adds and 13 multiplies, a division counted as three)
@@ -73,6 +74,7 @@ PAPER_T5 = [  # Office, 4 RTCs: case, rays, fps
     ("(e) eye, 4x oversampling", 3_145_728, 35.06)]
 PAPER_T6 = {"trav": (0.899, 0.968), "list": (0.897, 0.957), "int": (0.971, 0.988)}
 PAPER_THREADS = {8: 7.5, 16: 12.2}
+PAPER_THREADS_32 = (0.80, 0.90)     # the paper's relative performance with 32 threads
 RTCS = (1, 2, 4)
 
 
@@ -730,7 +732,25 @@ Paper: Office, 1024×768, all rays.
                  "paper, 4×"], body))
 
     # -- threads, unit usage, scaling ----------------------------------------------------------
+    def _thread_runs(self):
+        """(source, runs): the chip sweep's points by thread count (``[sweeps] threads``), else
+        the one-RTC bench's runs; each run ``{threads, cycles, speedup, rel, bound}``."""
+        rows = sorted(_ok(self.run.rows.get("threads", [])), key=lambda r: int(r["threads"]))
+        if rows:
+            base = next((_num(r, "cycles") for r in rows if int(r["threads"]) == 1), None)
+            return "chip", [{"threads": int(r["threads"]), "cycles": int(_num(r, "cycles")),
+                             "speedup": base / _num(r, "cycles") if base else None,
+                             "rel": _num(r, "relative_performance"), "bound": r.get("bound")}
+                            for r in rows]
+        t = self.run.threads
+        if t:
+            return "bench", [dict(r, rel=None, bound=None) for r in t["runs"]]
+        return None, []
+
     def threads(self):
+        source, runs = self._thread_runs()
+        if source == "chip":
+            return self._threads_chip(runs)
         t = self.run.threads
         if not t:
             return
@@ -757,6 +777,40 @@ One RTC of the standard configuration (8×8 packets, 4 traversal sub-units, cach
 checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard chip).
 
 """ + _md_table(["threads", "cycles", "speed-up", "paper"], body) + f"\n\n{figure}")
+
+    def _threads_chip(self, runs):
+        rows = _ok(self.run.rows["threads"])
+        r0 = rows[0]
+        chip = ("the paper preset" if r0.get("int_test") == "projection" and
+                _true(r0.get("rgs_fp_pool")) else "the standard chip")
+        body = [[r["threads"], f"{r['cycles']:,}", _f(r["speedup"], "{:.2f}"),
+                 _f(PAPER_THREADS.get(r["threads"]), "{:.1f}"),
+                 self.pcell(r["rel"]) + (f" ({r['bound']})" if r["bound"] else ""),
+                 "80–90 %" if r["threads"] == 32 else ""] for r in runs]
+        plt = _plt()
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        ax.plot([r["threads"] for r in runs], [r["speedup"] or float("nan") for r in runs],
+                "o-", label="ours")
+        ax.plot(list(PAPER_THREADS), list(PAPER_THREADS.values()), "s", label="paper")
+        top = max(r["threads"] for r in runs)
+        ax.plot([1, top], [1, top], "k:", label="linear")
+        ax.set_xscale("log", base=2)
+        ax.set_xlabel("threads per RTC")
+        ax.set_ylabel("speed-up over 1 thread")
+        ax.legend(fontsize=7)
+        figure = self.fig(plt, fig, "results_threads.png")
+        self.add(f"""
+## Threads: speed-up over one thread
+
+{chip[0].upper() + chip[1:]} with {_rtcs(rows)}, its shared caches and SDRAM, with 1 to {top}
+threads (packets in flight) per RTC: {rays_text(rows, short=True)} of
+{", ".join(sorted({f"`{_stem(r)}`" for r in rows}))} at {_res(rows)} through the whole chip in
+Verilator (`{self._spec('threads')}`), every ray checked against the golden model. The
+speed-up is the 1-thread frame's cycles over the n-thread frame's (the same rays). Paper: 8
+threads 7.5×, 16 threads 12.2×, and 80–90 % relative performance with 32 threads.
+
+""" + _md_table(["threads", "cycles", "speed-up", "paper", "relative performance",
+                 "paper"], body) + self.note("threads") + f"\n\n{figure}")
 
     # -- Figures 1 and 3: packet size and kd-tree depth (the golden model) --------------------
     def figure1(self):
@@ -969,15 +1023,22 @@ words a cycle.
                          f"(Tables 5, 6; paper 3.6×, hit rates +6.9/+6.0/+1.7 points). Ours on "
                          f"the chip: {x:.2f}× the cycles — {verdict(x, 3.6)}; hit rates "
                          f"{d[0]:+.1f}/{d[1]:+.1f}/{d[2]:+.1f} points.")
-        t = self.run.threads
-        if t:
-            sp = {r["threads"]: r["speedup"] for r in t["runs"]}
+        source, runs = self._thread_runs()
+        if runs:
+            sp = {r["threads"]: r["speedup"] for r in runs}
             got = "; ".join(f"{n} threads {sp[n]:.1f}× (paper {PAPER_THREADS[n]:.1f}×, "
                             f"{verdict(sp[n], PAPER_THREADS[n])})"
                             for n in (8, 16) if sp.get(n) and n in PAPER_THREADS)
+            where = ("the chip with its caches and SDRAM" if source == "chip" else
+                     "one RTC, ideal memory")
+            rel32 = next((r["rel"] for r in runs if r["threads"] == 32 and r["rel"]), None)
+            if rel32:
+                mid = sum(PAPER_THREADS_32) / 2
+                got += ("; " if got else "") + (
+                    f"32 threads {100 * rel32:.0f} % relative performance (paper 80–90 %, "
+                    f"against its middle {100 * mid:.0f} %: {verdict(rel32, mid)})")
             if got:
-                items.append(f"*Multi-threading hides memory latency*. Ours (one RTC, ideal "
-                             f"memory): {got}.")
+                items.append(f"*Multi-threading hides memory latency*. Ours ({where}): {got}.")
         if items:
             self.add("## Which of the paper's trends hold\n\nComputed from the tables above. "
                      f"A trend **holds** where our ratio is within ±{100 * HOLDS:.0f} % of the "

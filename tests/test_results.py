@@ -266,7 +266,8 @@ def test_table3_not_in_the_plan_says_why(tmp_path):
 
 def test_shipped_plan_and_its_specs_load():
     """The plan `make results` runs, and every sweep it names, parse; Table 3 is the ship's
-    int-cache x SDRAM-chip grid on one RTC (eye rays), as its note says."""
+    int-cache x SDRAM-chip grid on one RTC (eye rays), as its note says; the threads sweep is
+    the paper preset's chip with 1 to 32 threads."""
     plan = results.load_plan(results.PLAN)
     assert set(plan.sweeps) >= {"rays", "rtcs", "intcache", "raykinds", "raykinds_chip"}
     specs = {k: sweep.load_spec(p) for k, p in plan.sweeps.items()}
@@ -275,3 +276,41 @@ def test_shipped_plan_and_its_specs_load():
     for p in specs["intcache"].points:
         assert Path(p.scene_path).stem == "ship" and p.cfg().rtcs == 1 and p.cfg().reflect_depth == 0
     assert "One RTC where the paper has four" in plan.notes["intcache"]
+    # the threads section: the paper preset on its 4 RTCs with its caches and SDRAM, all rays
+    from model.config import preset
+    cfgs = [p.cfg() for p in specs["threads"].points]
+    assert [c.threads for c in cfgs] == [1, 2, 4, 8, 16, 32]
+    assert cfgs[-1] == preset("paper", threads=32, shadows=True, reflect_depth=3)
+
+
+def test_threads_on_the_chip(tmp_path):
+    """A chip sweep over threads (``[sweeps] threads``) makes the threads table: each count's
+    cycles, the speed-up over the 1-thread frame, the relative performance, the paper's 7.5×,
+    12.2× and 80–90 % beside them; the trends judge them by the ±15 % rule."""
+    cycles = {1: 12_000_000, 8: 1_700_000, 16: 1_000_000, 32: 950_000}
+    rel = {1: 0.08, 8: 0.55, 16: 0.62, 32: 0.60}
+    rows = [{"status": "ok", "scene": "scenes/office_large.toml", "threads": str(n),
+             "cycles": str(c), "relative_performance": str(rel[n]), "bound": "int",
+             "rtcs": "4", "int_test": "projection", "rgs_fp_pool": "True", "width": "256",
+             "height": "192", "reflect_depth": "3", "shadows": "True", "backend": "chip",
+             "job_seconds": "60"} for n, c in reversed(cycles.items())]
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
+    run = results.Run(rows={"threads": rows})
+    w = results.Writer(plan, run, tmp_path / "img", tmp_path / "r.md")
+    w.threads()
+    w.trends()
+    text = "\n".join(w.parts)
+    assert "The paper preset with 4 RTCs, its shared caches and SDRAM, with 1 to 32" in text
+    t = table(text, "## Threads")
+    assert [r[0] for r in t] == ["1", "8", "16", "32"]
+    for r, n in zip(t, cycles):
+        assert r[1] == f"{cycles[n]:,}" and r[2] == f"{cycles[1] / cycles[n]:.2f}"
+        assert r[4].startswith(f"{100 * rel[n]:.1f} %")
+    assert [t[1][3], t[2][3], t[3][5]] == ["7.5", "12.2", "80–90 %"]
+    trends = text[text.index("## Which of the paper's trends hold"):]
+    s8, s16 = cycles[1] / cycles[8], cycles[1] / cycles[16]
+    verdict = lambda x, p: "holds" if abs(x / p - 1) <= 0.15 else "differs"
+    assert (f"Ours (the chip with its caches and SDRAM): 8 threads {s8:.1f}× (paper 7.5×, "
+            f"**{verdict(s8, 7.5)}**); 16 threads {s16:.1f}× (paper 12.2×, "
+            f"**{verdict(s16, 12.2)}**); 32 threads 60 % relative performance (paper 80–90 %, "
+            f"against its middle 85 %: **differs**)") in trends
