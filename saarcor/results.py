@@ -287,6 +287,26 @@ def _frac(rows) -> str:
     return f"1/{1 / f:.0f}" if f < 1 and abs(1 / f - round(1 / f)) < 1e-9 else f"{f:.3g}×"
 
 
+def _chip_name(rows) -> str:
+    """The chip ``rows`` ran on: "the paper preset" (the projection test and the slaves' pool:
+    ``--preset paper``), else "the standard chip"."""
+    r = next((r for r in rows if r.get("status") == "ok"), rows[0] if rows else {})
+    paper = r.get("int_test") == "projection" and _true(r.get("rgs_fp_pool"))
+    return "the paper preset" if paper else "the standard chip"
+
+
+def _cap(text: str) -> str:
+    return text[:1].upper() + text[1:]
+
+
+def _preset_text(rows) -> str:
+    """What the paper preset changes, for a caption ("" on the standard chip)."""
+    if _chip_name(rows) != "the paper preset":
+        return ""
+    return ("; the paper's cost: the projection test, each RGS slave on a pool of 3 FP adders "
+            "and 4 multipliers, the one-value stack: `--preset paper`, docs/paper-preset.md")
+
+
 def _true(v) -> bool:
     """A boolean field of a row (a bool, or its text in a CSV)."""
     return v is True or str(v).strip().lower() in ("true", "1")
@@ -540,8 +560,8 @@ paper's columns are for 1024×768.
         self.add(f"""
 ## Table 2: frames per second with 1, 2 and 4 RTCs
 
-The standard chip (16 threads, 4 traversal sub-units, caches 64/64/144 KB, 4 SDRAM chips =
-1 GB/s, 533 MHz) with 1, 2 and 4 RTCs. **Chip columns: measured, {kinds}**, one frame at
+{_cap(_chip_name(rows))} (16 threads, 4 traversal sub-units, caches 64/64/144 KB, 4 SDRAM chips =
+1 GB/s, 533 MHz{_preset_text(rows)}) with 1, 2 and 4 RTCs. **Chip columns: measured, {kinds}**, one frame at
 {res} through the whole chip in Verilator (`{self._spec('rtcs')}`), every ray checked against
 the golden model; a frame this small has {frac} of the paper's pixels and starts with cold
 caches. *Rays* counts every ray of the chip's frame (eye, shadow and reflection), *secondary*
@@ -679,7 +699,7 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 4 RTCs, 102
         figure = self.fig(plt, fig, "results_raykinds.png")
         if planned:
             chip_text = (f"**Chip columns** (`{self._spec(ckey)}`): each case measured on the "
-                         f"standard chip (4 RTCs) in Verilator, the RGS slaves making the shadow "
+                         f"{_chip_name(chip)[4:]} (4 RTCs) in Verilator, the RGS slaves making the shadow "
                          f"and reflection rays, every ray checked against the golden model: "
                          f"rays traced, fps, cycles relative to (a) and the relative "
                          f"performance; {_os_text(eye_row, os_row)}.")
@@ -724,7 +744,7 @@ rays in those ideal cycles. {chip_text} Paper: Office, 4 RTCs, 1024×768.
         self.add(f"""
 ## Table 6: cache hit rates with and without oversampling
 
-`{scene}`, the standard chip (4 RTCs, 64/64/144 KB direct-mapped caches), through the chip
+`{scene}`, {_chip_name(chip)} (4 RTCs, 64/64/144 KB direct-mapped caches), through the chip
 (`{self._spec(ckey)}`): eye rays, {_os_text(eye_row, os_row)}.{alltext}
 Paper: Office, 1024×768, all rays.
 
@@ -802,7 +822,7 @@ checked. Paper: 8 threads 7.5×, 16 threads 12.2× (whole frames of the standard
         self.add(f"""
 ## Threads: speed-up over one thread
 
-{chip[0].upper() + chip[1:]} with {_rtcs(rows)}, its shared caches and SDRAM, with 1 to {top}
+{_cap(chip)} with {_rtcs(rows)}, its shared caches and SDRAM, with 1 to {top}
 threads (packets in flight) per RTC: {rays_text(rows, short=True)} of
 {", ".join(sorted({f"`{_stem(r)}`" for r in rows}))} at {_res(rows)} through the whole chip in
 Verilator (`{self._spec('threads')}`), every ray checked against the golden model. The
@@ -943,7 +963,7 @@ as three): the least cost is {least}.
         self.add(f"""
 ## Unit usage (the paper's Figure 5)
 
-`{scene}` on the standard chip (4 RTCs, {subs} traversal sub-units each), {rays_text([r], True)},
+`{scene}` on {_chip_name([r])} (4 RTCs, {subs} traversal sub-units each), {rays_text([r], True)},
 at {r['width']}×{r['height']} (the `{self._spec('rtcs')}` point): busy share of the cycles of
 each unit, the caches' hit rates, each cache's share of the memory words and each SDRAM
 chip's share of the memory accesses — panels (a), (b), (e), (f) and (h) of the paper's

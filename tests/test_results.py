@@ -314,3 +314,15 @@ def test_threads_on_the_chip(tmp_path):
             f"**{verdict(s8, 7.5)}**); 16 threads {s16:.1f}× (paper 12.2×, "
             f"**{verdict(s16, 12.2)}**); 32 threads 60 % relative performance (paper 80–90 %, "
             f"against its middle 85 %: **differs**)") in trends
+
+
+def test_captions_name_the_chip_the_rows_ran_on():
+    """A table's caption says which chip its rows ran on: the paper preset (the projection test
+    and the slaves' pool, whatever else its sweep changes) or the standard chip."""
+    paper = {"status": "ok", "int_test": "projection", "rgs_fp_pool": "True", "rtcs": "2"}
+    std = {"status": "ok", "int_test": "watertight", "rgs_fp_pool": "False"}
+    assert results._chip_name([paper]) == "the paper preset"
+    assert results._chip_name([std]) == "the standard chip"
+    assert results._chip_name([dict(paper, rgs_fp_pool="False")]) == "the standard chip"
+    assert "`--preset paper`" in results._preset_text([paper])
+    assert results._preset_text([std]) == ""
