@@ -265,17 +265,24 @@ def test_table3_not_in_the_plan_says_why(tmp_path):
 
 
 def test_shipped_plan_and_its_specs_load():
-    """The plan `make results` runs, and every sweep it names, parse; Table 3 is the ship's
-    int-cache x SDRAM-chip grid on one RTC (eye rays), as its note says; the threads sweep is
-    the paper preset's chip with 1 to 32 threads."""
+    """The plan `make results` runs, and every sweep it names, parse; every chip sweep runs
+    the paper preset, at 1024x768 but the threads sweep; Table 3 is the ship's int-cache x
+    SDRAM-chip grid on 4 RTCs (eye rays), as its note says; the threads sweep is the paper
+    preset's chip with 1 to 32 threads."""
     plan = results.load_plan(results.PLAN)
     assert set(plan.sweeps) >= {"rays", "rtcs", "intcache", "raykinds", "raykinds_chip"}
     specs = {k: sweep.load_spec(p) for k, p in plan.sweeps.items()}
     grid = {(p.cfg().int_cache_kb, p.cfg().mem_chips) for p in specs["intcache"].points}
     assert grid == {(k, c) for k in (144, 288, 576) for c in (4, 8)}
     for p in specs["intcache"].points:
-        assert Path(p.scene_path).stem == "ship" and p.cfg().rtcs == 1 and p.cfg().reflect_depth == 0
-    assert "One RTC where the paper has four" in plan.notes["intcache"]
+        assert Path(p.scene_path).stem == "ship" and p.cfg().rtcs == 4 and p.cfg().reflect_depth == 0
+    assert "Four RTCs, as in the paper" in plan.notes["intcache"]
+    for k, s in specs.items():
+        if s.backend == "chip":
+            assert all(p.cfg().int_test == "projection" and p.cfg().rgs_fp_pool and
+                       p.cfg().trav_stack == "one_value" for p in s.points), k
+            want = {(512, 384)} if k == "threads" else {(1024, 768)}
+            assert {(p.width, p.height) for p in s.points if p.width <= 1024} == want, k
     # the threads section: the paper preset on its 4 RTCs with its caches and SDRAM, all rays
     from model.config import preset
     cfgs = [p.cfg() for p in specs["threads"].points]
