@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
 PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene", "note")
 SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "raykinds_chip", "oversampling", "scaling",
-          "packets", "kddepth", "threads")
+          "packets", "kddepth", "threads", "bus", "sdram", "ways", "presets")
 HOLDS = 0.15            # a trend holds where our ratio is within 15 % of the paper's
 # the paper's cost of an operation in FP units' operations (Section 4.2.1: a trav-op 3 adds and
 # a multiply; an int-op 12 adds and 13 multiplies, a division counted as three)
@@ -271,6 +271,10 @@ def _one(rows, **match):
 def _res(rows) -> str:
     rs = sorted({f"{r['width']}×{r['height']}" for r in rows})
     return ", ".join(rs) if rs else "—"
+
+
+def _scenes(rows) -> str:
+    return ", ".join(sorted({f"`{_stem(r)}`" for r in rows}))
 
 
 def _rtcs(rows) -> str:
@@ -973,6 +977,90 @@ words a cycle.
 """ + _md_table(["RTC", "traversal sub-units", "traversal", "list", "intersection"], body)
                  + f"\n\n{figure}")
 
+    # -- beyond the paper -----------------------------------------------------------------------
+    def beyond(self):
+        """What the paper states without a table, or leaves out, from four chip sweeps: where
+        the bus saturates (``bus``: 1 to 16 RTCs), RTCs and SDRAM chips together (``sdram``),
+        the caches' associativity (``ways``) and the paper preset beside the standard chip
+        (``presets``). Each sub-table only when its sweep is in the plan."""
+        parts = []
+        rows = _ok(self.run.rows.get("bus", []))
+        if rows:
+            rows.sort(key=lambda r: int(r["rtcs"]))
+            base = _num(rows[0], "cycles") if int(rows[0]["rtcs"]) == 1 else None
+            body = [[r["rtcs"], f"{int(_num(r, 'cycles')):,}", self.cell(_num(r, "fps"), "{:,.1f}"),
+                     _f(base and base / _num(r, "cycles"), "{:.2f}×"),
+                     self.pcell(_num(r, "relative_performance")),
+                     self.cell(_num(r, "cache.trav.bus.busy"), "{:.3f}"),
+                     self.pcell(_num(r, "cache.trav.bus.wait")),
+                     self.pcell(_num(r, "cache.int.bus.wait"))] for r in rows]
+            parts.append(f"""### Where the round-robin bus saturates
+
+The paper (Section 4.2.2): the bus between the RTCs and the shared caches "will break if too
+many RTCs increase the bandwidth requirements to the caches beyond the bus capacity …
+with 8 to 16 RTCs". {_cap(_chip_name(rows))}{_preset_text(rows)}, {rays_text(rows, True)} of
+{_scenes(rows)} at {_res(rows)}, with {_rtcs(rows)}, {rows[0].get('mem_chips')} SDRAM chips and
+{rows[0].get('result_ports')} result streams (`{self._spec('bus')}`), so that neither memory
+nor the chip's output is the limit. *Bus busy*: requests the trav cache's bus carries a cycle;
+*waited*: cycles a request waited for it.
+
+""" + _md_table(["RTCs", "cycles", "fps", "speed-up", "relative performance",
+                 "trav bus busy", "trav bus waited", "int bus waited"], body))
+        rows = _ok(self.run.rows.get("sdram", []))
+        if rows:
+            rows.sort(key=lambda r: (int(r["rtcs"]), int(r["mem_chips"])))
+            base = _num(rows[0], "cycles") if int(rows[0]["rtcs"]) == 1 else None
+            body = [[r["rtcs"], r["mem_chips"], f"{int(_num(r, 'cycles')):,}",
+                     self.cell(_num(r, "fps"), "{:,.1f}"),
+                     _f(base and base / _num(r, "cycles"), "{:.2f}×"),
+                     self.pcell(_num(r, "relative_performance")),
+                     self.cell(_num(r, "memory.bandwidth_mb_s"), "{:,.0f}")] for r in rows]
+            parts.append(f"""### RTCs and SDRAM chips together
+
+n RTCs with n SDRAM chips (the memory's bandwidth grows with the RTCs):
+{_chip_name(rows)}, {rays_text(rows, True)} of {_scenes(rows)} at {_res(rows)}
+(`{self._spec('sdram')}`). *MB/s*: the memory's bandwidth the frame used.
+
+""" + _md_table(["RTCs", "SDRAM chips", "cycles", "fps", "speed-up", "relative performance",
+                 "memory MB/s"], body))
+        rows = _ok(self.run.rows.get("ways", []))
+        if rows:
+            rows.sort(key=lambda r: (_stem(r), int(r["cache_ways"])))
+            body = []
+            for r in rows:
+                one = next((x for x in rows if _stem(x) == _stem(r)
+                            and int(x["cache_ways"]) == 1), None)
+                b = _num(one, "fps")
+                body.append([f"`{_stem(r)}`", r["cache_ways"], f"{int(_num(r, 'cycles')):,}",
+                             self.cell(_num(r, "fps"), "{:,.1f}"),
+                             _f(b and _num(r, "fps") / b, "{:.3f}×"),
+                             *[self.pcell(_num(r, f"cache.{k}.hit_rate"))
+                               for k in ("trav", "list", "int")]])
+            parts.append(f"""### The caches' associativity
+
+The paper's caches are direct-mapped. The same three shared caches 2- and 4-way
+set-associative (`cache_ways`): {_chip_name(rows)}, {_rtcs(rows)}, {rays_text(rows, True)} at
+{_res(rows)} (`{self._spec('ways')}`); fps relative to the direct-mapped caches.
+
+""" + _md_table(["scene", "ways", "cycles", "fps", "× direct-mapped", "trav hits", "list hits",
+                 "int hits"], body))
+        rows = _ok(self.run.rows.get("presets", []))
+        if rows:
+            rows.sort(key=lambda r: (_stem(r), _chip_name([r])))
+            body = [[f"`{_stem(r)}`", _chip_name([r])[4:], f"{int(_num(r, 'cycles')):,}",
+                     self.cell(_num(r, "fps"), "{:,.1f}"),
+                     self.pcell(_num(r, "relative_performance")) +
+                     (f" ({r['bound']})" if r.get("bound") else "")] for r in rows]
+            parts.append(f"""### The paper's chip beside ours
+
+The paper preset (the paper's cost: 192 FP units; `docs/paper-preset.md`) and the standard
+chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(rows)},
+{rays_text(rows, True)} at {_res(rows)} (`{self._spec('presets')}`).
+
+""" + _md_table(["scene", "chip", "cycles", "fps", "relative performance"], body))
+        if parts:
+            self.add("## Beyond the paper\n\n" + "\n\n".join(p.strip("\n") for p in parts))
+
     def trends(self):
         """The paper's findings, each against our figures: **holds** where our ratio is within
         :data:`HOLDS` of the paper's, **differs** otherwise."""
@@ -1189,6 +1277,7 @@ def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float
     w.figure1()
     w.figure3()
     w.usage()
+    w.beyond()
     w.trends()
     w.scaling()
     w.cost()

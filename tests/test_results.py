@@ -277,10 +277,12 @@ def test_shipped_plan_and_its_specs_load():
     for p in specs["intcache"].points:
         assert Path(p.scene_path).stem == "ship" and p.cfg().rtcs == 4 and p.cfg().reflect_depth == 0
     assert "Four RTCs, as in the paper" in plan.notes["intcache"]
+    paper = lambda c: (c.int_test == "projection" and c.rgs_fp_pool and
+                       c.trav_stack == "one_value")
     for k, s in specs.items():
         if s.backend == "chip":
-            assert all(p.cfg().int_test == "projection" and p.cfg().rgs_fp_pool and
-                       p.cfg().trav_stack == "one_value" for p in s.points), k
+            got = [paper(p.cfg()) for p in s.points]
+            assert all(got) or (k == "presets" and sorted(set(got)) == [False, True]), k
             want = {(512, 384)} if k == "threads" else {(1024, 768)}
             assert {(p.width, p.height) for p in s.points if p.width <= 1024} == want, k
     # the threads section: the paper preset on its 4 RTCs with its caches and SDRAM, all rays
@@ -333,3 +335,51 @@ def test_captions_name_the_chip_the_rows_ran_on():
     assert results._chip_name([dict(paper, rgs_fp_pool="False")]) == "the standard chip"
     assert "`--preset paper`" in results._preset_text([paper])
     assert results._preset_text([std]) == ""
+
+
+def test_beyond_the_paper(tmp_path):
+    """The four chip sweeps beyond the paper's tables, each a sub-table of what it measured:
+    the bus's load and waits against the RTCs (speed-up over 1 RTC), RTCs with as many SDRAM
+    chips (the memory's bandwidth), the caches' ways (fps against direct-mapped, hit rates),
+    and the paper preset beside the standard chip; sub-tables only for sweeps in the plan."""
+    paper = {"int_test": "projection", "rgs_fp_pool": "True"}
+    std = {"int_test": "watertight", "rgs_fp_pool": "False"}
+
+    def row(scene, cycles, **kw):
+        return {"status": "ok", "scene": f"scenes/{scene}.toml", "cycles": str(cycles),
+                "fps": str(533e6 / cycles), "relative_performance": "0.5", "bound": "int-ops",
+                "width": "1024", "height": "768", "reflect_depth": "0", "shadows": "False",
+                "backend": "chip", "rtcs": "4", "mem_chips": "4", "result_ports": "1",
+                "cache_ways": "1", **paper, **{k: str(v) for k, v in kw.items()}}
+    bus = [row("game", 8_000_000 // n, rtcs=n, mem_chips=16, result_ports=min(n, 4),
+               **{"cache.trav.bus.busy": 0.04 * n, "cache.trav.bus.wait": 0.003 * n * n,
+                  "cache.int.bus.wait": 0.002 * n}) for n in (16, 1, 4)]
+    sdram = [row("office_large", 9_000_000 // n, rtcs=n, mem_chips=n,
+                 **{"memory.bandwidth_mb_s": 90.0 * n}) for n in (1, 2)]
+    ways = [row(s, c, cache_ways=w, **{f"cache.{k}.hit_rate": 0.9 + 0.01 * w
+                                       for k in ("trav", "list", "int")})
+            for s, c0 in (("office_large", 2_000_000), ("conference_large", 3_000_000))
+            for w, c in ((1, c0), (4, c0 - 100_000))]
+    presets = [row("office_large", 1_000_000, **std), row("office_large", 2_300_000)]
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
+    run = results.Run(rows={"bus": bus, "sdram": sdram, "ways": ways, "presets": presets})
+    w = results.Writer(plan, run, tmp_path / "img", tmp_path / "r.md")
+    w.beyond()
+    text = "\n".join(w.parts)
+    t = table(text, "### Where the round-robin bus saturates")
+    assert [r[0] for r in t] == ["1", "4", "16"]
+    assert t[2][1:4] == ["500,000", f"{533e6 / 500_000:,.1f}", "16.00×"]
+    assert t[2][5:8] == ["0.640", "76.8 %", "3.2 %"]
+    assert "16 SDRAM chips" in text and "(`(not in this plan)`)" in text
+    t = table(text, "### RTCs and SDRAM chips together")
+    assert t[1][:3] == ["2", "2", "4,500,000"] and t[1][4] == "2.00×" and t[1][6] == "180"
+    t = table(text, "### The caches' associativity")
+    assert [r[:2] for r in t] == [["`conference_large`", "1"], ["`conference_large`", "4"],
+                                  ["`office_large`", "1"], ["`office_large`", "4"]]
+    assert t[3][4] == f"{2_000_000 / 1_900_000:.3f}×" and t[3][5] == "94.0 %"
+    t = table(text, "### The paper's chip beside ours")
+    assert [r[1:3] for r in t] == [["paper preset", "2,300,000"], ["standard chip", "1,000,000"]]
+    assert t[0][4] == "50.0 % (int-ops)"
+    w = results.Writer(plan, results.Run(rows={"ways": ways}), tmp_path / "img", tmp_path / "r.md")
+    w.beyond()
+    assert "### The caches' associativity" in w.parts[0] and "bus saturates" not in w.parts[0]
