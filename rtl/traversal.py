@@ -265,14 +265,13 @@ class TravSubunit(wiring.Component):
         m.submodules.add, m.submodules.mul = self.add, self.mul
         st, d = self._issue(m)
         dist, kd = self._distance(m, st, d, ray_r)
-        near_iv, far_iv, s_word = self._classify(m, st, dist,
-                                                 self._interval(m, st, kd, n_r, s_r))
+        n_word, s_word = self._classify(m, st, dist, self._interval(m, st, kd, n_r, s_r))
         # ---- k=K: write the far interval (one_value: its word) to S[sp] (N: _write_n)
         sw = st[self.LAT]
         m.d.comb += [s_w.addr.eq(Cat(sw.lane, stack_entry(self.cfg, sw.thread, sw.sp))),
                      s_w.data.eq(s_word),
                      s_w.en.eq(sw.v & ~sw.fold)]
-        self._write_n(m, st, near_iv, n_w, ray_w, ah_w)
+        self._write_n(m, st, n_word, n_w, ray_w, ah_w)
         self._request(m, n_rq, s_rq, ah_r)
         return m
 
@@ -359,8 +358,7 @@ class TravSubunit(wiring.Component):
         trav-op costs an add, a multiply and two compares, the paper's 3 adds and 1 multiply
         with a compare counted as an add. At the write stage each lane's verdict joins its
         step's, which goes to the ``res`` queue with the step's last lane. Returns the words to
-        write to ``N`` and ``S[sp]`` (two_values: the near and the far interval, and the far
-        one again)."""
+        write to ``N`` and ``S[sp]`` (two_values: the near and the far interval)."""
         fmt, R, c = self.cfg.fmt, self.R, self.cmp_lat
         w, kd = fmt.width, self.LAT - c
         m.submodules.vmin = vmin = FPMinMax(fmt, latency=c)
@@ -387,14 +385,14 @@ class TravSubunit(wiring.Component):
             m.d.sync += [near.eq(Mux(sw.last, 0, near_n)), far.eq(Mux(sw.last, 0, far_n))]
         near_iv, far_iv = Cat(tnear_d, vmin.o), Cat(vmax.o, tfar_d)
         if not self.one:
-            return near_iv, far_iv, far_iv
+            return near_iv, far_iv
         # one_value (model.traversal.push_one): a lane that needs the near child and whose
         # tfar the clip changes (dist < tfar) keeps tfar, any other max(tnear, dist) and the
         # keep bit; N gets the interval the lane goes on with (a fold: its interval as read)
         need_near, changed = ~vmax.gt, ~vmax.gt & vmin.gt
         s_word = Cat(Mux(changed, tfar_d, vmax.o), ~changed)
-        n_iv = Mux(sw.fold, Cat(tnear_d, tfar_d), Mux(need_near, near_iv, far_iv))
-        return n_iv, far_iv, s_word
+        n_word = Mux(sw.fold, Cat(tnear_d, tfar_d), Mux(need_near, near_iv, far_iv))
+        return n_word, s_word
 
     def _write_n(self, m: Module, st, near_iv, n_w, ray_w, ah_w) -> None:
         """The write stage's near interval to ``N``, else the loader's lane (its interval to
