@@ -22,7 +22,7 @@ from .list import leaf_entries
 from .fp import flush_in
 from .rgs import flushed_box, setup_one
 from .traversal import (bits_to_f32, classify, classify32, decide, decode_node, pass_masks,
-                        pop, pop_one, start_packet, terminate)
+                        pop, start_packet, terminate)
 
 # per-packet counters; the names are the keys of the statistics
 COUNTERS = (
@@ -197,12 +197,8 @@ def trace_packet(mem, node_base, list_base, tri_base, root, depth, one,
             terminated = terminate(mask, terminated, b_tri, anyhit, r0, best, tfar)
             if rec.shape[0]:
                 record(rec, rec_n, EV_RESULT, pid, oc, node, mask, terminated, 0, sp)
-            if one:
-                sp, node, mask = pop_one(sp, terminated, tnear, tfar, s_node, s_mask, s_near,
-                                         s_far, n)
-            else:
-                sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near,
-                                     s_far, n)
+            sp, node, mask = pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far,
+                                 n, one)
 
     if rec.shape[0]:
         record(rec, rec_n, EV_DONE, pid, 0, 0, live, terminated, 0, 0)

@@ -140,36 +140,32 @@ def push_one(sp, node, mask, mnear, dist, tnear, tfar, s_node, s_mask, s_val, s_
     return sp + 1
 
 
+@numba.njit(cache=True, inline="always")
+def popped(one, first, second, tfar):
+    """A popped lane's interval ``(tnear, tfar)`` from its stack words: the far interval
+    ``[first, second]`` (two values); ``one``: :func:`push_one`'s value ``first`` and keep flag
+    ``second``, ``[value, tfar]`` if it keeps, else ``[tfar, value]`` (``tfar``: the lane's, as
+    the near subtree left it). The RTL's ``TravSubunit._popped``."""
+    if not one:
+        return first, second
+    if second != np.float32(0):
+        return first, tfar
+    return tfar, first
+
+
 @numba.njit(cache=True, inline="always", error_model="numpy")
-def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n):
-    """Pop entries until one has a live ray. Returns (sp, node, mask); mask 0 = packet done."""
+def pop(sp, terminated, tnear, tfar, s_node, s_mask, s_near, s_far, n, one):
+    """Pop entries until one has a live ray; its lanes take their :func:`popped` intervals.
+    Returns (sp, node, mask); mask 0 = packet done."""
     while sp > 0:
         sp -= 1
         mask = s_mask[sp] & ~terminated
         if mask:
             for l in range(n):
+                lo, hi = popped(one, s_near[sp, l], s_far[sp, l], tfar[l])
                 on = lane_on(mask, l)
-                tnear[l] = s_near[sp, l] if on else tnear[l]
-                tfar[l] = s_far[sp, l] if on else tfar[l]
-            return sp, s_node[sp], mask
-    return 0, np.int64(0), np.uint64(0)
-
-
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def pop_one(sp, terminated, tnear, tfar, s_node, s_mask, s_val, s_keep, n):
-    """:func:`pop` of :func:`push_one`'s entries: a ``keep`` lane's interval is ``[value,
-    tfar]``, the others' ``[tfar, value]`` (``tfar``: the lane's, as the near subtree left it).
-    """
-    while sp > 0:
-        sp -= 1
-        mask = s_mask[sp] & ~terminated
-        if mask:
-            for l in range(n):
-                on = lane_on(mask, l)
-                keep = s_keep[sp, l] != np.float32(0)
-                cur = tfar[l]
-                tnear[l] = (s_val[sp, l] if keep else cur) if on else tnear[l]
-                tfar[l] = (cur if keep else s_val[sp, l]) if on else tfar[l]
+                tnear[l] = lo if on else tnear[l]
+                tfar[l] = hi if on else tfar[l]
             return sp, s_node[sp], mask
     return 0, np.int64(0), np.uint64(0)
 

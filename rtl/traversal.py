@@ -344,7 +344,7 @@ class TravSubunit(wiring.Component):
     def _popped(self, s_word, n_word) -> Value:
         """A popped lane's interval from its stack word and its ``N`` word: the far interval
         (two_values); one_value: ``[value, tfar]`` if the word's keep bit is 1, else ``[tfar,
-        value]`` (``tfar``: N's, as the near subtree left it; ``model.traversal.pop_one``)."""
+        value]`` (``tfar``: N's, as the near subtree left it; ``model.traversal.popped``)."""
         if not self.one:
             return s_word
         w = self.cfg.fmt.width
