@@ -601,8 +601,13 @@ def _cache_read(path: Path) -> dict | None:
 def _cache_write(path: Path, key: str, point: Point, result: dict) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    tmp.write_text(json.dumps({"v": CACHE_VERSION, "key": key,
-                               "point": dataclasses.asdict(point), **result}, indent=1))
+    pt = dataclasses.asdict(point)
+    try:        # a scene of this checkout as a path in it: a kept cache names no machine path
+        pt["scene_path"] = Path(pt["scene_path"]).relative_to(ROOT).as_posix()
+    except ValueError:
+        pass
+    tmp.write_text(json.dumps({"v": CACHE_VERSION, "key": key, "point": pt, **result},
+                              indent=1))
     tmp.replace(path)
 
 
