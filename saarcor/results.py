@@ -38,6 +38,10 @@ from saarcor.args import add_kd_cache_arg, parse_res
 
 ROOT = Path(__file__).resolve().parents[1]
 PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
+# the page's points, kept in the repository (a point's JSON as saarcor.sweep caches it): the
+# frames at 1024x768 take hours each, so the page is rebuilt from them as long as the code they
+# ran (saarcor.sweep.code_hash) is the checkout's
+CACHE = ROOT / "scenes" / "sweeps" / "results" / "cache"
 PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene", "note")
 SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "raykinds_chip", "oversampling", "scaling",
           "packets", "kddepth", "threads", "bus", "sdram", "ways", "presets")
@@ -133,15 +137,54 @@ class Run:
     computed: int = 0
     threads: dict | None = None
     scaling: dict | None = None
+    pending: dict = field(default_factory=dict)   # sweep key -> labels of the points not run
+
+
+def point_text(p: sw.Point, spec: sw.Spec) -> str:
+    """A point as a reader finds it in its spec: scene, frame and what sets it apart."""
+    base = p.label()
+    vary = {}
+    for k in ("rtcs", "reflect_depth", "shadows", "oversampling", "threads", "int_cache_kb",
+              "mem_chips", "cache_ways", "result_ports", "tile_w", "kd_max_depth"):
+        vals = {q.config.get(k) for q in spec.points}
+        if len(vals) > 1:
+            vary[k] = p.config.get(k)
+    return base + "".join(f" {k}={v}" for k, v in vary.items())
+
+
+def cached_rows(spec: sw.Spec, cache: Path) -> tuple[list[dict], list[str]]:
+    """The rows of ``spec``'s points found in ``cache``, and the points not found."""
+    code = sw.code_hash()
+    rows, pending = [], []
+    for p in spec.points:
+        k = sw.point_key(p, code)
+        hit = sw._cache_read(cache / f"{k}.json")
+        if hit is None:
+            pending.append(point_text(p, spec))
+        else:
+            rows.append(sw.point_row(p, k, hit))
+    return rows, pending
 
 
 def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: bool,
-             scaling: bool, kd_cache: str = "default", log=None) -> Run:
-    """Every sweep of ``plan`` on one local cluster (only if a point is not cached)."""
+             scaling: bool, kd_cache: str = "default", log=None, compute: bool = True) -> Run:
+    """Every sweep of ``plan`` on one local cluster (only if a point is not cached); with
+    ``compute`` false only the points in ``cache``, the others listed in ``Run.pending``."""
     log = sys.stdout if log is None else log
     run = Run()
     code = sw.code_hash()
     specs = {k: sw.load_spec(p) for k, p in plan.sweeps.items() if k != "scaling"}
+    if not compute:
+        for k, spec in specs.items():
+            run.rows[k], run.pending[k] = cached_rows(spec, cache)
+            run.specs[k] = spec
+            print(f"results: {spec.name}: {len(spec.points)} points, {len(run.rows[k])} "
+                  f"cached, {len(run.pending[k])} not run", file=log, flush=True)
+        if plan.threads:
+            run.threads = _kept(out_dir / "threads.json", log)
+        if "scaling" in plan.sweeps:
+            run.scaling = _kept(out_dir / "scaling.json", log)
+        return run
     todo = sum(sw._cache_read(cache / f"{sw.point_key(p, code)}.json") is None
                for s in specs.values() for p in s.points)
     client = cluster = None
@@ -1160,27 +1203,18 @@ chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(
             return
         r1, r2 = s["runs"][0], s["runs"][1]
         speed = r1["wall_seconds"] / r2["wall_seconds"]
-        chip = [r for k in ("rtcs", "intcache", "raykinds_chip", "oversampling")
-                for r in self.run.rows.get(k, [])
-                if r.get("status") == "ok" and r.get("job_seconds") not in (None, "")]
-        chip = [r for r in chip if r.get("sim_seconds") not in (None, "")]
-        # a frame's cost: a fixed part (load the scene into the simulated memory, prepare,
-        # check) and the simulation, linear in the rays
-        fixed = [float(r["job_seconds"]) - float(r["sim_seconds"]) for r in chip]
-        per = [float(r["sim_seconds"]) / max(1.0, float(r["rays_total"])) for r in chip]
-        spr = sum(per) / len(per) if per else None
-        fix = sum(fixed) / len(fixed) if fixed else None
-        paper_frames = len(PAPER_FPS) * 3 + 6 + 5 + 2 + 5
-        full = fix + spr * 786_432 if spr else None
+        chip = [float(r["job_seconds"]) for rows in self.run.rows.values() for r in rows
+                if r.get("status") == "ok" and r.get("backend") == "chip"
+                and r.get("job_seconds") not in (None, "")]
         body = [[f"{r['workers']}", f"{r['wall_seconds']:.1f} s", f"{r['job_seconds']:.1f} s",
                  f"{r['load_before']:.2f}"] for r in s["runs"]]
-        proj = []
-        if full:
-            for n in (1, 2, 8, 32, 128):
-                eff = 1.0 if n == 1 else (speed / 2 if n == 2 else 0.9)
-                secs = math.ceil(paper_frames / n) * full / eff    # whole frames per worker
-                proj.append([n, f"{eff:.2f}", f"{secs / 3600:.1f} h" if secs >= 3600 else
-                             f"{secs / 60:.0f} min"])
+        bound = []
+        if chip:
+            tot, top = sum(chip), max(chip)
+            for n in (1, 2, 8, 32, len(chip)):
+                secs = max(top, tot / n)
+                bound.append([n, f"{secs / 3600:.1f} h" if secs >= 3600 else
+                              f"{secs / 60:.0f} min"])
         self.add(f"""
 ## Sweeps on more workers
 
@@ -1195,21 +1229,15 @@ Two workers are **{speed:.2f}×** as fast as one on this 2-core machine (the job
 independent; what is lost goes to starting workers and to the two jobs sharing memory
 bandwidth and the machine with other work).
 
-**Projected** (an estimate, not a measurement): a paper-sized set of chip frames at 1024×768 —
-8 scenes × 3 RTC counts, 6 Table 3 points, 5 office cases and 2 oversampling frames, 5 threads
-points: {paper_frames} frames. Assumptions: a frame costs a fixed part — loading the scene into the
-simulated memory, preparing it, checking the rays; the mean over this page's chip points,
-{_f(fix, '{:.0f}')} s — plus its simulation, linear in its rays at their mean rate
-({_f(spr and spr * 1e6, '{:.0f}')} s per million rays), so {_f(full, '{:.0f}')} s per 786 432-ray
-frame (frames with secondary rays cost more: more rays); every frame is an independent
-job; Verilator binaries are built beforehand (one per configuration, in parallel on the
-cluster; {_build_text()}); the efficiency of 2 workers is the measured one, beyond that
-0.9 (jobs this long amortise start-up; a shared filesystem serves the scenes and binaries).
-A cluster worker is one core; a worker runs whole frames, so beyond {paper_frames} workers
-nothing is gained.
+**This page's chip frames on a cluster** (arithmetic on the measured job times, not a
+measurement): every frame is an independent job of one core, so {len(chip)} frames whose
+own times sum to {_f(chip and sum(chip) / 3600, '{:.1f}')} h, the longest
+{_f(chip and max(chip) / 60, '{:.0f}')} min, need at least the larger of the longest job and
+the sum over the workers, plus the Verilator builds beforehand (one per configuration, in
+parallel; {_build_text()}). A worker runs whole frames: beyond {len(chip)} workers nothing is
+gained. `docs/sweep.md` says how to run the plan on a SLURM cluster.
 
-""" + (_md_table(["workers", "efficiency (assumed)", "wall for the paper-sized set"], proj)
-       if proj else "(no chip points to project from)"))
+""" + (_md_table(["workers", "at least"], bound) if bound else "(no chip points measured)"))
 
     def cost(self):
         """What each sweep's points cost when they were computed (job_seconds)."""
@@ -1235,6 +1263,19 @@ bench's runs (without its builds). From an empty result cache the page takes abo
 (one per chip configuration; {_build_text()}) and the 1- and 2-worker timing.
 
 """ + _md_table(["sweep", "backend", "points", "sum of job times", "longest job"], body))
+        pend = [(k, v) for k, v in self.run.pending.items() if v]
+        if pend:
+            self.add("\n**Points not run yet** (by sweep):\n\n" + "\n".join(
+                f"- `{self._spec(k)}`: " + "; ".join(v) for k, v in pend) + "\n")
+
+    def pending_text(self) -> str:
+        n = sum(len(v) for v in self.run.pending.values())
+        if not n:
+            return ""
+        done = sum(len(v) for v in self.run.rows.values())
+        return (f"\n\n**Not complete: {done} of {done + n} points measured.** The {n} points "
+                "not run yet show as — (or are absent from a plot); the last section lists them. "
+                "Nothing on this page stands in for them.")
 
     def render(self, total_seconds: float, load: tuple) -> str:
         head = f"""# {self.plan.title}
@@ -1243,9 +1284,11 @@ bench's runs (without its builds). From an empty result cache the page takes abo
 
 The paper's Section 5 measurements (Tables 1–6, the thread speed-up and Figure 5) on our chip
 and golden model, each table beside the paper's figures. Regenerate with `make results` (or
-`saarcor results`; `--help` for options): every sweep point is cached in `build/sweep/cache`,
-so a second run recomputes nothing; the chip's Verilator binaries are built once per
-configuration.
+`saarcor results`; `--help` for options): every sweep point is kept, one JSON file each, in
+`{os.path.relpath(CACHE, ROOT)}` (in the repository), and a run computes only the points
+whose file is missing or ran other code (the key hashes the configuration, the scene's files,
+the frame and the sources of `rtl/`, `model/`, `tb/` and `saarcor/`); the chip's Verilator
+binaries are built once per configuration.{self.pending_text()}
 
 **What is measured how.** Every *chip* figure is a frame through the whole chip (RGS, RTCs,
 caches, bus, SDRAM model) in Verilator, with the rays its sweep asks for — eye rays, and the
@@ -1300,9 +1343,13 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--img", metavar="DIR", help="directory of the plots (default OUT/img)")
     ap.add_argument("--work", default="build/results", metavar="DIR",
                     help="the sweeps' tables and the threads bench (default build/results)")
-    ap.add_argument("--cache", default="build/sweep/cache", metavar="DIR",
-                    help="per-point result cache shared with `saarcor sweep` (default "
-                         "build/sweep/cache)")
+    ap.add_argument("--cache", default=str(CACHE.relative_to(ROOT)), metavar="DIR",
+                    help="per-point result cache (`saarcor sweep --cache DIR` fills it too; "
+                         f"default {CACHE.relative_to(ROOT)}, kept in the repository)")
+    ap.add_argument("--cached", action="store_true",
+                    help="compute nothing: write the page from the points in the cache, the "
+                         "others shown as not run and listed under the page's cost (the "
+                         "threads bench and the scaling timing as kept in WORK)")
     ap.add_argument("--workers", type=int, default=2, metavar="N",
                     help="local Dask workers (default 2)")
     add_kd_cache_arg(ap)
@@ -1325,7 +1372,8 @@ def main(argv=None) -> int:
         page = Path(args.out) / "results.md"
         run = run_plan(plan, workers=args.workers, cache=Path(args.cache),
                        out_dir=Path(args.work), threads=not args.skip_threads,
-                       scaling=not args.skip_scaling, kd_cache=args.kd_cache)
+                       scaling=not args.skip_scaling, kd_cache=args.kd_cache,
+                       compute=not args.cached)
     except (ResultsError, sw.SpecError) as e:
         raise SystemExit(f"results: {e}")
     w = write_page(plan, run, page, Path(args.img) if args.img else page.parent / "img",

@@ -5,6 +5,7 @@ cache beforehand (a chip frame needs a Verilator build of minutes), with figures
 so the test checks that each table shows what its sweep measured."""
 import csv
 import json
+import os
 import re
 from pathlib import Path
 
@@ -383,3 +384,48 @@ def test_beyond_the_paper(tmp_path):
     w = results.Writer(plan, results.Run(rows={"ways": ways}), tmp_path / "img", tmp_path / "r.md")
     w.beyond()
     assert "### The caches' associativity" in w.parts[0] and "bus saturates" not in w.parts[0]
+
+
+def test_cached_page_names_what_is_not_run(tmp_path, kd_cache, capsys):
+    """``--cached`` computes nothing: the points in the cache fill their cells, the others show
+    as not run, are counted in the header and listed by sweep under the cost; the cluster
+    bound is the measured job times' arithmetic."""
+    d = make_plan(tmp_path)
+    cache, page = tmp_path / "cache", tmp_path / "docs" / "results.md"
+    chip = precache(d / "rtcs.toml", cache)
+    rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page.parent), "--work",
+                       str(tmp_path / "work"), "--cache", str(cache), "--cached",
+                       "--kd-cache", str(kd_cache)])
+    out = capsys.readouterr().out
+    assert rc == 1 and "; 0 point(s) computed, 0 failed" in out, out
+    text = page.read_text()
+    # the rtcs points are found wherever another sweep has the same point (the int-cache's
+    # 144 KB, 4 chips and the office case (d) are its 4-RTC point)
+    code = sweep.code_hash()
+    keys = [sweep.point_key(p, code) for k in ("rays", "raykinds", "rtcs", "intcache",
+                                               "raykinds_chip", "packets", "kddepth")
+            for p in sweep.load_spec(d / f"{k}.toml").points]
+    done = sum((cache / f"{k}.json").exists() for k in keys)
+    assert done == 5 and f"**Not complete: {done} of {len(keys)} points measured.**" in text
+    pend = text[text.index("**Points not run yet**"):]
+    assert f"- `{os.path.relpath(d / 'intcache.toml', ROOT)}`: " in pend
+    assert "`: cornell 16x16 int_cache_kb=144 mem_chips=8; cornell 16x16 int_cache_kb=576 mem_chips=4; " in pend
+    # Table 2 has the measured fps of every RTC count; Table 3 has none
+    t2 = table(text, "## Table 2")
+    assert t2[0][3:6] == [f"{chip[(n, 144, 4, 1, 3, True, 16)]['fps']:,.0f}" for n in (1, 2, 4)], t2
+    # Table 3 has the one measured point (the 4-RTC frame) and no column of the others
+    t3 = text[text.index("## Table 3"):text.index("## Table 6")]
+    assert "| bandwidth | 144 KB | paper 144 KB |" in t3 and "576" not in t3
+
+
+def test_kept_cache_names_no_machine_path(tmp_path):
+    """A point's cached JSON names a scene of the checkout by its path in it; the page's kept
+    points (``scenes/sweeps/results/cache``) hold no absolute path."""
+    s = sweep.load_spec(spec(tmp_path / "s.toml", "model", ""))
+    p = s.points[0]
+    sweep._cache_write(tmp_path / "k.json", "k", p, {"status": "ok", "stats": {}})
+    assert json.loads((tmp_path / "k.json").read_text())["point"]["scene_path"] == "scenes/cornell.toml"
+    for f in results.CACHE.glob("*.json"):
+        d = json.loads(f.read_text())
+        assert d["key"] == f.stem and not Path(d["point"]["scene_path"]).is_absolute(), f
+        assert str(ROOT) not in f.read_text(), f
