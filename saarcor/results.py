@@ -167,9 +167,13 @@ def cached_rows(spec: sw.Spec, cache: Path) -> tuple[list[dict], list[str]]:
 
 
 def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: bool,
-             scaling: bool, kd_cache: str = "default", log=None, compute: bool = True) -> Run:
-    """Every sweep of ``plan`` on one local cluster (only if a point is not cached); with
-    ``compute`` false only the points in ``cache``, the others listed in ``Run.pending``."""
+             scaling: bool, kd_cache: str = "default", log=None, compute: bool = True,
+             cluster_kind: str = "local", cluster_options: tuple = (),
+             scheduler: str | None = None) -> Run:
+    """Every sweep of ``plan`` on one Dask cluster (only if a point is not cached): local
+    worker processes, a batch system's (``cluster_kind`` and ``cluster_options`` as
+    ``saarcor sweep --cluster``), or a running ``scheduler``; with ``compute`` false only the
+    points in ``cache``, the others listed in ``Run.pending``."""
     log = sys.stdout if log is None else log
     run = Run()
     code = sw.code_hash()
@@ -190,11 +194,19 @@ def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: b
     client = cluster = None
     try:
         if todo:
-            from distributed import Client, LocalCluster
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1,
-                                   dashboard_address=":0")
-            client = Client(cluster)
-            print(f"results: {todo} point(s) to compute on {workers} worker(s); Dask "
+            from distributed import Client
+            if scheduler:
+                client = Client(scheduler)
+                where = scheduler
+            else:
+                opts = list(cluster_options)
+                if cluster_kind == "local" and not any(o.startswith("dashboard_address=")
+                                                       for o in opts):
+                    opts.append("dashboard_address=:0")
+                cluster = sw.make_cluster(cluster_kind, workers, opts)
+                client = Client(cluster)
+                where = f"{workers} {cluster_kind} worker(s)"
+            print(f"results: {todo} point(s) to compute on {where}; Dask "
                   f"dashboard at {client.dashboard_link}", file=log, flush=True)
         for k, spec in specs.items():
             t0 = time.perf_counter()
@@ -1351,7 +1363,18 @@ def build_parser() -> argparse.ArgumentParser:
                          "others shown as not run and listed under the page's cost (the "
                          "threads bench and the scaling timing as kept in WORK)")
     ap.add_argument("--workers", type=int, default=2, metavar="N",
-                    help="local Dask workers (default 2)")
+                    help="Dask workers: local processes, or batch jobs with --cluster "
+                         "(default 2)")
+    ap.add_argument("--cluster", default="local", metavar="KIND",
+                    help="where the points run, as `saarcor sweep --cluster`: local (default), "
+                         "slurm, pbs, sge, lsf, htcondor (dask-jobqueue) or module:Class; the "
+                         "threads bench and the scaling timing always run here")
+    ap.add_argument("--cluster-option", action="append", default=[], metavar="KEY=VALUE",
+                    help="a keyword argument of the cluster class, e.g. walltime=12:00:00 "
+                         "(repeatable; docs/sweep.md)")
+    ap.add_argument("--scheduler", metavar="ADDR",
+                    help="use a running Dask scheduler (tcp://host:8786) instead of starting "
+                         "a cluster")
     add_kd_cache_arg(ap)
     ap.add_argument("--skip-threads", action="store_true",
                     help="no threads bench: the page shows the one kept in WORK/threads.json "
@@ -1364,6 +1387,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    if args.workers < 1:
+        raise SystemExit("results: --workers must be >= 1")
     t0 = time.perf_counter()
     load0 = os.getloadavg()[0]
     commit = _commit()          # before the page and its plots change the checkout
@@ -1373,7 +1398,8 @@ def main(argv=None) -> int:
         run = run_plan(plan, workers=args.workers, cache=Path(args.cache),
                        out_dir=Path(args.work), threads=not args.skip_threads,
                        scaling=not args.skip_scaling, kd_cache=args.kd_cache,
-                       compute=not args.cached)
+                       compute=not args.cached, cluster_kind=args.cluster,
+                       cluster_options=tuple(args.cluster_option), scheduler=args.scheduler)
     except (ResultsError, sw.SpecError) as e:
         raise SystemExit(f"results: {e}")
     w = write_page(plan, run, page, Path(args.img) if args.img else page.parent / "img",

@@ -218,9 +218,13 @@ def test_failed_point_leaves_a_gap_and_fails(tmp_path, kd_cache, capsys):
     page = tmp_path / "results.md"
     rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page.parent), "--work",
                        str(tmp_path / "work"), "--cache", str(cache), "--workers", "1",
-                       "--skip-threads", "--skip-scaling", "--kd-cache", str(kd_cache)])
+                       "--skip-threads", "--skip-scaling", "--kd-cache", str(kd_cache),
+                       # a cluster class named as for a batch system, made and scaled to 1
+                       "--cluster", "distributed:LocalCluster", "--cluster-option",
+                       "n_workers=0", "--cluster-option", "threads_per_worker=1"])
     out = capsys.readouterr().out
     assert rc == 1 and re.search(r"1 failed point\(s\), [1-9]\d* empty cell", out), out
+    assert "on 1 distributed:LocalCluster worker(s)" in out
     rows = table(page.read_text(), "## The scenes")
     assert rows[1][0] == "`nowhere`" and rows[1][1] == "—"
 
