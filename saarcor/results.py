@@ -354,6 +354,41 @@ def _chip_name(rows) -> str:
     return "the paper preset" if paper else "the standard chip"
 
 
+def _chip_text(rows) -> str:
+    """The chip's figures that every row of ``rows`` shares: threads, sub-units, the caches
+    and their topology, SDRAM chips and bandwidth, clock."""
+    ok = [r for r in rows if r.get("status") == "ok"] or list(rows)
+    if not ok:
+        return ""
+
+    def same(k):
+        vals = {str(r.get(k)) for r in ok}
+        return ok[0].get(k) if len(vals) == 1 else None
+    out = []
+    if same("threads") is not None:
+        out.append(f"{same('threads')} threads")
+    if same("trav_subunits") is not None:
+        out.append(f"{same('trav_subunits')} traversal sub-units")
+    kb = [same(f"{u}_cache_kb") for u in ("trav", "list", "int")]
+    if all(k is not None for k in kb):
+        ways = same("cache_ways")
+        assoc = ("direct-mapped" if str(ways) == "1" else
+                 f"{ways}-way" if ways is not None else "")
+        topo = same("cache_topology")
+        where = (" shared by all RTCs" if topo == "shared" else
+                 " in every RTC" if topo == "private" else "")
+        out.append(f"{assoc} caches of {'/'.join(str(k) for k in kb)} KB{where}".strip())
+    chips, mhz = same("mem_chips"), same("clock_mhz")
+    if chips is not None and mhz is not None:
+        bits, ratio = same("mem_chip_bits"), same("mem_clock_ratio")
+        gbs = (f" = {int(chips) * int(bits) / 8 * float(mhz) / int(ratio) / 1e3:.2f} GB/s"
+               if bits is not None and ratio is not None else "")
+        out.append(f"{chips} SDRAM chips{gbs}")
+    if mhz is not None:
+        out.append(f"{float(mhz):.0f} MHz")
+    return ", ".join(out)
+
+
 def _cap(text: str) -> str:
     return text[:1].upper() + text[1:]
 
@@ -599,6 +634,9 @@ paper's columns are for 1024×768.
             fig_data[ours] = (paper, mr, pr)
         res = _res(rows)
         frac = _frac(rows)
+        frac_text = ("" if all(_frame(r) == (1024, 768) for r in rows) else
+                     f"; a frame of {frac} of the paper's pixels (a smaller one starts with "
+                     "cold caches for more of its rays)")
         kinds = rays_text(rows)
         plt = _plt()
         fig, ax = plt.subplots(1, 2, figsize=(11, 4))
@@ -619,11 +657,9 @@ paper's columns are for 1024×768.
         self.add(f"""
 ## Table 2: frames per second with 1, 2 and 4 RTCs
 
-{_cap(_chip_name(rows))} (16 threads, 4 traversal sub-units, caches 64/64/144 KB, 4 SDRAM chips =
-1 GB/s, 533 MHz{_preset_text(rows)}) with 1, 2 and 4 RTCs. **Chip columns: measured, {kinds}**, one frame at
+{_cap(_chip_name(rows))} ({_chip_text(rows)}{_preset_text(rows)}) with 1, 2 and 4 RTCs. **Chip columns: measured, {kinds}**, one frame at
 {res} through the whole chip in Verilator (`{self._spec('rtcs')}`), every ray checked against
-the golden model; a frame this small has {frac} of the paper's pixels and starts with cold
-caches. *Rays* counts every ray of the chip's frame (eye, shadow and reflection), *secondary*
+the golden model{frac_text}. *Rays* counts every ray of the chip's frame (eye, shadow and reflection), *secondary*
 the share of shadow and reflection rays. Frames of different sizes compare by rays per second
 (M rays/s = fps × rays per frame), the paper's by its rays at 1024×768.
 
@@ -803,7 +839,7 @@ rays in those ideal cycles. {chip_text} Paper: Office, 4 RTCs, 1024×768.
         self.add(f"""
 ## Table 6: cache hit rates with and without oversampling
 
-`{scene}`, {_chip_name(chip)} (4 RTCs, 64/64/144 KB direct-mapped caches), through the chip
+`{scene}`, {_chip_name(chip)} (4 RTCs, {_chip_text(chip)}), through the chip
 (`{self._spec(ckey)}`): eye rays, {_os_text(eye_row, os_row)}.{alltext}
 Paper: Office, 1024×768, all rays.
 

@@ -433,3 +433,17 @@ def test_kept_cache_names_no_machine_path(tmp_path):
         d = json.loads(f.read_text())
         assert d["key"] == f.stem and not Path(d["point"]["scene_path"]).is_absolute(), f
         assert str(ROOT) not in f.read_text(), f
+
+
+def test_chip_text_from_the_rows():
+    """A caption names the chip its rows ran: the figures they share, the caches' topology and
+    ways, the SDRAM bandwidth from its chips, width and clock."""
+    row = dict(status="ok", threads=16, trav_subunits=4, trav_cache_kb=64, list_cache_kb=64, int_cache_kb=144,
+               cache_ways=1, cache_topology="shared", mem_chips=4, mem_chip_bits=16,
+               clock_mhz=533.0, mem_clock_ratio=4)
+    assert results._chip_text([row]) == ("16 threads, 4 traversal sub-units, direct-mapped caches "
+                                         "of 64/64/144 KB shared by all RTCs, 4 SDRAM chips = "
+                                         "1.07 GB/s, 533 MHz")
+    two = dict(row, cache_ways=2, cache_topology="private", threads=8)
+    t = results._chip_text([two, dict(two, threads=32)])
+    assert t.startswith("4 traversal sub-units, 2-way caches of 64/64/144 KB in every RTC")
