@@ -389,6 +389,14 @@ def _chip_text(rows) -> str:
     return ", ".join(out)
 
 
+def _why(row) -> str:
+    """A chip row's ideal bound and its measured limit: "int-ops; slave-pool-bound"."""
+    if not row:
+        return ""
+    parts = [str(x) for x in (row.get("bound"), row.get("limiter.limit")) if x not in (None, "")]
+    return "; ".join(parts)
+
+
 def _cap(text: str) -> str:
     return text[:1].upper() + text[1:]
 
@@ -626,7 +634,7 @@ paper's columns are for 1024×768.
                          f"{PAPER_SCENES[paper][3]:,}",
                          *[f"{x:.2f}" for x in PAPER_FPS[paper]]])
             rel = [_num(p, "relative_performance") for p in pts]
-            bound = [p.get("bound") if p else None for p in pts]
+            bound = [_why(p) for p in pts]
             rel_body.append([f"`{ours}` ({paper})",
                              *[(self.pcell(x) + (f" ({b})" if b else "")) if q else "not run"
                                for x, b, q in zip(rel, bound, planned)],
@@ -673,7 +681,10 @@ the share of shadow and reflection rays. Frames of different sizes compare by ra
 
 Measured fps over the ideal fps of the same frame's operation counts (chip,
 {rays_text(rows, short=True)}, {res});
-in brackets the kind of unit the ideal is bound by. Paper: 1024×768, all rays.
+in brackets the kind of unit the ideal is bound by, then what limited the frame as the chip's
+counters measured it (`saarcor sim`'s limiter: a unit kind busy most of the cycles, the RGS
+slaves' FP pool, memory bandwidth, the bus, memory latency, back-pressure or starvation;
+`docs/chip.md`). Paper: 1024×768, all rays.
 
 """ + _md_table(["scene", "1 RTC", "2 RTCs", "4 RTCs", "paper 1 RTC", "2", "4"], rel_body))
 
@@ -1165,8 +1176,12 @@ chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(
             f = [_num(_one(rows, scene=ours, rtcs=n), "fps") for n in (1, 4)]
             if all(f) and cls in PAPER_FPS:
                 paper = PAPER_FPS[cls][2] / PAPER_FPS[cls][0]
+                v = verdict(f[1] / f[0], paper)
+                lim = _one(rows, scene=ours, rtcs=4) or {}
+                why = (f"; 4 RTCs {lim['limiter.limit']}" if "differs" in v
+                       and lim.get("limiter.limit") else "")
                 sp.append(f"`{ours}` {f[1] / f[0]:.2f}× (paper, {cls}: {paper:.2f}×, "
-                          f"{verdict(f[1] / f[0], paper)})")
+                          f"{v}{why})")
         if sp:
             items.append(f"*Performance scales almost linearly with the RTCs, except where "
                          f"memory bounds it* (Table 2, 1 to 4 RTCs). Ours, "

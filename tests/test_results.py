@@ -47,7 +47,8 @@ def fake_chip_stats(cfg: Config, eye: int) -> dict:
                       for k, h, w in (("trav", 0.8, 300), ("list", 0.7, 100), ("int", 0.9, 600))},
             "units": {"per_rtc": per_rtc},
             "memory": {"per_chip": [{"share": 1 / cfg.mem_chips}] * cfg.mem_chips},
-            "bus": {"words_per_cycle": 0.1}}
+            "bus": {"words_per_cycle": 0.1},
+            "limiter": {"limit": f"limit-of-{cfg.rtcs}", "why": "made up"}}
 
 
 def precache(spec_path, cache):
@@ -142,7 +143,8 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     assert "**Chip columns: measured, all the rays each scene has (eye rays, a shadow" in t2
     assert "estimate" not in t2
     rel = table(text, "## Table 4")[0]
-    assert rel[3].startswith(f"{100 * allr[4]['relative_performance']:.1f} %")
+    assert rel[3] == (f"{100 * allr[4]['relative_performance']:.1f} % "
+                      f"({allr[4]['bound']}; limit-of-4)")
     # Table 3: 2 bandwidths x 2 int-cache sizes
     t3 = table(text, "## Table 3")
     assert len(t3) == 2 and t3[1][2].startswith(f"{chip[(4, 576, 8, 1, 3, True, 16)]['fps']:,.0f} (")
