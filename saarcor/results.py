@@ -152,6 +152,21 @@ def point_text(p: sw.Point, spec: sw.Spec) -> str:
     return base + "".join(f" {k}={v}" for k, v in vary.items())
 
 
+def add_limits(rows: list[dict], cache: Path) -> None:
+    """Each chip row gets its frame's measured limit (``limiter.limit``, ``limiter.why``:
+    :func:`saarcor.sim.limiter` on the point's cached stats, the rule `saarcor sim` prints)."""
+    from saarcor.sim import limiter
+    for r in rows:
+        if r.get("backend") != "chip" or r.get("status") != "ok" or r.get("limiter.limit"):
+            continue
+        hit = sw._cache_read(cache / f"{r['key']}.json")
+        try:
+            lim = limiter(hit["stats"])
+        except (TypeError, KeyError, ValueError):
+            continue
+        r["limiter.limit"], r["limiter.why"] = lim["limit"], lim["why"]
+
+
 def cached_rows(spec: sw.Spec, cache: Path) -> tuple[list[dict], list[str]]:
     """The rows of ``spec``'s points found in ``cache``, and the points not found."""
     code = sw.code_hash()
@@ -163,6 +178,7 @@ def cached_rows(spec: sw.Spec, cache: Path) -> tuple[list[dict], list[str]]:
             pending.append(point_text(p, spec))
         else:
             rows.append(sw.point_row(p, k, hit))
+    add_limits(rows, cache)
     return rows, pending
 
 
@@ -214,6 +230,7 @@ def run_plan(plan: Plan, *, workers: int, cache: Path, out_dir: Path, threads: b
                                progress=False, log=log, kd_cache=kd_cache)
             run.seconds[k] = time.perf_counter() - t0
             run.rows[k], run.specs[k] = res["rows"], spec
+            add_limits(run.rows[k], cache)
             run.failed += res["failed"]
             run.computed += res["computed"]
             print(f"results: {spec.name}: {res['points']} points, {res['cached']} cached, "

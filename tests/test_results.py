@@ -449,3 +449,22 @@ def test_chip_text_from_the_rows():
     two = dict(row, cache_ways=2, cache_topology="private", threads=8)
     t = results._chip_text([two, dict(two, threads=32)])
     assert t.startswith("4 traversal sub-units, 2-way caches of 64/64/144 KB in every RTC")
+
+
+def test_limits_from_the_cached_stats(tmp_path):
+    """A chip row without a limiter gets the one `saarcor sim` computes from the point's
+    cached counters; a model row gets none."""
+    from saarcor.sim import limiter
+    stats = {"stalls": {"trav": {"work": 0.95, "memory": 0.01, "blocked": 0.02, "starved": 0.02},
+                        "list": {"work": 0.2, "memory": 0.5, "blocked": 0.1, "starved": 0.2},
+                        "int": {"work": 0.3, "memory": 0.1, "blocked": 0.5, "starved": 0.1}},
+             "config": {"rtcs": 4}}
+    s = sweep.load_spec(spec(tmp_path / "s.toml", "chip", ""))
+    sweep._cache_write(tmp_path / "k.json", "k", s.points[0], {"status": "ok", "stats": stats})
+    rows = [{"backend": "chip", "status": "ok", "key": "k"},
+            {"backend": "model", "status": "ok", "key": "k"}]
+    results.add_limits(rows, tmp_path)
+    want = limiter(stats)
+    assert want["limit"] == "trav-bound"
+    assert (rows[0]["limiter.limit"], rows[0]["limiter.why"]) == (want["limit"], want["why"])
+    assert "limiter.limit" not in rows[1]
