@@ -115,10 +115,11 @@ sweep: setup
 .PHONY: sweep
 
 ## make results: docs/results.md and docs/img/results_*.png, the paper's Section 5 tables beside
-##   ours, from the sweeps of scenes/sweeps/results/plan.toml (every point cached; the chip's
-##   Verilator binaries are built once per configuration). RESULTS_ARGS="--skip-threads"
-##   The chip frames are the paper's 1024x768 on the paper preset: a frame of the office takes
-##   about 27 minutes here, so the whole plan is a cluster's job (docs/sweep.md: --cluster slurm)
+##   ours, from the sweeps of scenes/sweeps/results/plan.toml (every point kept in
+##   scenes/sweeps/results/cache; the chip's Verilator binaries are built once per configuration).
+##   The chip frames are the paper's 1024x768 on the paper preset, about half an hour each here,
+##   so the whole plan is a cluster's job (docs/sweep.md). RESULTS_ARGS="--cached" writes the
+##   page from the kept points alone; "--cluster slurm --workers 32" runs the rest on SLURM
 RESULTS_ARGS ?=
 results: setup
 	nice -n 10 $(SAARCOR) results $(RESULTS_ARGS)
