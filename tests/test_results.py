@@ -32,10 +32,11 @@ def fake_chip_stats(cfg: Config, eye: int) -> dict:
     """Plausible figures of a chip frame of ``eye`` eye rays and the shadow (3 lights) and
     reflection rays its configuration asks for, different for every configuration."""
     kinds = {"eye": eye, "shadow": 3 * eye if cfg.shadows else 0,
-             "reflection": eye // 8 if cfg.reflect_depth else 0}
+             "reflection": eye // 8 if cfg.reflect_depth else 0,
+             "refraction": eye // 16 if cfg.reflect_depth and cfg.refraction else 0}
     rays = sum(kinds.values())
     cycles = 40_000 // cfg.rtcs + 9_000 * 144 // cfg.int_cache_kb + 3_000 * 4 // cfg.mem_chips
-    cycles = cycles * rays // 256 + 7 * cfg.reflect_depth
+    cycles = cycles * rays // 256 + 7 * cfg.reflect_depth + 5 * cfg.refraction
     trav, inter = 30 * rays, 6 * rays
     per_rtc = [{"trav": 0.5 + 0.01 * r, "trav_subunits": 0.4, "list": 0.3, "int": 0.6}
                for r in range(cfg.rtcs)]
@@ -87,11 +88,15 @@ def make_plan(tmp_path, scenes=(CORNELL,)):
          "[[point]]\ntile_w = 1\ntile_h = 1\ntrav_subunits = 1\n"
          "[[point]]\ntile_w = 8\ntile_h = 8\n", "32x32")
     spec(d / "kddepth.toml", "model", "[grid]\nkd_max_depth = [3, 16]\n")
+    spec(d / "refraction.toml", "chip", "[config]\nshadows = false\n" + "".join(
+        f"[[point]]\nreflect_depth = {r}\nrefraction = {f}\n"
+        for r, f in ((3, "true"), (0, "false"), (3, "false"))), "16x16")
     classes = "".join(f'{s.stem} = "{p}"\n' for s, p in zip(scenes, ("Quake3", "Sodahall")))
     (d / "plan.toml").write_text(
         f'title = "tiny"\nusage_scene = "cornell"\n[class]\n{classes}[sweeps]\n'
         'rays = "rays.toml"\nrtcs = "rtcs.toml"\nintcache = "intcache.toml"\n'
         f'raykinds = "raykinds.toml"\nraykinds_chip = "raykinds_chip.toml"\n'
+        'refraction = "refraction.toml"\n'
         'packets = "packets.toml"\nkddepth = "kddepth.toml"\n'
         f'scaling = "{TINY}"\n[threads]\nscene = "{CORNELL}"\nres = "16x16"\n'
         'counts = [1, 8]\n')
@@ -120,7 +125,7 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     d = make_plan(tmp_path)
     cache, work, page = tmp_path / "cache", tmp_path / "work", tmp_path / "docs" / "results.md"
     chip = {}
-    for name in ("rtcs", "intcache", "raykinds_chip"):
+    for name in ("rtcs", "intcache", "raykinds_chip", "refraction"):
         chip.update(precache(d / f"{name}.toml", cache))
     rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page.parent), "--work",
                        str(work), "--cache", str(cache), "--workers", "1", "--skip-threads",
@@ -161,6 +166,20 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     for i, k in enumerate("abcde"):
         assert t5[i][7:10] == [f"{ch[k]['rays_total']:,}", f"{ch[k]['fps']:,.0f}",
                                f"{ch[k]['cycles'] / ch['a']['cycles']:.2f}×"], (k, t5[i])
+    # refraction: each case found by its fields, its cost a ray against (a)'s
+    rf = {}
+    for p in sweep.load_spec(d / "refraction.toml").points:
+        st = json.loads((cache / f"{sweep.point_key(p, sweep.code_hash())}.json").read_text())
+        rf[(p.cfg().reflect_depth, p.cfg().refraction)] = st["stats"]
+    t = table(text, "### Refraction")
+    a, c = rf[(0, False)], rf[(3, True)]
+    assert [r[0][:3] for r in t] == ["(a)", "(b)", "(c)"]
+    assert t[2][1:5] == [f"{c['rays_total']:,}", f"{c['rays']['reflection']:,}",
+                         f"{c['rays']['refraction']:,}", f"{c['cycles']:,}"]
+    x = (c["cycles"] / a["cycles"]) / (c["rays_total"] / a["rays_total"])
+    assert t[2][8] == f"{x:.2f}" and t[1][3] == "0"
+    assert (f"{x:.2f} a ray — **{'holds' if abs(x / (4.5 / 4.9) - 1) <= 0.15 else 'differs'}**"
+            in text[text.index("*... also for refracted rays*"):])
     # Table 6: hit rates of eye rays without and with oversampling, and of all rays
     t6 = table(text, "## Table 6")
     assert t6[2][1:4] == [f"{100 * ch[k]['cache']['int']['hit_rate']:.1f} %" for k in "aed"]
@@ -215,7 +234,7 @@ def test_failed_point_leaves_a_gap_and_fails(tmp_path, kd_cache, capsys):
     missing = tmp_path / "nowhere.toml"
     d = make_plan(tmp_path, scenes=(CORNELL, missing))
     cache = tmp_path / "cache"
-    for name in ("rtcs", "intcache", "raykinds_chip"):
+    for name in ("rtcs", "intcache", "raykinds_chip", "refraction"):
         precache(d / f"{name}.toml", cache)
     page = tmp_path / "results.md"
     rc = results.main(["--plan", str(d / "plan.toml"), "--out", str(page.parent), "--work",
@@ -284,6 +303,10 @@ def test_shipped_plan_and_its_specs_load():
     for p in specs["intcache"].points:
         assert Path(p.scene_path).stem == "ship" and p.cfg().rtcs == 4 and p.cfg().reflect_depth == 0
     assert "Four RTCs, as in the paper" in plan.notes["intcache"]
+    # refraction: the glass scene, the same 4-RTC chip with and without refracted rays
+    rf = {(p.cfg().reflect_depth, p.cfg().refraction) for p in specs["refraction"].points}
+    assert rf == {(0, False), (3, False), (3, True)}
+    assert {Path(p.scene_path).stem for p in specs["refraction"].points} == {"glass"}
     paper = lambda c: (c.int_test == "projection" and c.rgs_fp_pool and
                        c.trav_stack == "one_value")
     for k, s in specs.items():
@@ -409,7 +432,8 @@ def test_cached_page_names_what_is_not_run(tmp_path, kd_cache, capsys):
     # 144 KB, 4 chips and the office case (d) are its 4-RTC point)
     code = sweep.code_hash()
     keys = [sweep.point_key(p, code) for k in ("rays", "raykinds", "rtcs", "intcache",
-                                               "raykinds_chip", "packets", "kddepth")
+                                               "raykinds_chip", "packets", "kddepth",
+                                               "refraction")
             for p in sweep.load_spec(d / f"{k}.toml").points]
     done = sum((cache / f"{k}.json").exists() for k in keys)
     assert done == 5 and f"**Not complete: {done} of {len(keys)} points measured.**" in text
