@@ -437,9 +437,11 @@ def test_cached_page_names_what_is_not_run(tmp_path, kd_cache, capsys):
             for p in sweep.load_spec(d / f"{k}.toml").points]
     done = sum((cache / f"{k}.json").exists() for k in keys)
     assert done == 5 and f"**Not complete: {done} of {len(keys)} points measured.**" in text
+    # the cost counts a point once however many sweeps share it
+    assert "the sum over its 3 distinct points" in " ".join(text.split())
     pend = text[text.index("**Points not run yet**"):]
     assert f"- `{os.path.relpath(d / 'intcache.toml', ROOT)}`: " in pend
-    assert "`: cornell 16x16 int_cache_kb=144 mem_chips=8; cornell 16x16 int_cache_kb=576 mem_chips=4; " in pend
+    assert "`: cornell 16x16 mem_chips=8 int_cache_kb=144; cornell 16x16 mem_chips=4 int_cache_kb=576; " in pend
     # Table 2 has the measured fps of every RTC count; Table 3 has none
     t2 = table(text, "## Table 2")
     assert t2[0][3:6] == [f"{chip[(n, 144, 4, 1, 3, True, 16)]['fps']:,.0f}" for n in (1, 2, 4)], t2
