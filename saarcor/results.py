@@ -923,7 +923,8 @@ its kinds together).
             base = next((_num(r, "cycles") for r in rows if int(r["threads"]) == 1), None)
             return "chip", [{"threads": int(r["threads"]), "cycles": int(_num(r, "cycles")),
                              "speedup": base / _num(r, "cycles") if base else None,
-                             "rel": _num(r, "relative_performance"), "bound": r.get("bound")}
+                             "rel": _num(r, "relative_performance"), "bound": _why(r),
+                             "limit": r.get("limiter.limit")}
                             for r in rows]
         t = self.run.threads
         if t:
@@ -1318,6 +1319,9 @@ chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(
                 got += ("; " if got else "") + (
                     f"32 threads {100 * rel32:.0f} % relative performance (paper 80–90 %, "
                     f"against its middle {100 * mid:.0f} %: {verdict(rel32, mid)})")
+            top = runs[-1]
+            if got and "differs" in got and top.get("limit"):
+                got += f"; what limits {top['threads']} threads: {top['limit']}"
             if got:
                 items.append(f"*Multi-threading hides memory latency*. Ours ({where}): {got}.")
         if items:
