@@ -641,7 +641,7 @@ paper's columns are for 1024×768.
             body.append([f"`{ours}` ({paper})",
                          self.cell(n_rays, "{:,.0f}"),
                          self.cell(n_rays and n_sec is not None and n_sec / n_rays, "{:.0%}"),
-                         *[self.cell(x, "{:,.0f}", q) for x, q in zip(fps, planned)],
+                         *[self.cell(x, "{:,.2f}", q) for x, q in zip(fps, planned)],
                          *[self.cell(x, "{:.1f}", q) for x, q in zip(mr, planned)],
                          *[f"{x:.1f}" for x in pr],
                          f"{PAPER_SCENES[paper][3]:,}",
@@ -720,7 +720,7 @@ slaves' FP pool, memory bandwidth, the bus, memory latency, back-pressure or sta
             rel = [f / base if f and base else None for f in fps]
             gbs = Config(mem_chips=c).mem_bytes_per_s / 1e9
             body.append([f"{gbs:.2f} GB/s ({c} SDRAM chips)",
-                         *[f"{self.cell(f, '{:,.0f}')} ({self.cell(r, '{:.2f}')}×, int hit "
+                         *[f"{self.cell(f, '{:,.2f}')} ({self.cell(r, '{:.2f}')}×, int hit "
                            f"{self.pcell(h)})" for f, r, h in zip(fps, rel, hit)],
                          *[f"{PAPER_T3.get((k, c), float('nan')):.2f} "
                            f"({PAPER_T3.get((k, c), float('nan')) / PAPER_T3[(144, 4)]:.2f}×)"
@@ -789,7 +789,7 @@ chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 4 RTCs, 102
                          self.cell(_num(r, "counters.int_ops"), "{:,.0f}"),
                          self.cell(ideal, "{:,.0f}"), self.cell(cost, "{:.2f}×"),
                          self.cell(_num(c, "rays_total"), "{:,.0f}", want),
-                         self.cell(measured, "{:,.0f}", want),
+                         self.cell(measured, "{:,.2f}", want),
                          self.cell(meas_cost, "{:.2f}×", want),
                          self.cell(_num(c, "relative_performance") and
                                    100 * _num(c, "relative_performance"), "{:.1f} %", want),

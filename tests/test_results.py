@@ -143,7 +143,7 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     row = table(text, "## Table 2")[0]
     sec = allr[4]["rays"]["shadow"] + allr[4]["rays"]["reflection"]
     assert row[1:3] == [f"{allr[4]['rays_total']:,}", f"{sec / allr[4]['rays_total']:.0%}"]
-    assert row[3:6] == [f"{allr[n]['fps']:,.0f}" for n in (1, 2, 4)]
+    assert row[3:6] == [f"{allr[n]['fps']:,.2f}" for n in (1, 2, 4)]
     t2 = text[text.index("## Table 2"):text.index("## Table 4")]
     assert "**Chip columns: measured, all the rays each scene has (eye rays, a shadow" in t2
     assert "estimate" not in t2
@@ -152,7 +152,7 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
                       f"({allr[4]['bound']}; limit-of-4)")
     # Table 3: 2 bandwidths x 2 int-cache sizes
     t3 = table(text, "## Table 3")
-    assert len(t3) == 2 and t3[1][2].startswith(f"{chip[(4, 576, 8, 1, 3, True, 16)]['fps']:,.0f} (")
+    assert len(t3) == 2 and t3[1][2].startswith(f"{chip[(4, 576, 8, 1, 3, True, 16)]['fps']:,.2f} (")
     # Table 5: the model's ops of each ray kind; the chip's eye-ray frames
     kinds = {(r["reflect_depth"], r["shadows"], r["oversampling"]): r
              for r in read_csv(work / "raykinds" / "results.csv")}
@@ -164,7 +164,7 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
             "e": (0, False, 32)}
     ch = {k: chip[(4, 144, 4, 1, *v)] for k, v in case.items()}
     for i, k in enumerate("abcde"):
-        assert t5[i][7:10] == [f"{ch[k]['rays_total']:,}", f"{ch[k]['fps']:,.0f}",
+        assert t5[i][7:10] == [f"{ch[k]['rays_total']:,}", f"{ch[k]['fps']:,.2f}",
                                f"{ch[k]['cycles'] / ch['a']['cycles']:.2f}×"], (k, t5[i])
     # refraction: each case found by its fields, its cost a ray against (a)'s
     rf = {}
@@ -444,7 +444,7 @@ def test_cached_page_names_what_is_not_run(tmp_path, kd_cache, capsys):
     assert "`: cornell 16x16 mem_chips=8 int_cache_kb=144; cornell 16x16 mem_chips=4 int_cache_kb=576; " in pend
     # Table 2 has the measured fps of every RTC count; Table 3 has none
     t2 = table(text, "## Table 2")
-    assert t2[0][3:6] == [f"{chip[(n, 144, 4, 1, 3, True, 16)]['fps']:,.0f}" for n in (1, 2, 4)], t2
+    assert t2[0][3:6] == [f"{chip[(n, 144, 4, 1, 3, True, 16)]['fps']:,.2f}" for n in (1, 2, 4)], t2
     # Table 3 has the one measured point (the 4-RTC frame) and no column of the others
     t3 = text[text.index("## Table 3"):text.index("## Table 6")]
     assert "| bandwidth | 144 KB | paper 144 KB |" in t3 and "576" not in t3
