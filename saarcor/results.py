@@ -592,6 +592,14 @@ class Writer:
     def add(self, text: str):
         self.parts.append(text.strip("\n") + "\n")
 
+    def not_yet(self, key: str, heading: str) -> None:
+        """A section whose sweep has no point measured yet: its heading and how many are
+        pending (listed in the last section), so the page shows what it will hold."""
+        n = len(self.run.pending.get(key, []))
+        if n:
+            self.add(f"{heading}\n\n*Not measured yet*: the {n} point(s) of "
+                     f"`{self._spec(key)}` are listed under the page's cost.")
+
     # -- the scene classes ---------------------------------------------------------------------
     def scenes(self):
         rows = self.run.rows.get("rays", [])
@@ -707,6 +715,7 @@ slaves' FP pool, memory bandwidth, the bus, memory latency, back-pressure or sta
         if not rows:
             if "intcache" not in self.plan.sweeps and self.plan.notes.get("intcache"):
                 self.add("## Table 3: int-cache size and memory bandwidth" + self.note("intcache"))
+            self.not_yet("intcache", "## Table 3: int-cache size and memory bandwidth")
             return
         scene = _stem(rows[0])
         kbs = sorted({int(r["int_cache_kb"]) for r in rows})
@@ -876,6 +885,7 @@ Paper: Office, 1024×768, all rays.
         rows = self.run.rows.get("refraction", [])
         ok = [r for r in rows if r.get("status") == "ok"]
         if not rows:
+            self.not_yet("refraction", "### Refraction")
             return
         cases = [("(a) eye rays", 0, False), ("(b) eye + reflections (depth 3)", 3, False),
                  ("(c) eye + reflections + refractions (depth 3)", 3, True)]
@@ -937,6 +947,7 @@ its kinds together).
             return self._threads_chip(runs)
         t = self.run.threads
         if not t:
+            self.not_yet("threads", "## Threads: speed-up over one thread")
             return
         runs = t["runs"]
         body = [[r["threads"], f"{r['cycles']:,}", _f(r["speedup"]),
@@ -1087,6 +1098,9 @@ as three): the least cost is {least}.
         scene = self.plan.usage_scene
         r = _one(rows, scene=scene, rtcs=4) if scene else None
         if r is None:
+            if scene and self.run.pending.get("rtcs"):
+                self.add(f"## Unit usage (the paper's Figure 5)\n\n*Not measured yet*: "
+                         f"`{scene}` on 4 RTCs, a point of `{self._spec('rtcs')}`.")
             return
         plt = _plt()
         fig, ax = plt.subplots(1, 5, figsize=(16, 3.2))

@@ -437,6 +437,8 @@ def test_cached_page_names_what_is_not_run(tmp_path, kd_cache, capsys):
             for p in sweep.load_spec(d / f"{k}.toml").points]
     done = sum((cache / f"{k}.json").exists() for k in keys)
     assert done == 5 and f"**Not complete: {done} of {len(keys)} points measured.**" in text
+    # a section with no point yet shows its heading and what it waits for
+    assert "### Refraction\n\n*Not measured yet*: the 3 point(s) of `" in text
     # the cost counts a point once however many sweeps share it
     assert "the sum over its 3 distinct points" in " ".join(text.split())
     pend = text[text.index("**Points not run yet**"):]
