@@ -292,7 +292,7 @@ def test_table3_not_in_the_plan_says_why(tmp_path):
 
 def test_shipped_plan_and_its_specs_load():
     """The plan `make results` runs, and every sweep it names, parse; every chip sweep runs
-    the paper preset, at 1024x768 but the threads sweep; Table 3 is the ship's int-cache x
+    the paper preset, at 1024x768; Table 3 is the ship's int-cache x
     SDRAM-chip grid on 4 RTCs (eye rays), as its note says; the threads sweep is the paper
     preset's chip with 1 to 32 threads."""
     plan = results.load_plan(results.PLAN)
@@ -313,7 +313,7 @@ def test_shipped_plan_and_its_specs_load():
         if s.backend == "chip":
             got = [paper(p.cfg()) for p in s.points]
             assert all(got) or (k == "presets" and sorted(set(got)) == [False, True]), k
-            want = {(512, 384)} if k == "threads" else {(1024, 768)}
+            want = {(1024, 768)}
             assert {(p.width, p.height) for p in s.points if p.width <= 1024} == want, k
     # the threads section: the paper preset on its 4 RTCs with its caches and SDRAM, all rays
     from model.config import preset
