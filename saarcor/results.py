@@ -402,6 +402,12 @@ def _chip_text(rows) -> str:
     return ", ".join(out)
 
 
+def _grown(base, row) -> tuple[float, float]:
+    """``row``'s rays and cycles over ``base``'s (two chip frames)."""
+    return (_num(row, "rays_total") / _num(base, "rays_total"),
+            _num(row, "cycles") / _num(base, "cycles"))
+
+
 def _why(row) -> str:
     """A chip row's ideal bound and its measured limit: "int-ops; slave-pool-bound"."""
     if not row:
@@ -1283,8 +1289,7 @@ chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(
             found = chip_cases(self._chip_office()[1])
             ca, cd = found.get(CASES[0][0]), found.get(CASES[3][0])
             if ca and cd:          # measured on the chip
-                rr = _num(cd, "rays_total") / _num(ca, "rays_total")
-                cc = _num(cd, "cycles") / _num(ca, "cycles")
+                rr, cc = _grown(ca, cd)
                 items.append(f"*Cost is about linear in the rays, whatever their kind* (Table 5; "
                              f"paper: 4.9× the rays for 4.5× the cost, {paper_rc:.2f} a ray). "
                              f"Ours on the chip: {rr:.2f}× the rays for {cc:.2f}× the cycles, "
@@ -1304,8 +1309,7 @@ chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(
         ra = next((r for r in rf if int(r.get("reflect_depth") or 0) == 0), None)
         rc = next((r for r in rf if _true(r.get("refraction"))), None)
         if ra and rc:
-            rr = _num(rc, "rays_total") / _num(ra, "rays_total")
-            cc = _num(rc, "cycles") / _num(ra, "cycles")
+            rr, cc = _grown(ra, rc)
             items.append(f"*... also for refracted rays* (Section 5.3, not shown in the paper; "
                          f"its Table 5: {paper_rc:.2f} a ray). Ours on the chip, "
                          f"`{_stem(rc)}` with glass: {rr:.2f}× the rays for {cc:.2f}× the "
