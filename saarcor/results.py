@@ -1460,12 +1460,22 @@ counters equal the model's on every frame checked). Estimates are marked as such
 {self.plan.resolution_note}
 
 Code: commit {self.commit or _commit()}, code hash `{sw.code_hash()}` (the sources of `rtl/`,
-`model/`, `tb/` and `saarcor/` every point ran: its cache key). This run: {total_seconds / 60:.1f} minutes of wall time (load average {load[0]:.2f} /
-{load[1]:.2f} before / after, on a 2-core machine shared with other work);
-{sum(len(v) for v in self.run.rows.values())} sweep points (their own times when they were
-computed: the last section).
+`model/`, `tb/` and `saarcor/` every point ran: its cache key). {self.run_text(total_seconds, load)}
 """
         return head + "\n" + "\n".join(self.parts)
+
+    def run_text(self, total_seconds: float, load: tuple) -> str:
+        """What this run did: how many points it computed, in what wall time and load."""
+        points = sum(len(v) for v in self.run.rows.values())
+        where = (f"(load average {load[0]:.2f} / {load[1]:.2f} before / after, on a 2-core "
+                 f"machine shared with other work)")
+        if not self.run.computed:
+            return (f"This run computed no point: it read all {points} from the kept files "
+                    f"in {total_seconds:.0f} s {where}. Each point's own time, when it was "
+                    f"computed, is in the last section.")
+        return (f"This run: {total_seconds / 60:.1f} minutes of wall time {where}, "
+                f"{self.run.computed} of its {points} sweep points computed (each point's "
+                f"own time, when it was computed: the last section).")
 
 
 def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float,

@@ -133,6 +133,11 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     out = capsys.readouterr().out
     assert rc == 0, out
     text = page.read_text()
+    # the header says how many points this run computed: the model's (the chip's were cached)
+    ran = re.search(r"This run: [\d.]+ minutes of wall time \(load average [^)]*\), "
+                    r"(\d+) of its (\d+) sweep points computed", text)
+    computed = int(re.search(r"; (\d+) point\(s\) computed", out).group(1))
+    assert ran and int(ran.group(1)) == computed > 0 and int(ran.group(2)) > computed, ran
     cells = [c.strip() for l in text.splitlines() if l.startswith("|") for c in l.split("|")]
     assert "—" not in cells
     # Table 1: the golden model's own rays per frame
@@ -225,6 +230,7 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     assert "threads.json kept from an earlier run" in out
     assert "scaling.json kept from an earlier run" in out
     text = page.read_text()
+    assert "This run computed no point: it read all " in text
     assert len(table(text, "## Sweeps on more workers")) == 2
     assert table(text, "## Threads")[1][:3] == ["8", "1,500", "6.00"]
 
