@@ -1469,13 +1469,12 @@ Code: commit {self.commit or _commit()}, code hash `{sw.code_hash()}` (the sourc
         points = sum(len(v) for v in self.run.rows.values())
         where = (f"(load average {load[0]:.2f} / {load[1]:.2f} before / after, on a 2-core "
                  f"machine shared with other work)")
+        own = "Each point's own time, when it was computed, is in the last section."
         if not self.run.computed:
             return (f"This run computed no point: it read all {points} from the kept files "
-                    f"in {total_seconds:.0f} s {where}. Each point's own time, when it was "
-                    f"computed, is in the last section.")
+                    f"in {total_seconds:.0f} s {where}. {own}")
         return (f"This run: {total_seconds / 60:.1f} minutes of wall time {where}, "
-                f"{self.run.computed} of its {points} sweep points computed (each point's "
-                f"own time, when it was computed: the last section).")
+                f"{self.run.computed} of its {points} sweep points computed. {own}")
 
 
 def write_page(plan: Plan, run: Run, page: Path, img: Path, total_seconds: float,

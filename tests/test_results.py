@@ -135,7 +135,7 @@ def test_tiny_plan_fills_every_table(tmp_path, kd_cache, capsys):
     text = page.read_text()
     # the header says how many points this run computed: the model's (the chip's were cached)
     ran = re.search(r"This run: [\d.]+ minutes of wall time \(load average [^)]*\), "
-                    r"(\d+) of its (\d+) sweep points computed", text)
+                    r"(\d+) of its (\d+) sweep points computed\. Each point", text)
     computed = int(re.search(r"; (\d+) point\(s\) computed", out).group(1))
     assert ran and int(ran.group(1)) == computed > 0 and int(ran.group(2)) > computed, ran
     cells = [c.strip() for l in text.splitlines() if l.startswith("|") for c in l.split("|")]
