@@ -502,3 +502,26 @@ def test_limits_from_the_cached_stats(tmp_path):
     assert want["limit"] == "trav-bound"
     assert (rows[0]["limiter.limit"], rows[0]["limiter.why"]) == (want["limit"], want["why"])
     assert "limiter.limit" not in rows[1]
+
+
+def test_table3_trend_needs_two_points(tmp_path):
+    """Table 3's trend compares two int-cache sizes (or two bandwidths): with only the 144 KB,
+    4-chip frame measured it says nothing, rather than "a 1× larger int-cache"; with 576 KB
+    measured too it compares them by the ±15 % rule."""
+    def row(kb, chips, fps):
+        return {"status": "ok", "scene": "scenes/ship.toml", "int_cache_kb": str(kb),
+                "mem_chips": str(chips), "fps": str(fps), "rtcs": "4", "backend": "chip",
+                "width": "1024", "height": "768", "job_seconds": "60"}
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
+
+    def trends(rows):
+        w = results.Writer(plan, results.Run(rows={"intcache": rows}), tmp_path / "img",
+                           tmp_path / "r.md")
+        w.trends()
+        return "\n".join(w.parts)
+    assert "Table 3" not in trends([row(144, 4, 15.4)])
+    text = trends([row(144, 4, 15.4), row(576, 4, 20.0), row(144, 8, 16.0)])
+    x, y = 20.0 / 15.4, 16.0 / 15.4
+    want = lambda v, p: "holds" if abs(v / p - 1) <= 0.15 else "differs"
+    assert (f"a 4× larger int-cache gives {x:.2f}× the fps (paper 1.31×): **{want(x, 1.31)}**; "
+            f"twice the bandwidth gives {y:.2f}× (paper 1.32×): **{want(y, 1.32)}**") in text
