@@ -758,8 +758,8 @@ slaves' FP pool, memory bandwidth, the bus, memory latency, back-pressure or sta
 
 `{scene}`, {_rtcs(rows)}, {rays_text(rows)}, at {_res(rows)}
 through the chip (`{self._spec('intcache')}`); int-cache {', '.join(f'{k} KB' for k in kbs)} ×
-{' and '.join(str(c) for c in chips)} SDRAM chips. In brackets: fps relative to the standard
-chip (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 4 RTCs, 1024×768.
+{' and '.join(str(c) for c in chips)} SDRAM chips. In brackets: fps relative to the paper's
+int-cache and bandwidth (144 KB, 4 chips) and the int-cache hit rate. Paper: CruiserGL, 4 RTCs, 1024×768.
 
 """ + _md_table(["bandwidth", *[f"{k} KB" for k in kbs], *[f"paper {k} KB" for k in kbs]],
                 body) + self.note("intcache") + f"\n\n{figure}")
