@@ -1292,10 +1292,14 @@ chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(
             ca, cd = found.get(CASES[0][0]), found.get(CASES[3][0])
             if ca and cd:          # measured on the chip
                 rr, cc = _grown(ca, cd)
+                v = verdict(cc / rr, paper_rc)
+                why = (f" (limits measured: eye rays {ca['limiter.limit']}, all rays "
+                       f"{cd['limiter.limit']})" if "differs" in v and ca.get("limiter.limit")
+                       and cd.get("limiter.limit") else "")
                 items.append(f"*Cost is about linear in the rays, whatever their kind* (Table 5; "
                              f"paper: 4.9× the rays for 4.5× the cost, {paper_rc:.2f} a ray). "
                              f"Ours on the chip: {rr:.2f}× the rays for {cc:.2f}× the cycles, "
-                             f"{cc / rr:.2f} a ray — {verdict(cc / rr, paper_rc)}.")
+                             f"{cc / rr:.2f} a ray — {v}{why}.")
             elif base and allr:
                 rr = _num(allr, "rays_total") / _num(base, "rays_total")
                 cc = (_ideal_cycles(_num(allr, "counters.trav_ops"),
