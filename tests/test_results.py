@@ -542,3 +542,28 @@ def test_table3_trend_needs_two_points(tmp_path):
     want = lambda v, p: "holds" if abs(v / p - 1) <= 0.15 else "differs"
     assert (f"a 4× larger int-cache gives {x:.2f}× the fps (paper 1.31×): **{want(x, 1.31)}**; "
             f"twice the bandwidth gives {y:.2f}× (paper 1.32×): **{want(y, 1.32)}**") in text
+
+
+def test_ray_cost_verdict_names_the_measured_limits(tmp_path):
+    """The chip's "cost is about linear in the rays" verdict: where it differs it names both
+    frames' measured limits (``limiter.limit``); where it holds, no reason."""
+    def row(depth, shadows, rays, cycles, limit):
+        return {"status": "ok", "scene": "scenes/office_large.toml", "backend": "chip",
+                "width": "1024", "height": "768", "oversampling": "1", "rtcs": "4",
+                "reflect_depth": str(depth), "shadows": str(shadows), "rays_total": str(rays),
+                "cycles": str(cycles), "limiter.limit": limit, "job_seconds": "60"}
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
+
+    def trend(cycles_all):
+        model = [{"status": "ok", "backend": "model", "reflect_depth": "0", "shadows": "False",
+                  "oversampling": "1"}]
+        chip = [row(0, False, 1000, 10_000, "slave-pool-bound"),
+                row(3, True, 4000, cycles_all, "int-bound")]
+        w = results.Writer(plan, results.Run(rows={"raykinds": model, "raykinds_chip": chip}),
+                           tmp_path / "img", tmp_path / "r.md")
+        w.trends()
+        text = "\n".join(w.parts)
+        return text[text.index("*Cost is about linear"):].split("\n")[0]
+    assert trend(12_000).endswith("0.30 a ray — **differs** (limits measured: eye rays "
+                                  "slave-pool-bound, all rays int-bound).")
+    assert trend(37_000).endswith("0.93 a ray — **holds**.")
