@@ -567,3 +567,34 @@ def test_ray_cost_verdict_names_the_measured_limits(tmp_path):
     assert trend(12_000).endswith("0.30 a ray — **differs** (limits measured: eye rays "
                                   "slave-pool-bound, all rays int-bound).")
     assert trend(37_000).endswith("0.93 a ray — **holds**.")
+
+
+def test_relative_performance_and_hit_rate_verdicts(tmp_path):
+    """Table 4's trend compares each scene's 4-RTC relative performance with the paper's and,
+    where it differs, names the frame's measured limit; Table 6's compares the office's hit
+    rates (all rays, no oversampling) with the paper's."""
+    plan = results.Plan(tmp_path / "plan.toml", "t", {"office_large": "Office"}, {}, None, None)
+
+    def trend(rel, hits, start):
+        rtc = [{"status": "ok", "scene": "scenes/office_large.toml", "backend": "chip",
+                "width": "1024", "height": "768", "rtcs": 4, "reflect_depth": "3",
+                "shadows": "True", "relative_performance": str(rel),
+                "limiter.limit": "slave-pool-bound", "fps": "20", "job_seconds": "60"}]
+        chip = [{"status": "ok", "scene": "scenes/office_large.toml", "backend": "chip",
+                 "width": "1024", "height": "768", "oversampling": "1", "rtcs": "4",
+                 "reflect_depth": "3", "shadows": "True", "cycles": "100",
+                 **{f"cache.{k}.hit_rate": str(h) for k, h in zip(("trav", "list", "int"), hits)}}]
+        w = results.Writer(plan, results.Run(rows={"rtcs": rtc, "raykinds_chip": chip}),
+                           tmp_path / "img", tmp_path / "r.md")
+        w.trends()
+        text = "\n".join(w.parts)
+        return text[text.index(start):].split("\n")[0]
+    rel = "*The chip reaches most"
+    assert trend(0.32, (0.9, 0.9, 0.9), rel).endswith(
+        "`office_large` 32 % (paper, Office: 68 %, **differs**; slave-pool-bound).")
+    assert trend(0.66, (0.9, 0.9, 0.9), rel).endswith(
+        "`office_large` 66 % (paper, Office: 68 %, **holds**).")
+    hit = "*Small caches hit"
+    assert trend(0.5, (0.908, 0.70, 0.971), hit).endswith(
+        "trav-cache 90.8 % (paper 89.9 %, **holds**); list-cache 70.0 % (paper 89.7 %, "
+        "**differs**); int-cache 97.1 % (paper 97.1 %, **holds**).")
