@@ -43,6 +43,7 @@ PLAN = ROOT / "scenes" / "sweeps" / "results" / "plan.toml"
 # ran (saarcor.sweep.code_hash) is the checkout's
 CACHE = ROOT / "scenes" / "sweeps" / "results" / "cache"
 PLAN_KEYS = ("title", "resolution_note", "class", "sweeps", "threads", "usage_scene", "note")
+NOTES = ("relative",)    # notes under a table no sweep is named after (Table 4)
 SWEEPS = ("rtcs", "rays", "intcache", "raykinds", "raykinds_chip", "oversampling", "scaling",
           "packets", "kddepth", "threads", "bus", "sdram", "ways", "presets", "refraction")
 HOLDS = 0.15            # a trend holds where our ratio is within 15 % of the paper's
@@ -119,6 +120,10 @@ def load_plan(path: str | Path) -> Plan:
     if bad:
         raise ResultsError(f"{path} [class]: {bad} are not the paper's scenes "
                            f"({', '.join(PAPER_SCENES)})")
+    bad = sorted(set(doc.get("note", {})) - set(SWEEPS) - set(NOTES))
+    if bad:
+        raise ResultsError(f"{path} [note]: unknown table(s) {', '.join(bad)}; a note goes under "
+                           f"one of {', '.join((*SWEEPS, *NOTES))}")
     thr = doc.get("threads")
     if thr is not None:
         thr = dict(thr, scene=str(path.parent / thr["scene"]))
@@ -713,7 +718,8 @@ counters measured it (`saarcor sim`'s limiter: a unit kind busy most of the cycl
 slaves' FP pool, memory bandwidth, the bus, memory latency, back-pressure or starvation;
 `docs/chip.md`). Paper: 1024×768, all rays.
 
-""" + _md_table(["scene", "1 RTC", "2 RTCs", "4 RTCs", "paper 1 RTC", "2", "4"], rel_body))
+""" + _md_table(["scene", "1 RTC", "2 RTCs", "4 RTCs", "paper 1 RTC", "2", "4"], rel_body)
+                 + self.note("relative"))
 
     # -- Table 3 -------------------------------------------------------------------------------
     def table3(self):

@@ -598,3 +598,14 @@ def test_relative_performance_and_hit_rate_verdicts(tmp_path):
     assert trend(0.5, (0.908, 0.70, 0.971), hit).endswith(
         "trav-cache 90.8 % (paper 89.9 %, **holds**); list-cache 70.0 % (paper 89.7 %, "
         "**differs**); int-cache 97.1 % (paper 97.1 %, **holds**).")
+
+
+def test_plan_note_under_an_unknown_table(tmp_path):
+    """A note keyed to a table the page does not have is an error naming the key, not a
+    paragraph silently dropped."""
+    p = tmp_path / "plan.toml"
+    p.write_text('[note]\nrelativ = "text"\n')
+    with pytest.raises(results.ResultsError, match=r"\[note\]: unknown table\(s\) relativ"):
+        results.load_plan(p)
+    p.write_text('[note]\nrelative = "text"\n')
+    assert results.load_plan(p).notes == {"relative": "text"}
