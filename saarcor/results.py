@@ -931,7 +931,10 @@ at {_res(rows)} through the chip (`{self._spec('refraction')}`), no shadow rays:
 (b) with reflections and refractions (`--refraction true`, a build option), every ray checked
 against the golden model. (No reflections-only case: with reflections the chip refuses a scene
 whose materials transmit unless it is built with refraction, since the golden model would trace
-refracted rays its slaves never make.) *Cost a ray* is the cycles over (a)'s
+refracted rays its slaves never make.) A hit on a material that reflects and transmits makes
+one reflected and one refracted ray (under total internal reflection the refracted ray is the
+mirror ray, still counted as refracted), so where only the glass reflects the two columns are
+equal. *Cost a ray* is the cycles over (a)'s
 divided by the rays over (a)'s: 1.00 is exactly linear (the paper's Table 5 has 0.92 for all
 its kinds together).
 
