@@ -1169,6 +1169,12 @@ words a cycle.
                  + f"\n\n{figure}")
 
     # -- beyond the paper -----------------------------------------------------------------------
+    def _perf(self, r) -> str:
+        """A chip row's relative performance, and in brackets its ideal bound and measured
+        limit (:func:`_why`)."""
+        why = _why(r)
+        return self.pcell(_num(r, "relative_performance")) + (f" ({why})" if why else "")
+
     def beyond(self):
         """What the paper states without a table, or leaves out, from four chip sweeps: where
         the bus saturates (``bus``: 1 to 16 RTCs), RTCs and SDRAM chips together (``sdram``),
@@ -1181,7 +1187,7 @@ words a cycle.
             base = _num(rows[0], "cycles") if int(rows[0]["rtcs"]) == 1 else None
             body = [[r["rtcs"], f"{int(_num(r, 'cycles')):,}", self.cell(_num(r, "fps"), "{:,.1f}"),
                      _f(base and base / _num(r, "cycles"), "{:.2f}×"),
-                     self.pcell(_num(r, "relative_performance")),
+                     self._perf(r),
                      self.cell(_num(r, "cache.trav.bus.busy"), "{:.3f}"),
                      self.pcell(_num(r, "cache.trav.bus.wait")),
                      self.pcell(_num(r, "cache.int.bus.wait"))] for r in rows]
@@ -1204,7 +1210,7 @@ nor the chip's output is the limit. *Bus busy*: requests the trav cache's bus ca
             body = [[r["rtcs"], r["mem_chips"], f"{int(_num(r, 'cycles')):,}",
                      self.cell(_num(r, "fps"), "{:,.1f}"),
                      _f(base and base / _num(r, "cycles"), "{:.2f}×"),
-                     self.pcell(_num(r, "relative_performance")),
+                     self._perf(r),
                      self.cell(_num(r, "memory.bandwidth_mb_s"), "{:,.0f}")] for r in rows]
             parts.append(f"""### RTCs and SDRAM chips together
 
@@ -1238,17 +1244,24 @@ set-associative (`cache_ways`): {_chip_name(rows)}, {_rtcs(rows)}, {rays_text(ro
         rows = _ok(self.run.rows.get("presets", []))
         if rows:
             rows.sort(key=lambda r: (_stem(r), _chip_name([r])))
-            body = [[f"`{_stem(r)}`", _chip_name([r])[4:], f"{int(_num(r, 'cycles')):,}",
-                     self.cell(_num(r, "fps"), "{:,.1f}"),
-                     self.pcell(_num(r, "relative_performance")) +
-                     (f" ({r['bound']})" if r.get("bound") else "")] for r in rows]
+            body = []
+            for r in rows:
+                base = next((x for x in rows if _stem(x) == _stem(r)
+                             and _chip_name([x]) == "the paper preset"), None)
+                body.append([f"`{_stem(r)}`", _chip_name([r])[4:], f"{int(_num(r, 'cycles')):,}",
+                             self.cell(_num(r, "fps"), "{:,.1f}"),
+                             _f(base and _num(base, "cycles") / _num(r, "cycles"), "{:.2f}×"),
+                             self._perf(r)])
             parts.append(f"""### The paper's chip beside ours
 
 The paper preset (the paper's cost: 192 FP units; `docs/paper-preset.md`) and the standard
 chip (a unit per operation in the slaves, the watertight triangle test), {_rtcs(rows)},
-{rays_text(rows, True)} at {_res(rows)} (`{self._spec('presets')}`).
+{rays_text(rows, True)} at {_res(rows)} (`{self._spec('presets')}`). *× paper preset*: the
+paper preset's cycles over the chip's for the same scene; in brackets the kind of unit the
+ideal is bound by and the frame's measured limit.
 
-""" + _md_table(["scene", "chip", "cycles", "fps", "relative performance"], body))
+""" + _md_table(["scene", "chip", "cycles", "fps", "× paper preset", "relative performance"],
+                body))
         if parts:
             self.add("## Beyond the paper\n\n" + "\n\n".join(p.strip("\n") for p in parts))
 

@@ -415,7 +415,8 @@ def test_beyond_the_paper(tmp_path):
                                        for k in ("trav", "list", "int")})
             for s, c0 in (("office_large", 2_000_000), ("conference_large", 3_000_000))
             for w, c in ((1, c0), (4, c0 - 100_000))]
-    presets = [row("office_large", 1_000_000, **std), row("office_large", 2_300_000)]
+    presets = [row("office_large", 1_000_000, **std),
+               row("office_large", 2_300_000, **{"limiter.limit": "slave-pool-bound"})]
     plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
     run = results.Run(rows={"bus": bus, "sdram": sdram, "ways": ways, "presets": presets})
     w = results.Writer(plan, run, tmp_path / "img", tmp_path / "r.md")
@@ -428,13 +429,15 @@ def test_beyond_the_paper(tmp_path):
     assert "16 SDRAM chips" in text and "(`(not in this plan)`)" in text
     t = table(text, "### RTCs and SDRAM chips together")
     assert t[1][:3] == ["2", "2", "4,500,000"] and t[1][4] == "2.00×" and t[1][6] == "180"
+    assert t[1][5] == "50.0 % (int-ops)"
     t = table(text, "### The caches' associativity")
     assert [r[:2] for r in t] == [["`conference_large`", "1"], ["`conference_large`", "4"],
                                   ["`office_large`", "1"], ["`office_large`", "4"]]
     assert t[3][4] == f"{2_000_000 / 1_900_000:.3f}×" and t[3][5] == "94.0 %"
     t = table(text, "### The paper's chip beside ours")
     assert [r[1:3] for r in t] == [["paper preset", "2,300,000"], ["standard chip", "1,000,000"]]
-    assert t[0][4] == "50.0 % (int-ops)"
+    assert [r[4] for r in t] == ["1.00×", "2.30×"]
+    assert [r[5] for r in t] == ["50.0 % (int-ops; slave-pool-bound)", "50.0 % (int-ops)"]
     w = results.Writer(plan, results.Run(rows={"ways": ways}), tmp_path / "img", tmp_path / "r.md")
     w.beyond()
     assert "### The caches' associativity" in w.parts[0] and "bus saturates" not in w.parts[0]
