@@ -1508,7 +1508,8 @@ paper's trends hold, and what the page costs. Regenerate with `make results` (or
 `saarcor results`; `--help` for options): every sweep point is kept, one JSON file each, in
 `{os.path.relpath(CACHE, ROOT)}` (in the repository), and a run computes only the points
 whose file is missing or ran other code (the key hashes the configuration, the scene's files,
-the frame and the sources of `rtl/`, `model/`, `tb/` and `saarcor/`); the chip's Verilator
+the frame and the sources of `rtl/`, `model/`, `tb/` and `saarcor/` but this page's writer,
+`saarcor/results.py`); the chip's Verilator
 binaries are built once per configuration.{self.pending_text()}
 
 **What is measured how.** Every *chip* figure is a frame through the whole chip (RGS, RTCs,
@@ -1520,7 +1521,7 @@ counters equal the model's on every frame checked). Estimates are marked as such
 {self.plan.resolution_note}
 
 Code: commit {self.commit or _commit()}, code hash `{sw.code_hash()}` (the sources of `rtl/`,
-`model/`, `tb/` and `saarcor/` every point ran: its cache key). {self.run_text(total_seconds, load)}
+`model/`, `tb/` and `saarcor/` but `saarcor/results.py`, every point ran: its cache key). {self.run_text(total_seconds, load)}
 """
         return head + "\n" + "\n".join(self.parts)
 
