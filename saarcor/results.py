@@ -742,7 +742,8 @@ slaves' FP pool, memory bandwidth, the bus, memory latency, back-pressure or sta
             gbs = Config(mem_chips=c).mem_bytes_per_s / 1e9
             body.append([f"{gbs:.2f} GB/s ({c} SDRAM chips)",
                          *[f"{self.cell(f, '{:,.2f}')} ({self.cell(r, '{:.2f}')}×, int hit "
-                           f"{self.pcell(h)})" for f, r, h in zip(fps, rel, hit)],
+                           f"{self.pcell(h)})" if f is not None else self.cell(None)
+                           for f, r, h in zip(fps, rel, hit)],
                          *[f"{PAPER_T3.get((k, c), float('nan')):.2f} "
                            f"({PAPER_T3.get((k, c), float('nan')) / PAPER_T3[(144, 4)]:.2f}×)"
                            for k in kbs]])

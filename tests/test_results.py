@@ -531,7 +531,7 @@ def test_table3_trend_needs_two_points(tmp_path):
     4-chip frame measured it says nothing, rather than "a 1× larger int-cache"; with 576 KB
     measured too it compares them by the ±15 % rule."""
     def row(kb, chips, fps):
-        return {"status": "ok", "scene": "scenes/ship.toml", "int_cache_kb": str(kb),
+        return {"status": "ok", "scene": "scenes/ship.toml", "int_cache_kb": kb,
                 "mem_chips": str(chips), "fps": str(fps), "rtcs": "4", "backend": "chip",
                 "width": "1024", "height": "768", "job_seconds": "60"}
     plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
@@ -621,3 +621,22 @@ def test_plan_note_under_an_unknown_table(tmp_path):
         results.load_plan(p)
     p.write_text('[note]\nrelative = "text"\n')
     assert results.load_plan(p).notes == {"relative": "text"}
+
+
+def test_table3_cell_not_run(tmp_path):
+    """A Table 3 cell whose point is not run yet shows as — beside the measured ones, and the
+    measured cells are relative to 144 KB with 4 chips."""
+    def row(kb, chips, fps):
+        return {"status": "ok", "scene": "scenes/ship.toml", "int_cache_kb": kb,
+                "mem_chips": chips, "fps": str(fps), "cache.int.hit_rate": "0.25",
+                "cycles": str(int(533e6 / fps)), "width": "1024", "height": "768",
+                "reflect_depth": "0", "shadows": "True", "backend": "chip", "rtcs": "4",
+                "int_test": "projection", "rgs_fp_pool": "True"}
+    rows = [row(144, 4, 10.0), row(288, 4, 12.0), row(144, 8, 15.0)]
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
+    w = results.Writer(plan, results.Run(rows={"intcache": rows}), tmp_path / "img",
+                       tmp_path / "r.md")
+    w.table3()
+    t = table("\n".join(w.parts), "## Table 3")
+    assert [r[1:3] for r in t] == [["10.00 (1.00×, int hit 25.0 %)", "12.00 (1.20×, int hit 25.0 %)"],
+                                   ["15.00 (1.50×, int hit 25.0 %)", "—"]]
