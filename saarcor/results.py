@@ -471,6 +471,19 @@ def _frame(r):
     return int(r["width"]), int(r["height"])
 
 
+def _main_frame(rows):
+    """The frame of a sweep's page rows: 1024x768 where any row has it, else the commonest."""
+    fs = [_frame(r) for r in rows]
+    if not fs:
+        return None
+    return (1024, 768) if (1024, 768) in fs else max(sorted(set(fs)), key=fs.count)
+
+
+def _at(rows, frame):
+    """The rows of ``rows`` at ``frame`` (width, height)."""
+    return [r for r in rows if _frame(r) == frame]
+
+
 def chip_cases(rows) -> dict:
     """The chip's office cases of Table 5 among ok ``rows``: ``{case name: row}`` for the
     :data:`CASES` found. The frame is the smallest resolution of the rows; (e) is that frame
@@ -642,49 +655,77 @@ paper's columns are for 1024×768.
 
     # -- Table 2 and 4 -------------------------------------------------------------------------
     def table2(self):
-        rows = self.run.rows.get("rtcs", [])
-        if not rows:
+        all_rows = self.run.rows.get("rtcs", [])
+        if not all_rows:
             return
-        body, rel_body, fig_data = [], [], {}
+        main = _main_frame(all_rows)
+        rows = _at(all_rows, main)          # the page's frame; a scene's smaller frame below
+        body, rel_body, fig_data, smaller = [], [], {}, []
         for ours, paper in self.plan.classes.items():
-            if not any(_stem(r) == ours for r in rows):
+            mine = [r for r in all_rows if _stem(r) == ours]
+            if not mine:
                 continue
-            pts = [_one(rows, scene=ours, rtcs=n) for n in RTCS]
-            planned = [any(_stem(r) == ours and r.get("rtcs") == n for r in rows) for n in RTCS]
-            fps = [_num(p, "fps") for p in pts]
-            rays = [_num(p, "rays_total") for p in pts]
-            mr = [f * r / 1e6 if f and r else None for f, r in zip(fps, rays)]
-            pr = [f * PAPER_SCENES[paper][3] / 1e6 for f in PAPER_FPS[paper]]
-            n_rays = next((x for x in rays if x), None)     # the same frame on every chip
-            n_sec = next((_secondary_rays(p) for p in pts if p), None)
-            body.append([f"`{ours}` ({paper})",
-                         self.cell(n_rays, "{:,.0f}"),
-                         self.cell(n_rays and n_sec is not None and n_sec / n_rays, "{:.0%}"),
-                         *[self.cell(x, "{:,.2f}", q) for x, q in zip(fps, planned)],
-                         *[self.cell(x, "{:.1f}", q) for x, q in zip(mr, planned)],
-                         *[f"{x:.1f}" for x in pr],
-                         f"{PAPER_SCENES[paper][3]:,}",
-                         *[f"{x:.2f}" for x in PAPER_FPS[paper]]])
-            rel = [_num(p, "relative_performance") for p in pts]
-            bound = [_why(p) for p in pts]
-            rel_body.append([f"`{ours}` ({paper})",
-                             *[(self.pcell(x) + (f" ({b})" if b else "")) if q else "not run"
-                               for x, b, q in zip(rel, bound, planned)],
-                             *[f"{100 * x:.0f} %" for x in PAPER_REL[paper]]])
-            fig_data[ours] = (paper, mr, pr)
+            frames = [main] + sorted({_frame(r) for r in mine} - {main}, reverse=True)
+            for frame in frames:
+                at = _at(mine, frame)
+                if not at and frame == main:
+                    continue
+                other = frame != main
+                if other:
+                    smaller.append((ours, frame))
+                label = f"`{ours}` ({paper})" + (f", {frame[0]}×{frame[1]}" if other else "")
+                pts = [_one(at, rtcs=n) for n in RTCS]
+                planned = [any(r.get("rtcs") == n for r in at) for n in RTCS]
+                moved = [not q and any(r.get("rtcs") == n for r in mine) for q, n in
+                         zip(planned, RTCS)]      # run at the smaller frame only
+                fps = [_num(p, "fps") for p in pts]
+                rays = [_num(p, "rays_total") for p in pts]
+                mr = [f * r / 1e6 if f and r else None for f, r in zip(fps, rays)]
+                pr = [f * PAPER_SCENES[paper][3] / 1e6 for f in PAPER_FPS[paper]]
+                n_rays = next((x for x in rays if x), None)     # the same frame on every chip
+                n_sec = next((_secondary_rays(p) for p in pts if p), None)
+
+                def c(x, fmt, q, m):
+                    return "smaller frame ↓" if m else self.cell(x, fmt, q)
+                body.append([label,
+                             self.cell(n_rays, "{:,.0f}"),
+                             self.cell(n_rays and n_sec is not None and n_sec / n_rays, "{:.0%}"),
+                             *[c(x, "{:,.2f}", q, m) for x, q, m in zip(fps, planned, moved)],
+                             *[c(x, "{:.1f}", q, m) for x, q, m in zip(mr, planned, moved)],
+                             *[f"{x:.1f}" for x in pr],
+                             f"{PAPER_SCENES[paper][3]:,}",
+                             *[f"{x:.2f}" for x in PAPER_FPS[paper]]])
+                rel = [_num(p, "relative_performance") for p in pts]
+                bound = [_why(p) for p in pts]
+                rel_body.append([label,
+                                 *["smaller frame ↓" if m else
+                                   (self.pcell(x) + (f" ({b})" if b else "")) if q else "not run"
+                                   for x, b, q, m in zip(rel, bound, planned, moved)],
+                                 *[f"{100 * x:.0f} %" for x in PAPER_REL[paper]]])
+                fig_data[ours + (f" {frame[0]}×{frame[1]}" if other else "")] = (paper, mr, pr)
         res = _res(rows)
         frac = _frac(rows)
         frac_text = ("" if all(_frame(r) == (1024, 768) for r in rows) else
                      f"; a frame of {frac} of the paper's pixels (a smaller one starts with "
                      "cold caches for more of its rays)")
+        if smaller:
+            frac_text += ("; " + ", ".join(f"`{s}`" for s in sorted({s for s, _ in smaller}))
+                          + " also at " + ", ".join(sorted({f"{w}×{h}" for _, (w, h) in smaller}))
+                          + " (" + _frac(_at(all_rows, smaller[0][1])) + " of the paper's "
+                          "pixels), a row that compares with itself across the RTCs, not with "
+                          f"the {res} rows: a smaller frame starts with cold caches for more of "
+                          "its rays, and its rays are less coherent")
         kinds = rays_text(rows)
         plt = _plt()
         fig, ax = plt.subplots(1, 2, figsize=(11, 4))
+        drawn = set()
         for ours, (paper, mr, pr) in fig_data.items():
             if mr[0]:
                 ax[0].plot(RTCS, [x / mr[0] if x else float("nan") for x in mr], "o-",
                            label=f"{ours}")
-            ax[1].plot(RTCS, [x / pr[0] for x in pr], "s--", label=paper)
+            if paper not in drawn:
+                drawn.add(paper)
+                ax[1].plot(RTCS, [x / pr[0] for x in pr], "s--", label=paper)
         short = "eye rays" if kinds == "eye rays only" else "all rays"
         for a, t in zip(ax, (f"our chip, {short}, {res}", "paper, 1024×768, all rays")):
             a.plot(RTCS, RTCS, "k:", label="linear")
@@ -1113,6 +1154,7 @@ as three): the least cost is {least}.
 
     def usage(self):
         rows = self.run.rows.get("rtcs", [])
+        rows = _at(rows, _main_frame(rows))
         scene = self.plan.usage_scene
         r = _one(rows, scene=scene, rtcs=4) if scene else None
         if r is None:
@@ -1273,17 +1315,31 @@ ideal is bound by and the frame's measured limit.
 
         def verdict(ours, paper):
             return ("**holds**" if abs(ours / paper - 1) <= HOLDS else "**differs**")
-        rows = self.run.rows.get("rtcs", [])
+        every = self.run.rows.get("rtcs", [])
+        main = _main_frame(every)
+        rows = _at(every, main)
+
+        def pair(ours, counts=(1, 4)):
+            """(the scene's rows with ``counts`` RTCs, " at WxH" when not the page's frame):
+            the page's frame where all ran, else a smaller frame where all did."""
+            frames = [main] + sorted({_frame(r) for r in every if _stem(r) == ours} - {main},
+                                     reverse=True)
+            for fr in frames:
+                p = [_one(_at(every, fr), scene=ours, rtcs=n) for n in counts]
+                if all(p):
+                    return p, ("" if fr == main else f" at {fr[0]}×{fr[1]}")
+            return None, ""
         sp = []
         for ours, cls in self.plan.classes.items():
-            f = [_num(_one(rows, scene=ours, rtcs=n), "fps") for n in (1, 4)]
+            p, at = pair(ours)
+            f = [_num(x, "fps") for x in p] if p else [None]
             if all(f) and cls in PAPER_FPS:
                 paper = PAPER_FPS[cls][2] / PAPER_FPS[cls][0]
                 v = verdict(f[1] / f[0], paper)
-                lim = _one(rows, scene=ours, rtcs=4) or {}
+                lim = p[1]
                 why = (f"; 4 RTCs {lim['limiter.limit']}" if "differs" in v
                        and lim.get("limiter.limit") else "")
-                sp.append(f"`{ours}` {f[1] / f[0]:.2f}× (paper, {cls}: {paper:.2f}×, "
+                sp.append(f"`{ours}`{at} {f[1] / f[0]:.2f}× (paper, {cls}: {paper:.2f}×, "
                           f"{v}{why})")
         if sp:
             items.append(f"*Performance scales almost linearly with the RTCs, except where "
@@ -1291,13 +1347,14 @@ ideal is bound by and the frame's measured limit.
                          f"{rays_text(rows, True)}, at {_res(rows)}: " + "; ".join(sp) + ".")
         rel = []
         for ours, cls in self.plan.classes.items():
-            p = _one(rows, scene=ours, rtcs=4)
+            p, at = pair(ours, (4,))
+            p = p[0] if p else None
             x = _num(p, "relative_performance")
             if x and cls in PAPER_REL:
                 v = verdict(x, PAPER_REL[cls][2])
                 why = (f"; {p['limiter.limit']}" if "differs" in v and p.get("limiter.limit")
                        else "")
-                rel.append(f"`{ours}` {100 * x:.0f} % (paper, {cls}: "
+                rel.append(f"`{ours}`{at} {100 * x:.0f} % (paper, {cls}: "
                            f"{100 * PAPER_REL[cls][2]:.0f} %, {v}{why})")
         if rel:
             items.append("*The chip reaches most of the performance its operations allow: 59–80 "
