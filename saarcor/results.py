@@ -421,6 +421,17 @@ def _why(row) -> str:
     return "; ".join(parts)
 
 
+def _streams(rows) -> str:
+    """The result streams of ``rows``: "4 result streams", or "1 to 4 result streams (as many
+    as the RTCs, up to 4)" where they grow with the RTCs."""
+    n = sorted({int(r.get("result_ports") or 1) for r in rows})
+    if len(n) == 1:
+        return f"{n[0]} result stream" + ("s" if n[0] > 1 else "")
+    grows = all(int(r.get("result_ports") or 1) == min(int(r["rtcs"]), n[-1]) for r in rows)
+    return (f"{n[0]} to {n[-1]} result streams"
+            + (f" (as many as the RTCs, up to {n[-1]})" if grows else ""))
+
+
 def _cap(text: str) -> str:
     return text[:1].upper() + text[1:]
 
@@ -1240,12 +1251,13 @@ The paper (Section 4.2.2): the bus between the RTCs and the shared caches "will 
 many RTCs increase the bandwidth requirements to the caches beyond the bus capacity …
 with 8 to 16 RTCs". {_cap(_chip_name(rows))}{_preset_text(rows)}, {rays_text(rows, True)} of
 {_scenes(rows)} at {_res(rows)}, with {_rtcs(rows)}, {rows[0].get('mem_chips')} SDRAM chips and
-{rows[0].get('result_ports')} result streams (`{self._spec('bus')}`), so that neither memory
+{_streams(rows)} (`{self._spec('bus')}`), so that neither memory
 nor the chip's output is the limit. *Bus busy*: requests the trav cache's bus carries a cycle;
 *waited*: cycles a request waited for it.
 
 """ + _md_table(["RTCs", "cycles", "fps", "speed-up", "relative performance",
-                 "trav bus busy", "trav bus waited", "int bus waited"], body))
+                 "trav bus busy", "trav bus waited", "int bus waited"], body)
+                         + self.note("bus"))
         rows = _ok(self.run.rows.get("sdram", []))
         if rows:
             rows.sort(key=lambda r: (int(r["rtcs"]), int(r["mem_chips"])))

@@ -436,6 +436,7 @@ def test_beyond_the_paper(tmp_path):
     assert t[2][1:4] == ["500,000", f"{533e6 / 500_000:,.1f}", "16.00×"]
     assert t[2][5:8] == ["0.640", "76.8 %", "3.2 %"]
     assert "16 SDRAM chips" in text and "(`(not in this plan)`)" in text
+    assert "1 to 4 result streams (as many as the RTCs, up to 4)" in text
     t = table(text, "### RTCs and SDRAM chips together")
     assert t[1][:3] == ["2", "2", "4,500,000"] and t[1][4] == "2.00×" and t[1][6] == "180"
     assert t[1][5] == "50.0 % (int-ops)"
