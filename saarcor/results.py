@@ -1472,6 +1472,20 @@ ideal is bound by and the frame's measured limit.
                 got += f"; what limits {top['threads']} threads: {top['limit']}"
             if got:
                 items.append(f"*Multi-threading hides memory latency*. Ours ({where}): {got}.")
+        bus = {int(r["rtcs"]): r for r in _ok(self.run.rows.get("bus", []))}
+        if 8 in bus and 16 in bus:
+            x = _num(bus[8], "cycles") / _num(bus[16], "cycles")
+            v = "**holds**" if x / 2 < 1 - HOLDS else "**differs**"
+            b = bus[16]
+            why = (f"; 16 RTCs {b['limiter.limit']}" if "differs" in v
+                   and b.get("limiter.limit") else "")
+            items.append(
+                "*The round-robin bus breaks with 8 to 16 RTCs* (Section 4.2.2; *breaks*: 8 to 16 "
+                f"RTCs gain less than {2 * (1 - HOLDS):.1f}×, linear less {100 * HOLDS:.0f} %). "
+                f"Ours ({_chip_name([b])}, {_scenes([b])}, {rays_text([b], True)}): 16 RTCs "
+                f"{x:.2f}× the 8 RTCs' speed, the trav cache's bus "
+                f"{_f(_num(b, 'cache.trav.bus.busy'), '{:.2f}')} requests a cycle, waited "
+                f"{_pct(_num(b, 'cache.trav.bus.wait'))} — {v}{why}.")
         if items:
             self.add("## Which of the paper's trends hold\n\nComputed from the tables above. "
                      f"A trend **holds** where our ratio is within ±{100 * HOLDS:.0f} % of the "

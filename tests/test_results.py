@@ -678,3 +678,32 @@ def test_table2_smaller_frame_row(tmp_path):
     assert "`outdoor_above` at 512×384 1.38× (paper, BQD-2:" in text
     t4 = table(text, "## Table 4")
     assert t4[0][3] == "smaller frame ↓" and t4[1][3] == "50.0 % (memory-bandwidth-bound)"
+
+
+def test_bus_trend_verdict(tmp_path):
+    """The bus trend (Section 4.2.2: the bus breaks with 8 to 16 RTCs) holds where 16 RTCs gain
+    less than 1.7x over 8 (linear less 15 %), and where it differs names the 16-RTC frame's
+    measured limit."""
+    def row(n, cycles):
+        return {"status": "ok", "scene": "scenes/game.toml", "rtcs": n, "cycles": str(cycles),
+                "width": "1024", "height": "768", "reflect_depth": "0", "shadows": "False",
+                "backend": "chip", "int_test": "projection", "rgs_fp_pool": "True",
+                "cache.trav.bus.busy": "0.5", "cache.trav.bus.wait": "0.9",
+                "limiter.limit": "slave-pool-bound"}
+    plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
+
+    def trend(c16):
+        w = results.Writer(plan, results.Run(rows={"bus": [row(8, 1000), row(16, c16)]}),
+                           tmp_path / "img", tmp_path / "r.md")
+        w.trends()
+        text = "\n".join(w.parts)
+        return text[text.index("*The round-robin bus breaks"):].split("\n")[0]
+    assert trend(800).endswith("16 RTCs 1.25× the 8 RTCs' speed, the trav cache's bus 0.50 "
+                               "requests a cycle, waited 90.0 % — **holds**.")
+    assert trend(500).endswith("2.00× the 8 RTCs' speed, the trav cache's bus 0.50 requests a "
+                               "cycle, waited 90.0 % — **differs**; 16 RTCs slave-pool-bound.")
+    assert "the paper preset, `game`, eye rays only" in trend(500)
+    w = results.Writer(plan, results.Run(rows={"bus": [row(8, 1000)]}), tmp_path / "img",
+                       tmp_path / "r.md")
+    w.trends()
+    assert "round-robin bus breaks" not in "\n".join(w.parts)
