@@ -687,8 +687,9 @@ paper's columns are for 1024×768.
                 label = f"`{ours}` ({paper})" + (f", {frame[0]}×{frame[1]}" if other else "")
                 pts = [_one(at, rtcs=n) for n in RTCS]
                 planned = [any(r.get("rtcs") == n for r in at) for n in RTCS]
-                moved = [not q and any(r.get("rtcs") == n for r in mine) for q, n in
-                         zip(planned, RTCS)]      # run at the smaller frame only
+                moved = [not other and not q and any(r.get("rtcs") == n and _frame(r) != main
+                                                     for r in mine)
+                         for q, n in zip(planned, RTCS)]      # run at a smaller frame only
                 fps = [_num(p, "fps") for p in pts]
                 rays = [_num(p, "rays_total") for p in pts]
                 mr = [f * r / 1e6 if f and r else None for f, r in zip(fps, rays)]

@@ -678,6 +678,13 @@ def test_table2_smaller_frame_row(tmp_path):
     assert "`outdoor_above` at 512×384 1.38× (paper, BQD-2:" in text
     t4 = table(text, "## Table 4")
     assert t4[0][3] == "smaller frame ↓" and t4[1][3] == "50.0 % (memory-bandwidth-bound)"
+    # the smaller frame's points not run yet are "not run" there, never an arrow
+    w = results.Writer(plan, results.Run(rows={"rtcs": rows[:3]}), tmp_path / "img",
+                       tmp_path / "r.md")
+    w.table2()
+    t = table("\n".join(w.parts), "## Table 2")
+    assert t[0][3:6] == ["4.00", "5.00", "not run"]
+    assert t[1][3:6] == ["16.00", "not run", "not run"]
 
 
 def test_bus_trend_verdict(tmp_path):
