@@ -566,6 +566,14 @@ def test_table3_trend_needs_two_points(tmp_path):
             f"{p288:.2f}×): **{want(16.0 / 15.4, p288)}**.") in text
 
 
+def trend_line(plan, rows, start, tmp_path) -> str:
+    """The line of the page's trends that starts with ``start``, from a Writer on ``rows``."""
+    w = results.Writer(plan, results.Run(rows=rows), tmp_path / "img", tmp_path / "r.md")
+    w.trends()
+    text = "\n".join(w.parts)
+    return text[text.index(start):].split("\n")[0]
+
+
 def test_ray_cost_verdict_names_the_measured_limits(tmp_path):
     """The chip's "cost is about linear in the rays" verdict: where it differs it names both
     frames' measured limits (``limiter.limit``); where it holds, no reason."""
@@ -581,11 +589,8 @@ def test_ray_cost_verdict_names_the_measured_limits(tmp_path):
                   "oversampling": "1"}]
         chip = [row(0, False, 1000, 10_000, "slave-pool-bound"),
                 row(3, True, 4000, cycles_all, "int-bound")]
-        w = results.Writer(plan, results.Run(rows={"raykinds": model, "raykinds_chip": chip}),
-                           tmp_path / "img", tmp_path / "r.md")
-        w.trends()
-        text = "\n".join(w.parts)
-        return text[text.index("*Cost is about linear"):].split("\n")[0]
+        return trend_line(plan, {"raykinds": model, "raykinds_chip": chip},
+                          "*Cost is about linear", tmp_path)
     assert trend(12_000).endswith("0.30 a ray — **differs** (limits measured: eye rays "
                                   "slave-pool-bound, all rays int-bound).")
     assert trend(37_000).endswith("0.93 a ray — **holds**.")
@@ -606,11 +611,7 @@ def test_relative_performance_and_hit_rate_verdicts(tmp_path):
                  "width": "1024", "height": "768", "oversampling": "1", "rtcs": "4",
                  "reflect_depth": "3", "shadows": "True", "cycles": "100",
                  **{f"cache.{k}.hit_rate": str(h) for k, h in zip(("trav", "list", "int"), hits)}}]
-        w = results.Writer(plan, results.Run(rows={"rtcs": rtc, "raykinds_chip": chip}),
-                           tmp_path / "img", tmp_path / "r.md")
-        w.trends()
-        text = "\n".join(w.parts)
-        return text[text.index(start):].split("\n")[0]
+        return trend_line(plan, {"rtcs": rtc, "raykinds_chip": chip}, start, tmp_path)
     rel = "*The chip reaches most"
     assert trend(0.32, (0.9, 0.9, 0.9), rel).endswith(
         "`office_large` 32 % (paper, Office: 68 %, **differs**; slave-pool-bound).")
@@ -700,11 +701,8 @@ def test_bus_trend_verdict(tmp_path):
     plan = results.Plan(tmp_path / "plan.toml", "t", {}, {}, None, None)
 
     def trend(c16):
-        w = results.Writer(plan, results.Run(rows={"bus": [row(8, 1000), row(16, c16)]}),
-                           tmp_path / "img", tmp_path / "r.md")
-        w.trends()
-        text = "\n".join(w.parts)
-        return text[text.index("*The round-robin bus breaks"):].split("\n")[0]
+        return trend_line(plan, {"bus": [row(8, 1000), row(16, c16)]},
+                          "*The round-robin bus breaks", tmp_path)
     assert trend(800).endswith("16 RTCs 1.25× the 8 RTCs' speed, the trav cache's bus 0.50 "
                                "requests a cycle, waited 90.0 % — **holds**.")
     assert trend(500).endswith("2.00× the 8 RTCs' speed, the trav cache's bus 0.50 requests a "
