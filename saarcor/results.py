@@ -490,6 +490,13 @@ def _main_frame(rows):
     return (1024, 768) if (1024, 768) in fs else max(sorted(set(fs)), key=fs.count)
 
 
+def _scene_frames(rows, scene, main):
+    """The frames ``scene`` ran at among ``rows``: the page's frame ``main`` first, then the
+    others from the largest down."""
+    return [main] + sorted({_frame(r) for r in rows if _stem(r) == scene} - {main},
+                           reverse=True)
+
+
 def _at(rows, frame):
     """The rows of ``rows`` at ``frame`` (width, height)."""
     return [r for r in rows if _frame(r) == frame]
@@ -676,8 +683,7 @@ paper's columns are for 1024×768.
             mine = [r for r in all_rows if _stem(r) == ours]
             if not mine:
                 continue
-            frames = [main] + sorted({_frame(r) for r in mine} - {main}, reverse=True)
-            for frame in frames:
+            for frame in _scene_frames(mine, ours, main):
                 at = _at(mine, frame)
                 if not at and frame == main:
                     continue
@@ -1335,9 +1341,7 @@ ideal is bound by and the frame's measured limit.
         def pair(ours, counts=(1, 4)):
             """(the scene's rows with ``counts`` RTCs, " at WxH" when not the page's frame):
             the page's frame where all ran, else a smaller frame where all did."""
-            frames = [main] + sorted({_frame(r) for r in every if _stem(r) == ours} - {main},
-                                     reverse=True)
-            for fr in frames:
+            for fr in _scene_frames(every, ours, main):
                 p = [_one(_at(every, fr), scene=ours, rtcs=n) for n in counts]
                 if all(p):
                     return p, ("" if fr == main else f" at {fr[0]}×{fr[1]}")
