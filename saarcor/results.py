@@ -1580,9 +1580,11 @@ and 2-worker timing.
         if not n:
             return ""
         done = sum(len(v) for v in self.run.rows.values())
-        return (f"\n\n**Not complete: {done} of {done + n} points measured.** The {n} points "
-                "not run yet show as — (or are absent from a plot); the last section lists them. "
-                "Nothing on this page stands in for them.")
+        them, show, are, it = ((f"The {n} points", "show", "are", "them") if n > 1 else
+                               ("The point", "shows", "is", "it"))
+        return (f"\n\n**Not complete: {done} of {done + n} points measured.** {them} not run "
+                f"yet {show} as — (or {are} absent from a plot); the last section lists {it}. "
+                f"Nothing on this page stands in for {it}.")
 
     def render(self, total_seconds: float, load: tuple) -> str:
         head = f"""# {self.plan.title}
