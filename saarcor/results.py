@@ -478,6 +478,13 @@ def rays_text(rows, short: bool = False) -> str:
     return "eye rays, and where the row says so shadow and reflection rays"
 
 
+def _refracted(r):
+    """A frame's refracted rays: none where the chip was built without refraction (its
+    stats then have no such count)."""
+    n = _num(r, "rays.refraction")
+    return 0 if n is None and r is not None and not _true(r.get("refraction")) else n
+
+
 def _frame(r):
     return int(r["width"]), int(r["height"])
 
@@ -974,7 +981,7 @@ Paper: Office, 1024×768, all rays.
             cost_x = _num(r, "cycles") / _num(a, "cycles") if r and a else None
             body.append([name, self.cell(n, "{:,.0f}"),
                          self.cell(_num(r, "rays.reflection"), "{:,.0f}"),
-                         self.cell(_num(r, "rays.refraction"), "{:,.0f}"),
+                         self.cell(_refracted(r), "{:,.0f}"),
                          self.cell(_num(r, "cycles"), "{:,.0f}"),
                          self.cell(_num(r, "fps"), "{:,.1f}"),
                          self.cell(rays_x, "{:.2f}×"), self.cell(cost_x, "{:.2f}×"),

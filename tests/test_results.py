@@ -32,8 +32,9 @@ def fake_chip_stats(cfg: Config, eye: int) -> dict:
     """Plausible figures of a chip frame of ``eye`` eye rays and the shadow (3 lights) and
     reflection rays its configuration asks for, different for every configuration."""
     kinds = {"eye": eye, "shadow": 3 * eye if cfg.shadows else 0,
-             "reflection": eye // 8 if cfg.reflect_depth else 0,
-             "refraction": eye // 16 if cfg.reflect_depth and cfg.refraction else 0}
+             "reflection": eye // 8 if cfg.reflect_depth else 0}
+    if cfg.refraction:              # a chip built without refraction has no such count
+        kinds["refraction"] = eye // 16 if cfg.reflect_depth else 0
     rays = sum(kinds.values())
     cycles = 40_000 // cfg.rtcs + 9_000 * 144 // cfg.int_cache_kb + 3_000 * 4 // cfg.mem_chips
     cycles = cycles * rays // 256 + 7 * cfg.reflect_depth + 5 * cfg.refraction
